@@ -1,0 +1,147 @@
+"""The one small interface every device backend implements.
+
+A ``Device`` is opened from a URL-like string by ``magcal.devices.open_device`` and then:
+
+    ident = dev.open()                 # connect, identify → Identity
+    dev.start(rate_hz)                 # start measuring/streaming
+    for item in dev.read(timeout_s):   # Sample or Event, in arrival order
+        ...
+    dev.stop()
+    dev.read_calibration()             # → Calibration | None (None: nothing stored)
+    dev.write_calibration(cal)         # store; returns the calibration read back from the store
+    dev.close()
+
+Backends implement the underscored hooks; the base class owns counters and the "closed"
+state, and turns a device that cannot store a calibration into a clear error. Backends differ
+only in transport: the v1 serial protocol (serial ports, ``sim://``, ``replay://``, the emulated
+board), the MotionCal dialect, and direct I2C.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Iterable, Union
+
+from ..calibration import Calibration
+from ..errors import DeviceError
+from ..sample import Sample
+
+
+@dataclass(frozen=True)
+class Identity:
+    """Who answered: protocol and firmware versions, chip IDs, the ASA bytes, the rate."""
+
+    transport: str
+    proto: int = 1
+    firmware: str = ""
+    who_am_i: int | None = None
+    wia: int | None = None
+    asa: tuple[int, int, int] = (128, 128, 128)
+    rate_hz: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = {
+            "transport": self.transport,
+            "proto": self.proto,
+            "firmware": self.firmware,
+            "who_am_i": None if self.who_am_i is None else f"0x{self.who_am_i:02X}",
+            "wia": None if self.wia is None else f"0x{self.wia:02X}",
+            "asa": list(self.asa),
+            "rate_hz": self.rate_hz,
+        }
+        d.update(self.extra)
+        return d
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that happened on the link other than a sample.
+
+    kind: ``reset`` (device restarted; ``detail`` says how it was seen), ``gap`` (``count``
+    lines lost before ``seq``), ``rejected`` (a sample flagged invalid by the device), ``log``.
+    """
+
+    kind: str
+    seq: int | None = None
+    count: int = 0
+    detail: str = ""
+
+
+Item = Union[Sample, Event]
+
+
+class Device(ABC):
+    url: str = ""
+    can_store: bool = True  # False for read-only sources (replay, CSV)
+
+    def __init__(self, url: str):
+        self.url = url
+        self.identity: Identity | None = None
+        self.counters: Counter = Counter()
+        self._closed = False
+
+    # -- public surface --------------------------------------------------------------------
+    def open(self) -> Identity:
+        self.identity = self._open()
+        return self.identity
+
+    def start(self, rate_hz: int | None = None) -> None:
+        self._start(rate_hz)
+
+    def stop(self) -> None:
+        self._stop()
+
+    def read(self, timeout_s: float = 0.1) -> list[Item]:
+        """Whatever arrived within ``timeout_s`` (possibly nothing). Never raises for bad
+        input on the link: that becomes counters and events. Raises PortUnavailable when
+        the port has gone away, and EOFError at the end of a finite source."""
+        return list(self._read(timeout_s))
+
+    def read_calibration(self) -> Calibration | None:
+        return self._read_calibration()
+
+    def write_calibration(self, cal: Calibration) -> Calibration:
+        """Store ``cal`` and return what the store holds afterwards (read back). The caller
+        compares the two; a backend never claims success it has not read back."""
+        if not self.can_store:
+            raise DeviceError(f"{self.url}: this source cannot store a calibration")
+        return self._write_calibration(cal)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._close()
+
+    def stats(self) -> dict:
+        return dict(self.counters)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- backend hooks ---------------------------------------------------------------------
+    @abstractmethod
+    def _open(self) -> Identity: ...
+
+    @abstractmethod
+    def _start(self, rate_hz: int | None) -> None: ...
+
+    @abstractmethod
+    def _stop(self) -> None: ...
+
+    @abstractmethod
+    def _read(self, timeout_s: float) -> Iterable[Item]: ...
+
+    @abstractmethod
+    def _read_calibration(self) -> Calibration | None: ...
+
+    def _write_calibration(self, cal: Calibration) -> Calibration:
+        raise DeviceError(f"{self.url}: this backend cannot store a calibration")
+
+    @abstractmethod
+    def _close(self) -> None: ...
