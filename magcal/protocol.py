@@ -325,6 +325,32 @@ class Framer:
             out.append(Gap(msg.seq, lost))
 
 
+def parse_command(line: bytes) -> tuple[str, int, tuple[bytes, ...]]:
+    """A host command line (device side): (letter, tag, raw argument tokens).
+
+    Raises ParseError with one of the protocol's error codes as its message: CRC, SYNTAX, LONG."""
+    line = line.rstrip(b"\r\n")
+    if len(line) + 1 > MAX_LINE:
+        raise ParseError("LONG")
+    star = line.rfind(b"*")
+    if not line.startswith(b"$") or star < 0 or len(line) - star != 3:
+        raise ParseError("SYNTAX")
+    payload = line[1:star]
+    try:
+        if crc8(payload) != int(line[star + 1 :], 16):
+            raise ParseError("CRC")
+    except ValueError:
+        raise ParseError("SYNTAX") from None
+    toks = payload.split(b",")
+    if len(toks) < 2 or len(toks[0]) != 1:
+        raise ParseError("SYNTAX")
+    try:
+        tag = _int(toks[1])
+    except ParseError:
+        raise ParseError("SYNTAX") from None
+    return toks[0].decode("ascii", "replace"), tag, tuple(toks[2:])
+
+
 # -- encoding -----------------------------------------------------------------------------
 def encode_line(kind: str, fields: Sequence) -> bytes:
     payload = ",".join([kind, *(str(f) for f in fields)]).encode("ascii")
