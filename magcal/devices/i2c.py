@@ -1,0 +1,545 @@
+"""The ``i2c:`` backend: an MPU-9150 straight on a Linux I2C bus (smbus2), no Arduino.
+
+Port strings: ``i2c:1`` (``/dev/i2c-1``), ``i2c:/dev/i2c-1``, ``i2c:1?addr=0x69`` (AD0 high),
+``i2c:1?addr=0x69&rate=50``.
+
+What the host does (register facts: docs in ``hardware.md``, AK8975 datasheet MS1187-E-02):
+
+1. Bring-up: ``WHO_AM_I`` (0x75) must read 0x68 (whatever AD0 is); reset (``PWR_MGMT_1`` =
+   0x80, 100 ms), wake with the X-gyro clock (0x01), clear ``I2C_MST_EN`` in ``USER_CTRL``,
+   set ``I2C_BYPASS_EN`` in ``INT_PIN_CFG``; now the AK8975 answers at 0x0C and ``WIA`` must
+   read 0x48. ASA bytes from the fuse ROM (``CNTL`` = 0x0F, read 0x10..0x12, power down).
+2. Each measurement: ``CNTL`` = 0x01 (single), poll ``ST1.DRDY`` on the monotonic clock until a
+   deadline, then ONE burst read of HXL..ST2 (7 bytes; reading ST2 ends the measurement) and
+   the MPU's ``TEMP_OUT``. DERR/HOFL/rail/all-zero readings are rejected: counted in
+   ``counters`` and reported as ``Event("rejected")``.
+3. Calibration lives in the host-side store (``magcal.store``): the AK8975 has no offset
+   registers.
+
+Time comes from an injectable ``clock`` (seconds, monotonic) and ``sleep`` pair; a simulated
+bus (``magcal.devices.fakebus.FakeBus``) brings its own simulated clock, which the backend uses
+unless told otherwise, so tests and the CLI run against it fast and deterministically.
+"""
+
+from __future__ import annotations
+
+import errno
+import re
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterable
+from urllib.parse import parse_qsl
+
+from ..calibration import Calibration
+from ..errors import ConfigError, DeviceError, IdentityError, NoReply, PortUnavailable
+from ..sample import (
+    COUNT_MAX,
+    COUNT_MIN,
+    ST2_DERR,
+    ST2_HOFL,
+    Sample,
+    asa_gain,
+    counts_to_ut,
+    temp_raw_to_c,
+)
+from .base import Device, Event, Identity, Item
+
+# -- registers ---------------------------------------------------------------------------------
+MPU_ADDRS = (0x68, 0x69)
+MPU_WHO_AM_I_VALUE = 0x68
+REG_INT_PIN_CFG = 0x37
+REG_TEMP_OUT_H = 0x41
+REG_USER_CTRL = 0x6A
+REG_PWR_MGMT_1 = 0x6B
+REG_WHO_AM_I = 0x75
+BIT_I2C_BYPASS_EN = 0x02
+BIT_I2C_MST_EN = 0x20
+
+AK_ADDR = 0x0C
+AK_WIA_VALUE = 0x48
+REG_WIA = 0x00
+REG_ST1 = 0x02
+REG_HXL = 0x03
+REG_CNTL = 0x0A
+REG_ASTC = 0x0C
+REG_ASAX = 0x10
+ST1_DRDY = 0x01
+ASTC_SELF = 0x40
+MODE_POWER_DOWN = 0x00
+MODE_SINGLE = 0x01
+MODE_SELF_TEST = 0x08
+MODE_FUSE_ROM = 0x0F
+
+# -- timing (seconds) ------------------------------------------------------------------------------
+RESET_WAIT_S = 0.100
+MST_DISABLE_WAIT_S = 0.003
+MODE_CHANGE_WAIT_S = 0.0001  # ≥ 100 µs between CNTL modes (datasheet)
+MEASURE_MIN_S = 0.007  # no point polling DRDY sooner; the measurement takes ~7–9 ms
+DRDY_POLL_S = 0.0005
+DRDY_TIMEOUT_S = 0.050  # five times the worst measurement time any driver assumes
+MAX_CONSECUTIVE_DRDY_MISSES = 3
+MAX_CONSECUTIVE_BUS_ERRORS = 5
+RATE_MIN_HZ, RATE_MAX_HZ = 1, 100
+DEFAULT_RATE_HZ = 50
+
+# Self-test pass window in ASA-adjusted counts (datasheet MS1187-E-02, self-test judgement).
+SELF_TEST_WINDOW = ((-100, 100), (-100, 100), (-1000, -300))
+
+NACK_ERRNOS = (errno.EREMOTEIO, errno.ENXIO, errno.EIO)
+
+
+class MagnetometerMissing(DeviceError):
+    """The MPU answered but the AK8975 at 0x0C did not, even with the I2C bypass on."""
+
+
+class DataNotReady(NoReply):
+    """The AK8975 never raised DRDY within the deadline: a stuck or absent measurement."""
+
+
+@dataclass(frozen=True)
+class SelfTestResult:
+    """The AK8975 self-test: the internal field's reading per axis against the pass window."""
+
+    raw: tuple[int, int, int]
+    adjusted: tuple[float, float, float]  # raw · (ASA+128)/256, what the window applies to
+    window: tuple[tuple[int, int], ...] = SELF_TEST_WINDOW
+    st2: int = 0
+
+    @property
+    def axis_passed(self) -> tuple[bool, bool, bool]:
+        ok = tuple(lo <= v <= hi for v, (lo, hi) in zip(self.adjusted, self.window))
+        if self.st2 & (ST2_DERR | ST2_HOFL):
+            return (False, False, False)
+        return ok  # type: ignore[return-value]
+
+    @property
+    def passed(self) -> bool:
+        return all(self.axis_passed)
+
+    def to_dict(self) -> dict:
+        return {
+            "passed": self.passed,
+            "axes": {
+                name: {"raw": r, "adjusted": round(a, 2), "window": list(w), "passed": p}
+                for name, r, a, w, p in zip("xyz", self.raw, self.adjusted, self.window, self.axis_passed)
+            },
+            "st2": self.st2,
+        }
+
+
+# -- the port string ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class I2CAddress:
+    bus: int | str  # what smbus2.SMBus takes: a number or a device path
+    path: str  # the device file, for messages
+    address: int
+    rate_hz: int
+
+
+def parse_url(url: str) -> I2CAddress:
+    """``i2c:1``, ``i2c:/dev/i2c-1``, ``i2c:1?addr=0x69&rate=50`` → I2CAddress."""
+    if not url.startswith("i2c:"):
+        raise ConfigError(f"{url!r} is not an i2c: port (i2c:1, i2c:/dev/i2c-1, i2c:1?addr=0x69)")
+    rest = url[4:]
+    if rest.startswith("//"):
+        rest = rest[2:]
+    where, _, query = rest.partition("?")
+    if not where:
+        raise ConfigError(f"{url!r}: no bus given (i2c:1 for /dev/i2c-1)")
+    if re.fullmatch(r"\d+", where):
+        bus: int | str = int(where)
+        path = f"/dev/i2c-{bus}"
+    else:
+        path = where
+        m = re.fullmatch(r"/dev/i2c-(\d+)", where)
+        bus = int(m.group(1)) if m else where
+    address, rate = MPU_ADDRS[0], DEFAULT_RATE_HZ
+    for key, value in parse_qsl(query, keep_blank_values=True):
+        if key in ("addr", "address"):
+            try:
+                address = int(value, 0)
+            except ValueError:
+                raise ConfigError(f"{url!r}: addr={value!r} is not a number (0x68 or 0x69)") from None
+            if address not in MPU_ADDRS:
+                raise ConfigError(f"{url!r}: addr=0x{address:02X}; the MPU-9150 is at 0x68 (AD0 low) or 0x69 (AD0 high)")
+        elif key == "rate":
+            rate = _check_rate(value, url)
+        else:
+            raise ConfigError(f"{url!r}: unknown option {key!r} (addr, rate)")
+    return I2CAddress(bus=bus, path=path, address=address, rate_hz=rate)
+
+
+def _check_rate(value, where: str) -> int:
+    try:
+        rate = int(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: rate {value!r} is not a whole number of Hz") from None
+    if not RATE_MIN_HZ <= rate <= RATE_MAX_HZ:
+        raise ConfigError(
+            f"{where}: rate {rate} Hz out of range {RATE_MIN_HZ}…{RATE_MAX_HZ} (one AK8975 measurement takes ~8 ms)"
+        )
+    return rate
+
+
+def _default_bus_factory(bus):
+    try:
+        import smbus2
+    except ImportError:
+        raise DeviceError("the i2c: backend needs smbus2 (pip install 'magcal-mpu9150[i2c]')") from None
+    return smbus2.SMBus(bus)
+
+
+def _int16(lo: int, hi: int) -> int:
+    v = (hi << 8) | lo
+    return v - 0x10000 if v & 0x8000 else v
+
+
+# -- the device ---------------------------------------------------------------------------------------
+class I2CDevice(Device):
+    """An MPU-9150 + AK8975 on a Linux I2C bus, measured one single shot at a time."""
+
+    def __init__(
+        self,
+        url: str,
+        bus_factory: Callable | None = None,
+        clock: Callable[[], float] | None = None,
+        sleep: Callable[[float], None] | None = None,
+        store_dir=None,
+        drdy_timeout_s: float = DRDY_TIMEOUT_S,
+    ):
+        super().__init__(url)
+        self.where = parse_url(url)
+        self._bus_factory = bus_factory or _default_bus_factory
+        self._clock_arg, self._sleep_arg = clock, sleep
+        self.clock: Callable[[], float] = clock or time.monotonic
+        self.sleep: Callable[[float], None] = sleep or time.sleep
+        self._store_dir = store_dir
+        self.drdy_timeout_s = float(drdy_timeout_s)
+        self.bus = None
+        self.asa: tuple[int, int, int] = (128, 128, 128)
+        self.rate_hz = self.where.rate_hz
+        self._running = False
+        self._next_due = 0.0
+        self._seq = 0
+        self._drdy_misses = 0
+        self._bus_errors = 0
+
+    # -- bus access -----------------------------------------------------------------------------
+    @property
+    def _mpu(self) -> int:
+        return self.where.address
+
+    def _connect(self):
+        try:
+            bus = self._bus_factory(self.where.bus)
+        except FileNotFoundError:
+            raise PortUnavailable(
+                f"{self.where.path} does not exist: I2C bus {self.where.bus} is not available. "
+                "Enable I2C (Raspberry Pi: raspi-config → Interface Options → I2C, or "
+                "dtparam=i2c_arm=on in config.txt, then reboot) and check the bus number with "
+                "ls /dev/i2c-*"
+            ) from None
+        except PermissionError:
+            raise PortUnavailable(
+                f"{self.where.path}: permission denied (add your user to the 'i2c' group, then log in again)"
+            ) from None
+        except OSError as exc:
+            raise PortUnavailable(f"{self.where.path}: cannot open ({exc})") from None
+        # A simulated bus carries its own simulated time; use it unless the caller chose.
+        sim_clock = getattr(bus, "clock", None)
+        if self._clock_arg is None and callable(sim_clock):
+            self.clock = sim_clock
+            if self._sleep_arg is None and callable(getattr(sim_clock, "sleep", None)):
+                self.sleep = sim_clock.sleep
+        return bus
+
+    def _rb(self, addr: int, reg: int) -> int:
+        return int(self.bus.read_byte_data(addr, reg))
+
+    def _wb(self, addr: int, reg: int, value: int) -> None:
+        self.bus.write_byte_data(addr, reg, value & 0xFF)
+
+    def _block(self, addr: int, reg: int, n: int) -> list[int]:
+        return [int(b) for b in self.bus.read_i2c_block_data(addr, reg, n)]
+
+    def _ak_mode(self, mode: int) -> None:
+        """Change CNTL through power-down, as the datasheet requires."""
+        self._wb(AK_ADDR, REG_CNTL, MODE_POWER_DOWN)
+        self.sleep(MODE_CHANGE_WAIT_S)
+        if mode != MODE_POWER_DOWN:
+            self._wb(AK_ADDR, REG_CNTL, mode)
+
+    # -- bring-up -------------------------------------------------------------------------------
+    def _open(self) -> Identity:
+        self.bus = self._connect()
+        try:
+            return self._bring_up()
+        except BaseException:
+            self._close_bus()
+            raise
+
+    def _bring_up(self) -> Identity:
+        path, mpu = self.where.path, self._mpu
+        try:
+            who = self._rb(mpu, REG_WHO_AM_I)
+        except OSError as exc:
+            other = MPU_ADDRS[1] if mpu == MPU_ADDRS[0] else MPU_ADDRS[0]
+            raise PortUnavailable(
+                f"{path}: nothing answers at 0x{mpu:02X} ({exc.strerror or exc}); check wiring "
+                f"and power, or try addr=0x{other:02X} (AD0 {'high' if other == 0x69 else 'low'})"
+            ) from None
+        if who != MPU_WHO_AM_I_VALUE:
+            raise IdentityError(
+                f"{path} 0x{mpu:02X}: WHO_AM_I reads 0x{who:02X}, expected 0x68 (MPU-9150); "
+                "0x71/0x73 is an MPU-9250/9255 (AK8963), which this tool does not drive"
+            )
+        try:
+            self._wb(mpu, REG_PWR_MGMT_1, 0x80)  # device reset
+            self.sleep(RESET_WAIT_S)
+            self._wb(mpu, REG_PWR_MGMT_1, 0x01)  # wake, PLL with X gyro reference
+            user = self._rb(mpu, REG_USER_CTRL)
+            self._wb(mpu, REG_USER_CTRL, user & ~BIT_I2C_MST_EN)
+            self.sleep(MST_DISABLE_WAIT_S)
+            self._wb(mpu, REG_INT_PIN_CFG, BIT_I2C_BYPASS_EN)
+        except OSError as exc:
+            raise PortUnavailable(f"{path} 0x{mpu:02X}: bring-up failed ({exc})") from None
+        try:
+            wia = self._rb(AK_ADDR, REG_WIA)
+        except OSError as exc:
+            raise MagnetometerMissing(
+                f"{path}: the MPU-9150 answers at 0x{mpu:02X} but the AK8975 at 0x0C does not "
+                f"({exc.strerror or exc}) with the I2C bypass on; is this an MPU-6050 (no magnetometer)?"
+            ) from None
+        if wia != AK_WIA_VALUE:
+            raise IdentityError(f"{path} 0x0C: WIA reads 0x{wia:02X}, expected 0x48 (AK8975)")
+        try:
+            self._ak_mode(MODE_FUSE_ROM)
+            self.sleep(MODE_CHANGE_WAIT_S)
+            asa = self._block(AK_ADDR, REG_ASAX, 3)
+            self._ak_mode(MODE_POWER_DOWN)
+        except OSError as exc:
+            raise DeviceError(f"{path} 0x0C: reading the ASA fuse ROM failed ({exc})") from None
+        self.asa = (asa[0], asa[1], asa[2])
+        return Identity(
+            transport="i2c",
+            proto=0,  # no wire protocol on this transport
+            firmware="",
+            who_am_i=who,
+            wia=wia,
+            asa=self.asa,
+            rate_hz=self.rate_hz,
+            extra={"bus": path, "address": f"0x{mpu:02X}"},
+        )
+
+    # -- streaming --------------------------------------------------------------------------------
+    def set_rate(self, rate_hz: int) -> int:
+        self.rate_hz = _check_rate(rate_hz, self.url)
+        if self.identity is not None:
+            from dataclasses import replace
+
+            self.identity = replace(self.identity, rate_hz=self.rate_hz)
+        return self.rate_hz
+
+    def _start(self, rate_hz: int | None) -> None:
+        self._require_open()
+        if rate_hz is not None:
+            self.set_rate(rate_hz)
+        self._running = True
+        self._next_due = self.clock()
+
+    def _stop(self) -> None:
+        self._running = False
+
+    def _read(self, timeout_s: float) -> Iterable[Item]:
+        self._require_open()
+        deadline = self.clock() + max(0.0, float(timeout_s))
+        items: list[Item] = []
+        if not self._running:
+            self.sleep(max(0.0, deadline - self.clock()))
+            return items
+        period = 1.0 / self.rate_hz
+        while True:
+            now = self.clock()
+            if self._next_due > deadline:
+                self.sleep(max(0.0, deadline - now))
+                return items
+            if self._next_due > now:
+                self.sleep(self._next_due - now)
+            items.append(self._measure())
+            self._next_due += period
+            late = self.clock() - self._next_due
+            if late > period:  # fell behind (slow host): resynchronise instead of bursting
+                self.counters["late"] += 1
+                self._next_due = self.clock()
+
+    def _measure(self) -> Item:
+        """One single measurement → a Sample, or an Event when it is rejected or lost."""
+        seq = self._seq
+        self._seq = (self._seq + 1) & 0xFFFF
+        self.counters["measurements"] += 1
+        try:
+            item = self._measure_once(seq)
+        except OSError as exc:
+            self._bus_errors += 1
+            self.counters["i2c_errors"] += 1
+            if self._bus_errors >= MAX_CONSECUTIVE_BUS_ERRORS or exc.errno in (errno.ENODEV, errno.EBADF):
+                raise PortUnavailable(f"{self.where.path}: the bus stopped answering ({exc})") from None
+            return Event("rejected", seq=seq, count=1, detail=f"i2c error: {exc}")
+        self._bus_errors = 0
+        return item
+
+    def _measure_once(self, seq: int) -> Item:
+        t_trigger = self.clock()
+        self._wb(AK_ADDR, REG_CNTL, MODE_SINGLE)
+        if not self._wait_drdy(t_trigger):
+            self._drdy_misses += 1
+            self.counters["drdy_timeout"] += 1
+            self._ak_mode(MODE_POWER_DOWN)
+            if self._drdy_misses >= MAX_CONSECUTIVE_DRDY_MISSES:
+                raise DataNotReady(
+                    f"{self.where.path} 0x0C: DRDY never set within {self.drdy_timeout_s * 1000:.0f} ms "
+                    f"for {self._drdy_misses} measurements in a row (AK8975 stuck or not measuring)"
+                )
+            return Event("rejected", seq=seq, count=1, detail="DRDY timeout")
+        self._drdy_misses = 0
+        burst = self._block(AK_ADDR, REG_HXL, 7)  # HXL..HZH, ST2 — one read, one measurement
+        raw = (_int16(burst[0], burst[1]), _int16(burst[2], burst[3]), _int16(burst[4], burst[5]))
+        st2 = burst[6]
+        t_hi, t_lo = self._block(self._mpu, REG_TEMP_OUT_H, 2)
+        temp_raw = _int16(t_lo, t_hi)
+        reason = _rejection(raw, st2)
+        if reason:
+            self.counters["rejected"] += 1
+            self.counters[f"rejected_{reason}"] += 1
+            return Event("rejected", seq=seq, count=1, detail=f"{reason}: raw={list(raw)} st2=0x{st2:02X}")
+        self.counters["samples"] += 1
+        field = counts_to_ut(raw, self.asa)
+        return Sample(
+            seq=seq,
+            t_s=t_trigger,
+            field_ut=(float(field[0]), float(field[1]), float(field[2])),
+            raw=raw,
+            st2=st2,
+            temp_c=temp_raw_to_c(temp_raw),
+        )
+
+    def _wait_drdy(self, t_trigger: float) -> bool:
+        """Poll ST1.DRDY on the monotonic clock until ``drdy_timeout_s`` after the trigger."""
+        deadline = t_trigger + self.drdy_timeout_s
+        first = t_trigger + MEASURE_MIN_S
+        now = self.clock()
+        if first > now:
+            self.sleep(first - now)
+        while True:
+            if self._rb(AK_ADDR, REG_ST1) & ST1_DRDY:
+                return True
+            now = self.clock()
+            if now >= deadline:
+                return False
+            self.sleep(min(DRDY_POLL_S, deadline - now))
+
+    # -- self-test ------------------------------------------------------------------------------
+    def self_test(self) -> SelfTestResult:
+        """The AK8975 self-test: an internal field is applied (ASTC.SELF), one measurement in
+        self-test mode, compared with the datasheet window. Leaves the chip powered down."""
+        self._require_open()
+        was_running = self._running
+        self._running = False
+        try:
+            self._ak_mode(MODE_POWER_DOWN)
+            self._wb(AK_ADDR, REG_ASTC, ASTC_SELF)
+            try:
+                t0 = self.clock()
+                self._ak_mode(MODE_SELF_TEST)
+                if not self._wait_drdy(t0):
+                    raise DataNotReady(f"{self.where.path} 0x0C: no DRDY in self-test mode within {self.drdy_timeout_s * 1000:.0f} ms")
+                burst = self._block(AK_ADDR, REG_HXL, 7)
+            finally:
+                self._wb(AK_ADDR, REG_ASTC, 0x00)
+        except OSError as exc:
+            raise DeviceError(f"{self.where.path} 0x0C: self-test failed on the bus ({exc})") from None
+        finally:
+            if was_running:
+                self._running = True
+                self._next_due = self.clock()
+        raw = (_int16(burst[0], burst[1]), _int16(burst[2], burst[3]), _int16(burst[4], burst[5]))
+        adjusted = tuple(float(r) * asa_gain(a) for r, a in zip(raw, self.asa))
+        result = SelfTestResult(raw=raw, adjusted=adjusted, st2=burst[6])  # type: ignore[arg-type]
+        self.counters["self_test_pass" if result.passed else "self_test_fail"] += 1
+        return result
+
+    # -- calibration: the host-side store -----------------------------------------------------------
+    def _store(self):
+        from ..store import CalibrationStore
+
+        return CalibrationStore(self._store_dir)
+
+    def _read_calibration(self) -> Calibration | None:
+        self._require_open()
+        return self._store().load(self.identity)
+
+    def _write_calibration(self, cal: Calibration) -> Calibration:
+        self._require_open()
+        return self._store().save(self.identity, cal)
+
+    # -- closing ----------------------------------------------------------------------------------
+    def _require_open(self) -> None:
+        if self._closed:
+            raise DeviceError(f"{self.url}: device is closed")
+        if self.bus is None or self.identity is None:
+            raise DeviceError(f"{self.url}: open() the device first")
+
+    def _close_bus(self) -> None:
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            try:
+                bus.close()
+            except OSError:
+                pass
+
+    def _close(self) -> None:
+        self._running = False
+        if self.bus is not None:
+            try:
+                self._wb(AK_ADDR, REG_CNTL, MODE_POWER_DOWN)
+            except OSError:
+                pass
+        self._close_bus()
+
+
+def _rejection(raw, st2: int) -> str:
+    """Why a reading is invalid ('' when it is fine): derr, hofl, rail, zero."""
+    if st2 & ST2_DERR:
+        return "derr"
+    if st2 & ST2_HOFL:
+        return "hofl"
+    if any(v <= COUNT_MIN or v >= COUNT_MAX for v in raw):
+        return "rail"
+    if not any(raw):
+        return "zero"
+    return ""
+
+
+def open_i2c(
+    url: str,
+    dialect: str = "native",
+    bus_factory: Callable | None = None,
+    clock: Callable[[], float] | None = None,
+    sleep: Callable[[float], None] | None = None,
+    store_dir=None,
+    **opts,
+) -> I2CDevice:
+    """Build (not yet open) the ``i2c:`` device. ``bus_factory(bus)`` returns an object with
+    the smbus2.SMBus methods (default ``smbus2.SMBus``); ``clock``/``sleep`` default to the
+    bus's simulated clock if it has one, else ``time.monotonic``/``time.sleep``; options:
+    ``drdy_timeout_s``, ``rate_hz``."""
+    if dialect not in ("native", "auto"):
+        raise DeviceError(f"{url!r}: the i2c: backend has no {dialect!r} dialect")
+    rate = opts.pop("rate_hz", None)
+    drdy = opts.pop("drdy_timeout_s", DRDY_TIMEOUT_S)
+    if opts:
+        raise ConfigError(f"{url!r}: unknown i2c option(s) {', '.join(sorted(opts))}")
+    dev = I2CDevice(url, bus_factory=bus_factory, clock=clock, sleep=sleep, store_dir=store_dir, drdy_timeout_s=drdy)
+    if rate is not None:
+        dev.rate_hz = _check_rate(rate, url)
+    return dev
