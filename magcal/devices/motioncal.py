@@ -1,0 +1,252 @@
+"""A serial device that speaks the PJRC MotionCal / Adafruit convention (``--dialect motioncal``).
+
+The board streams ``Raw:``/``Uni:`` lines on its own (there are no commands, so ``start`` and
+``stop`` only mark the session); ``write_calibration`` sends the 68-byte packet and waits for
+the ``Cal1:``/``Cal2:`` echo, which it checks at the echo's printed precision. The pure rules
+live in ``magcal.motioncal``; this module only moves bytes and watches the clock.
+
+Samples: ``field_ut`` from the magnetometer (Uni: µT while the device sends them, else Raw:
+counts × 0.1), ``raw`` None, ``seq`` counted here (the convention has none), ``t_s`` the host's
+arrival time in seconds since ``open`` (the convention carries no device time).
+
+Options (``open_device(url, dialect="motioncal", **opts)``): ``baud`` (115200),
+``open_timeout_s`` (3: how long ``open`` waits for the first reading; 0 skips the check),
+``echo_timeout_s`` (6: per attempt; the Adafruit sketch prints Cal1/Cal2 only every ~100
+loops), ``tries`` (3), ``accel_offset``/``gyro_offset`` (sent in the packet; by default the
+device's own, from its last Cal1 echo, else zeros).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from typing import Iterable
+
+from .. import motioncal as mc
+from ..calibration import Calibration
+from ..errors import DeviceError, NoReply, PortUnavailable, WriteRejected
+from ..sample import Sample
+from .base import Device, Identity, Item
+
+_QUEUE_MAX = 100_000
+
+
+class MotionCalDevice(Device):
+    """A ``Raw:``-printing board (PJRC / Adafruit calibration sketches) on a serial port."""
+
+    #: keyword arguments for ``Calibration.close_to`` when comparing a write with its echo
+    compare_tolerance = mc.compare_tolerance()
+
+    def __init__(
+        self,
+        url: str,
+        baud: int = 115200,
+        open_timeout_s: float = 3.0,
+        echo_timeout_s: float = 6.0,
+        tries: int = 3,
+        accel_offset=None,
+        gyro_offset=None,
+    ):
+        super().__init__(url)
+        if tries < 1 or echo_timeout_s <= 0:
+            raise DeviceError("motioncal: tries must be ≥ 1 and echo_timeout_s > 0")
+        self.baud = int(baud)
+        self.open_timeout_s = float(open_timeout_s)
+        self.echo_timeout_s = float(echo_timeout_s)
+        self.tries = int(tries)
+        self.accel_offset = accel_offset
+        self.gyro_offset = gyro_offset
+        self._ser = None
+        self._splitter = mc.LineSplitter()
+        self._asm = mc.SampleAssembler()
+        self._queue: deque = deque(maxlen=_QUEUE_MAX)
+        self._seq = 0
+        self._t0 = 0.0
+        self._echoed: Calibration | None = None
+        self.last_echo_mismatch: list[str] = []
+
+    # -- bytes in ----------------------------------------------------------------------------
+    def _pull(self, wait_s: float) -> list[mc.Line]:
+        """Read what the port has (waiting up to ``wait_s`` for the first byte) → parsed lines;
+        every reading is queued as a Sample."""
+        ser = self._ser
+        try:
+            wait_s = round(max(0.0, wait_s), 3)
+            if ser.timeout != wait_s:  # setting it reconfigures the port: only when it changes
+                ser.timeout = wait_s
+            data = ser.read(max(1, ser.in_waiting))
+            if data and ser.in_waiting:
+                data += ser.read(ser.in_waiting)
+        except Exception as exc:  # pyserial raises SerialException/OSError when unplugged
+            raise PortUnavailable(f"{self.url}: {exc}") from exc
+        if not data:
+            return []
+        self.counters["bytes"] += len(data)
+        lines = []
+        for raw in self._splitter.feed(data):
+            line = mc.parse_line(raw)
+            lines.append(line)
+            field = self._asm.push(line)
+            if field is not None:
+                self._queue.append(
+                    Sample(seq=self._seq % 65536, t_s=time.monotonic() - self._t0, field_ut=field)
+                )
+                self._seq += 1
+            elif isinstance(line, mc.CalLine):
+                self._note_echo()
+        self._sync_counters()
+        return lines
+
+    def _sync_counters(self) -> None:
+        for k, v in self._asm.counters.items():
+            self.counters[k] = v
+        self.counters["overlong"] = self._splitter.counters["overlong"]
+
+    def _note_echo(self) -> None:
+        c1, c2 = self._asm.last_cal1, self._asm.last_cal2
+        if c1 is not None and c2 is not None:
+            cal = mc.calibration_from_echo(c1, c2)
+            if cal is not None:
+                self._echoed = cal
+
+    # -- Device hooks ----------------------------------------------------------------------
+    def _open(self) -> Identity:
+        try:
+            import serial
+        except ImportError as exc:  # pragma: no cover - pyserial is a dependency
+            raise DeviceError("pyserial is needed for serial ports") from exc
+        try:
+            self._ser = serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise PortUnavailable(f"{self.url}: cannot open: {exc}") from exc
+        self._t0 = time.monotonic()
+        if self.open_timeout_s > 0:
+            deadline = self._t0 + self.open_timeout_s
+            while not self._queue and time.monotonic() < deadline:
+                self._pull(min(0.05, max(0.0, deadline - time.monotonic())))
+            if not self._queue:
+                self._ser.close()
+                raise NoReply(
+                    f"{self.url}: no Raw: or Uni: line within {self.open_timeout_s:g} s at "
+                    f"{self.baud} baud ({self.counters['lines']} other lines): is a MotionCal/"
+                    "Adafruit calibration sketch running, at this baud rate?"
+                )
+        return Identity(
+            transport="motioncal",
+            proto=0,
+            firmware="",
+            asa=(128, 128, 128),
+            rate_hz=0,
+            extra={"dialect": "motioncal", "baud": self.baud},
+        )
+
+    def _start(self, rate_hz: int | None) -> None:
+        """The convention has no commands: the board streams from reset at its own rate."""
+        if rate_hz:
+            self.counters["rate_request_ignored"] += 1
+
+    def _stop(self) -> None:
+        pass
+
+    def _read(self, timeout_s: float) -> Iterable[Item]:
+        deadline = time.monotonic() + max(0.0, timeout_s)
+        while not self._queue:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            self._pull(min(left, 0.05))
+        out = list(self._queue)
+        self._queue.clear()
+        return out
+
+    def _read_calibration(self) -> Calibration | None:
+        """The calibration of the last complete Cal1/Cal2 echo seen, or None."""
+        return self._echoed
+
+    def _offsets(self) -> tuple[tuple, tuple]:
+        c1 = self._asm.last_cal1
+        acc = self.accel_offset
+        gyr = self.gyro_offset
+        if acc is None:
+            acc = c1.values[0:3] if c1 is not None else (0.0, 0.0, 0.0)
+        if gyr is None:
+            gyr = c1.values[3:6] if c1 is not None else (0.0, 0.0, 0.0)
+        acc = tuple(0.0 if v != v else v for v in acc)  # an echoed nan is not worth keeping
+        gyr = tuple(0.0 if v != v else v for v in gyr)
+        return acc, gyr
+
+    def _write_calibration(self, cal: Calibration) -> Calibration:
+        """Send the packet, wait for a Cal1 and a Cal2 that both arrive after it and match it
+        at their printed precision; resend up to ``tries`` times. Returns the echoed
+        calibration; NoReply when no echo ever comes, WriteRejected when echoes come but never
+        match."""
+        acc, gyr = self._offsets()
+        try:
+            packet = mc.encode_packet(cal, acc, gyr)
+        except ValueError as exc:
+            raise DeviceError(f"{self.url}: {exc}") from exc
+        sent = mc.packet_values(cal, acc, gyr)
+        self.last_echo_mismatch = []
+        echoes = warned = 0
+        for attempt in range(1, self.tries + 1):
+            self._send(packet)
+            self.counters["packets_sent"] += 1
+            cal1 = cal2 = None
+            deadline = time.monotonic() + self.echo_timeout_s
+            while time.monotonic() < deadline:
+                for line in self._pull(min(0.05, max(0.0, deadline - time.monotonic()))):
+                    if isinstance(line, mc.OtherLine) and "Couldn't save" in line.text:
+                        warned += 1
+                    if not isinstance(line, mc.CalLine):
+                        continue
+                    if line.kind == 1:
+                        cal1 = line
+                    else:
+                        cal2 = line
+                    if cal1 is None or cal2 is None:
+                        continue
+                    echoes += 1
+                    diff = mc.compare_echo(sent, cal1, cal2)
+                    if not diff:
+                        echoed = mc.calibration_from_echo(cal1, cal2)
+                        if echoed is not None:
+                            self._echoed = echoed
+                            self.counters["echo_verified"] += 1
+                            return echoed
+                    # a Cal1/Cal2 printed before the packet was stored may still be in flight:
+                    # keep listening until this attempt's time is up
+                    self.last_echo_mismatch = diff
+            self.counters["echo_retries"] += attempt < self.tries
+        total = self.echo_timeout_s * self.tries
+        if echoes == 0:
+            raise NoReply(
+                f"{self.url}: no Cal1/Cal2 echo within {total:g} s after {self.tries} tries: "
+                "the firmware probably has no calibration packet handler"
+            )
+        hint = " (the device reported it could not save)" if warned else ""
+        raise WriteRejected(
+            f"{self.url}: the device echoed a different calibration after {self.tries} tries"
+            f"{hint}: " + "; ".join(self.last_echo_mismatch[:6])
+        )
+
+    def _send(self, packet: bytes) -> None:
+        try:
+            self._ser.write(packet)
+            self._ser.flush()
+        except Exception as exc:
+            raise PortUnavailable(f"{self.url}: {exc}") from exc
+
+    def _close(self) -> None:
+        if self._ser is not None:
+            try:
+                self._ser.close()
+            except Exception:
+                pass
+            self._ser = None
+
+
+def open_motioncal(url: str, dialect: str = "motioncal", baud: int = 115200, **opts) -> Device:
+    """The registry's factory: a (not yet opened) MotionCalDevice on ``url``."""
+    if dialect not in ("motioncal", "auto"):
+        raise DeviceError(f"open_motioncal speaks the motioncal dialect, not {dialect!r}")
+    return MotionCalDevice(url, baud=baud, **opts)
