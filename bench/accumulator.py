@@ -35,7 +35,7 @@ def main() -> None:
     t0 = time.perf_counter()
     for _ in range(1000):
         fit = acc.solve()
-    print(f"solve: {(time.perf_counter() - t0) * 1e3:.3f} ms per call -> offset {np.round(fit.offset_ut, 3)}")
+    print(f"solve: {(time.perf_counter() - t0) * 1e6 / 1000:.1f} µs per call -> offset {np.round(fit.offset_ut, 3)}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,189 @@
+"""``fit``: the one entry point — start, robust fit, outliers, ML refit, model choice, uncertainty.
+
+    fit(m_ut_or_series, model="sphere"|"ellipsoid"|"auto", outliers=True) -> FitResult | FitFailure
+
+1. Samples: an (n, 3) array in µT or a Series (flagged and non-finite rows are left out; they
+   are neither used nor reported as outliers).
+2. Start: the sphere accumulator's algebraic solution (fails on too few samples / thin coverage).
+3. A robust ML sphere (soft-L1 loss, scale from the MAD of the start's residuals) so that
+   spikes cannot drag the fit.
+4. Which models can this coverage determine? For the diagonal and full ellipsoid, the
+   information matrix JᵀJ at the robust sphere (unit-diagonal scaled) must have condition
+   ≤ ``max_condition`` and the predicted 1σ of the shape parameters (≈ relative gains) must be
+   ≤ ``max_shape_sigma``. A model that fails is not fitted; ``reason`` says why.
+5. Each model fitted: robust fit → iterated Grubbs on its residuals (t-distribution critical
+   values) → plain least squares (ML) on the kept samples → Grubbs again until nothing new.
+6. "auto" picks by BIC (n·ln(mean e²) + p·ln n) among the determinable models; "ellipsoid"
+   takes the fullest determinable ellipsoid and falls back (full → diagonal → sphere).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..calibration import Calibration
+from ..series import Series
+from . import geometric, outliers as _outliers, uncertainty
+from .ellipsoid import algebraic_start
+from .failure import FitFailure
+from .result import MODEL_NAMES, FitResult
+from .sphere import sphere_start
+
+MODELS = ("sphere", "ellipsoid", "auto")
+DEFAULT_MAX_CONDITION = 1.0e4
+DEFAULT_MAX_SHAPE_SIGMA = 0.01
+_ROBUST_LOSS = "soft_l1"
+
+
+def _samples(data) -> tuple[np.ndarray, np.ndarray]:
+    """(m (k, 3), index (k,) into the input) of the usable rows."""
+    if isinstance(data, Series):
+        m, ok = data.field_ut, data.valid.copy()
+    else:
+        m = np.asarray(data, dtype=np.float64)
+        if m.ndim != 2 or m.shape[1] != 3:
+            raise ValueError(f"samples must be an (n, 3) array of µT, got shape {m.shape}")
+        ok = np.ones(len(m), bool)
+    ok &= np.all(np.isfinite(m), axis=1)
+    idx = np.flatnonzero(ok)
+    return m[idx], idx
+
+
+def _fit_kind(m, kind, theta0, sigma0, use_outliers, alpha):
+    """Robust → Grubbs → ML → Grubbs … for one model. Returns (GeometricFit, kept mask)."""
+    robust = geometric.solve(m, kind, theta0, loss=_ROBUST_LOSS, f_scale_ut=2.0 * sigma0)
+    if isinstance(robust, FitFailure):
+        return robust, None
+    keep = np.ones(len(m), bool)
+    theta = robust.theta
+    resid = robust.residual_ut
+    for _ in range(4):
+        if use_outliers:
+            kept_idx = np.flatnonzero(keep)
+            drop = kept_idx[_outliers.grubbs(resid[kept_idx], alpha=alpha)]
+            if len(drop) == 0 and _ > 0:
+                break
+            keep[drop] = False
+        ml = geometric.solve(m[keep], kind, theta)
+        if isinstance(ml, FitFailure):
+            return ml, None
+        theta = ml.theta
+        resid = geometric.residual(theta, m, kind)
+        if not use_outliers:
+            break
+    return ml, keep
+
+
+def _gate(m, theta_sphere, kind, sigma, max_condition, max_shape_sigma) -> tuple[bool, float, str]:
+    theta = np.concatenate([theta_sphere, np.zeros(geometric.N_SHAPE[kind])])
+    J = geometric.jacobian(theta, m, kind)
+    cond = uncertainty.information_condition(J)
+    cov = uncertainty.covariance(J, sigma)
+    shape_sigma = float(np.sqrt(np.max(np.diag(cov)[4:]))) if kind != "sphere" else 0.0
+    name = MODEL_NAMES[kind]
+    if cond > max_condition:
+        return False, cond, (
+            f"{name} not fitted: information-matrix condition {cond:.3g} > {max_condition:.3g}"
+            " (coverage cannot determine it)"
+        )
+    if shape_sigma > max_shape_sigma:
+        return False, cond, (
+            f"{name} not fitted: coverage determines its gains only to ±{100 * shape_sigma:.2g} %"
+            f" (limit {100 * max_shape_sigma:.2g} %)"
+        )
+    return True, cond, ""
+
+
+def _bic(fit: geometric.GeometricFit) -> float:
+    n = len(fit.residual_ut)
+    mse = max(float(np.mean(fit.residual_ut**2)), 1e-300)
+    return n * np.log(mse) + geometric.n_params(fit.kind) * np.log(n)
+
+
+def fit(
+    data,
+    model: str = "auto",
+    outliers: bool = True,
+    noise_ut: float | None = None,
+    alpha: float = _outliers.DEFAULT_ALPHA,
+    max_condition: float = DEFAULT_MAX_CONDITION,
+    max_shape_sigma: float = DEFAULT_MAX_SHAPE_SIGMA,
+) -> FitResult | FitFailure:
+    """Fit a calibration to magnetometer samples (µT); see the module docstring."""
+    if model not in MODELS:
+        raise ValueError(f"model must be one of {', '.join(MODELS)}, not {model!r}")
+    m, idx = _samples(data)
+    start = sphere_start(m)
+    if isinstance(start, FitFailure):
+        return start
+    e0 = np.linalg.norm(m - start[:3], axis=1) - start[3]
+    sigma0 = max(_outliers.robust_sigma(e0), 1e-6 * start[3])
+    robust = geometric.solve(m, "sphere", start, loss=_ROBUST_LOSS, f_scale_ut=2.0 * sigma0)
+    if isinstance(robust, FitFailure):
+        return robust
+    sigma_r = max(_outliers.robust_sigma(robust.residual_ut), 1e-6 * robust.field_ut)
+
+    kinds = ["sphere"] if model == "sphere" else ["full", "diagonal", "sphere"]
+    notes: list[str] = []
+    fits: dict[str, tuple] = {}
+    conds: dict[str, float] = {}
+    for kind in kinds:
+        if kind == "sphere":
+            ok, cond, why = True, uncertainty.information_condition(robust.jac), ""
+        else:
+            ok, cond, why = _gate(m, robust.theta[:4], kind, sigma_r, max_condition, max_shape_sigma)
+        conds[kind] = cond
+        if not ok:
+            notes.append(why)
+            continue
+        if kind == "sphere":
+            theta0 = robust.theta
+        else:
+            alg = algebraic_start(m, kind)
+            theta0 = alg if not isinstance(alg, FitFailure) else np.concatenate(
+                [robust.theta[:4], np.zeros(geometric.N_SHAPE[kind])]
+            )
+            if isinstance(alg, FitFailure):
+                notes.append(f"algebraic start rejected ({alg.reason}); started from the sphere")
+        f, keep = _fit_kind(m, kind, theta0, sigma_r, outliers, alpha)
+        if isinstance(f, FitFailure):
+            notes.append(f"{MODEL_NAMES[kind]} failed: {f.message}")
+            continue
+        fits[kind] = (f, keep)
+        if model == "ellipsoid" and kind != "sphere":
+            break  # the fullest determinable ellipsoid
+        if model == "ellipsoid" and kind == "sphere":
+            notes.append("fell back to the sphere")
+
+    if not fits:
+        return FitFailure("no_convergence", "; ".join(notes) or "no model could be fitted")
+    if model == "auto" and len(fits) > 1:
+        bics = {k: _bic(f) for k, (f, _) in fits.items()}
+        chosen = min(bics, key=bics.get)
+        others = ", ".join(f"{MODEL_NAMES[k]} {bics[k] - bics[chosen]:+.1f}" for k in bics if k != chosen)
+        notes.append(f"{MODEL_NAMES[chosen]} has the lowest BIC (ΔBIC: {others})")
+    else:
+        chosen = next(iter(fits))
+        if model == "sphere":
+            notes.append("sphere requested")
+        elif model == "ellipsoid" and chosen != "sphere":
+            notes.append(f"{MODEL_NAMES[chosen]} is the fullest model the coverage determines")
+        elif model == "auto":
+            notes.append(f"{MODEL_NAMES[chosen]} is the only model the coverage determines")
+    g, keep = fits[chosen]
+    u = uncertainty.summarise(g, noise_ut)
+    cal = Calibration(offset_ut=g.offset_ut, field_ut=g.field_ut, soft_iron=g.soft_iron)
+    return FitResult(
+        model=MODEL_NAMES[chosen],
+        calibration=cal,
+        uncertainty={"offset_ut": u["offset_ut"], "field_ut": u["field_ut"], "soft_iron": u["soft_iron"]},
+        crlb_offset_ut=u["crlb_offset_ut"],
+        rms_ut=g.rms_ut,
+        n_used=int(keep.sum()),
+        outliers=idx[~keep],
+        reason="; ".join(notes),
+        condition=conds[chosen],
+        used=idx[keep],
+        residual_ut=g.residual_ut,
+        alternatives={MODEL_NAMES[k]: f.rms_ut for k, (f, _) in fits.items()},
+    )

@@ -1,0 +1,63 @@
+"""FitResult: what ``magcal.fit.fit`` returns when the data support a model."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..calibration import Calibration
+
+MODEL_NAMES = {"sphere": "sphere", "diagonal": "ellipsoid_diagonal", "full": "ellipsoid"}
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """A fitted calibration with its uncertainty.
+
+    ``model``: "sphere", "ellipsoid_diagonal" or "ellipsoid". ``calibration``: calibrated sample
+    = soft_iron @ (m − offset_ut), |·| ≈ field_ut; soft_iron has det 1. ``uncertainty``: 1σ of
+    offset_ut (3), field_ut and soft_iron (3×3) from σ̂²(JᵀJ)⁻¹. ``crlb_offset_ut``: √diag of the
+    Cramér–Rao bound of the offset for this data's geometry (noise σ given, else σ̂).
+    ``outliers``: indices into the input that were removed. ``reason``: why this model.
+    ``residual_ut``: geometric residual of the samples used (in input order of ``used``).
+    """
+
+    model: str
+    calibration: Calibration
+    uncertainty: dict
+    crlb_offset_ut: np.ndarray
+    rms_ut: float
+    n_used: int
+    outliers: np.ndarray
+    reason: str
+    condition: float = float("nan")
+    used: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    residual_ut: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    alternatives: dict = field(default_factory=dict)
+
+    def __bool__(self) -> bool:
+        return True
+
+    def to_dict(self) -> dict:
+        cal = self.calibration
+        u = self.uncertainty
+        return {
+            "model": self.model,
+            "calibration": {
+                "offset_ut": [float(v) for v in cal.offset_ut],
+                "field_ut": float(cal.field_ut),
+                "soft_iron": [[float(v) for v in row] for row in cal.soft_iron],
+            },
+            "uncertainty": {
+                "offset_ut": [float(v) for v in u["offset_ut"]],
+                "field_ut": float(u["field_ut"]),
+                "soft_iron": [[float(v) for v in row] for row in np.asarray(u["soft_iron"])],
+            },
+            "crlb_offset_ut": [float(v) for v in self.crlb_offset_ut],
+            "rms_ut": float(self.rms_ut),
+            "n_used": int(self.n_used),
+            "outliers": [int(i) for i in self.outliers],
+            "reason": self.reason,
+            "condition": float(self.condition),
+        }
