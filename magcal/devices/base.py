@@ -110,6 +110,14 @@ class Device(ABC):
             raise DeviceError(f"{self.url}: this source cannot store a calibration")
         return self._write_calibration(cal)
 
+    def prepare(self, cal: Calibration) -> Calibration:
+        """``cal`` exactly as this device's store will hold it (fixed-point, float32 …)."""
+        return cal
+
+    def matches(self, sent: Calibration, stored: Calibration | None) -> bool:
+        """Is ``stored`` (an echo or a read-back) the calibration that was sent?"""
+        return stored is not None and sent.close_to(stored)
+
     def close(self) -> None:
         if not self._closed:
             self._closed = True

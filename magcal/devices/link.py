@@ -34,6 +34,7 @@ from ..protocol import (
     Restart,
     calibration_from_record,
     encode_command,
+    quantize_calibration,
     record_crc,
     record_from_calibration,
 )
@@ -299,6 +300,13 @@ class ProtocolDevice(Device):
             raise DeviceError(f"{self.url}: device refused K: {r.code}")
         self.record_status = r.status
         return r
+
+    def prepare(self, cal: Calibration) -> Calibration:
+        return quantize_calibration(cal)
+
+    def matches(self, sent: Calibration, stored: Calibration | None) -> bool:
+        # v1 records are integers: what was sent must come back bit for bit.
+        return stored is not None and record_from_calibration(sent) == record_from_calibration(stored)
 
     def _read_calibration(self) -> Calibration | None:
         r = self.read_record()

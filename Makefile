@@ -1,0 +1,55 @@
+# magcal — the two commands a new user needs:
+#   make demo   calibrate the embedded default (the simulated MPU-9150 — through the real
+#               firmware under the AVR emulator when the toolchain is present) end to end
+#   make test   run the test suite
+# Both create .venv and install what they need (the AVR toolchain via apt-get when run as
+# root or with password-less sudo; without it the demo falls back to the pure-Python board).
+
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+AVR_PACKAGES := gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude
+
+.PHONY: demo test bench firmware emulator toolchain clean
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test,i2c,report]'
+	touch $(STAMP)
+
+# Installs the AVR toolchain and simavr if they are missing and we may use apt-get.
+toolchain:
+	@if command -v avr-gcc >/dev/null 2>&1 && [ -f /usr/include/simavr/sim_avr.h ] \
+	    && [ -d /usr/share/arduino/hardware/arduino/avr ]; then \
+	  echo "AVR toolchain and simavr: present"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  echo "installing the AVR toolchain and simavr (apt-get)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(AVR_PACKAGES) >/dev/null; \
+	elif command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then \
+	  sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(AVR_PACKAGES) >/dev/null; \
+	else \
+	  echo "note: AVR toolchain missing and apt-get unavailable; firmware tests will be skipped" \
+	       "and the demo uses the pure-Python board (install: $(AVR_PACKAGES))"; \
+	fi
+
+demo: $(STAMP) toolchain
+	@$(BIN)/python -m magcal.demo
+
+test: $(STAMP) toolchain
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	@for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+firmware:
+	$(MAKE) -C firmware
+
+emulator: firmware
+	$(MAKE) -C firmware/emulator
+
+clean:
+	rm -rf $(VENV) build *.egg-info
+	-$(MAKE) -C firmware clean
+	-$(MAKE) -C firmware/emulator clean

@@ -1,0 +1,234 @@
+"""The calibration session: a state machine with no I/O.
+
+    COLLECTING ──ready()──▶ SOLVING ──fit ok, gates pass──▶ WRITING ──stored──▶ VERIFYING ──▶ DONE
+         │                     │                               │                    │
+         └────── fail(reason) ─┴───────────────────────────────┴────────────────────┴──▶ FAILED
+
+Every change of state goes through ``_set_status``, which refuses transitions the diagram does
+not have. Lifecycle (``status``) and failure reasons (``failure``) are separate: a FAILED
+session says *why* in ``failure`` (a short code) and ``failure_message`` (a sentence).
+
+The session takes samples and link events, keeps the streaming sphere accumulator (every valid
+sample, O(1)) for the live estimate, and a bounded direction-balanced ``SampleSet`` for the
+final maximum-likelihood fit. Gates are data (``GateResult``), evaluated on the live estimate
+while collecting and on the final fit before anything is written.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from . import fit as fits
+from .calibration import Calibration
+from .config import Gates
+from .coverage import SampleSet
+from .devices.base import Event
+from .fit import SphereAccumulator
+from .sample import Sample
+
+ESTIMATE_EVERY = 50  # samples between live re-solves (cheap: a 4×4 solve)
+RECENTRE_UT = 2.0  # re-bin the kept samples when the centre estimate moves this much
+
+
+class Status(str, Enum):
+    COLLECTING = "collecting"
+    SOLVING = "solving"
+    WRITING = "writing"
+    VERIFYING = "verifying"
+    DONE = "done"
+    FAILED = "failed"
+
+
+_ALLOWED = {
+    Status.COLLECTING: {Status.SOLVING, Status.FAILED},
+    Status.SOLVING: {Status.WRITING, Status.DONE, Status.COLLECTING, Status.FAILED},
+    Status.WRITING: {Status.VERIFYING, Status.FAILED},
+    Status.VERIFYING: {Status.DONE, Status.FAILED},
+    Status.DONE: set(),
+    Status.FAILED: set(),
+}
+
+
+@dataclass(frozen=True)
+class GateResult:
+    name: str
+    passed: bool
+    value: float | None
+    limit: object
+    message: str
+
+    def to_dict(self) -> dict:
+        return {"gate": self.name, "passed": self.passed, "value": self.value, "limit": self.limit, "message": self.message}
+
+
+class Session:
+    def __init__(self, gates: Gates | None = None, model: str = "auto"):
+        self.gates_cfg = gates or Gates()
+        self.model = model
+        self.status = Status.COLLECTING
+        self.failure: str | None = None
+        self.failure_message = ""
+        self.counters: Counter = Counter()
+        self.accumulator = SphereAccumulator()
+        self.kept = SampleSet()
+        self.estimate = None  # SphereFit | FitFailure | None
+        self.result = None  # the final FitResult once solved
+        self.final_gates: list[GateResult] = []  # the gates as judged on the final fit
+        self.history: list[tuple[str, str]] = []
+        self._since_estimate = 0
+        self._last_seq: int | None = None
+
+    # -- the one choke point -------------------------------------------------------------------
+    def _set_status(self, new: Status, reason: str | None = None, message: str = "") -> None:
+        if new not in _ALLOWED[self.status]:
+            raise RuntimeError(f"session cannot go from {self.status.value} to {new.value}")
+        self.history.append((self.status.value, new.value))
+        self.status = new
+        if new is Status.FAILED:
+            self.failure = reason or "failed"
+            self.failure_message = message
+
+    def fail(self, reason: str, message: str) -> None:
+        if self.status not in (Status.DONE, Status.FAILED):
+            self._set_status(Status.FAILED, reason, message)
+
+    # -- collecting ----------------------------------------------------------------------------
+    def add(self, item) -> None:
+        if self.status is not Status.COLLECTING:
+            self.counters["ignored_after_collecting"] += 1
+            return
+        if isinstance(item, Event):
+            self.counters[f"event_{item.kind}"] += 1
+            if item.kind == "gap":
+                self.counters["lost_samples"] += item.count
+            return
+        if not isinstance(item, Sample):
+            return
+        self.counters["samples_in"] += 1
+        if not item.valid:
+            self.counters["rejected_flagged"] += 1
+            return
+        if item.aux.get("calibrated"):
+            self.counters["rejected_calibrated"] += 1
+            return
+        m = np.asarray(item.field_ut, dtype=np.float64)
+        if not np.all(np.isfinite(m)):
+            self.counters["rejected_nonfinite"] += 1
+            return
+        self.accumulator.add(m)
+        aux = {"t_s": item.t_s}
+        if item.temp_c is not None:
+            aux["temp_c"] = item.temp_c
+        self.kept.offer(m, aux)
+        self._since_estimate += 1
+        if self._since_estimate >= ESTIMATE_EVERY:
+            self.update_estimate()
+
+    def add_many(self, items) -> None:
+        for item in items:
+            self.add(item)
+
+    def update_estimate(self):
+        self._since_estimate = 0
+        est = self.accumulator.solve()
+        self.estimate = est
+        if est and np.linalg.norm(est.offset_ut - self.kept.centre_ut) > RECENTRE_UT:
+            self.kept.recentre(est.offset_ut)
+        return est
+
+    # -- gates -----------------------------------------------------------------------------------
+    def live_gates(self) -> list[GateResult]:
+        g = self.gates_cfg
+        est = self.estimate
+        out = [
+            GateResult("min_samples", len(self.kept) >= g.min_samples, float(len(self.kept)), g.min_samples,
+                       f"{len(self.kept)} of {g.min_samples} well-spread samples"),
+            GateResult("min_coverage", self.kept.coverage() >= g.min_coverage, self.kept.coverage(), g.min_coverage,
+                       f"{100 * self.kept.coverage():.0f}% of directions covered, {100 * g.min_coverage:.0f}% needed"),
+        ]
+        if not est:
+            why = getattr(est, "message", "no estimate yet")
+            out.append(GateResult("solvable", False, None, None, why))
+            return out
+        out.append(GateResult("max_condition", est.condition <= g.max_condition, float(est.condition), g.max_condition,
+                              f"normal-matrix condition {est.condition:.0f} (≤ {g.max_condition:.0f})"))
+        out += self._model_gates(est.offset_ut, est.field_ut, est.rms_ut, est.offset_sigma_ut)
+        return out
+
+    def _model_gates(self, offset_ut, field_ut, rms_ut, sigma_ut) -> list[GateResult]:
+        g = self.gates_cfg
+        lo, hi = g.field_range_ut
+        off = float(np.linalg.norm(offset_ut))
+        sig = float(np.max(sigma_ut))
+        return [
+            GateResult("field_range", lo <= field_ut <= hi, float(field_ut), [lo, hi],
+                       f"field radius {field_ut:.1f} µT (accepted {lo:g}–{hi:g})"),
+            GateResult("max_offset", off <= g.max_offset_ut, off, g.max_offset_ut,
+                       f"|offset| {off:.1f} µT (≤ {g.max_offset_ut:g})"),
+            GateResult("max_rms", rms_ut <= g.max_rms_ut, float(rms_ut), g.max_rms_ut,
+                       f"residual RMS {rms_ut:.2f} µT (≤ {g.max_rms_ut:g})"),
+            GateResult("max_offset_sigma", sig <= g.max_offset_sigma_ut, sig, g.max_offset_sigma_ut,
+                       f"offset uncertainty {sig:.3f} µT 1σ (≤ {g.max_offset_sigma_ut:g})"),
+        ]
+
+    def ready(self) -> bool:
+        return self.status is Status.COLLECTING and all(r.passed for r in self.live_gates())
+
+    def failing_gates(self) -> list[GateResult]:
+        return [r for r in self.live_gates() if not r.passed]
+
+    def progress(self) -> dict:
+        est = self.estimate
+        return {
+            "status": self.status.value,
+            "samples": int(self.counters["samples_in"]),
+            "kept": len(self.kept),
+            "coverage": self.kept.coverage(),
+            "offset_ut": [float(v) for v in est.offset_ut] if est else None,
+            "field_ut": float(est.field_ut) if est else None,
+        }
+
+    # -- solving ---------------------------------------------------------------------------------
+    def solve(self):
+        """Final fit on the kept samples; on success the session moves to WRITING's doorstep.
+
+        Returns the FitResult, or the failure (and the session is FAILED)."""
+        self._set_status(Status.SOLVING)
+        self.update_estimate()
+        result = fits.fit(self.kept.field_ut, model=self.model, outliers=True)
+        if not result:
+            self.fail("fit_failed", f"the fit failed: {getattr(result, 'message', result)}")
+            return result
+        unc = result.uncertainty
+        self.final_gates = self._model_gates(
+            result.calibration.offset_ut, result.calibration.field_ut, result.rms_ut, np.asarray(unc["offset_ut"])
+        )
+        failing = [r for r in self.final_gates if not r.passed]
+        self.result = result
+        if failing:
+            self.fail("gate:" + failing[0].name, "final fit fails gate: " + "; ".join(r.message for r in failing))
+            return result
+        return result
+
+    def begin_write(self) -> None:
+        self._set_status(Status.WRITING)
+
+    def stored(self) -> None:
+        self._set_status(Status.VERIFYING)
+
+    def verified(self, ok: bool, message: str = "") -> None:
+        if ok:
+            self._set_status(Status.DONE)
+        else:
+            self.fail("verify_mismatch", message or "the calibration read back differs from the one sent")
+
+    def finish_without_write(self) -> None:
+        self._set_status(Status.DONE)
+
+    @property
+    def calibration(self) -> Calibration | None:
+        return self.result.calibration if self.result else None
