@@ -58,15 +58,15 @@ def device_key(identity: Identity) -> str:
     parts = [identity.transport]
     extra = identity.extra or {}
     if "bus" in extra:
-        parts.append(str(extra["bus"]))
+        parts.append(str(extra["bus"]).removeprefix("/dev/"))
     if "address" in extra:
         addr = extra["address"]
-        parts.append(f"0x{addr:02x}" if isinstance(addr, int) else str(addr))
+        parts.append(f"0x{addr:02x}" if isinstance(addr, int) else str(addr).lower())
     if "bus" not in extra and identity.firmware:
         parts.append(identity.firmware)
     parts.append("asa" + "".join(f"{int(a):02x}" for a in identity.asa))
-    key = "_".join(parts)
-    key = re.sub(r"[^A-Za-z0-9.+-]+", "-", key).strip("-.")
+    key = "_".join(re.sub(r"[^A-Za-z0-9.+-]+", "-", p) for p in parts)
+    key = key.strip("-._")
     return key or "device"
 
 

@@ -360,7 +360,7 @@ class I2CDevice(Device):
         period = 1.0 / self.rate_hz
         while True:
             now = self.clock()
-            if self._next_due > deadline:
+            if self._next_due >= deadline and not (timeout_s <= 0 and self._next_due <= now):
                 self.sleep(max(0.0, deadline - now))
                 return items
             if self._next_due > now:
@@ -389,6 +389,12 @@ class I2CDevice(Device):
         return item
 
     def _measure_once(self, seq: int) -> Item:
+        if self._rb(AK_ADDR, REG_ST1) & ST1_DRDY:
+            # Unread data from an earlier measurement (one that finished after its deadline,
+            # or someone else's): DRDY would be already set and the next burst would read the
+            # new measurement mid-conversion (DERR). Read it out to clear DRDY.
+            self._block(AK_ADDR, REG_HXL, 7)
+            self.counters["stale_cleared"] += 1
         t_trigger = self.clock()
         self._wb(AK_ADDR, REG_CNTL, MODE_SINGLE)
         if not self._wait_drdy(t_trigger):
@@ -473,6 +479,11 @@ class I2CDevice(Device):
         from ..store import CalibrationStore
 
         return CalibrationStore(self._store_dir)
+
+    @property
+    def store_path(self):
+        """The store file that holds (or will hold) this device's calibration; None before open."""
+        return None if self.identity is None else self._store().path_for(self.identity)
 
     def _read_calibration(self) -> Calibration | None:
         self._require_open()

@@ -1,0 +1,64 @@
+"""``magcal show --port URL [--json]``: print the calibration the device (or its host-side
+store) holds. Works for every backend through the generic Device API: serial boards answer
+from EEPROM, ``i2c:`` devices from the host-side store. Exit code 0 when a calibration is
+stored, 1 when none is, 2 on errors (a torn or edited store file is an error, never applied)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..devices import open_device
+
+HELP = "print the calibration stored for a device"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--port", required=True, help="device: i2c:1, /dev/ttyACM0, sim://, … (see magcal.devices)")
+    p.add_argument("--dialect", default="native", choices=("native", "motioncal", "auto"))
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _fmt_vec(v) -> str:
+    return " ".join(f"{x:10.4f}" for x in v)
+
+
+def format_text(identity: dict, cal, where: str | None) -> str:
+    """The human-readable report (pure)."""
+    ident = "  ".join(
+        f"{k} {identity[k]}" for k in ("transport", "bus", "address", "firmware", "who_am_i", "wia") if identity.get(k)
+    )
+    lines = [f"device      {ident}  asa {' '.join(str(a) for a in identity.get('asa', []))}"]
+    if where:
+        lines.append(f"stored in   {where}")
+    if cal is None:
+        lines.append("calibration none stored (run `magcal calibrate` first)")
+        return "\n".join(lines)
+    lines.append(f"offset_ut   {_fmt_vec(cal.offset_ut)}")
+    lines.append(f"field_ut    {cal.field_ut:10.4f}")
+    w = np.asarray(cal.soft_iron)
+    for i, row in enumerate(w):
+        lines.append(f"{'soft_iron' if i == 0 else '':<11} {_fmt_vec(row)}")
+    for name, coef in cal.coef_ut_per_unit.items():
+        ref = cal.reference.get(name)
+        ref_txt = f"  (reference {ref:g})" if ref is not None else ""
+        lines.append(f"coef {name:<6} {_fmt_vec(coef)}  µT per unit{ref_txt}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    dev = open_device(args.port, dialect=args.dialect)
+    with dev:
+        identity = dev.open()
+        cal = dev.read_calibration()
+        where = getattr(dev, "store_path", None)
+    where = None if where is None else str(where)
+    if args.json:
+        out = {"device": identity.to_dict(), "calibration": None if cal is None else cal.to_dict()}
+        if where:
+            out["stored_in"] = where
+        print(json.dumps(out, indent=2))
+    else:
+        print(format_text(identity.to_dict(), cal, where))
+    return 0 if cal is not None else 1
