@@ -4,7 +4,8 @@
 
 1. Samples: an (n, 3) array in µT or a Series (flagged and non-finite rows are left out; they
    are neither used nor reported as outliers).
-2. Start: the sphere accumulator's algebraic solution (fails on too few samples / thin coverage).
+2. Start: the sphere accumulator's algebraic solution (fails on too few samples), then a
+   coverage gate: the sphere's information-matrix condition must be ≤ ``max_condition``.
 3. A robust ML sphere (soft-L1 loss, scale from the MAD of the start's residuals) so that
    spikes cannot drag the fit.
 4. Which models can this coverage determine? For the diagonal and full ellipsoid, the
@@ -113,7 +114,9 @@ def fit(
     if model not in MODELS:
         raise ValueError(f"model must be one of {', '.join(MODELS)}, not {model!r}")
     m, idx = _samples(data)
-    start = sphere_start(m)
+    # a permissive start (the accumulator's own gate is for live use); coverage is judged
+    # below on the information matrix of the geometric fit, the same test for every model
+    start = sphere_start(m, max_condition=100 * max_condition)
     if isinstance(start, FitFailure):
         return start
     e0 = np.linalg.norm(m - start[:3], axis=1) - start[3]
@@ -122,6 +125,13 @@ def fit(
     if isinstance(robust, FitFailure):
         return robust
     sigma_r = max(_outliers.robust_sigma(robust.residual_ut), 1e-6 * robust.field_ut)
+    cond_sphere = uncertainty.information_condition(robust.jac)
+    if cond_sphere > max_condition:
+        return FitFailure(
+            "ill_conditioned",
+            f"coverage too thin even for a sphere: information-matrix condition {cond_sphere:.3g}"
+            f" > {max_condition:.3g} (e.g. flat turns only: tilt the board as well)",
+        )
 
     kinds = ["sphere"] if model == "sphere" else ["full", "diagonal", "sphere"]
     notes: list[str] = []
@@ -129,7 +139,7 @@ def fit(
     conds: dict[str, float] = {}
     for kind in kinds:
         if kind == "sphere":
-            ok, cond, why = True, uncertainty.information_condition(robust.jac), ""
+            ok, cond, why = True, cond_sphere, ""
         else:
             ok, cond, why = _gate(m, robust.theta[:4], kind, sigma_r, max_condition, max_shape_sigma)
         conds[kind] = cond

@@ -32,8 +32,8 @@ class FitResult:
     outliers: np.ndarray
     reason: str
     condition: float = float("nan")
-    used: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    residual_ut: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    used: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
+    residual_ut: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     alternatives: dict = field(default_factory=dict)
 
     def __bool__(self) -> bool:
