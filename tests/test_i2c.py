@@ -232,3 +232,21 @@ def test_write_calibration_goes_to_the_store_and_reads_back(tmp_path):
     # Another chip (other ASA trim) on the same bus and address has nothing stored.
     other = opened(FakeBus(demo_scenario(1).with_physics(asa=(120, 130, 140))), store_dir=tmp_path)
     assert other.read_calibration() is None
+
+
+class _DeadCoilBus(FakeBus):
+    """A chip whose self-test coil produces no field: Z reads ~0 in self-test mode."""
+
+    def read_i2c_block_data(self, addr, reg, n, force=None):
+        data = super().read_i2c_block_data(addr, reg, n)
+        if addr == AK_ADDR and reg == 0x03 and self.peek(AK_ADDR, REG_ASTC):
+            data[4:6] = [5, 0]
+        return data
+
+
+def test_a_dead_self_test_coil_fails_on_the_z_axis_only():
+    dev = opened(_DeadCoilBus(demo_scenario(1)))
+    result = dev.self_test()
+    assert result.axis_passed == (True, True, False) and not result.passed
+    assert result.raw[2] == 5
+    assert dev.counters["self_test_fail"] == 1

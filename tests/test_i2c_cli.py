@@ -142,3 +142,18 @@ def test_the_installed_command_on_a_missing_bus_prints_one_line_not_a_traceback(
     )
     assert proc.returncode == 2
     assert "/dev/i2c-250 does not exist" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_show_self_test_prints_each_axis_against_the_window(rig, capsys):
+    rc = main(["show", "--port", "i2c:1", "--self-test"])
+    out = capsys.readouterr().out
+    assert rc == 1  # passed, but nothing stored yet
+    assert "self-test   PASS" in out and "window [-1000, -300]" in out
+    rc = main(["show", "--port", "i2c:1", "--self-test", "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert d["self_test"]["passed"] and d["self_test"]["axes"]["x"]["window"] == [-100, 100]
+
+
+def test_show_self_test_on_a_backend_without_one_is_a_clear_error(capsys):
+    rc = main(["show", "--port", "sim://", "--self-test"])
+    assert rc == 2 and "cannot run the AK8975 self-test" in capsys.readouterr().err

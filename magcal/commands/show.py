@@ -1,7 +1,10 @@
 """``magcal show --port URL [--json]``: print the calibration the device (or its host-side
 store) holds. Works for every backend through the generic Device API: serial boards answer
 from EEPROM, ``i2c:`` devices from the host-side store. Exit code 0 when a calibration is
-stored, 1 when none is, 2 on errors (a torn or edited store file is an error, never applied)."""
+stored, 1 when none is, 2 on errors (a torn or edited store file is an error, never applied).
+
+``--self-test`` also runs the AK8975 self-test on backends that can (``i2c:``) and prints each
+axis against the datasheet window; exit code 3 when it fails."""
 
 from __future__ import annotations
 
@@ -10,6 +13,7 @@ import json
 import numpy as np
 
 from ..devices import open_device
+from ..errors import DeviceError
 
 HELP = "print the calibration stored for a device"
 
@@ -18,6 +22,7 @@ def add_arguments(p) -> None:
     p.add_argument("--port", required=True, help="device: i2c:1, /dev/ttyACM0, sim://, … (see magcal.devices)")
     p.add_argument("--dialect", default="native", choices=("native", "motioncal", "auto"))
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--self-test", action="store_true", help="also run the AK8975 self-test (i2c: devices)")
 
 
 def _fmt_vec(v) -> str:
@@ -47,10 +52,22 @@ def format_text(identity: dict, cal, where: str | None) -> str:
     return "\n".join(lines)
 
 
+def format_self_test(result) -> str:
+    lines = [f"self-test   {'PASS' if result.passed else 'FAIL'} (ASA-adjusted counts; window from the AK8975 datasheet)"]
+    for name, raw, adj, (lo, hi), ok in zip("xyz", result.raw, result.adjusted, result.window, result.axis_passed):
+        lines.append(f"  {name}  raw {raw:6d}  adjusted {adj:8.1f}  window [{lo}, {hi}]  {'ok' if ok else 'OUT'}")
+    return "\n".join(lines)
+
+
 def run(args) -> int:
     dev = open_device(args.port, dialect=args.dialect)
+    result = None
     with dev:
         identity = dev.open()
+        if args.self_test:
+            if not callable(getattr(dev, "self_test", None)):
+                raise DeviceError(f"{args.port}: this backend cannot run the AK8975 self-test (i2c: devices can)")
+            result = dev.self_test()
         cal = dev.read_calibration()
         where = getattr(dev, "store_path", None)
     where = None if where is None else str(where)
@@ -58,7 +75,13 @@ def run(args) -> int:
         out = {"device": identity.to_dict(), "calibration": None if cal is None else cal.to_dict()}
         if where:
             out["stored_in"] = where
+        if result is not None:
+            out["self_test"] = result.to_dict()
         print(json.dumps(out, indent=2))
     else:
         print(format_text(identity.to_dict(), cal, where))
+        if result is not None:
+            print(format_self_test(result))
+    if result is not None and not result.passed:
+        return 3
     return 0 if cal is not None else 1
