@@ -232,3 +232,30 @@ class Session:
     @property
     def calibration(self) -> Calibration | None:
         return self.result.calibration if self.result else None
+
+    # -- persistence (the daemon resumes a collecting session after a restart) -------------------
+    def to_state(self) -> dict:
+        """JSON-able state of a COLLECTING session (later stages are not resumed: they are
+        re-run from the collected samples). The live estimate is recomputed on load."""
+        if self.status is not Status.COLLECTING:
+            raise RuntimeError(f"only a collecting session is saved, not one that is {self.status.value}")
+        return {
+            "model": self.model,
+            "counters": {k: int(v) for k, v in self.counters.items()},
+            "accumulator": self.accumulator.to_state(),
+            "kept": self.kept.to_state(),
+        }
+
+    @classmethod
+    def from_state(cls, d: dict, gates: Gates | None = None) -> "Session":
+        """Rebuild a collecting session; ValueError when ``d`` is malformed."""
+        try:
+            s = cls(gates, d["model"])
+            s.counters = Counter({str(k): int(v) for k, v in d["counters"].items()})
+            s.accumulator = SphereAccumulator.from_state(d["accumulator"])
+            s.kept = SampleSet.from_state(d["kept"])
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"session state is malformed: {exc!r}") from None
+        if s.accumulator.n:
+            s.update_estimate()
+        return s
