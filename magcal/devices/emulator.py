@@ -1,0 +1,248 @@
+"""``emu://`` — the real firmware ELF running under simavr, spoken to through a pty.
+
+The harness (``firmware/emulator/magcal-emu``) runs the very binary a user flashes, answers its
+TWI bus with the C register model, and asks this module for every magnetometer measurement:
+it prints ``M <t_us> <k>`` and a thread here answers with ``Scenario.measure(t_s, k)`` — the one
+physics simulator — so tests know the truth. The host then talks to the board with its real
+serial client (``ProtocolDevice`` over a pyserial port on the pty).
+
+URL options (query string): ``seed=N`` (physics seed, default 1), ``eeprom=PATH`` (EEPROM file,
+kept across restarts; default a temporary file), ``pace=1`` (simulated time follows the wall
+clock), ``offset=x,y,z`` (hard iron µT), ``noise=UT``, ``faults=N`` (register-model fault flags),
+``measure_us=N`` (AK8975 measurement time). Keyword options: ``scenario=`` (a ``Scenario``,
+overrides the URL's physics), ``asa=(x, y, z)``.
+
+Nothing is built implicitly unless the build is missing: then ``make -C firmware`` and
+``make -C firmware/emulator`` run once, and a missing toolchain is a clear ``DeviceError``.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import threading
+from collections import deque
+from dataclasses import replace
+from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
+
+from ..errors import DeviceError, PortUnavailable
+from ..physics import Scenario, demo_scenario
+
+REPO = Path(__file__).resolve().parents[2]
+FIRMWARE_DIR = REPO / "firmware"
+ELF = FIRMWARE_DIR / "build" / "magcal_mpu9150.elf"
+HARNESS = FIRMWARE_DIR / "emulator" / "build" / "magcal-emu"
+ARDUINO_CORE = Path("/usr/share/arduino/hardware/arduino/avr")
+SIMAVR_HEADER = Path("/usr/include/simavr/sim_avr.h")
+AVR_PACKAGES = "gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev"
+_build_lock = threading.Lock()
+
+
+def toolchain_problem() -> str | None:
+    """Why the emulated board cannot be built here, or None when it can."""
+    missing = []
+    for tool in ("make", "cc", "avr-gcc", "avr-g++", "avr-objcopy", "avr-size"):
+        if shutil.which(tool) is None:
+            missing.append(tool)
+    if not ARDUINO_CORE.is_dir():
+        missing.append(str(ARDUINO_CORE))
+    if not SIMAVR_HEADER.exists():
+        missing.append(str(SIMAVR_HEADER))
+    if missing:
+        return f"AVR toolchain/simavr missing ({', '.join(missing)}); install: {AVR_PACKAGES}"
+    return None
+
+
+def ensure_built() -> tuple[Path, Path]:
+    """The firmware ELF and the harness, built first if either is missing."""
+    with _build_lock:
+        if ELF.exists() and HARNESS.exists():
+            return ELF, HARNESS
+        problem = toolchain_problem()
+        if problem:
+            raise DeviceError(f"emu:// needs the firmware build: {problem}")
+        for target in (FIRMWARE_DIR, FIRMWARE_DIR / "emulator"):
+            r = subprocess.run(["make", "-C", str(target)], capture_output=True, text=True)
+            if r.returncode != 0:
+                tail = (r.stderr or r.stdout).strip().splitlines()[-5:]
+                raise DeviceError(f"emu://: building {target.name} failed: " + " | ".join(tail))
+        return ELF, HARNESS
+
+
+def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != n:
+        raise DeviceError(f"emu:// option {what} needs {n} comma-separated numbers, got {text!r}")
+    return vals
+
+
+def scenario_from_query(q: dict[str, str]) -> Scenario:
+    """The physics the URL asks for: ``demo_scenario(seed)`` with optional overrides."""
+    try:
+        seed = int(q.get("seed", "1"))
+    except ValueError:
+        raise DeviceError(f"emu:// option seed must be an integer, got {q['seed']!r}") from None
+    sc = demo_scenario(seed)
+    changes = {}
+    if "offset" in q:
+        changes["hard_iron_ut"] = _floats(q["offset"], 3, "offset")
+    if "noise" in q:
+        changes["noise_ut"] = _floats(q["noise"], 1, "noise")[0]
+    return replace(sc, physics=replace(sc.physics, **changes)) if changes else sc
+
+
+class EmulatedBoard:
+    """One run of the harness: the simulated Uno + MPU-9150, its pty and its EEPROM file.
+
+    ``scenario`` is the truth the field comes from; ``served`` keeps the last measurements
+    handed to the board as ``(t_s, k, (hx, hy, hz), st2, temp_raw)``."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        eeprom_path: str | os.PathLike | None = None,
+        *,
+        pace: bool = False,
+        faults: int = 0,
+        measure_us: int | None = None,
+        boot_delay_ms: int = 30,
+    ):
+        self.scenario = scenario
+        self._tmpdir = None
+        if eeprom_path is None:
+            self._tmpdir = tempfile.mkdtemp(prefix="magcal-emu-")
+            eeprom_path = os.path.join(self._tmpdir, "eeprom.bin")
+        self.eeprom_path = str(eeprom_path)
+        self.pace = pace
+        self.faults = int(faults)
+        self.measure_us = measure_us
+        self.boot_delay_ms = boot_delay_ms
+        self.served: deque = deque(maxlen=200_000)
+        self.pty: str | None = None
+        self._proc: subprocess.Popen | None = None
+        self._thread: threading.Thread | None = None
+        self._error: str | None = None
+
+    def start(self) -> str:
+        """Start the harness; returns the pty path. The AVR boots when a host opens it."""
+        elf, harness = ensure_built()
+        asa = self.scenario.physics.asa
+        cmd = [str(harness), "--eeprom", self.eeprom_path, "--asa", ",".join(str(int(a)) for a in asa),
+               "--faults", str(self.faults), "--boot-delay-ms", str(self.boot_delay_ms)]
+        if self.measure_us is not None:
+            cmd += ["--measure-us", str(int(self.measure_us))]
+        if self.pace:
+            cmd.append("--pace")
+        cmd.append(str(elf))
+        try:
+            self._proc = subprocess.Popen(
+                cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                text=True, bufsize=1,
+            )
+        except OSError as exc:
+            raise DeviceError(f"emu://: cannot start the harness: {exc}") from exc
+        line = self._proc.stdout.readline()
+        if not line.startswith("PTY "):
+            err = self._proc.stderr.read() if self._proc.poll() is not None else ""
+            self.stop()
+            raise DeviceError(f"emu://: the harness did not report its pty ({line.strip()!r} {err.strip()})")
+        self.pty = line.split(None, 1)[1].strip()
+        self._thread = threading.Thread(target=self._serve, name="magcal-emu-physics", daemon=True)
+        self._thread.start()
+        return self.pty
+
+    def _serve(self) -> None:
+        """Answer every ``M t_us k`` with the physics' measurement at (t, k)."""
+        proc = self._proc
+        sc = self.scenario
+        try:
+            for line in proc.stdout:
+                parts = line.split()
+                if len(parts) != 3 or parts[0] != "M":
+                    continue
+                t_s = int(parts[1]) / 1e6
+                k = int(parts[2])
+                raw, st2, temp = sc.measure([t_s], [k])
+                hx, hy, hz = (int(v) for v in raw[0])
+                s2, tr = int(st2[0]), int(temp[0])
+                self.served.append((t_s, k, (hx, hy, hz), s2, tr))
+                proc.stdin.write(f"{hx} {hy} {hz} {1 if s2 & 0x08 else 0} {tr}\n")
+                proc.stdin.flush()
+        except (OSError, ValueError) as exc:  # harness gone: the reader side reports it
+            self._error = str(exc)
+
+    def reset(self) -> None:
+        """Reset the AVR now (like pressing the reset button); the host sees a fresh hello."""
+        if self._proc is None or self._proc.poll() is not None:
+            raise DeviceError("emu://: the emulated board is not running")
+        self._proc.send_signal(signal.SIGUSR1)
+
+    def running(self) -> bool:
+        return self._proc is not None and self._proc.poll() is None
+
+    def stop(self) -> None:
+        """Stop the harness (it saves the EEPROM file first)."""
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+            for f in (proc.stdin, proc.stdout, proc.stderr):
+                try:
+                    f.close()
+                except (OSError, ValueError):
+                    pass
+        if self._thread is not None:
+            self._thread.join(timeout=2)
+            self._thread = None
+        if self._tmpdir:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+            self._tmpdir = None
+
+
+def open_emulated(url: str, dialect: str = "native", **opts):
+    """``emu://[?seed=N&eeprom=PATH&pace=1…]`` → the v1 protocol client on the emulated board.
+
+    The returned device has ``.board`` (the ``EmulatedBoard``: its ``scenario``, ``reset()``,
+    ``eeprom_path``, ``served``). Closing the device stops the harness."""
+    import serial  # pyserial
+
+    from .link import ProtocolDevice
+
+    if dialect not in ("native", "auto"):
+        raise DeviceError(f"emu:// speaks protocol v1 only, not dialect {dialect!r}")
+    q = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
+    scenario = opts.pop("scenario", None) or scenario_from_query(q)
+    asa = opts.pop("asa", None)
+    if asa is not None:
+        scenario = scenario.with_physics(asa=tuple(int(a) for a in asa))
+    try:
+        faults = int(q.get("faults", opts.pop("faults", 0)))
+        measure_us = q.get("measure_us", opts.pop("measure_us", None))
+        measure_us = int(measure_us) if measure_us is not None else None
+    except ValueError:
+        raise DeviceError(f"emu:// options faults and measure_us must be integers: {url!r}") from None
+    pace = q.get("pace", "0") not in ("0", "", "false", "no") or bool(opts.pop("pace", False))
+    board = EmulatedBoard(scenario, q.get("eeprom") or opts.pop("eeprom", None), pace=pace,
+                          faults=faults, measure_us=measure_us)
+    pty = board.start()
+    try:
+        port = serial.Serial(pty, baudrate=int(opts.pop("baud", 115200)), timeout=0.05)
+    except (serial.SerialException, OSError) as exc:
+        board.stop()
+        raise PortUnavailable(f"emu://: cannot open the pty {pty}: {exc}") from exc
+    opts.pop("eeprom", None)
+    dev = ProtocolDevice(url, port, transport_name="emu", on_close=board.stop, **opts)
+    dev.board = board
+    return dev
