@@ -250,3 +250,29 @@ def test_a_dead_self_test_coil_fails_on_the_z_axis_only():
     assert result.axis_passed == (True, True, False) and not result.passed
     assert result.raw[2] == 5
     assert dev.counters["self_test_fail"] == 1
+
+
+class _GlitchyBus(FakeBus):
+    """One NACK on the n-th burst read (a glitch on a long cable)."""
+
+    fail_on = 3
+
+    def read_i2c_block_data(self, addr, reg, n, force=None):
+        if addr == AK_ADDR and reg == 0x03:
+            self.fail_on -= 1
+            if self.fail_on == 0:
+                raise OSError(121, "Remote I/O error")
+        return super().read_i2c_block_data(addr, reg, n)
+
+
+def test_a_single_bus_glitch_is_an_event_and_an_unplugged_bus_is_port_unavailable():
+    bus = _GlitchyBus(demo_scenario(1))
+    dev = opened(bus)
+    dev.start(50)
+    items = dev.read(0.19)
+    kinds = ["S" if isinstance(i, Sample) else i.detail.split(":")[0] for i in items]
+    assert kinds == ["S", "S", "i2c error"] + ["S"] * 7
+    assert dev.counters["i2c_errors"] == 1
+    bus.close()  # the adapter went away
+    with pytest.raises(PortUnavailable, match="stopped answering"):
+        dev.read(0.1)

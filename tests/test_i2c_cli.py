@@ -134,7 +134,7 @@ def test_calibrate_without_the_bus_device_file_exits_2_with_a_clear_message(monk
     assert "Traceback" not in err
 
 
-def test_the_installed_command_on_a_missing_bus_prints_one_line_not_a_traceback(tmp_path):
+def test_the_command_line_on_a_missing_bus_prints_one_line_not_a_traceback(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO), MAGCAL_STORE_DIR=str(tmp_path))
     proc = subprocess.run(
         [sys.executable, "-m", "magcal", "calibrate", "--port", "i2c:250"],
