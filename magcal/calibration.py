@@ -40,7 +40,7 @@ def _mat3(m) -> np.ndarray:
     return a
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Calibration:
     offset_ut: np.ndarray
     field_ut: float

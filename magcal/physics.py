@@ -290,8 +290,8 @@ def _block(seed: int, block: int, glitch_rate: float, glitch_ut: tuple):
 
 def _hash_uniform(seed: int, idx: np.ndarray) -> np.ndarray:
     """A deterministic uniform(0,1) per integer index (splitmix64)."""
-    x = (np.asarray(idx, dtype=np.uint64) + np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15))
     with np.errstate(over="ignore"):
+        x = np.asarray(idx, dtype=np.uint64) + np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15)
         x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
         x = x ^ (x >> np.uint64(31))

@@ -227,102 +227,147 @@ def _printable(b: bytes) -> bool:
     return all(32 <= c < 127 for c in b)
 
 
-class Framer:
-    """Bytes in, messages and link events out. Bounded memory: at most MAX_LINE bytes held."""
+_HEX = b"0123456789ABCDEFabcdef"
+
+
+def classify_line(line: bytes) -> Message | str:
+    """One complete candidate line (from its '$' up to, not including, the '\\n') → the
+    message it carries, or the name of the counter its defect goes to: ``malformed_lines``
+    (not ``$…*CC`` printable ASCII), ``bad_checksums`` (CRC mismatch or lower-case hex),
+    ``unknown_types`` or ``bad_syntax``. Pure; the one line judge for every framer."""
+    if line.endswith(b"\r"):
+        line = line[:-1]
+    star = line.rfind(b"*")
+    if not line.startswith(b"$") or star < 0 or len(line) - star != 3 or not _printable(line):
+        return "malformed_lines"
+    cc = line[star + 1 :]
+    if cc[0] not in _HEX or cc[1] not in _HEX:
+        return "malformed_lines"
+    payload = line[1:star]
+    if cc.upper() != cc or crc8(payload) != int(cc, 16):
+        return "bad_checksums"
+    try:
+        return parse_payload(payload)
+    except (ParseError, UnicodeDecodeError) as exc:
+        return "unknown_types" if "unknown message type" in str(exc) else "bad_syntax"
+
+
+class SequenceTracker:
+    """Sequence-number bookkeeping shared by every framer: gaps and device restarts."""
 
     def __init__(self):
-        self.counters: Counter = Counter()
-        self._carry = b""  # the start of an unfinished line, beginning with '$'
-        self._skipping = False  # inside an over-long run: drop until the next '\n'
-        self._last_seq: int | None = None
+        self.last: int | None = None
 
-    def reset_sequence(self) -> None:
-        """Forget the last sequence number (after the host itself reset the device)."""
-        self._last_seq = None
-
-    def feed(self, data: bytes) -> list[Item]:
-        out: list[Item] = []
-        pieces = (self._carry + bytes(data)).split(b"\n")
-        tail = pieces.pop()
-        self._carry = b""
-        for piece in pieces:
-            if self._skipping:
-                self._skipping = False
-                self.counters["noise_bytes"] += len(piece) + 1
-                continue
-            line = self._candidate(piece)
-            if line is None:
-                continue
-            if len(line) + 1 > MAX_LINE:
-                self.counters["overlong_lines"] += 1
-                self.counters["noise_bytes"] += len(line) + 1
-                continue
-            self._line(line, out)
-        if self._skipping:
-            self.counters["noise_bytes"] += len(tail)
-        else:
-            tail = self._candidate(tail) or b""
-            if len(tail) + 1 > MAX_LINE:
-                self.counters["overlong_lines"] += 1
-                self.counters["noise_bytes"] += len(tail)
-                self._skipping = True
-            else:
-                self._carry = tail
-        return out
-
-    def _candidate(self, piece: bytes) -> bytes | None:
-        """The last '$'-started part of a piece; what precedes it is noise or torn lines."""
-        last = piece.rfind(b"$")
-        if last < 0:
-            self.counters["noise_bytes"] += len(piece)
-            return None
-        first = piece.find(b"$")
-        if first != last:
-            self.counters["torn_lines"] += piece.count(b"$", first, last)
-        self.counters["noise_bytes"] += last
-        return piece[last:]
-
-    def _line(self, line: bytes, out: list) -> None:
-        if line.endswith(b"\r"):
-            line = line[:-1]
-        star = line.rfind(b"*")
-        if not line.startswith(b"$") or star < 0 or len(line) - star != 3 or not _printable(line):
-            self.counters["malformed_lines"] += 1
-            return
-        payload = line[1:star]
-        try:
-            want = int(line[star + 1 :], 16)
-        except ValueError:
-            self.counters["malformed_lines"] += 1
-            return
-        if line[star + 1 :].upper() != line[star + 1 :] or crc8(payload) != want:
-            self.counters["bad_checksums"] += 1
-            return
-        try:
-            msg = parse_payload(payload)
-        except (ParseError, UnicodeDecodeError) as exc:
-            kind = "unknown_types" if "unknown message type" in str(exc) else "bad_syntax"
-            self.counters[kind] += 1
-            return
-        self._sequence(msg, out)
-        out.append(msg)
-        self.counters["lines"] += 1
-
-    def _sequence(self, msg: Message, out: list) -> None:
-        last = self._last_seq
-        self._last_seq = msg.seq
+    def step(self, msg: Message, counters: Counter, out: list) -> None:
+        last = self.last
+        self.last = msg.seq
         if isinstance(msg, Hello) and msg.seq == 0 and last != SEQ_MOD - 1:
             if last is not None:
-                self.counters["restarts"] += 1
+                counters["restarts"] += 1
                 out.append(Restart(msg.seq))
             return
         if last is None:
             return
         lost = (msg.seq - last - 1) % SEQ_MOD
         if lost:
-            self.counters["lost_lines"] += lost
-            self.counters["gaps"] += 1
+            counters["lost_lines"] += lost
+            counters["gaps"] += 1
             out.append(Gap(msg.seq, lost))
+
+
+def _next_stop(buf: bytes, i: int) -> int:
+    """Index of the next '$' or '\\n' at or after ``i`` (``len(buf)`` when neither)."""
+    d = buf.find(b"$", i)
+    n = buf.find(b"\n", i)
+    if d < 0:
+        return len(buf) if n < 0 else n
+    return d if n < 0 or d < n else n
+
+
+class Framer:
+    """Bytes in, messages and link events out. Bounded memory: at most MAX_LINE bytes held.
+
+    The result does not depend on how the stream is split into chunks: feeding a stream whole
+    or byte by byte gives the same items and the same counters. Rules (PROTOCOL.md "Lines"):
+    every '$' starts a line; a line is complete at '\\n'. Counted, never raised:
+
+    - ``noise_bytes``: every byte not inside a complete line (bytes outside lines, torn and
+      over-long runs with their ending), except the unfinished line still held;
+    - ``torn_lines``: a '$' run cut short by the next '$';
+    - ``overlong_lines``: a '$' run that reaches MAX_LINE bytes without a '\\n' (dropped
+      until the next '\\n' or '$');
+    - per complete line, see ``classify_line``; ``lines`` counts the good ones;
+    - ``gaps``/``lost_lines``/``restarts`` from the sequence numbers (``SequenceTracker``).
+    """
+
+    def __init__(self):
+        self.counters: Counter = Counter()
+        self._carry = b""  # the start of an unfinished line, beginning with '$'
+        self._skipping = False  # inside an over-long run: drop until the next '\n' or '$'
+        self._seq = SequenceTracker()
+
+    def reset_sequence(self) -> None:
+        """Forget the last sequence number (after the host itself reset the device)."""
+        self._seq.last = None
+
+    def feed(self, data: bytes) -> list[Item]:
+        out: list[Item] = []
+        buf = bytes(data)
+        n = len(buf)
+        c = self.counters
+        i = 0
+        while i < n:
+            if self._skipping:
+                j = _next_stop(buf, i)
+                if j == n:
+                    c["noise_bytes"] += n - i
+                    break
+                self._skipping = False
+                if buf[j] == 0x0A:
+                    c["noise_bytes"] += j - i + 1
+                    i = j + 1
+                else:  # a '$' ends the over-long run and starts a new line
+                    c["noise_bytes"] += j - i
+                    i = j
+                continue
+            if not self._carry:
+                j = buf.find(b"$", i)
+                if j < 0:
+                    c["noise_bytes"] += n - i
+                    break
+                c["noise_bytes"] += j - i
+                self._carry = b"$"
+                i = j + 1
+                continue
+            j = _next_stop(buf, i)
+            if len(self._carry) + (j - i) >= MAX_LINE:  # cannot end within MAX_LINE bytes
+                c["overlong_lines"] += 1
+                c["noise_bytes"] += len(self._carry)
+                self._carry = b""
+                self._skipping = True
+            elif j == n:
+                self._carry += buf[i:]
+                break
+            elif buf[j] == 0x24:  # '$': this line was torn
+                c["torn_lines"] += 1
+                c["noise_bytes"] += len(self._carry) + (j - i)
+                self._carry = b""
+                i = j
+            else:
+                line = self._carry + buf[i:j]
+                self._carry = b""
+                i = j + 1
+                self._line(line, out)
+        return out
+
+    def _line(self, line: bytes, out: list) -> None:
+        msg = classify_line(line)
+        if isinstance(msg, str):
+            self.counters[msg] += 1
+            return
+        self._seq.step(msg, self.counters, out)
+        out.append(msg)
+        self.counters["lines"] += 1
 
 
 def parse_command(line: bytes) -> tuple[str, int, tuple[bytes, ...]]:
@@ -337,10 +382,11 @@ def parse_command(line: bytes) -> tuple[str, int, tuple[bytes, ...]]:
         raise ParseError("SYNTAX")
     payload = line[1:star]
     try:
-        if crc8(payload) != int(line[star + 1 :], 16):
-            raise ParseError("CRC")
+        want = int(line[star + 1 :], 16)
     except ValueError:
         raise ParseError("SYNTAX") from None
+    if crc8(payload) != want:
+        raise ParseError("CRC")
     toks = payload.split(b",")
     if len(toks) < 2 or len(toks[0]) != 1:
         raise ParseError("SYNTAX")

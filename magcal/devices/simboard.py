@@ -315,7 +315,9 @@ class SimBoard:
                 return
             if self.faults.get("no_write_ack"):
                 return
-            if self.faults.get("corrupt_write"):
+            if self.faults.get("corrupt_write"):  # True: the next write only; "always": every write
+                if self.faults["corrupt_write"] != "always":
+                    self.faults["corrupt_write"] = False
                 values = (values[0], values[1] + 1000, *values[2:])
             self.eeprom.save_record(values)
             self._emit("A", tag, "W")

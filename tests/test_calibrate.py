@@ -1,0 +1,125 @@
+"""``magcal calibrate`` end to end on the simulated board, as a user runs it."""
+
+import json
+
+import numpy as np
+import pytest
+
+from magcal import config
+from magcal.cli import main
+from magcal.devices import open_device
+from magcal.physics import demo_scenario
+from magcal.procedure import calibrate
+
+
+def run_cli(capsys, *argv):
+    code = main(list(argv))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.parametrize("seed", [1, 7])
+def test_recovers_the_known_offset_within_three_sigma(capsys, tmp_path, seed):
+    code, out, err = run_cli(capsys, "calibrate", "--port", f"sim://?seed={seed}&eeprom={tmp_path}/e.bin", "--json")
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["written"] is True and r["verified"] is True
+    truth = demo_scenario(seed).physics
+    offset = np.array(r["calibration"]["offset_ut"])
+    sigma = np.array(r["uncertainty"]["offset_ut"])
+    err_ut = offset - np.array(truth.hard_iron_ut)
+    assert np.all(np.abs(err_ut) <= 3 * sigma), f"error {err_ut} µT vs 1σ {sigma}"
+    assert abs(r["calibration"]["field_ut"] - truth.field_ut) < 0.5
+    assert set(r) >= {"calibration", "quality", "written", "verified", "device"}
+    assert r["device"]["wia"] == "0x48"
+    assert all(g["passed"] for g in r["quality"]["gates"])
+
+
+def test_the_written_calibration_is_on_the_board(capsys, tmp_path):
+    eeprom = tmp_path / "e.bin"
+    code, out, _ = run_cli(capsys, "calibrate", "--port", f"sim://?eeprom={eeprom}", "--json")
+    assert code == 0
+    sent = json.loads(out)["calibration"]
+    with open_device(f"sim://?eeprom={eeprom}") as dev:
+        dev.open()
+        stored = dev.read_calibration()
+    assert np.allclose(stored.offset_ut, sent["offset_ut"], atol=1e-3)
+    assert np.allclose(stored.soft_iron, sent["soft_iron"], atol=1e-6)
+
+
+def test_text_output_says_verified(capsys):
+    code, out, _ = run_cli(capsys, "calibrate", "--port", "sim://?seed=2")
+    assert code == 0
+    assert "VERIFIED" in out and "offset" in out
+
+
+def test_no_write_reports_but_leaves_the_board_alone(capsys, tmp_path):
+    eeprom = tmp_path / "e.bin"
+    code, out, _ = run_cli(capsys, "calibrate", "--port", f"sim://?eeprom={eeprom}", "--json", "--no-write")
+    r = json.loads(out)
+    assert code == 0 and r["written"] is False and r["calibration"]
+    assert not eeprom.exists()
+
+
+def test_timeout_names_the_gate_that_failed(capsys):
+    # flat turns only: the direction coverage can never pass
+    code, out, _ = run_cli(
+        capsys, "calibrate", "--port", "sim://?motion=yaw&speed=20", "--timeout", "2", "--json"
+    )
+    r = json.loads(out)
+    assert code == 3
+    assert r["failure"] == "timeout" and "min_coverage" in r["message"]
+    assert r["written"] is False and r["calibration"] is None
+
+
+@pytest.mark.parametrize("fault", ["no_write_ack", "corrupt_write"])
+def test_a_write_that_is_not_acknowledged_or_echoed_wrong_is_never_reported_written(tmp_path, fault):
+    settings = config.load(environ={})
+    dev = open_device(f"sim://?seed=3&eeprom={tmp_path}/e.bin")
+    dev.reply_timeout_s = 0.5
+    dev.open()
+    old = dev.prepare(demo_scenario(9).physics.truth())
+    dev.write_calibration(old)  # what was there before
+    dev.board.faults[fault] = True
+    outcome = calibrate(dev, settings)
+    r = outcome.to_dict()
+    assert r["written"] is False and r["verified"] is False
+    assert r["status"] == "failed"
+    if fault == "corrupt_write":
+        assert r["restored_previous"] is True
+    dev.board.faults.clear()
+    stored = dev.read_calibration()
+    # nothing bad is left behind: the previous calibration is still (or again) on the board
+    assert dev.matches(old, stored)
+    dev.close()
+
+
+def test_a_device_that_never_answers_gives_a_clear_error_and_exit_2(capsys, monkeypatch):
+    import magcal.devices.link as link
+
+    monkeypatch.setattr(link.ProtocolDevice, "__init__", _mute_init(link.ProtocolDevice.__init__))
+    code, out, err = run_cli(capsys, "calibrate", "--port", "sim://", "--json")
+    assert code == 2
+    assert "did not identify" in err and "Traceback" not in err
+
+
+def _mute_init(orig):
+    def init(self, url, transport, **kw):
+        kw["boot_timeout_s"] = 0.5
+        orig(self, url, transport, **kw)
+        transport.faults["mute"] = True
+        transport._out.clear()
+
+    return init
+
+
+def test_bad_port_option_is_a_clear_error(capsys):
+    code, _, err = run_cli(capsys, "calibrate", "--port", "sim://?sed=1")
+    assert code == 2 and "sed" in err
+
+
+def test_bad_config_key_is_named(capsys, tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("gates:\n  min_coverag: 0.5\n")
+    code, _, err = run_cli(capsys, "calibrate", "--config", str(cfg))
+    assert code == 2 and "gates.min_coverag" in err

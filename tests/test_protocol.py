@@ -1,0 +1,153 @@
+"""Protocol v1 framing, encoding and calibration records (firmware/PROTOCOL.md)."""
+
+import numpy as np
+import pytest
+
+from magcal.calibration import Calibration
+from magcal.protocol import (
+    Ack,
+    Framer,
+    Gap,
+    Hello,
+    ParseError,
+    RawSample,
+    RecordReply,
+    Restart,
+    calibration_from_record,
+    crc8,
+    crc16_ccitt,
+    encode_command,
+    encode_line,
+    parse_command,
+    quantize_calibration,
+    record_crc,
+    record_from_calibration,
+)
+
+
+def hello(seq=0):
+    return encode_line("H", [seq, 1, "0.1.0", "68", "48", 176, 178, 166, 100])
+
+
+def sample(seq, ms=10, raw=(1, 2, 3)):
+    return encode_line("S", [seq, ms, *raw, 0, -2150])
+
+
+def test_check_values_from_the_spec():
+    assert crc8(b"123456789") == 0xF4
+    assert crc16_ccitt(b"123456789") == 0x29B1
+
+
+def test_round_trip_of_every_device_message():
+    f = Framer()
+    data = (
+        hello()
+        + sample(1)
+        + encode_line("A", [2, 7, "R", 50])
+        + encode_line("E", [3, 8, "W", "RECCRC"])
+        + encode_line("C", [4, 9, "OK", *range(1, 19), "ABCD"])
+        + encode_line("L", [5, "booted"])
+    )
+    out = f.feed(data)
+    assert [type(m).__name__ for m in out] == ["Hello", "RawSample", "Ack", "ErrorReply", "RecordReply", "Log"]
+    assert out[0].asa == (176, 178, 166) and out[0].who_am_i == 0x68
+    assert out[1].raw == (1, 2, 3) and out[1].temp_raw == -2150
+    assert out[2] == Ack(2, 7, "R", ("50",))
+    assert isinstance(out[4], RecordReply) and out[4].values == tuple(range(1, 19)) and out[4].crc == 0xABCD
+    assert f.counters["lines"] == 6
+
+
+def test_torn_noise_overlong_and_bad_crc_are_counted_not_merged():
+    good = sample(2, raw=(7, 8, 9))
+    bad_crc = sample(3)[:-3] + b"00\n"
+    data = b"\x00\xffnoise" + sample(1)[:12] + good + b"$" + b"9" * 300 + b"\n" + bad_crc + sample(4)
+    f = Framer()
+    out = f.feed(data)
+    raws = [m.raw for m in out if isinstance(m, RawSample)]
+    assert raws == [(7, 8, 9), (1, 2, 3)]
+    assert f.counters["torn_lines"] == 1
+    assert f.counters["overlong_lines"] == 1
+    assert f.counters["bad_checksums"] == 1
+    assert f.counters["noise_bytes"] > 0
+
+
+def test_overlong_line_holds_bounded_memory():
+    f = Framer()
+    f.feed(b"$")
+    for _ in range(1000):
+        f.feed(b"1" * 1000)
+        assert len(f._carry) < 120
+    assert f.feed(b"\n" + sample(1)) and f.counters["overlong_lines"] == 1
+
+
+def test_gaps_and_restarts_are_reported():
+    f = Framer()
+    out = f.feed(hello(0) + sample(1) + sample(5) + hello(0) + sample(1))
+    kinds = [type(m).__name__ for m in out]
+    assert kinds == ["Hello", "RawSample", "Gap", "RawSample", "Restart", "Hello", "RawSample"]
+    gap = out[2]
+    assert gap == Gap(5, 3)
+    assert f.counters["lost_lines"] == 3 and f.counters["restarts"] == 1
+
+
+def test_sequence_wraps_without_a_gap():
+    f = Framer()
+    out = f.feed(sample(65534) + sample(65535) + sample(0) + sample(1))
+    assert not [m for m in out if isinstance(m, (Gap, Restart))]
+
+
+def test_identity_reply_does_not_count_as_restart():
+    f = Framer()
+    out = f.feed(hello(0) + sample(1) + encode_line("A", [2, 1, "I"]) + hello(3))
+    assert not [m for m in out if isinstance(m, (Gap, Restart))]
+
+
+def test_lowercase_checksum_and_spaces_are_rejected():
+    line = sample(1)
+    f = Framer()
+    assert not f.feed(line.replace(b"S,1,", b"S, 1,"))
+    assert not f.feed(line[:-3] + line[-3:-1].lower() + b"\n") or line[-3:-1] == line[-3:-1].lower()
+
+
+def test_crlf_is_accepted():
+    f = Framer()
+    out = f.feed(sample(1)[:-1] + b"\r\n")
+    assert isinstance(out[0], RawSample)
+
+
+def test_commands_parse_and_reject():
+    assert parse_command(encode_command("R", 5, 50)) == ("R", 5, (b"50",))
+    with pytest.raises(ParseError, match="CRC"):
+        parse_command(encode_command("R", 5, 50).replace(b"50", b"51"))
+    with pytest.raises(ParseError, match="SYNTAX"):
+        parse_command(b"hello\n")
+    with pytest.raises(ParseError, match="LONG"):
+        parse_command(b"$R," + b"1" * 200 + b"*00\n")
+    with pytest.raises(ValueError):
+        encode_command("G", 0)
+
+
+def test_record_round_trip_is_exact_and_crc_protected():
+    cal = Calibration(
+        offset_ut=[23.5004, -41.2, 12.8],
+        field_ut=49.9876,
+        soft_iron=[[1.01, 0.002, -0.001], [0.002, 0.99, 0.0005], [-0.001, 0.0005, 1.0]],
+        coef_ut_per_unit={"temp_c": [0.05, -0.02, 0.01], "current_a": [0.3, 0.0, -0.4]},
+        reference={"temp_c": 25.0},
+    )
+    values = record_from_calibration(cal)
+    assert len(values) == 18 and values[0] == 1
+    back = calibration_from_record(values)
+    assert record_from_calibration(back) == values
+    assert back.close_to(cal, atol_ut=6e-4, atol_w=6e-7)
+    assert record_from_calibration(quantize_calibration(back)) == values
+    crc = record_crc(values)
+    changed = list(values)
+    changed[3] += 1
+    assert record_crc(changed) != crc
+
+
+def test_record_refuses_what_v1_cannot_carry():
+    cal = Calibration([0, 0, 0], 50.0, coef_ut_per_unit={"t_s": [0.001, 0, 0]})
+    with pytest.raises(ValueError, match="t_s"):
+        record_from_calibration(cal)
