@@ -200,3 +200,27 @@ def test_a_closed_bus_fails_like_a_closed_file():
     bus.close()
     with pytest.raises(OSError):
         bus.read_byte_data(0x68, 0x75)
+
+
+def test_the_model_library_builds_with_a_plain_compiler_when_make_is_absent(tmp_path, monkeypatch):
+    import ctypes
+    import shutil
+
+    from magcal.devices import fakebus
+
+    real_which = shutil.which
+    monkeypatch.setattr(fakebus.shutil, "which", lambda name: None if name == "make" else real_which(name))
+    monkeypatch.delenv("CC", raising=False)
+    lib = tmp_path / "libmodel.so"
+    fakebus._build(lib)
+    assert ctypes.CDLL(str(lib)).mpu_model_size() > 0
+
+
+def test_no_c_compiler_is_a_clear_error(tmp_path, monkeypatch):
+    from magcal.devices import fakebus
+    from magcal.errors import DeviceError
+
+    monkeypatch.setattr(fakebus.shutil, "which", lambda name: None)
+    monkeypatch.delenv("CC", raising=False)
+    with pytest.raises(DeviceError, match="no C compiler"):
+        fakebus._build(tmp_path / "libmodel.so")
