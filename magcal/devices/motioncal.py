@@ -163,6 +163,20 @@ class MotionCalDevice(Device):
         """The calibration of the last complete Cal1/Cal2 echo seen, or None."""
         return self._echoed
 
+    def prepare(self, cal: Calibration) -> Calibration:
+        """``cal`` as the device will hold it: float32 numbers, and only hard iron, soft iron
+        and field — the packet has no room for temperature, current or drift terms, so those
+        are dropped here (counted under ``terms_dropped``) rather than refused at the write."""
+        if cal.coef_ut_per_unit:
+            self.counters["terms_dropped"] += len(cal.coef_ut_per_unit)
+            cal = Calibration(offset_ut=cal.offset_ut, field_ut=cal.field_ut, soft_iron=cal.soft_iron)
+        acc, gyr = self._offsets()
+        return mc.calibration_from_packet(mc.decode_packet(mc.encode_packet(cal, acc, gyr)))
+
+    def matches(self, sent: Calibration, stored: Calibration | None) -> bool:
+        """Equal at the precision the Cal1/Cal2 echo is printed with (3 and 4 decimals)."""
+        return stored is not None and sent.close_to(stored, **self.compare_tolerance)
+
     def _offsets(self) -> tuple[tuple, tuple]:
         c1 = self._asm.last_cal1
         acc = self.accel_offset
