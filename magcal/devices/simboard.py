@@ -8,13 +8,28 @@ URL options (query string): ``seed=N`` (physics seed), ``rate=HZ`` (initial rate
 ``speed=X`` (0 = as fast as the host reads, 1 = real time, N = N× real time; default 0),
 ``eeprom=PATH`` (persist EEPROM), ``motion=sphere|tilt|yaw|still``,
 ``offset=x,y,z`` (hard iron µT), ``noise=UT``, ``field=UT``.
-Fault injection, for tests of the layers above, goes through ``SimBoard.faults``.
+Fault injection, for tests of the layers above, goes through ``SimBoard.faults`` (flags:
+``mute``, ``no_write_ack``, ``corrupt_write``, ``unplugged``, ``stall``) or the URL option
+``fault=KIND[@T][+D][=VALUE]``, repeatable, fired when the board's physics time reaches T s:
+
+- ``unplug@T+D``: the port vanishes for D wall seconds (default 0.5): reads, writes and opens
+  fail with OSError/PortUnavailable; on replug the board boots afresh (a USB reconnect resets it);
+- ``stall@T+D``: no bytes out and no command handled for D wall seconds (default 1);
+- ``reset@T``: a line torn in the middle, then a fresh boot hello (seq 0), not streaming;
+- ``garbage@T=N``: a burst of N random bytes (default 200) in the middle of the stream;
+- ``hard_iron@T=x,y,z``: the physics' hard iron becomes (x, y, z) µT (a payload was added);
+- ``mute@T``, ``no_write_ack@T``, ``corrupt_write@T``: set that flag from T on (T = 0 if omitted).
+
+A URL with ``fault=`` or ``board=NAME`` names one simulated device: opening the same URL (or
+name) again reconnects to the same board — the same EEPROM, physics time and pending faults —
+as replugging a real board would (``forget_boards()`` drops them).
 """
 
 from __future__ import annotations
 
 import os
 import struct
+from collections import Counter
 import threading
 import time
 from dataclasses import replace
@@ -96,6 +111,12 @@ class SimBoard:
         self.eeprom = SimEeprom(eeprom_path)
         self.timeout: float | None = 0.05
         self.faults: dict = {}
+        self.schedule: list[tuple[float, str, float, object]] = []  # (t_s, kind, duration_s, value)
+        self.fired: list[tuple[float, str]] = []
+        self.sent: Counter = Counter()  # lines emitted, by kind (tests count samples sent)  # faults that went off, at what physics time
+        self._until: dict[str, float] = {}  # wall-clock end of unplug/stall
+        self._unplug_after_drain: float | None = None
+        self._rng = np.random.default_rng(0xFA17)
         self._clock = clock
         self._lock = threading.Lock()
         self._out = bytearray()
@@ -118,6 +139,7 @@ class SimBoard:
         self._emit("H", 1, FIRMWARE, "68", "48", *self.asa, self.rate_hz)
 
     def _emit(self, kind: str, *fields) -> None:
+        self.sent[kind] += 1
         self._out += encode_line(kind, (self._seq, *fields))
         self._seq = (self._seq + 1) % 65536
 
@@ -125,6 +147,9 @@ class SimBoard:
     @property
     def in_waiting(self) -> int:
         with self._lock:
+            self._check_port()
+            if self.faults.get("stall"):
+                return 0
             self._advance(0.0)
             return len(self._out)
 
@@ -132,6 +157,9 @@ class SimBoard:
         if self._closed:
             raise OSError("sim board closed")
         with self._lock:
+            self._check_port()
+            if self.faults.get("stall"):
+                return len(data)
             self._in += data
             while b"\n" in self._in:
                 line, _, rest = bytes(self._in).partition(b"\n")
@@ -148,6 +176,12 @@ class SimBoard:
         deadline = self._clock() + (self.timeout or 0.0)
         while True:
             with self._lock:
+                self._check_port()
+                if self.faults.get("stall"):
+                    if self._clock() >= deadline:
+                        return b""
+                    time.sleep(min(0.005, max(0.0, deadline - self._clock())))
+                    continue
                 self._advance(max(0.0, deadline - self._clock()))
                 if self._out:
                     chunk = bytes(self._out[:n])
@@ -167,7 +201,7 @@ class SimBoard:
     # -- simulation --------------------------------------------------------------------------
     def _advance(self, wait_s: float) -> None:
         """Produce the samples that are due. Unpaced, produce a batch whenever the host reads."""
-        if not self._streaming and self._fit is None:
+        if (not self._streaming and self._fit is None) or self._unplug_after_drain is not None:
             return
         period_ms = 1000.0 / self.rate_hz
         if self.speed > 0:
@@ -178,6 +212,9 @@ class SimBoard:
         if due <= 0:
             return
         due = min(due, 2000)
+        if self.schedule:  # stop the batch at the next scheduled fault so it fires in place
+            t_next = min(t for t, *_ in self.schedule)
+            due = max(1, min(due, int(np.ceil((t_next - self._t_s) * 1000.0 / period_ms))))
         ms = self._ms + period_ms * np.arange(1, due + 1)
         k = self._k + np.arange(due)
         t_s = self._t0_s + ms / 1000.0
@@ -187,6 +224,7 @@ class SimBoard:
         self._t_s = float(t_s[-1])
         for i in range(due):
             self._measurement(int(ms[i]), raw[i], int(st2[i]), int(temp[i]))
+        self._fire_due()
 
     def _measurement(self, ms: int, raw, st2: int, temp: int) -> None:
         hx, hy, hz = (int(v) for v in raw)
@@ -344,12 +382,118 @@ class SimBoard:
         with self._lock:
             self._boot()
 
+    # -- fault injection -------------------------------------------------------------------------
+    def _check_port(self) -> None:
+        """Raise OSError while unplugged; end unplug/stall whose wall-clock time is over."""
+        now = self._clock()
+        if self._unplug_after_drain is not None and not self._out:
+            self.faults["unplugged"] = True
+            self._until["unplugged"] = now + self._unplug_after_drain
+            self._unplug_after_drain = None
+        if self.faults.get("stall") and now >= self._until.get("stall", float("inf")):
+            self.faults["stall"] = False
+        if self.faults.get("unplugged"):
+            if now < self._until.get("unplugged", float("inf")):
+                raise OSError("sim board unplugged (device not present)")
+            self.faults["unplugged"] = False
+            self._boot()  # replugged: USB power-up resets the board
+
+    @property
+    def present(self) -> bool:
+        with self._lock:
+            try:
+                self._check_port()
+            except OSError:
+                return False
+            return True
+
+    def inject(self, kind: str, duration_s: float | None = None, value=None) -> None:
+        """Make a fault happen now (see the module docstring for the kinds)."""
+        if kind == "unplug":
+            # takes effect once the host has read what was sent before T (deterministic tests)
+            self._unplug_after_drain = 0.5 if duration_s is None else duration_s
+        elif kind == "stall":
+            self.faults["stall"] = True
+            self._until["stall"] = self._clock() + (1.0 if duration_s is None else duration_s)
+        elif kind == "reset":
+            line = encode_line("S", (self._seq, int(self._ms), 1, 2, 3, 0, 0))
+            self._out += line[: len(line) // 2]  # the reset cuts the line being sent
+            self._boot()
+        elif kind == "garbage":
+            n = 200 if value is None else int(value)
+            self._out += self._rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        elif kind == "hard_iron":
+            self.scenario = self.scenario.with_physics(hard_iron_ut=tuple(float(v) for v in value))
+        elif kind in ("mute", "no_write_ack", "corrupt_write"):
+            self.faults[kind] = True
+        else:
+            raise DeviceError(f"unknown sim fault {kind!r}; known: {', '.join(FAULT_KINDS)}")
+        self.fired.append((self._t_s, kind))
+
+    def _fire_due(self) -> None:
+        due = [f for f in self.schedule if f[0] <= self._t_s + 1e-9]
+        if not due:
+            return
+        self.schedule = [f for f in self.schedule if f[0] > self._t_s + 1e-9]
+        for _, kind, duration, value in sorted(due, key=lambda f: f[0]):
+            self.inject(kind, duration, value)
+
+    def replug(self) -> None:
+        """The host opens the port again: a closed board comes back (and boots, as a USB
+        reconnect resets an Arduino); still unplugged ⇒ OSError."""
+        with self._lock:
+            self._check_port()
+            if self._closed:
+                self._closed = False
+                self._in.clear()
+                self._out.clear()
+                self._boot()
+
+
+FAULT_KINDS = ("unplug", "stall", "reset", "garbage", "hard_iron", "mute", "no_write_ack", "corrupt_write")
+
+
+def parse_fault(spec: str) -> tuple[float, str, float | None, object]:
+    """``KIND[@T][+D][=VALUE]`` → (t_s, kind, duration_s, value); DeviceError when malformed."""
+    head, _, value = spec.partition("=")
+    head, _, dur = head.replace(" ", "+").partition("+")  # a '+' in a URL query arrives as ' '
+    kind, _, at = head.partition("@")
+    kind = kind.strip()
+    if kind not in FAULT_KINDS:
+        raise DeviceError(f"unknown sim fault {kind!r} in {spec!r}; known: {', '.join(FAULT_KINDS)}")
+    try:
+        t_s = float(at.rstrip("s")) if at else 0.0
+        duration = float(dur.rstrip("s")) if dur else None
+        if kind == "hard_iron":
+            v = tuple(float(x) for x in value.split(","))
+            if len(v) != 3:
+                raise ValueError("hard_iron takes x,y,z in µT")
+            val: object = v
+        elif kind == "garbage":
+            val = int(value) if value else None
+        else:
+            val = None
+    except ValueError as exc:
+        raise DeviceError(f"bad sim fault {spec!r}: {exc}") from None
+    if t_s < 0 or (duration is not None and duration < 0):
+        raise DeviceError(f"bad sim fault {spec!r}: times must be ≥ 0")
+    return t_s, kind, duration, val
+
+
+_BOARDS: dict[str, SimBoard] = {}
+
+
+def forget_boards() -> None:
+    """Drop the named boards kept for reconnection (tests call this between cases)."""
+    _BOARDS.clear()
+
 
 def parse_sim_url(url: str) -> dict:
     """``sim://?seed=3&rate=50`` → options dict (values validated, with clear errors)."""
     parts = urlsplit(url)
-    q = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
-    known = {"seed", "rate", "speed", "eeprom", "motion", "offset", "noise", "field"}
+    multi = parse_qs(parts.query, keep_blank_values=True)
+    q = {k: v[-1] for k, v in multi.items()}
+    known = {"seed", "rate", "speed", "eeprom", "motion", "offset", "noise", "field", "fault", "board"}
     unknown = set(q) - known
     if unknown:
         raise DeviceError(f"sim:// does not know option(s) {sorted(unknown)}; known: {sorted(known)}")
@@ -363,6 +507,8 @@ def parse_sim_url(url: str) -> dict:
             "offset": tuple(float(x) for x in q["offset"].split(",")) if "offset" in q else None,
             "noise": float(q["noise"]) if "noise" in q else None,
             "field": float(q["field"]) if "field" in q else None,
+            "faults": [parse_fault(f) for v in multi.get("fault", []) for f in v.split(";") if f],
+            "board": q.get("board") or None,
         }
     except ValueError as exc:
         raise DeviceError(f"bad sim:// option in {url!r}: {exc}") from exc
@@ -392,12 +538,26 @@ def scenario_from_options(opts: dict) -> Scenario:
 
 def open_sim(url: str, dialect: str = "native", scenario: Scenario | None = None, **options) -> ProtocolDevice:
     opts = parse_sim_url(url)
-    board = SimBoard(
-        scenario or scenario_from_options(opts),
-        rate_hz=opts["rate"],
-        speed=opts["speed"],
-        eeprom_path=opts["eeprom"],
-    )
+    key = opts["board"] or (url if opts["faults"] else None)
+    board = _BOARDS.get(key) if key else None
+    if board is not None:
+        try:
+            board.replug()
+        except OSError as exc:
+            from ..errors import PortUnavailable
+
+            raise PortUnavailable(f"cannot open {url}: {exc}") from None
+    else:
+        board = SimBoard(
+            scenario or scenario_from_options(opts),
+            rate_hz=opts["rate"],
+            speed=opts["speed"],
+            eeprom_path=opts["eeprom"],
+        )
+        board.schedule = list(opts["faults"])
+        board._fire_due()  # faults without a time are in effect from power-up
+        if key:
+            _BOARDS[key] = board
     dev = ProtocolDevice(url, board, transport_name="sim", **options)
     dev.board = board  # tests reach the simulated hardware through this
     return dev
