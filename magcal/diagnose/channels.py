@@ -1,0 +1,163 @@
+"""Offsets that follow a channel: temperature, current, time, any other numeric covariate.
+
+Model: b(x) = b₀ + K (x − x_ref), K three µT per unit of the channel (sensor frame). To first
+order the radial residual of a fit without it is uᵀK(x − x_ref), so the candidate regressors
+are (x − x_ref)·u (3 columns).
+
+Temperature and time are confounded during a monotone warm-up (physics.md): when the
+temperature history is explained by a straight line in time (|corr| ≥ CONFOUND_CORR) the two
+cannot be told apart from one recording. Diagnosis then tests a single term and reports it as
+``time_drift`` — the offset moved during the recording — with ``confounded_with: temp_c`` and
+the equivalent µT/°C in the evidence, rather than guessing a temperature law that would be
+applied (wrongly, if it is really drift) to future sessions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .finding import Finding
+
+TIME = "t_s"
+TEMP = "temp_c"
+CURRENT = "current_a"
+CONFOUND_CORR = 0.95
+
+_EFFECT = {TEMP: "temperature_drift", CURRENT: "current_interference", TIME: "time_drift"}
+_UNIT = {TEMP: "°C", CURRENT: "A", TIME: "s"}
+_WHAT = {
+    TEMP: "the die temperature",
+    CURRENT: "the current in {name}",
+    TIME: "time",
+}
+
+
+@dataclass(frozen=True)
+class ChannelCandidate:
+    channel: str
+    effect: str
+    reference: float
+    confounded_with: str | None = None
+    confound_corr: float | None = None
+
+
+def effect_name(channel: str) -> str:
+    return _EFFECT.get(channel, f"covariate:{channel}")
+
+
+def usable(x: np.ndarray) -> bool:
+    x = np.asarray(x, np.float64)
+    if not np.all(np.isfinite(x)):
+        return False
+    spread = np.ptp(x) if len(x) else 0.0
+    return bool(spread > 1e-9 * max(1.0, np.max(np.abs(x))) and len(np.unique(x[: min(len(x), 20000)])) > 1)
+
+
+def candidates(t_s: np.ndarray, channels: dict[str, np.ndarray]) -> tuple[list[ChannelCandidate], list[str]]:
+    """The channel candidates for a recording, and the names of channels skipped (constant or
+    with missing values)."""
+    out: list[ChannelCandidate] = []
+    skipped = []
+    temp_confounded = None
+    for name, x in channels.items():
+        if name == TIME:
+            continue
+        if not usable(x):
+            skipped.append(name)
+            continue
+        if name == TEMP:
+            c = float(np.corrcoef(x, t_s)[0, 1]) if np.ptp(t_s) > 0 else 0.0
+            if abs(c) >= CONFOUND_CORR:
+                temp_confounded = c
+                continue
+        ref = 0.0 if name == CURRENT else float(np.mean(x))
+        out.append(ChannelCandidate(name, effect_name(name), ref))
+    if usable(t_s):
+        out.append(
+            ChannelCandidate(
+                TIME,
+                effect_name(TIME),
+                float(np.mean(t_s)),
+                TEMP if temp_confounded is not None else None,
+                temp_confounded,
+            )
+        )
+    return out, skipped
+
+
+def regressors(x: np.ndarray, reference: float, m: np.ndarray, offset_ut: np.ndarray) -> np.ndarray:
+    d = m - offset_ut
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return -(np.asarray(x, np.float64) - reference)[:, None] * u
+
+
+def describe(
+    cand: ChannelCandidate,
+    coef: np.ndarray,
+    x: np.ndarray,
+    t_s: np.ndarray,
+    evidence: dict,
+    temp: np.ndarray | None = None,
+) -> Finding:
+    name = cand.channel
+    unit = _UNIT.get(name, "unit")
+    size = float(np.linalg.norm(coef))
+    contrib = np.abs((x - cand.reference)) * size
+    peak = float(contrib.max()) if len(contrib) else 0.0
+    hot = contrib >= 0.5 * peak if peak > 0 else np.zeros(len(x), bool)
+    what = _WHAT.get(name, "the channel {name}").format(name=name)
+    direction = coef / size if size > 0 else coef
+    where = {
+        "channel": name,
+        "direction": [float(v) for v in direction],
+        "range": [float(np.min(x)), float(np.max(x))],
+        "strong_range": [float(np.min(x[hot])), float(np.max(x[hot]))] if hot.any() else None,
+        "strong_time_s": [float(np.min(t_s[hot])), float(np.max(t_s[hot]))] if hot.any() else None,
+        "strong_fraction": float(np.mean(hot)),
+    }
+    span = float(np.ptp(x)) * size
+    if name == TIME:
+        summary = (
+            f"The offset drifted by {size:.3g} µT/s ({span:.2f} µT over the recording) along "
+            f"({_vec(direction)}): the hard iron is not constant in time."
+        )
+        if cand.confounded_with:
+            summary += (
+                " The temperature rose or fell monotonically with time here, so this drift cannot be "
+                "told apart from a temperature coefficient; record again with a non-monotone "
+                "temperature history to separate them."
+            )
+    elif name == TEMP:
+        summary = (
+            f"The offset moves with {what} by {size:.3g} µT/°C along ({_vec(direction)}): "
+            f"{span:.2f} µT across the {np.ptp(x):.1f} °C seen, which a constant hard iron cannot follow."
+        )
+    elif name == CURRENT:
+        summary = (
+            f"A current adds its own field: {size:.3g} µT per A along ({_vec(direction)}), "
+            f"{span:.2f} µT at the largest current seen, present only while the current flows."
+        )
+    else:
+        summary = (
+            f"The offset follows the channel {name!r} by {size:.3g} µT per unit along "
+            f"({_vec(direction)}), {span:.2f} µT across its range: an unmodelled field source tied to it."
+        )
+    ev = dict(evidence)
+    if cand.confounded_with:
+        ev["confounded_with"] = cand.confounded_with
+        ev["confound_corr"] = cand.confound_corr
+        if temp is not None and np.ptp(temp) > 0:
+            ev["equivalent_coef_ut_per_c"] = [float(v) for v in coef * np.ptp(x) / np.ptp(temp) * np.sign(cand.confound_corr)]
+    return Finding(
+        effect=cand.effect,
+        summary=summary,
+        where=where,
+        evidence=ev,
+        params={"channel": name, "coef_ut_per_unit": [float(v) for v in coef], "reference": cand.reference},
+    )
+
+
+def _vec(v: np.ndarray) -> str:
+    return ", ".join(f"{x:+.2f}" for x in v)

@@ -1,0 +1,256 @@
+"""The extended calibration model diagnosis fits, and its Gauss–Newton fit.
+
+Model (sensor frame, µT), per sample i with auxiliary channels x_c::
+
+    h_i = W (m_i − b − Σ_c K_c (x_ci − ref_c))        e_i = |h_i| − r
+
+W is symmetric with trace 3 (the overall scale trades with r, physics.md "Identifiability"),
+parametrised as I + Σ_p s_p E_p over an orthonormal basis of trace-free symmetric matrices —
+the five degree-2 directions of the sphere-fit residual. b is the offset at the reference
+conditions, K_c the µT of offset per unit of channel c.
+
+The fit minimises Σ e_i² (the geometric radial residual) by damped Gauss–Newton from an
+algebraic sphere start. It returns a :class:`ModelFit` or a :class:`FitFailure`, never a
+half-built object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from ..calibration import Calibration
+
+_R2 = np.sqrt(2.0)
+_R6 = np.sqrt(6.0)
+SOFT_BASIS = np.array(
+    [
+        [[1, 0, 0], [0, -1, 0], [0, 0, 0]],
+        [[1, 0, 0], [0, 1, 0], [0, 0, -2]],
+        [[0, 1, 0], [1, 0, 0], [0, 0, 0]],
+        [[0, 0, 1], [0, 0, 0], [1, 0, 0]],
+        [[0, 0, 0], [0, 0, 1], [0, 1, 0]],
+    ],
+    dtype=np.float64,
+) / np.array([_R2, _R6, _R2, _R2, _R2])[:, None, None]
+
+
+@dataclass(frozen=True)
+class Spec:
+    """Which terms a model has: soft iron or not, and which channels.
+
+    ``soft_dirs`` (5 × k, as nested tuples) restricts soft iron to the k identifiable
+    combinations of SOFT_BASIS (a coverage gate); None means all five."""
+
+    soft_iron: bool = False
+    channels: tuple[str, ...] = ()
+    soft_dirs: tuple | None = None
+
+    @property
+    def soft_matrix(self) -> np.ndarray:
+        """(5, k): columns are the fitted soft-iron directions in SOFT_BASIS coordinates."""
+        if not self.soft_iron:
+            return np.zeros((5, 0))
+        return np.eye(5) if self.soft_dirs is None else np.asarray(self.soft_dirs, np.float64).reshape(5, -1)
+
+    @property
+    def n_soft(self) -> int:
+        return self.soft_matrix.shape[1]
+
+    @property
+    def basis(self) -> np.ndarray:
+        return np.tensordot(self.soft_matrix.T, SOFT_BASIS, axes=1)  # (k, 3, 3)
+
+    @property
+    def n_params(self) -> int:
+        return 4 + self.n_soft + 3 * len(self.channels)
+
+
+@dataclass(frozen=True)
+class FitFailure:
+    reason: str
+
+    def __bool__(self) -> bool:
+        return False
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    spec: Spec
+    params: np.ndarray
+    reference: Mapping[str, float]
+    rms_ut: float
+    n: int
+    iterations: int
+    cov: np.ndarray | None = field(default=None, repr=False)
+
+    def __bool__(self) -> bool:
+        return True
+
+    # -- named parts of the parameter vector --------------------------------------------
+    @property
+    def offset_ut(self) -> np.ndarray:
+        return self.params[0:3]
+
+    @property
+    def soft(self) -> np.ndarray:
+        """Soft-iron coordinates over all five SOFT_BASIS directions."""
+        return self.spec.soft_matrix @ self.params[3 : 3 + self.spec.n_soft]
+
+    @property
+    def soft_iron(self) -> np.ndarray:
+        return np.eye(3) + np.tensordot(self.soft, SOFT_BASIS, axes=1)
+
+    @property
+    def field_ut(self) -> float:
+        return float(self.params[3 + self.spec.n_soft])
+
+    @property
+    def coef_ut_per_unit(self) -> dict[str, np.ndarray]:
+        k0 = 4 + self.spec.n_soft
+        return {c: self.params[k0 + 3 * j : k0 + 3 * j + 3].copy() for j, c in enumerate(self.spec.channels)}
+
+    def calibration(self) -> Calibration:
+        return Calibration(
+            offset_ut=self.offset_ut,
+            field_ut=self.field_ut,
+            soft_iron=self.soft_iron,
+            coef_ut_per_unit=self.coef_ut_per_unit,
+            reference={c: self.reference[c] for c in self.spec.channels},
+        )
+
+    def residual(self, m: np.ndarray, channels: Mapping[str, np.ndarray]) -> np.ndarray:
+        e, _ = residual_jacobian(self.params, self.spec, m, _centred(channels, self.spec, self.reference), False)
+        return e
+
+    def jacobian(self, m, channels) -> tuple[np.ndarray, np.ndarray]:
+        return residual_jacobian(self.params, self.spec, m, _centred(channels, self.spec, self.reference), True)
+
+
+def _centred(channels, spec: Spec, reference) -> list[np.ndarray]:
+    return [np.asarray(channels[c], np.float64) - float(reference.get(c, 0.0)) for c in spec.channels]
+
+
+def residual_jacobian(p, spec: Spec, m, xs, want_j=True):
+    """Radial residual e (n,) and its Jacobian J (n, n_params) at parameters p."""
+    b = p[0:3]
+    ns = spec.n_soft
+    basis = spec.basis if ns else None
+    k0 = 3 + ns
+    w = np.eye(3) + np.tensordot(p[3:k0], basis, axes=1) if ns else None
+    r = p[k0]
+    d = m - b
+    for j, x in enumerate(xs):
+        d = d - np.outer(x, p[k0 + 1 + 3 * j : k0 + 4 + 3 * j])
+    h = d if w is None else d @ w  # w symmetric
+    rho = np.sqrt(np.einsum("ij,ij->i", h, h))
+    e = rho - r
+    if not want_j:
+        return e, None
+    u = h / np.maximum(rho, 1e-12)[:, None]
+    wu = u if w is None else u @ w
+    cols = [-wu]
+    if ns:
+        # ∂|h|/∂s_p = uᵀ E_p d
+        cols.append(np.stack([np.einsum("ij,jk,ik->i", u, e_p, d) for e_p in basis], axis=1))
+    cols.append(-np.ones((len(m), 1)))
+    for x in xs:
+        cols.append(-x[:, None] * wu)
+    return e, np.concatenate(cols, axis=1)
+
+
+def algebraic_sphere(m: np.ndarray) -> tuple[np.ndarray, float] | FitFailure:
+    """Centre and radius minimising Σ(|m − c|² − r²)², solved in float64 about the mean."""
+    if len(m) < 4:
+        return FitFailure(f"need at least 4 samples for a sphere, got {len(m)}")
+    mu = m.mean(axis=0)
+    x = m - mu
+    a = np.column_stack([2 * x, np.ones(len(x))])
+    y = np.einsum("ij,ij->i", x, x)
+    sol, *_ = np.linalg.lstsq(a, y, rcond=None)
+    c = sol[:3]
+    r2 = sol[3] + c @ c
+    if not np.all(np.isfinite(sol)) or r2 <= 0:
+        return FitFailure("the samples do not determine a sphere (too little direction coverage)")
+    return c + mu, float(np.sqrt(r2))
+
+
+def fit_model(
+    m: np.ndarray,
+    channels: Mapping[str, np.ndarray],
+    spec: Spec,
+    reference: Mapping[str, float] | None = None,
+    start: ModelFit | None = None,
+    max_iter: int = 30,
+) -> ModelFit | FitFailure:
+    """Least-squares fit of the extended model to the radial residual."""
+    m = np.asarray(m, np.float64)
+    ref = {c: float((reference or {}).get(c, 0.0)) for c in spec.channels}
+    if len(m) < spec.n_params + 3:
+        return FitFailure(f"{len(m)} samples cannot determine {spec.n_params} parameters")
+    xs = _centred(channels, spec, ref)
+    p = np.zeros(spec.n_params)
+    if start is not None:
+        p[0:3] = start.offset_ut
+        ns = spec.n_soft
+        k0 = 3 + ns
+        if ns:
+            p[3:k0] = np.linalg.lstsq(spec.soft_matrix, start.soft, rcond=None)[0]
+        p[k0] = start.field_ut
+        old = start.coef_ut_per_unit
+        for j, c in enumerate(spec.channels):
+            if c in old:
+                p[k0 + 1 + 3 * j : k0 + 4 + 3 * j] = old[c]
+    else:
+        sph = algebraic_sphere(m)
+        if not sph:
+            return sph
+        p[0:3], p[3 + spec.n_soft] = sph
+    e, j = residual_jacobian(p, spec, m, xs)
+    cost = e @ e
+    lam = 1e-6
+    it = 0
+    for it in range(1, max_iter + 1):
+        jtj = j.T @ j
+        g = j.T @ e
+        dscale = np.sqrt(np.maximum(np.diag(jtj), 1e-30))
+        a = jtj / np.outer(dscale, dscale)
+        improved = False
+        for _ in range(12):
+            try:
+                step = -np.linalg.solve(a + lam * np.eye(len(p)), g / dscale) / dscale
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            p_new = p + step
+            e_new, _ = residual_jacobian(p_new, spec, m, xs, False)
+            c_new = e_new @ e_new
+            if np.isfinite(c_new) and c_new <= cost:
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            break
+        rel = (cost - c_new) / max(cost, 1e-300)
+        p = p_new
+        cost = c_new
+        lam = max(lam / 10, 1e-9)
+        e, j = residual_jacobian(p, spec, m, xs)
+        if rel < 1e-10:
+            break
+    if not np.all(np.isfinite(p)):
+        return FitFailure("the fit diverged")
+    if spec.n_soft:
+        w = np.eye(3) + np.tensordot(p[3 : 3 + spec.n_soft], spec.basis, axes=1)
+        if np.any(np.linalg.eigvalsh(w) <= 0):
+            return FitFailure("the fitted soft-iron matrix is not positive definite")
+    n = len(m)
+    dof = max(n - len(p), 1)
+    s2 = cost / dof
+    try:
+        cov = s2 * np.linalg.pinv(j.T @ j)
+    except np.linalg.LinAlgError:
+        cov = None
+    return ModelFit(spec, p, ref, float(np.sqrt(cost / n)), n, it, cov)

@@ -1,0 +1,78 @@
+"""Soft iron / scale mismatch / non-orthogonality: the degree-2 part of the sphere residual.
+
+The candidate regressors are ∂|h|/∂s_p = uᵀE_p d for the five trace-free symmetric directions
+E_p (magcal.diagnose.model.SOFT_BASIS). From magnitudes alone the three causes cannot be told
+apart (physics.md), so they are one effect with one symmetric matrix.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .finding import Finding
+from .model import SOFT_BASIS
+
+EFFECT = "soft_iron"
+MIN_GAIN_DEVIATION = 0.0025  # practical floor: 0.25 % of gain
+
+
+def regressors(m: np.ndarray, offset_ut: np.ndarray) -> np.ndarray:
+    d = m - offset_ut
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    return np.stack([np.einsum("ij,jk,ik->i", u, e_p, d) for e_p in SOFT_BASIS], axis=1)
+
+
+def gains(soft_iron: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sensor's relative gains along its principal axes (eigen-decomposition of W⁻¹,
+    normalised to a mean of 1) and those axes as columns."""
+    g, v = np.linalg.eigh(np.linalg.inv(soft_iron))
+    return g / g.mean(), v
+
+
+def max_deviation(soft_iron: np.ndarray) -> float:
+    g, _ = gains(soft_iron)
+    return float(np.max(np.abs(g - 1.0)))
+
+
+def describe(soft_iron: np.ndarray, evidence: dict) -> Finding:
+    g, v = gains(soft_iron)
+    hi, lo = int(np.argmax(g)), int(np.argmin(g))
+    spread = 100.0 * (g[hi] - g[lo])
+    dev = 100.0 * max_deviation(soft_iron)
+    off = soft_iron - np.diag(np.diag(soft_iron))
+    kind = "cross-axis coupling or non-orthogonal axes" if np.max(np.abs(off)) > 0.5 * np.max(
+        np.abs(np.diag(soft_iron) - np.trace(soft_iron) / 3)
+    ) else "different scale factors per axis"
+    summary = (
+        f"The sensor's gain depends on the field direction ({kind}): it reads {spread:.2f} % more "
+        f"along {_axis(v[:, hi])} than along {_axis(v[:, lo])}, so the data lie on an ellipsoid "
+        "that a sphere fit leaves as a two-cycle heading error."
+    )
+    return Finding(
+        effect=EFFECT,
+        summary=summary,
+        where={
+            "high_gain_direction": [float(x) for x in _sign(v[:, hi])],
+            "low_gain_direction": [float(x) for x in _sign(v[:, lo])],
+            "gain_spread_pct": float(spread),
+        },
+        evidence=evidence,
+        params={
+            "soft_iron": [[float(x) for x in row] for row in soft_iron],
+            "principal_gains": [float(x) for x in g],
+            "max_gain_deviation_pct": float(dev),
+        },
+    )
+
+
+def _sign(v: np.ndarray) -> np.ndarray:
+    return v if v[np.argmax(np.abs(v))] >= 0 else -v
+
+
+def _axis(v: np.ndarray) -> str:
+    v = _sign(v)
+    names = "xyz"
+    big = np.argsort(-np.abs(v))
+    if abs(v[big[0]]) > 0.95:
+        return f"the sensor {names[big[0]]} axis"
+    return "the direction (" + ", ".join(f"{x:+.2f}" for x in v) + ")"
