@@ -10,7 +10,8 @@ stores the floats and prints ``Wrote calibration``. The field comes from
 Faults: ``noise`` (probability per line of garbage bytes ahead of it, or a garbage line),
 ``torn`` (probability that a line loses its tail and its ending), ``ending`` (``"\\r"``,
 ``"\\n"``, ``"\\r\\n"``), ``echo`` (``"ok"``; ``"never"`` — no packet handler and no Cal lines,
-like a plain Raw: sketch; ``"wrong"`` — stores the packet but echoes a hard-iron x 0.5 µT off;
+like a plain Raw: sketch; ``store_delay_loops`` delays storing, so Cal lines printed
+before the store are still on the way when the host starts listening; ``"wrong"`` — stores the packet but echoes a hard-iron x 0.5 µT off;
 ``"ignore"`` — prints Cal lines with its defaults but has no packet handler).
 
 The host opens ``board.port`` (the pty's slave path) like any serial port.
@@ -61,6 +62,7 @@ class AdafruitBoard:
         cal_period: int = 100,
         seed: int = 0,
         banner: bool = True,
+        store_delay_loops: int = 0,
     ):
         if echo not in ("ok", "never", "wrong", "ignore"):
             raise ValueError(f"echo mode {echo!r}")
@@ -74,6 +76,9 @@ class AdafruitBoard:
         self.echo = echo
         self.cal_period = cal_period
         self.banner = banner
+        self.store_delay_loops = store_delay_loops
+        self._loop = 0
+        self._due: list[tuple[int, tuple]] = []  # (loop at which to store, packet floats)
         self.rng = np.random.default_rng(seed)
         # what the sketch holds (Adafruit_Sensor_Calibration defaults: identity, field 50)
         self.accel_zerog = [0.0, 0.0, 0.0]
@@ -192,7 +197,7 @@ class AdafruitBoard:
                 del self._rx[:2]  # look for another signature inside, as the sketch does
                 continue
             del self._rx[: mc.PACKET_LEN]
-            self._store(struct.unpack("<16f", pkt[2:66]))
+            self._due.append((self._loop + self.store_delay_loops, struct.unpack("<16f", pkt[2:66])))
 
     def _store(self, f) -> None:
         self.accel_zerog = list(f[0:3])
@@ -214,7 +219,10 @@ class AdafruitBoard:
         while not self._stop.is_set():
             self._reading(loop)
             loop += 1
+            self._loop = loop
             self._receive()
+            while self._due and self._due[0][0] <= loop:
+                self._store(self._due.pop(0)[1])
             self._cal_lines(loop)
             t_next += per_reading
             delay = t_next - time.monotonic()

@@ -118,6 +118,17 @@ def test_write_is_verified_by_the_echo_and_the_device_applies_it_right():
     assert np.abs(corrected - h).max() < 1e-3
 
 
+def test_an_echo_printed_before_the_store_does_not_fail_the_write():
+    """Cal1/Cal2 lines already on their way when the packet goes out show the old values."""
+    with AdafruitBoard(cal_period=20, store_delay_loops=15) as board:
+        with open_device(board.port, dialect="motioncal", **FAST) as dev:
+            dev.open()
+            collect(dev, 100)
+            want = dev.prepare(target_calibration(board))
+            assert dev.matches(want, dev.write_calibration(want))
+            assert dev.counters["packets_sent"] == 1 and board.packets_stored == 1
+
+
 def test_device_that_never_echoes_gets_a_plain_no_reply():
     with AdafruitBoard(echo="never") as board:
         with open_device(board.port, dialect="motioncal", echo_timeout_s=0.6, tries=3) as dev:

@@ -201,36 +201,14 @@ class MotionCalDevice(Device):
             raise DeviceError(f"{self.url}: {exc}") from exc
         sent = mc.packet_values(cal, acc, gyr)
         self.last_echo_mismatch = []
-        echoes = warned = 0
+        self._echo_stats = [0, 0]  # complete echoes seen, "couldn't save" warnings
         for attempt in range(1, self.tries + 1):
             self._send(packet)
             self.counters["packets_sent"] += 1
-            cal1 = cal2 = None
-            deadline = time.monotonic() + self.echo_timeout_s
-            while time.monotonic() < deadline:
-                for line in self._pull(min(0.05, max(0.0, deadline - time.monotonic()))):
-                    if isinstance(line, mc.OtherLine) and "Couldn't save" in line.text:
-                        warned += 1
-                    if not isinstance(line, mc.CalLine):
-                        continue
-                    if line.kind == 1:
-                        cal1 = line
-                    else:
-                        cal2 = line
-                    if cal1 is None or cal2 is None:
-                        continue
-                    echoes += 1
-                    diff = mc.compare_echo(sent, cal1, cal2)
-                    if not diff:
-                        echoed = mc.calibration_from_echo(cal1, cal2)
-                        if echoed is not None:
-                            self._echoed = echoed
-                            self.counters["echo_verified"] += 1
-                            return echoed
-                    # a Cal1/Cal2 printed before the packet was stored may still be in flight:
-                    # keep listening until this attempt's time is up
-                    self.last_echo_mismatch = diff
+            if self._await_echo(sent):
+                return self._echoed
             self.counters["echo_retries"] += attempt < self.tries
+        echoes, warned = self._echo_stats
         total = self.echo_timeout_s * self.tries
         if echoes == 0:
             raise NoReply(
@@ -242,6 +220,44 @@ class MotionCalDevice(Device):
             f"{self.url}: the device echoed a different calibration after {self.tries} tries"
             f"{hint}: " + "; ".join(self.last_echo_mismatch[:6])
         )
+
+    def _await_echo(self, sent: tuple) -> bool:
+        """One attempt: True once a Cal1/Cal2 pair matches ``sent``. A mismatching pair ends
+        the attempt early only when both lines are certainly newer than the store — printed
+        after the sketch's "Wrote calibration" line, or the second of their kind since the
+        send; an older pair may still have been in flight when the packet went out."""
+        cal = {1: None, 2: None}
+        fresh = {1: False, 2: False}
+        seen = {1: 0, 2: 0}
+        stored = False
+        deadline = time.monotonic() + self.echo_timeout_s
+        while time.monotonic() < deadline:
+            for line in self._pull(min(0.05, max(0.0, deadline - time.monotonic()))):
+                if isinstance(line, mc.OtherLine):
+                    low = line.text.lower()
+                    if "couldn't save calibration" in low:
+                        self._echo_stats[1] += 1
+                    stored = stored or "wrote calibration" in low or "couldn't save calibration" in low
+                    continue
+                if not isinstance(line, mc.CalLine):
+                    continue
+                seen[line.kind] += 1
+                cal[line.kind] = line
+                fresh[line.kind] = stored or seen[line.kind] >= 2
+                if cal[1] is None or cal[2] is None:
+                    continue
+                self._echo_stats[0] += 1
+                diff = mc.compare_echo(sent, cal[1], cal[2])
+                if not diff:
+                    echoed = mc.calibration_from_echo(cal[1], cal[2])
+                    if echoed is not None:
+                        self._echoed = echoed
+                        self.counters["echo_verified"] += 1
+                        return True
+                self.last_echo_mismatch = diff
+                if fresh[1] and fresh[2]:
+                    return False
+        return False
 
     def _send(self, packet: bytes) -> None:
         try:
