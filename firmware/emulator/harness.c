@@ -75,6 +75,13 @@ static void log_to_stderr(struct avr_t *avr, const int level, const char *fmt, v
     vfprintf(stderr, fmt, ap);
 }
 
+/* simavr's own sleep hook usleep()s for the time the AVR sleeps; we pace (or not) ourselves */
+static void no_wall_sleep(struct avr_t *avr, avr_cycle_count_t how_long)
+{
+    (void)avr;
+    (void)how_long;
+}
+
 static uint64_t sim_us(const harness *h) { return (uint64_t)h->avr->cycle / (FREQ_HZ / 1000000UL); }
 
 static void die(const char *what)
@@ -378,6 +385,7 @@ int main(int argc, char **argv)
     h.avr->frequency = FREQ_HZ;
     avr_load_firmware(h.avr, &fw);
     h.avr->log = LOG_ERROR;
+    h.avr->sleep = no_wall_sleep;
 
     h.model = calloc(1, mpu_model_size());
     if (!h.model)

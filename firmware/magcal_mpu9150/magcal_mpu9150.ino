@@ -13,7 +13,9 @@
 #include <Arduino.h>
 #include <EEPROM.h>
 #include <Wire.h>
+#include <avr/interrupt.h>
 #include <avr/pgmspace.h>
+#include <avr/sleep.h>
 
 #include "sphere_fit.h"
 
@@ -97,6 +99,7 @@ static bool parse_int(const char *tok, int32_t *out);
 static int32_t parse_hex(const char *tok, uint8_t digits);
 static void poll_serial();
 static void soft_reset();
+static void idle();
 
 // ---- checksums ------------------------------------------------------------------------------
 static uint8_t crc8_update(uint8_t crc, uint8_t b)
@@ -735,19 +738,42 @@ void setup()
     soft_reset();
 }
 
+// Sleep until the next interrupt (timer0 every 1.024 ms, a received byte, a sent byte). Saves
+// power on the board, and lets the emulator skip the idle cycles instead of simulating them.
+static void idle()
+{
+    set_sleep_mode(SLEEP_MODE_IDLE);
+    cli();
+    if (Serial.available() > 0) {
+        sei();
+        return;
+    }
+    sleep_enable();
+    sei(); // the instruction after SEI runs before any interrupt: no lost wake-up
+    sleep_cpu();
+    sleep_disable();
+}
+
 void loop()
 {
     poll_serial();
+    uint32_t now = micros();
     if (g_measuring) {
-        poll_measurement();
+        if ((int32_t)(now - g_next_poll_us) >= 0)
+            poll_measurement();
+        else
+            idle();
         return;
     }
-    if (!g_streaming && !g_fit_kind)
+    if (!g_streaming && !g_fit_kind) {
+        idle();
         return;
-    uint32_t now = micros();
+    }
     uint32_t period = 1000000UL / g_rate_hz;
-    if ((int32_t)(now - g_sched_us) < 0)
+    if ((int32_t)(now - g_sched_us) < 0) {
+        idle();
         return;
+    }
     g_sched_us += period;
     if ((int32_t)(now - g_sched_us) > (int32_t)period) // fell behind: do not burst to catch up
         g_sched_us = now + period;

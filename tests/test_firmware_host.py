@@ -1,0 +1,132 @@
+"""The host's real serial client against the real firmware under the emulator (``emu://``).
+
+Streaming without loss (also when the host stops reading for a while), a board reset seen as a
+reset with no invented sample, and the whole calibrate → EEPROM → restart → read-back loop."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from firmware_support import require_firmware
+from magcal.calibration import Calibration
+from magcal.cli import main as cli_main
+from magcal.devices import Event, open_device
+from magcal.protocol import record_from_calibration
+from magcal.sample import Sample
+
+
+@pytest.fixture(autouse=True)
+def _firmware():
+    require_firmware()
+
+
+def _samples(items):
+    return [i for i in items if isinstance(i, Sample)]
+
+
+def _events(items, kind):
+    return [i for i in items if isinstance(i, Event) and i.kind == kind]
+
+
+def _is_subsequence(small, big) -> bool:
+    it = iter(big)
+    return all(any(x == y for y in it) for x in small)
+
+
+def test_stream_3000_samples_none_lost_with_a_host_that_pauses(tmp_path):
+    dev = open_device(f"emu://?seed=4&eeprom={tmp_path / 'ee.bin'}")
+    with dev:
+        ident = dev.open()
+        assert (ident.who_am_i, ident.wia) == (0x68, 0x48)
+        dev.start(100)
+        items, paused = [], False
+        deadline = time.monotonic() + 90
+        while len(_samples(items)) < 3000 and time.monotonic() < deadline:
+            items.extend(dev.read(0.2))
+            if not paused and len(_samples(items)) >= 1000:
+                time.sleep(2.0)  # the host stops reading; the board must not drop lines
+                paused = True
+        dev.stop()
+        items.extend(dev.read(0.3))
+        stats = dev.stats()
+    samples = _samples(items)
+    assert len(samples) >= 3000, f"only {len(samples)} samples in 90 s"
+    assert not _events(items, "gap") and not _events(items, "reset"), stats
+    seqs = [s.seq for s in samples]
+    assert all(b - a == 1 for a, b in zip(seqs, seqs[1:])), "samples are consecutive lines"
+    # every sample is a measurement the physics served, in order, and none is missing
+    served = [r for (_, _, r, _, _) in dev.board.served]
+    got = [s.raw for s in samples]
+    assert got == served[: len(got)], "samples differ from the measurements served"
+    t = np.array([s.t_s for s in samples])
+    assert np.all(np.diff(t) > 0)
+    assert abs(np.median(np.diff(t)) - 0.010) < 0.0015
+
+
+def test_reset_mid_stream_is_seen_as_a_reset_and_no_sample_is_invented(tmp_path):
+    dev = open_device(f"emu://?seed=6&eeprom={tmp_path / 'ee.bin'}")
+    with dev:
+        dev.open()
+        dev.start(100)
+        items = []
+        while len(_samples(items)) < 200:
+            items.extend(dev.read(0.2))
+        dev.board.reset()
+        end = time.monotonic() + 3
+        while not _events(items, "reset") and time.monotonic() < end:
+            items.extend(dev.read(0.2))
+        resets = _events(items, "reset")
+        assert len(resets) == 1, items[-5:]
+        # after its reset the board is idle until told to stream again
+        quiet = _samples(dev.read(0.5))
+        assert quiet == []
+        dev.start(100)
+        after = []
+        while len(_samples(after)) < 100:
+            after.extend(dev.read(0.2))
+        dev.stop()
+    samples = _samples(items) + _samples(after)
+    got = [s.raw for s in samples]
+    served = [r for (_, _, r, _, _) in dev.board.served]
+    assert _is_subsequence(got, served), "a sample that the sensor never measured appeared"
+    assert len(served) - len(got) <= 2, "at most the measurement in flight at the reset is lost"
+    t = [s.t_s for s in samples]
+    assert all(b > a for a, b in zip(t, t[1:])), "host time keeps increasing across the reset"
+
+
+def test_calibrate_write_restart_read_back_and_calibrated_stream(tmp_path, capsys):
+    ee = tmp_path / "ee.bin"
+    url = f"emu://?seed=1&eeprom={ee}"
+    code = cli_main(["calibrate", "--port", url, "--json", "--timeout", "120"])
+    out = capsys.readouterr().out
+    report = json.loads(out[out.index("{"):])
+    assert code == 0, report.get("message")
+    assert report["written"] and report["verified"]
+    written = Calibration.from_dict(report["calibration"])
+    assert ee.exists() and ee.stat().st_size == 1024
+
+    # a new harness process on the same EEPROM file: a restarted board
+    dev = open_device(url)
+    with dev:
+        dev.open()
+        stored = dev.read_calibration()
+        assert stored is not None
+        assert record_from_calibration(stored) == record_from_calibration(written)
+        truth = dev.board.scenario.physics
+        dev.set_output(True)
+        dev.start(50)
+        items = []
+        while len(_samples(items)) < 300:
+            items.extend(dev.read(0.2))
+        dev.stop()
+    cal = np.array([s.field_ut for s in _samples(items)])
+    assert all(s.aux.get("calibrated") for s in _samples(items))
+    norms = np.linalg.norm(cal, axis=1)
+    # centred: every calibrated sample sits on the sphere of the Earth field around the origin
+    assert abs(np.median(norms) - truth.field_ut) < 0.6, np.median(norms)
+    assert np.percentile(np.abs(norms - truth.field_ut), 95) < 1.5
+    np.testing.assert_allclose(stored.offset_ut, truth.hard_iron_ut, atol=0.5)
