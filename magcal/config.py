@@ -59,12 +59,17 @@ class DaemonSettings:
     capture_max_bytes: int = 0  # rolling capture size bound; 0 = no capture
     state_every_s: float = 5.0  # how often the state file is written
     socket: bool = True  # local UNIX status socket in state_dir
+    stall_s: float = 5.0  # no sample for this long on an open link ⇒ reconnect
 
     def check(self) -> None:
         if not 0 < self.monitor_alpha < 0.5:
             raise ConfigError(f"daemon.monitor_alpha must be in (0, 0.5), got {self.monitor_alpha}")
         if self.reconnect_min_s <= 0 or self.reconnect_max_s < self.reconnect_min_s:
             raise ConfigError("daemon.reconnect_min_s must be > 0 and ≤ daemon.reconnect_max_s")
+        if self.monitor_window < 40:
+            raise ConfigError(f"daemon.monitor_window must be at least 40 samples, got {self.monitor_window}")
+        if self.capture_max_bytes < 0 or self.state_every_s <= 0 or self.stall_s <= 0:
+            raise ConfigError("daemon.capture_max_bytes must be ≥ 0, daemon.state_every_s and daemon.stall_s > 0")
 
 
 @dataclass(frozen=True)
