@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import re
 import struct
+import time
 
 import pytest
 
@@ -232,3 +233,17 @@ def test_software_reset_restarts_the_sequence(board):
     assert h.seq == 0
     more = board.pump(0.3)
     assert not any(isinstance(i, RawSample) for i in more), "a reset stops streaming"
+
+
+def test_reopening_the_port_restarts_the_board_like_an_uno(board):
+    """Opening the port of an Uno pulses DTR and resets it: the emulated board does the same
+    when a host opens its pty after it had been closed (the harness sees the close)."""
+    _boot(board)
+    board.send("G")
+    board.pump(0.3)
+    board.port.close()
+    time.sleep(0.2)
+    board.port.open()
+    h = board.wait_for(lambda i: isinstance(i, Hello), 5, "hello after reopening")
+    assert h.seq == 0
+    assert board.framer.counters["restarts"] >= 1

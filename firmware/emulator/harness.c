@@ -299,11 +299,21 @@ static void sleep_ms(int ms)
     nanosleep(&ts, NULL);
 }
 
+/* With a host process on stdin (the provider), its end of the pipe closing means it is gone:
+ * stop instead of running on as an orphan. */
+static int parent_gone(const harness *h)
+{
+    if (h->use_field)
+        return 0;
+    struct pollfd p = {.fd = 0, .events = 0};
+    return poll(&p, 1, 0) > 0 && (p.revents & (POLLHUP | POLLERR));
+}
+
 /* Wait until a host opens the pty, then give it time to finish opening (pyserial flushes the
  * input when it opens a port: a hello sent earlier would be lost). 0 when asked to stop. */
 static int wait_for_host(harness *h, int boot_delay_ms)
 {
-    while (!g_stop) {
+    while (!g_stop && !parent_gone(h)) {
         if (service_pty(h)) {
             sleep_ms(boot_delay_ms);
             h->in_len = 0; /* nothing typed before the boot reaches the board */
@@ -452,8 +462,11 @@ int main(int argc, char **argv)
         feed_uart(&h);
         if (h.pace)
             pace(&h);
-        if ((++iter & 63) == 0)
+        if ((++iter & 63) == 0) {
             eeprom_save_if_changed(&h);
+            if (parent_gone(&h))
+                break;
+        }
     }
 done:
     eeprom_save_if_changed(&h);
