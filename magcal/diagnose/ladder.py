@@ -245,7 +245,10 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     del base_mse
 
     sim = simulated_rms(final, mk, chk, noise)
-    extra = {"skipped_channels": skipped, "candidates": {g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut} for g, r in tests.items()}}
+    extra = {"skipped_channels": skipped, "candidates": {
+            g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "coef_ut_per_unit": -r.beta if g != si.EFFECT else None}
+            for g, r in tests.items()
+        }}
     return Diagnosis(
         n_samples=len(series),
         baseline=baseline,
