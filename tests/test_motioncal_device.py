@@ -129,6 +129,18 @@ def test_an_echo_printed_before_the_store_does_not_fail_the_write():
             assert dev.counters["packets_sent"] == 1 and board.packets_stored == 1
 
 
+def test_old_echoes_waiting_in_the_port_buffer_do_not_fail_the_write():
+    """While the host fits, the board keeps printing; the backlog holds many old Cal lines."""
+    with AdafruitBoard(cal_period=10) as board:
+        with open_device(board.port, dialect="motioncal", **FAST) as dev:
+            dev.open()
+            collect(dev, 100)
+            time.sleep(0.4)  # not reading: the OS buffers a backlog of old Raw/Cal lines
+            want = dev.prepare(target_calibration(board))
+            assert dev.matches(want, dev.write_calibration(want))
+            assert dev.counters["packets_sent"] == 1 and board.packets_stored == 1
+
+
 def test_device_that_never_echoes_gets_a_plain_no_reply():
     with AdafruitBoard(echo="never") as board:
         with open_device(board.port, dialect="motioncal", echo_timeout_s=0.6, tries=3) as dev:

@@ -203,6 +203,7 @@ class MotionCalDevice(Device):
         self.last_echo_mismatch = []
         self._echo_stats = [0, 0]  # complete echoes seen, "couldn't save" warnings
         for attempt in range(1, self.tries + 1):
+            self._drain()  # lines that waited in the OS buffer predate the packet
             self._send(packet)
             self.counters["packets_sent"] += 1
             if self._await_echo(sent):
@@ -220,6 +221,17 @@ class MotionCalDevice(Device):
             f"{self.url}: the device echoed a different calibration after {self.tries} tries"
             f"{hint}: " + "; ".join(self.last_echo_mismatch[:6])
         )
+
+    def _drain(self, max_rounds: int = 1000) -> None:
+        """Parse everything already buffered on the port (samples are kept, not lost)."""
+        for _ in range(max_rounds):
+            try:
+                waiting = self._ser.in_waiting
+            except Exception as exc:
+                raise PortUnavailable(f"{self.url}: {exc}") from exc
+            if not waiting:
+                return
+            self._pull(0.0)
 
     def _await_echo(self, sent: tuple) -> bool:
         """One attempt: True once a Cal1/Cal2 pair matches ``sent``. A mismatching pair ends
