@@ -1,0 +1,193 @@
+"""magcal diagnose: each effect found by name with its parameters, clean recordings silent,
+the JSON shape of the command, the report files, outlier indices as file rows."""
+
+from __future__ import annotations
+
+import io
+import json
+from contextlib import redirect_stdout
+
+import numpy as np
+import pytest
+
+from magcal.capture import save_csv
+from magcal.cli import main
+from magcal.diagnose import diagnose
+from magcal.physics import Current, Motion, Physics, Scenario, Temperature
+
+N = 5000
+HARD = (21.0, -33.0, 8.0)
+
+
+def _sim(seed, n=N, motion=Motion("sphere", period_s=20.0), temperature=Temperature(), current=Current(), **phys):
+    sc = Scenario(physics=Physics(hard_iron_ut=HARD, **phys), motion=motion, temperature=temperature, current=current, seed=seed)
+    return sc.simulate(n, 50.0)
+
+
+def _finding(d, effect):
+    found = [f for f in d.findings if f.effect == effect]
+    assert found, f"{effect} not found; findings: {d.effects}"
+    return found[0]
+
+
+@pytest.mark.parametrize(
+    "seed,kwargs",
+    [
+        (101, {}),
+        (102, {"temperature": Temperature(swing_c=20.0, period_s=60.0), "current": Current(level_a=2.0)}),
+        (103, {"motion": Motion("tilt", max_tilt_deg=35.0)}),
+        (104, {"noise_ut": 1.0}),
+    ],
+    ids=["sphere", "with-channels", "partial-coverage", "noisy"],
+)
+def test_clean_recordings_have_no_findings(seed, kwargs):
+    run = _sim(seed, **kwargs)
+    d = diagnose(run.series)
+    assert d.effects == []
+    assert np.allclose(d.final.offset_ut, HARD, atol=0.3)
+
+
+def test_soft_iron_found_and_modelled():
+    a = ((1.012, 0.004, 0.0), (0.004, 0.993, -0.003), (0.0, -0.003, 0.995))
+    run = _sim(111, distortion=a)
+    d = diagnose(run.series)
+    assert d.effects == ["soft_iron"]
+    w = np.array(_finding(d, "soft_iron").params["soft_iron"])
+    truth = np.linalg.inv(np.array(a))
+    truth *= 3.0 / np.trace(truth)
+    assert np.allclose(w, truth, atol=2e-3)
+    assert d.final_heldout_rms_ut < d.baseline_heldout_rms_ut
+
+
+def test_temperature_drift_found_with_its_coefficient():
+    k = np.array([0.07, -0.05, 0.04])
+    run = _sim(112, temperature=Temperature(swing_c=20.0, period_s=60.0), temp_coef_ut_per_c=tuple(k))
+    d = diagnose(run.series)
+    assert d.effects == ["temperature_drift"]
+    f = _finding(d, "temperature_drift")
+    assert f.params["channel"] == "temp_c"
+    assert np.linalg.norm(np.array(f.params["coef_ut_per_unit"]) - k) < 0.3 * np.linalg.norm(k)
+    assert d.final_heldout_rms_ut < d.baseline_heldout_rms_ut
+
+
+def test_current_interference_found_on_an_intermittent_channel():
+    k = np.array([0.4, 0.3, -0.2])
+    run = _sim(113, current=Current(level_a=2.0), current_coef_ut_per_a=tuple(k))
+    d = diagnose(run.series)
+    assert d.effects == ["current_interference"]
+    f = _finding(d, "current_interference")
+    assert np.linalg.norm(np.array(f.params["coef_ut_per_unit"]) - k) < 0.3 * np.linalg.norm(k)
+
+
+def test_any_other_channel_is_a_candidate_covariate():
+    k = np.array([0.3, -0.3, 0.2])
+    run = _sim(114, current=Current(level_a=2.0), current_coef_ut_per_a=tuple(k))
+    s = run.series
+    renamed = type(s)(t_s=s.t_s, field_ut=s.field_ut, channels={"throttle": s.channels["current_a"]})
+    d = diagnose(renamed)
+    assert d.effects == ["covariate:throttle"]
+    assert _finding(d, "covariate:throttle").params["channel"] == "throttle"
+
+
+def test_time_drift_found():
+    k = np.array([0.012, -0.006, 0.005])
+    run = _sim(115, drift_ut_per_s=tuple(k))
+    d = diagnose(run.series)
+    assert d.effects == ["time_drift"]
+    f = _finding(d, "time_drift")
+    assert np.linalg.norm(np.array(f.params["coef_ut_per_unit"]) - k) < 0.3 * np.linalg.norm(k)
+
+
+def test_monotone_warm_up_is_reported_as_confounded_not_guessed():
+    run = _sim(116, drift_ut_per_s=(0.01, 0.0, -0.008))
+    s = run.series
+    warm = 20.0 + 15.0 * (s.t_s / s.t_s[-1])  # rises with time only
+    d = diagnose(type(s)(t_s=s.t_s, field_ut=s.field_ut, channels={"temp_c": warm}))
+    assert d.effects == ["time_drift"]
+    f = _finding(d, "time_drift")
+    assert f.evidence["confounded_with"] == "temp_c"
+    assert "cannot be told apart" in f.summary
+
+
+def test_glitches_found_including_sideways_ones():
+    run = _sim(117, glitch_rate=0.006)
+    d = diagnose(run.series)
+    assert d.effects == ["outliers"]
+    got = set(_finding(d, "outliers").params["indices"])
+    truth = set(int(i) for i in run.glitch_idx)
+    tp = len(got & truth)
+    f1 = 2 * tp / (len(got) + len(truth))
+    assert f1 >= 0.9
+
+
+def test_a_pair_of_effects_is_found_together():
+    run = _sim(118, temperature=Temperature(swing_c=18.0, period_s=60.0), temp_coef_ut_per_c=(0.06, 0.05, -0.04), glitch_rate=0.004)
+    d = diagnose(run.series)
+    assert sorted(d.effects) == ["outliers", "temperature_drift"]
+
+
+def _cli_json(argv) -> dict:
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        assert main(argv) == 0
+    return json.loads(buf.getvalue())
+
+
+def test_json_output_has_the_documented_shape(tmp_path):
+    run = _sim(119, temperature=Temperature(swing_c=20.0, period_s=60.0), temp_coef_ut_per_c=(0.08, -0.04, 0.05))
+    path = tmp_path / "rec.csv"
+    save_csv(run.series, path)
+    d = _cli_json(["diagnose", str(path), "--json"])
+    assert d["n_samples"] == N
+    assert d["baseline"]["model"] == "sphere"
+    for part in ("baseline", "final"):
+        assert d[part]["rms_ut"] > 0 and d[part]["heldout_rms_ut"] > 0
+    assert [f["effect"] for f in d["findings"]] == ["temperature_drift"]
+    f = d["findings"][0]
+    assert set(f) == {"effect", "summary", "where", "evidence", "params"}
+    assert f["params"]["channel"] == "temp_c" and len(f["params"]["coef_ut_per_unit"]) == 3
+    cal = d["calibration"]
+    assert len(cal["offset_ut"]) == 3 and np.array(cal["soft_iron"]).shape == (3, 3)
+    assert cal["reference"]["current_a"] == 0.0 and "temp_c" in cal["reference"]
+    # a calibrated sample per the documented formula lies on the sphere of radius field_ut
+    s = run.series
+    k = np.array(cal["coef_ut_per_unit"]["temp_c"])
+    h = (s.field_ut - cal["offset_ut"] - np.outer(s.channels["temp_c"] - cal["reference"]["temp_c"], k)) @ np.array(cal["soft_iron"]).T
+    assert np.sqrt(np.mean((np.linalg.norm(h, axis=1) - cal["field_ut"]) ** 2)) < 0.5
+
+
+def test_outlier_indices_are_data_rows_of_the_file(tmp_path):
+    run = _sim(120, glitch_rate=0.006)
+    s = run.series
+    path = tmp_path / "rec.csv"
+    lines = ["# a comment line before the header", "t,mx,my,mz,valid"]
+    # three flagged rows first: they shift positions in the analysed series but not file rows
+    lines += ["0.0,0,0,0,0"] * 3
+    for t, (x, y, z) in zip(s.t_s + 0.06, s.field_ut):
+        lines.append(f"{float(t)!r},{float(x)!r},{float(y)!r},{float(z)!r},1")
+    path.write_text("\n".join(lines) + "\n")
+    d = _cli_json(["diagnose", str(path), "--json"])
+    rows = set(d["findings"][0]["params"]["indices"])
+    truth = {int(i) + 3 for i in run.glitch_idx}
+    assert d["findings"][0]["effect"] == "outliers"
+    assert len(rows & truth) >= 0.9 * len(truth) and len(rows - truth) <= 1
+
+
+def test_report_writes_pictures_and_a_page(tmp_path):
+    run = _sim(121, temperature=Temperature(swing_c=20.0, period_s=60.0), temp_coef_ut_per_c=(0.08, -0.04, 0.05), glitch_rate=0.003)
+    path = tmp_path / "rec.csv"
+    save_csv(run.series, path)
+    out = tmp_path / "report"
+    _cli_json(["diagnose", str(path), "--json", "--report", str(out)])
+    for name in ("sphere.png", "time.png", "channels.png", "heldout.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10000
+    page = (out / "index.html").read_text()
+    assert "temperature_drift" in page and all(n in page for n in ("sphere.png", "heldout.png"))
+
+
+def test_unreadable_or_too_short_input_is_a_clear_error(tmp_path, capsys):
+    path = tmp_path / "short.csv"
+    path.write_text("t,mx,my,mz\n0,1,2,3\n1,2,3,4\n")
+    assert main(["diagnose", str(path)]) == 2
+    assert "at least" in capsys.readouterr().err
