@@ -38,7 +38,7 @@ from .failure import FitFailure
 
 DEFAULT_MIN_SAMPLES = 10
 DEFAULT_MAX_CONDITION = 300.0  # ±5° tilt ≈ 170; flat turns ≈ 700 (simulated)
-MIN_RADIUS_OVER_RMS = 10.0
+MAX_RMS_OVER_SPREAD = 0.25  # a sphere's residual is far below the samples' spread; a still cloud's is not
 _STATE_KIND = "magcal.sphere_accumulator"
 _STATE_VERSION = 1
 
@@ -234,11 +234,12 @@ class SphereAccumulator:
         ssr_w = z4 / (n * scale2**2) - 2.0 * float(x @ rhs) + float(x @ N @ x)
         ssr_w = max(ssr_w, 0.0) * n
         rms_alg = np.sqrt(ssr_w / n) * scale2
-        if radius < MIN_RADIUS_OVER_RMS * rms_alg / (2.0 * radius):
+        spread = np.sqrt(3.0) * s  # RMS distance of the samples from their mean
+        if rms_alg / (2.0 * radius) > MAX_RMS_OVER_SPREAD * spread:
             return FitFailure(
                 "degenerate",
-                f"fitted radius {radius:.3g} µT is within {MIN_RADIUS_OVER_RMS:g}× the residual RMS"
-                f" {rms_alg / (2.0 * radius):.3g} µT: the samples are a cloud, not a sphere (board held still?)",
+                f"residual RMS {rms_alg / (2.0 * radius):.3g} µT is not small against the samples' spread"
+                f" {spread:.3g} µT: a cloud, not a sphere (board held still?)",
             )
         dof = max(n - 4, 1)
         cov_x = (ssr_w / dof) * np.linalg.inv(N) / n

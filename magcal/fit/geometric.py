@@ -148,10 +148,16 @@ class GeometricFit:
         return True
 
 
+def _weighted(fun, sw):
+    return lambda theta, m, kind: sw * fun(theta, m, kind) if fun is residual else sw[:, None] * fun(theta, m, kind)
+
+
 def solve(
-    m_ut: np.ndarray, kind: str, theta0, loss: str = "linear", f_scale_ut: float = 1.0, max_nfev: int = 200
+    m_ut: np.ndarray, kind: str, theta0, loss: str = "linear", f_scale_ut: float = 1.0, max_nfev: int = 200,
+    weights=None,
 ) -> GeometricFit | FitFailure:
-    """Minimise Σ ρ(e_i) from θ0. ``loss`` is scipy's: linear (ML), huber, soft_l1, cauchy."""
+    """Minimise Σ w_i ρ(e_i) from θ0. ``loss`` is scipy's: linear (ML), huber, soft_l1, cauchy.
+    ``weights`` (n,) are inverse noise variances relative to one another (None: all equal)."""
     if kind not in KINDS:
         raise ValueError(f"unknown model kind {kind!r} (one of {', '.join(KINDS)})")
     m = np.asarray(m_ut, dtype=np.float64).reshape(-1, 3)
@@ -166,9 +172,16 @@ def solve(
     t0[:3] = 0.0
     t0[3] = theta0[3] / scale
     method = "lm" if loss == "linear" else "trf"
+    if weights is None:
+        fun, jac = residual, jacobian
+    else:
+        sw = np.sqrt(np.asarray(weights, dtype=np.float64).reshape(-1))
+        if len(sw) != len(m) or not np.all(np.isfinite(sw)) or np.any(sw < 0):
+            raise ValueError("weights must be finite, non-negative, one per sample")
+        fun, jac = _weighted(residual, sw), _weighted(jacobian, sw)
     try:
         res = least_squares(
-            residual, t0, jac=jacobian, args=(mc, kind), method=method, loss=loss,
+            fun, t0, jac=jac, args=(mc, kind), method=method, loss=loss,
             f_scale=f_scale_ut / scale, x_scale=1.0, max_nfev=max_nfev * (p + 1) if method == "lm" else max_nfev,
             xtol=1e-12, ftol=1e-12, gtol=1e-12,
         )

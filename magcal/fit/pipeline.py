@@ -10,10 +10,18 @@
    spikes cannot drag the fit.
 4. Which models can this coverage determine? For the diagonal and full ellipsoid, the
    information matrix JᵀJ at the robust sphere (unit-diagonal scaled) must have condition
-   ≤ ``max_condition`` and the predicted 1σ of the shape parameters (≈ relative gains) must be
-   ≤ ``max_shape_sigma``. A model that fails is not fitted; ``reason`` says why.
+   ≤ ``max_condition``, else the model is not fitted; once fitted, the 1σ of its shape
+   parameters (≈ relative gains, from its own residuals) must be ≤ ``max_shape_sigma``, else
+   it is rejected. ``reason`` says which and why.
 5. Each model fitted: robust fit → iterated Grubbs on its residuals (t-distribution critical
    values) → plain least squares (ML) on the kept samples → Grubbs again until nothing new.
+7. Balance: "directions" refits the chosen model with weights that give each coarse
+   equal-area direction cell the same total weight (``select.direction_weights``), so poses
+   where the board lingered do not dominate the shape; its uncertainty is the sandwich
+   covariance. "auto" (default) balances ellipsoids only: their shape is what gets
+   extrapolated into sparsely visited directions, while the sphere is the exact ML estimator
+   and weighting would cost it efficiency (bench/fit_crlb.py: 1.5× the CRLB with weights,
+   1.0× without, on ±30° tilt trials).
 6. "auto" picks by BIC (n·ln(mean e²) + p·ln n) among the determinable models; "ellipsoid"
    takes the fullest determinable ellipsoid and falls back (full → diagonal → sphere).
 """
@@ -28,9 +36,11 @@ from . import geometric, outliers as _outliers, uncertainty
 from .ellipsoid import algebraic_start
 from .failure import FitFailure
 from .result import MODEL_NAMES, FitResult
+from .select import direction_weights
 from .sphere import sphere_start
 
 MODELS = ("sphere", "ellipsoid", "auto")
+BALANCE = ("auto", "directions", "none")
 DEFAULT_MAX_CONDITION = 1.0e4
 DEFAULT_MAX_SHAPE_SIGMA = 0.01
 _ROBUST_LOSS = "soft_l1"
@@ -52,6 +62,7 @@ def _samples(data) -> tuple[np.ndarray, np.ndarray]:
 
 def _fit_kind(m, kind, theta0, sigma0, use_outliers, alpha):
     """Robust → Grubbs → ML → Grubbs … for one model. Returns (GeometricFit, kept mask)."""
+    sigma0 = max(min(sigma0, _outliers.robust_sigma(geometric.residual(theta0, m, kind))), 1e-9 * theta0[3])
     robust = geometric.solve(m, kind, theta0, loss=_ROBUST_LOSS, f_scale_ut=2.0 * sigma0)
     if isinstance(robust, FitFailure):
         return robust, None
@@ -75,24 +86,24 @@ def _fit_kind(m, kind, theta0, sigma0, use_outliers, alpha):
     return ml, keep
 
 
-def _gate(m, theta_sphere, kind, sigma, max_condition, max_shape_sigma) -> tuple[bool, float, str]:
+def _gate(m, theta_sphere, kind, max_condition) -> tuple[bool, float, str]:
+    """Can the coverage determine this model? Information-matrix condition at the sphere."""
     theta = np.concatenate([theta_sphere, np.zeros(geometric.N_SHAPE[kind])])
-    J = geometric.jacobian(theta, m, kind)
-    cond = uncertainty.information_condition(J)
-    cov = uncertainty.covariance(J, sigma)
-    shape_sigma = float(np.sqrt(np.max(np.diag(cov)[4:]))) if kind != "sphere" else 0.0
-    name = MODEL_NAMES[kind]
+    cond = uncertainty.information_condition(geometric.jacobian(theta, m, kind))
     if cond > max_condition:
         return False, cond, (
-            f"{name} not fitted: information-matrix condition {cond:.3g} > {max_condition:.3g}"
+            f"{MODEL_NAMES[kind]} not fitted: information-matrix condition {cond:.3g} > {max_condition:.3g}"
             " (coverage cannot determine it)"
         )
-    if shape_sigma > max_shape_sigma:
-        return False, cond, (
-            f"{name} not fitted: coverage determines its gains only to ±{100 * shape_sigma:.2g} %"
-            f" (limit {100 * max_shape_sigma:.2g} %)"
-        )
     return True, cond, ""
+
+
+def _shape_sigma(g: geometric.GeometricFit) -> float:
+    """Largest 1σ of the shape parameters (≈ relative gains) from the fit's own residuals."""
+    if g.kind == "sphere":
+        return 0.0
+    cov = uncertainty.covariance(g.jac, uncertainty.residual_sigma(g.residual_ut, geometric.n_params(g.kind)))
+    return float(np.sqrt(np.max(np.diag(cov)[4:])))
 
 
 def _bic(fit: geometric.GeometricFit) -> float:
@@ -109,10 +120,13 @@ def fit(
     alpha: float = _outliers.DEFAULT_ALPHA,
     max_condition: float = DEFAULT_MAX_CONDITION,
     max_shape_sigma: float = DEFAULT_MAX_SHAPE_SIGMA,
+    balance: str = "auto",
 ) -> FitResult | FitFailure:
     """Fit a calibration to magnetometer samples (µT); see the module docstring."""
     if model not in MODELS:
         raise ValueError(f"model must be one of {', '.join(MODELS)}, not {model!r}")
+    if balance not in BALANCE:
+        raise ValueError(f"balance must be one of {', '.join(BALANCE)}, not {balance!r}")
     m, idx = _samples(data)
     # a permissive start (the accumulator's own gate is for live use); coverage is judged
     # below on the information matrix of the geometric fit, the same test for every model
@@ -141,7 +155,7 @@ def fit(
         if kind == "sphere":
             ok, cond, why = True, cond_sphere, ""
         else:
-            ok, cond, why = _gate(m, robust.theta[:4], kind, sigma_r, max_condition, max_shape_sigma)
+            ok, cond, why = _gate(m, robust.theta[:4], kind, max_condition)
         conds[kind] = cond
         if not ok:
             notes.append(why)
@@ -158,6 +172,13 @@ def fit(
         f, keep = _fit_kind(m, kind, theta0, sigma_r, outliers, alpha)
         if isinstance(f, FitFailure):
             notes.append(f"{MODEL_NAMES[kind]} failed: {f.message}")
+            continue
+        ss = _shape_sigma(f)
+        if ss > max_shape_sigma:
+            notes.append(
+                f"{MODEL_NAMES[kind]} rejected: the data determine its gains only to ±{100 * ss:.2g} %"
+                f" (limit {100 * max_shape_sigma:.2g} %)"
+            )
             continue
         fits[kind] = (f, keep)
         if model == "ellipsoid" and kind != "sphere":
@@ -181,7 +202,18 @@ def fit(
         elif model == "auto":
             notes.append(f"{MODEL_NAMES[chosen]} is the only model the coverage determines")
     g, keep = fits[chosen]
-    u = uncertainty.summarise(g, noise_ut)
+    weights = None
+    if balance == "directions" or (balance == "auto" and g.kind != "sphere"):
+        mk = m[keep]
+        for _ in range(2):
+            w = direction_weights((mk - g.offset_ut) @ g.soft_iron.T)
+            gw = geometric.solve(mk, g.kind, g.theta, weights=w)
+            if isinstance(gw, FitFailure):
+                break
+            g, weights = gw, w
+        if weights is not None:
+            notes.append("samples weighted so each direction cell counts equally")
+    u = uncertainty.summarise(g, noise_ut, weights)
     cal = Calibration(offset_ut=g.offset_ut, field_ut=g.field_ut, soft_iron=g.soft_iron)
     return FitResult(
         model=MODEL_NAMES[chosen],

@@ -35,11 +35,22 @@ def soft_iron_sigma(theta: np.ndarray, kind: str, cov: np.ndarray) -> np.ndarray
     return np.sqrt(np.clip(np.diag(C), 0.0, None)).reshape(3, 3)
 
 
-def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None) -> dict:
-    """{'offset_ut': [3], 'field_ut': σ, 'soft_iron': [[3×3]]} (1σ) and the CRLB of the offset."""
+def weighted_covariance(jac: np.ndarray, weights: np.ndarray, sigma_ut: float) -> np.ndarray:
+    """Sandwich covariance of a weighted least-squares estimate under iid noise σ:
+    σ² (JᵀWJ)⁻¹ (JᵀW²J) (JᵀWJ)⁻¹."""
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    A = np.linalg.pinv(jac.T @ (w[:, None] * jac), rcond=1e-15, hermitian=True)
+    B = jac.T @ ((w * w)[:, None] * jac)
+    return sigma_ut**2 * A @ B @ A
+
+
+def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weights=None) -> dict:
+    """{'offset_ut': [3], 'field_ut': σ, 'soft_iron': [[3×3]]} (1σ) and the CRLB of the offset
+    (the bound of any unbiased estimator for this data's geometry — the weighted fit's own
+    covariance sits at or above it)."""
     p = geometric.n_params(fit.kind)
     s_hat = residual_sigma(fit.residual_ut, p)
-    cov = covariance(fit.jac, s_hat)
+    cov = covariance(fit.jac, s_hat) if weights is None else weighted_covariance(fit.jac, weights, s_hat)
     crlb = covariance(fit.jac, s_hat if noise_ut is None else float(noise_ut))
     return {
         "offset_ut": np.sqrt(np.clip(np.diag(cov)[:3], 0.0, None)),

