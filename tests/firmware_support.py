@@ -16,13 +16,23 @@ from magcal.devices.emulator import ELF, FIRMWARE_DIR, HARNESS, ensure_built, to
 from magcal.protocol import Framer, encode_command
 
 
+_built = False
+
+
 def require_firmware() -> None:
-    """Build what is missing, or skip (fail under CI) when the toolchain is absent."""
+    """Bring the firmware and harness up to date with the sources (make is incremental), or
+    skip — fail under CI — when the toolchain is absent."""
+    global _built
     problem = toolchain_problem()
     if problem is not None:
         if os.environ.get("CI") == "true":
             pytest.fail(f"CI=true but the firmware cannot be built: {problem}")
         pytest.skip(problem)
+    if not _built:
+        for target in (FIRMWARE_DIR, FIRMWARE_DIR / "emulator"):
+            r = subprocess.run(["make", "-C", str(target)], capture_output=True, text=True)
+            assert r.returncode == 0, f"make -C {target} failed:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+        _built = True
     ensure_built()
 
 
