@@ -93,7 +93,9 @@ def test_reset_mid_stream_is_seen_as_a_reset_and_no_sample_is_invented(tmp_path)
     got = [s.raw for s in samples]
     served = [r for (_, _, r, _, _) in dev.board.served]
     assert _is_subsequence(got, served), "a sample that the sensor never measured appeared"
-    assert len(served) - len(got) <= 2, "at most the measurement in flight at the reset is lost"
+    # lost: what the reset cut off (the measurement in flight and up to two lines still in the
+    # 64-byte UART buffer, as on a real board) and the measurement in flight at the final stop
+    assert len(served) - len(got) <= 5, (len(served), len(got))
     t = [s.t_s for s in samples]
     assert all(b > a for a, b in zip(t, t[1:])), "host time keeps increasing across the reset"
 
