@@ -176,6 +176,12 @@ def parse_line(line: str | bytes) -> Line:
     parsed = [_float_token(p) for p in parts]
     if len(parts) != count or any(p is None for p in parsed):
         return OtherLine(text, f"malformed {tag}")
+    # the sketches print every value of a Cal line with the same decimals: a last value with
+    # fewer is a line that lost its tail (torn) and then met an ending — not an echo
+    finite = [p[1] for p in parsed[:-1] if p[0] == p[0]]
+    last_val, last_dec = parsed[-1]
+    if finite and last_val == last_val and last_dec < max(finite):
+        return OtherLine(text, f"malformed {tag} (torn: last value has fewer decimals)")
     return CalLine(1 if tag == "Cal1:" else 2, tuple(p[0] for p in parsed), tuple(p[1] for p in parsed))
 
 

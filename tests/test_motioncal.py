@@ -139,6 +139,7 @@ def test_cal_lines_keep_their_printed_precision():
         ("Raw:1,2,3,4,5,6,7,8Raw:1,2,3,4,5,6,7,8,9", "malformed"),  # torn and glued
         ("Uni:1.0,2.0,3.0", "malformed"),
         ("Cal1:1.000,2.000", "malformed"),
+        ("Cal1:0.000,0.000,0.000,0.000,0.000,0.000,23.500,-41.200,12.800,48.2", "torn"),
     ],
 )
 def test_broken_lines_never_become_readings(text, reason):
