@@ -1,0 +1,112 @@
+"""The entry point ``magcal.fit.fit`` and ``magcal fit``: what a user sees."""
+
+import io
+import json
+import os
+from contextlib import redirect_stdout
+
+import numpy as np
+import pytest
+
+from magcal.cli import main
+from magcal.fit import FitFailure, fit
+from magcal.physics import Motion, Physics, Scenario, demo_scenario
+from magcal.series import Series
+
+DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
+
+
+def test_result_dict_has_the_documented_shape_and_calibrates():
+    run = demo_scenario(2).simulate(1500)
+    r = fit(run.series, model="ellipsoid")
+    d = json.loads(json.dumps(r.to_dict()))
+    assert d["model"] == "ellipsoid"
+    assert set(d) >= {"model", "calibration", "uncertainty", "rms_ut", "n_used", "outliers", "reason"}
+    c = d["calibration"]
+    assert len(c["offset_ut"]) == 3 and np.asarray(c["soft_iron"]).shape == (3, 3)
+    assert len(d["uncertainty"]["offset_ut"]) == 3 and np.asarray(d["uncertainty"]["soft_iron"]).shape == (3, 3)
+    m = run.series.field_ut
+    h = (m - np.array(c["offset_ut"])) @ np.array(c["soft_iron"]).T
+    assert abs(np.mean(np.linalg.norm(h, axis=1)) - c["field_ut"]) < 0.05
+    assert np.std(np.linalg.norm(h, axis=1)) < 0.5
+    truth = run.truth
+    assert np.allclose(c["offset_ut"], truth.offset_ut, atol=4 * np.max(d["uncertainty"]["offset_ut"]) + 0.05)
+
+
+def test_flagged_rows_are_neither_used_nor_called_outliers():
+    run = demo_scenario(1).simulate(800)
+    s = run.series
+    valid = s.valid.copy()
+    valid[[5, 50, 500]] = False
+    field = s.field_ut.copy()
+    field[[5, 50, 500]] = 999.0  # what a flagged overflow might hold
+    spike = 300
+    field[spike] *= 1.3  # a real outlier, 30 % off the sphere
+    r = fit(Series(t_s=s.t_s, field_ut=field, valid=valid), model="sphere")
+    assert spike in r.outliers.tolist()
+    assert not {5, 50, 500} & set(r.outliers.tolist())
+    assert r.n_used == 800 - 3 - len(r.outliers)
+
+
+def test_failures_are_values_with_reasons():
+    r = fit(np.zeros((3, 3)) + 1.0)
+    assert isinstance(r, FitFailure) and not r and r.reason == "too_few_samples"
+    assert json.loads(json.dumps(r.to_dict()))["failure"] == "too_few_samples"
+    with pytest.raises(ValueError, match="model"):
+        fit(np.ones((20, 3)), model="cylinder")
+    with pytest.raises(ValueError, match="shape"):
+        fit(np.ones((20, 2)))
+
+
+def test_real_recording_held_out_spread_is_small_with_a_sane_matrix():
+    m = np.loadtxt(os.path.join(DATA, "lsm9ds1_ckexplorer_every4th.csv"), delimiter=",", skiprows=1)
+    half = len(m) // 2
+    r = fit(m[:half], model="auto")
+    assert r.model == "ellipsoid"
+    c = r.calibration
+    h = np.linalg.norm((m[half:] - c.offset_ut) @ c.soft_iron.T, axis=1)
+    spread = np.std(h) / np.mean(h)
+    raw = np.linalg.norm(m[half:] - np.median(m, axis=0), axis=1)
+    assert spread < 0.015  # 1.5 %: MotionCal gets 1.25 % on the full-rate file
+    assert spread < 0.2 * np.std(raw) / np.mean(raw)
+    assert np.linalg.cond(c.soft_iron) < 1.3
+
+
+def write_csv(path, m):
+    with open(path, "w") as f:
+        f.write("t,mx,my,mz\n")
+        for i, row in enumerate(m):
+            f.write(f"{i * 0.02!r},{float(row[0])!r},{float(row[1])!r},{float(row[2])!r}\n")
+
+
+def run_cli(argv):
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        code = main(argv)
+    return code, buf.getvalue()
+
+
+def test_cli_json_matches_the_library(tmp_path):
+    run = demo_scenario(3).simulate(1000)
+    p = tmp_path / "rec.csv"
+    write_csv(p, run.series.field_ut)
+    code, out = run_cli(["fit", str(p), "--model", "sphere", "--json"])
+    assert code == 0
+    d = json.loads(out)
+    lib = fit(run.series.field_ut, model="sphere").to_dict()
+    assert d["model"] == "sphere"
+    assert np.allclose(d["calibration"]["offset_ut"], lib["calibration"]["offset_ut"], rtol=0, atol=1e-9)
+    assert d["n_used"] == lib["n_used"]
+    code, out = run_cli(["fit", str(p)])
+    assert code == 0 and "offset_ut" in out and "why" in out
+
+
+def test_cli_exit_codes(tmp_path, capsys):
+    yaw = Scenario(physics=Physics(hard_iron_ut=(1, 2, 3)), motion=Motion("yaw"), seed=1).simulate(600)
+    p = tmp_path / "flat.csv"
+    write_csv(p, yaw.series.field_ut)
+    code, _ = run_cli(["fit", str(p)])
+    assert code == 1
+    assert "ill_conditioned" in capsys.readouterr().err
+    code, _ = run_cli(["fit", str(tmp_path / "missing.csv")])
+    assert code == 2
