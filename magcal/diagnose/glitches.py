@@ -7,7 +7,10 @@ per axis by a robust (MAD) scale of the data's own innovations, taken locally (m
 and sample rate differ between recordings) and never below the quantisation step. The squared
 scaled innovation is referred to χ²(3) with a Bonferroni threshold over the samples. Flagged
 samples are removed one cluster peak at a time (a glitch also disturbs its neighbours'
-predictions), repaired by interpolation, and the innovations recomputed.
+predictions), repaired by interpolation, and the innovations recomputed. A flagged sample must
+also stand off the linear trend from its left and from its right (a glitch jumps and comes
+back; a level step or a fast swing agrees with one side), and bursts of flags are fast motion.
+Neighbours are taken on the nominal sample grid, not the logged timestamps (logging jitters).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-_LOCAL = 256  # samples per block of the local scale
+_LOCAL = 128  # samples per block of the local scale
 _TRIM = 0.9  # the scale is the RMS of the central 90 % of |d| …
 _TRIM_C = 0.7893  # … divided by √E[Z² | |Z| ≤ 1.645] for a Gaussian Z
 
@@ -78,13 +81,13 @@ def _quantum(m: np.ndarray) -> np.ndarray:
     return q
 
 
-def trimmed_scale(d: np.ndarray) -> np.ndarray:
-    """Per-axis robust σ of (n, 3) innovations: a trimmed RMS (quantised data make the MAD snap
+def trimmed_scale(d: np.ndarray, axis: int = 0) -> np.ndarray:
+    """Robust σ of innovations along ``axis``: a trimmed RMS (quantised data make the MAD snap
     to the count lattice; a trimmed RMS does not)."""
     ad = np.abs(d)
-    q = np.quantile(ad, _TRIM, axis=0)
+    q = np.expand_dims(np.quantile(ad, _TRIM, axis=axis), axis)
     inside = ad <= q
-    ms = np.sum(np.where(inside, ad * ad, 0.0), axis=0) / np.maximum(inside.sum(axis=0), 1)
+    ms = np.sum(np.where(inside, ad * ad, 0.0), axis=axis) / np.maximum(inside.sum(axis=axis), 1)
     return np.sqrt(ms) / _TRIM_C
 
 
@@ -93,30 +96,62 @@ def local_scale(d: np.ndarray, floor: np.ndarray) -> np.ndarray:
     max'ed with neighbouring blocks, never below half the global scale or the floor."""
     n = len(d)
     nb = max(1, n // _LOCAL)
-    edges = np.linspace(0, n, nb + 1).astype(int)
-    blk = np.array([trimmed_scale(d[a:b]) for a, b in zip(edges[:-1], edges[1:])])
     glob = trimmed_scale(d)
+    if nb == 1:
+        blk = glob[None]
+    else:
+        blk = trimmed_scale(d[: nb * _LOCAL].reshape(nb, _LOCAL, 3), axis=1)
     if nb >= 3:  # max with the neighbours: a block boundary inside a fast swing stays covered
         pad = np.vstack([blk[:1], blk, blk[-1:]])
         blk = np.maximum(np.maximum(pad[:-2], pad[1:-1]), pad[2:])
     blk = np.maximum(blk, np.maximum(0.5 * glob, floor))
-    which = np.minimum(np.arange(n) * nb // max(n, 1), nb - 1)
+    which = np.minimum(np.arange(n) // _LOCAL, nb - 1)
     return blk[which]
+
+
+def sample_grid(t: np.ndarray) -> np.ndarray:
+    """Sample positions in units of the nominal sample interval. A sensor samples at a fixed
+    rate and logging jitters the timestamps, so neighbours are neighbours; only gaps (dropped
+    samples, > 1.5 intervals) count as missing positions."""
+    n = len(t)
+    if n < 3:
+        return np.arange(n, dtype=np.float64)
+    dt = np.diff(t)
+    med = np.median(dt[dt > 0]) if np.any(dt > 0) else 0.0
+    if not med > 0:
+        return np.arange(n, dtype=np.float64)
+    steps = np.where(dt > 1.5 * med, np.round(dt / med), 1.0)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def _one_sided(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Innovations against linear extrapolation from the two samples on the left and on the
+    right (noise-variance gain 6 each)."""
+    left = np.zeros_like(m)
+    right = np.zeros_like(m)
+    left[2:] = m[2:] - (2 * m[1:-1] - m[:-2])
+    right[:-2] = m[:-2] - (2 * m[1:-1] - m[2:])
+    return left, right
+
+
+def _z(d: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.sum((d / local_scale(d, floor)) ** 2, axis=1))
 
 
 def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 8) -> Glitches:
     m = np.array(m, dtype=np.float64, copy=True)
     n = len(m)
+    g = sample_grid(np.asarray(t, np.float64))
     floor = 0.5 * _quantum(m) if n > 3 else np.full(3, 1e-3)
-    d, gain = innovations(m, t)
-    scale = local_scale(d, floor)
+    d, gain = innovations(m, g)
     noise = float(np.median(trimmed_scale(d)) / np.sqrt(gain)) if n else 0.0
     thr = float(np.sqrt(stats.chi2.isf(alpha / max(n, 1), 3))) if n else np.inf
+    side_thr = float(np.sqrt(stats.chi2.isf(alpha, 3)))
     flagged = np.zeros(n, bool)
     zs = np.zeros(n)
     jumps = np.zeros(n)
     for _ in range(max_rounds):
-        z = np.sqrt(np.sum((d / scale) ** 2, axis=1))
+        z = _z(d, floor)
         z[flagged] = 0
         over = z > thr
         if not over.any():
@@ -127,6 +162,10 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
         for s in (1, 2):
             peak &= z >= zp[2 - s : 2 - s + n]
             peak &= z >= zp[2 + s : 2 + s + n]
+        # isolated: off the trend from the left AND from the right (a step or a fast swing
+        # agrees with one side; a glitch jumps and comes back)
+        left, right = _one_sided(m)
+        peak &= np.minimum(_z(left, floor), _z(right, floor)) > side_thr
         idx = np.flatnonzero(peak)
         if len(idx) == 0:
             break
@@ -137,7 +176,12 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
         if len(good) < 3:
             break
         for a in range(3):  # repair by interpolation from unflagged samples
-            m[idx, a] = np.interp(t[idx], t[good], m[good, a])
-        d, _ = innovations(m, t)
+            m[idx, a] = np.interp(g[idx], g[good], m[good, a])
+        d, _ = innovations(m, g)
+    # bursts (three or more flags within five samples) are fast motion, not glitches
+    if flagged.any():
+        c = np.convolve(flagged.astype(int), np.ones(5, int), mode="same")
+        burst = np.convolve((c >= 3).astype(int), np.ones(5, int), mode="same") > 0
+        flagged &= ~burst
     idx = np.flatnonzero(flagged)
     return Glitches(idx, zs[idx], jumps[idx], thr, noise)
