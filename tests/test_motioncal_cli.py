@@ -67,9 +67,10 @@ def test_motioncal_report_has_the_native_shape(capsys):
 
 def test_wrong_echo_exits_nonzero_and_says_which_value(capsys):
     with AdafruitBoard(echo="wrong", cal_period=40, lines_per_s=4000) as board:
-        rc, rep = run_json(["calibrate", "--port", board.port, "--dialect", "motioncal", "--json",
-                            "--timeout", "60"], capsys)
+        rc, rep = run_json(["calibrate", "--port", board.port, "--dialect", "motioncal", "--baud", "230400",
+                            "--json", "--timeout", "60"], capsys)
     assert rc == 4
+    assert rep["device"]["baud"] == 230400  # not fixed at 115200
     assert not rep["verified"] and not rep["written"]
     assert rep["failure"] == "write_failed" and "hard_iron_x" in rep["message"]
 

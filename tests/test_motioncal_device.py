@@ -141,6 +141,16 @@ def test_old_echoes_waiting_in_the_port_buffer_do_not_fail_the_write():
             assert dev.counters["packets_sent"] == 1 and board.packets_stored == 1
 
 
+def test_read_calibration_waits_for_the_next_echo_after_open():
+    with AdafruitBoard(cal_period=100) as board:
+        board.mag_hardiron = [12.5, -3.25, 40.0]
+        with open_device(board.port, dialect="motioncal", **FAST) as dev:
+            dev.open()
+            cal = dev.read_calibration()  # nothing seen yet: listens for one Cal1/Cal2 cycle
+            assert cal is not None and np.allclose(cal.offset_ut, [12.5, -3.25, 40.0])
+            assert len(dev.read(0.0)) > 0  # the readings that arrived meanwhile are kept
+
+
 def test_device_that_never_echoes_gets_a_plain_no_reply():
     with AdafruitBoard(echo="never") as board:
         with open_device(board.port, dialect="motioncal", echo_timeout_s=0.6, tries=3) as dev:
@@ -148,6 +158,7 @@ def test_device_that_never_echoes_gets_a_plain_no_reply():
             with pytest.raises(NoReply) as err:
                 dev.write_calibration(target_calibration(board))
             assert dev.counters["packets_sent"] == 3
+            assert dev.read_calibration() is None
     msg = str(err.value)
     assert "no Cal1/Cal2 echo within 1.8 s after 3 tries" in msg
     assert "no calibration packet handler" in msg

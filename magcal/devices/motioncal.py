@@ -160,7 +160,14 @@ class MotionCalDevice(Device):
         return out
 
     def _read_calibration(self) -> Calibration | None:
-        """The calibration of the last complete Cal1/Cal2 echo seen, or None."""
+        """The calibration of the last complete Cal1/Cal2 echo seen, or None. Right after
+        ``open`` it listens until one echo period (``echo_timeout_s``) has passed since the
+        port was opened, since the sketches print Cal1/Cal2 only now and then; readings that
+        arrive meanwhile are kept for ``read``."""
+        if self._echoed is None and self._ser is not None:
+            deadline = self._t0 + self.echo_timeout_s
+            while self._echoed is None and time.monotonic() < deadline:
+                self._pull(min(0.05, max(0.0, deadline - time.monotonic())))
         return self._echoed
 
     def prepare(self, cal: Calibration) -> Calibration:
