@@ -247,3 +247,25 @@ def test_reopening_the_port_restarts_the_board_like_an_uno(board):
     h = board.wait_for(lambda i: isinstance(i, Hello), 5, "hello after reopening")
     assert h.seq == 0
     assert board.framer.counters["restarts"] >= 1
+
+
+def test_a_line_of_exactly_120_bytes_is_accepted_and_121_is_too_long(board):
+    _boot(board)
+    vals = list(_record())
+    widths = [int("5" * d) * sign for d in range(1, 10) for sign in (1, -1)]
+    for ix in widths:  # find a record whose W line is exactly 120 bytes
+        for iy in widths:
+            vals[14], vals[15], vals[16] = 555555555, ix, iy
+            line = encode_command("W", 7, *vals, f"{record_crc(vals):04X}")
+            if len(line) == 120:
+                break
+        if len(line) == 120:
+            break
+    assert len(line) == 120
+    board.write(line)
+    assert isinstance(_reply(board, 7), Ack)
+    longer = encode_command("W", 8, *vals[:14], f"+{vals[14]}", *vals[15:], f"{record_crc(vals):04X}")
+    assert len(longer) == 121
+    board.write(longer)
+    err = board.wait_for(lambda i: isinstance(i, ErrorReply), 5, "LONG")
+    assert (err.tag, err.code) == (0, "LONG")

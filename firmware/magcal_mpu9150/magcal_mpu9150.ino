@@ -702,7 +702,7 @@ static void poll_serial()
             }
         } else if (c == '\r') {
             // allowed before '\n'
-        } else if (g_in_len < MAX_LINE - 3) { // '$' + payload + '\n' <= 120, plus the NUL
+        } else if (g_in_len < MAX_LINE - 2) { // "$" + payload + "\n" <= 120 bytes
             g_in[g_in_len++] = c;
         } else {
             g_in_long = true; // keep reading until '\n', store nothing
@@ -732,9 +732,7 @@ void setup()
     Serial.begin(115200);
     Wire.begin();
     Wire.setClock(400000);
-#if defined(WIRE_HAS_TIMEOUT)
-    Wire.setWireTimeout(5000, true);
-#endif
+    Wire.setWireTimeout(5000, true); // a stuck bus must not hang the board (AVR core >= 1.8.3)
     soft_reset();
 }
 
