@@ -27,10 +27,11 @@ def unit_map(offset, soft_iron, field):
     return np.asarray(offset, float), np.asarray(soft_iron, float) / float(field)
 
 
-def test_calibrate_over_motioncal_recovers_the_board_and_verifies_the_echo(capsys):
+def test_calibrate_over_motioncal_recovers_the_board_and_verifies_the_echo(capsys, tmp_path):
+    cap = tmp_path / "session.cap"
     with AdafruitBoard(noise=0.02, torn=0.02, cal_period=40, lines_per_s=4000, seed=2) as board:
         rc, rep = run_json(["calibrate", "--port", board.port, "--dialect", "motioncal", "--json",
-                            "--timeout", "60"], capsys)
+                            "--timeout", "60", "--record", str(cap)], capsys)
         stored = struct.pack("<3f", *board.mag_hardiron), board.mag_softiron, board.mag_field
         n_stored, n_bad = board.packets_stored, board.crc_failures
     assert rc == 0, rep["message"]
@@ -50,6 +51,9 @@ def test_calibrate_over_motioncal_recovers_the_board_and_verifies_the_echo(capsy
     assert np.allclose(struct.unpack("<3f", hard), cal["offset_ut"], atol=1e-4)
     assert np.allclose(np.reshape(soft, (3, 3)), cal["soft_iron"], atol=1e-6)
     assert field == pytest.approx(cal["field_ut"], abs=1e-4)
+    # the recorded bytes replay to the same readings offline
+    replayed = load_series(cap)
+    assert len(replayed) >= rep["quality"]["samples"]
 
 
 def test_motioncal_report_has_the_native_shape(capsys):

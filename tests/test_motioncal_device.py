@@ -225,3 +225,15 @@ def test_compare_tolerance_accepts_a_printed_echo_only():
     assert a.close_to(Calibration(offset_ut=[10.0, 0.0, -3.0], field_ut=48.0), **tol)
     assert not a.close_to(Calibration(offset_ut=[10.01, 0.0, -3.0], field_ut=48.0), **tol)
     assert mc.compare_tolerance()["atol_w"] < 1e-3
+
+
+def test_unplugged_board_is_port_unavailable():
+    from magcal.errors import PortUnavailable
+
+    board = AdafruitBoard().start()
+    with open_device(board.port, dialect="motioncal", **FAST) as dev:
+        dev.open()
+        board.stop()  # the other end of the pty goes away, as a USB unplug does
+        with pytest.raises(PortUnavailable):
+            for _ in range(50):
+                dev.read(0.05)

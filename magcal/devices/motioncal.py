@@ -13,7 +13,8 @@ Options (``open_device(url, dialect="motioncal", **opts)``): ``baud`` (115200),
 ``open_timeout_s`` (3: how long ``open`` waits for the first reading; 0 skips the check),
 ``echo_timeout_s`` (6: per attempt; the Adafruit sketch prints Cal1/Cal2 only every ~100
 loops), ``tries`` (3), ``accel_offset``/``gyro_offset`` (sent in the packet; by default the
-device's own, from its last Cal1 echo, else zeros).
+device's own, from its last Cal1 echo, else zeros), ``tap`` (``tap(port) -> port``, e.g. a
+capture writer that records every byte read).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ class MotionCalDevice(Device):
         tries: int = 3,
         accel_offset=None,
         gyro_offset=None,
+        tap=None,
     ):
         super().__init__(url)
         if tries < 1 or echo_timeout_s <= 0:
@@ -56,6 +58,7 @@ class MotionCalDevice(Device):
         self.tries = int(tries)
         self.accel_offset = accel_offset
         self.gyro_offset = gyro_offset
+        self._tap = tap  # tap(transport) -> transport: sees every byte read (a capture writer)
         self._ser = None
         self._splitter = mc.LineSplitter()
         self._asm = mc.SampleAssembler()
@@ -119,6 +122,8 @@ class MotionCalDevice(Device):
             self._ser = serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PortUnavailable(f"{self.url}: cannot open: {exc}") from exc
+        if self._tap is not None:
+            self._ser = self._tap(self._ser)
         self._t0 = time.monotonic()
         if self.open_timeout_s > 0:
             deadline = self._t0 + self.open_timeout_s
