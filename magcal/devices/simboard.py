@@ -18,7 +18,8 @@ Fault injection, for tests of the layers above, goes through ``SimBoard.faults``
 - ``reset@T``: a line torn in the middle, then a fresh boot hello (seq 0), not streaming;
 - ``garbage@T=N``: a burst of N random bytes (default 200) in the middle of the stream;
 - ``hard_iron@T=x,y,z``: the physics' hard iron becomes (x, y, z) µT (a payload was added);
-- ``mute@T``, ``no_write_ack@T``, ``corrupt_write@T``: set that flag from T on (T = 0 if omitted).
+- ``mute@T``, ``no_write_ack@T``, ``corrupt_write@T``: set that flag from T on (T = 0 if omitted;
+  ``corrupt_write`` spoils the next write only).
 
 A URL with ``fault=`` or ``board=NAME`` names one simulated device: opening the same URL (or
 name) again reconnects to the same board — the same EEPROM, physics time and pending faults —
@@ -115,7 +116,7 @@ class SimBoard:
         self.fired: list[tuple[float, str]] = []
         self.sent: Counter = Counter()  # lines emitted, by kind (tests count samples sent)  # faults that went off, at what physics time
         self._until: dict[str, float] = {}  # wall-clock end of unplug/stall
-        self._unplug_after_drain: float | None = None
+        self._after_drain: dict[str, float] = {}  # unplug/stall wait until the host read what came before
         self._rng = np.random.default_rng(0xFA17)
         self._clock = clock
         self._lock = threading.Lock()
@@ -201,7 +202,7 @@ class SimBoard:
     # -- simulation --------------------------------------------------------------------------
     def _advance(self, wait_s: float) -> None:
         """Produce the samples that are due. Unpaced, produce a batch whenever the host reads."""
-        if (not self._streaming and self._fit is None) or self._unplug_after_drain is not None:
+        if (not self._streaming and self._fit is None) or self._after_drain:
             return
         period_ms = 1000.0 / self.rate_hz
         if self.speed > 0:
@@ -386,10 +387,12 @@ class SimBoard:
     def _check_port(self) -> None:
         """Raise OSError while unplugged; end unplug/stall whose wall-clock time is over."""
         now = self._clock()
-        if self._unplug_after_drain is not None and not self._out:
-            self.faults["unplugged"] = True
-            self._until["unplugged"] = now + self._unplug_after_drain
-            self._unplug_after_drain = None
+        if self._after_drain and not self._out:
+            for kind, duration in self._after_drain.items():
+                flag = "unplugged" if kind == "unplug" else kind
+                self.faults[flag] = True
+                self._until[flag] = now + duration
+            self._after_drain.clear()
         if self.faults.get("stall") and now >= self._until.get("stall", float("inf")):
             self.faults["stall"] = False
         if self.faults.get("unplugged"):
@@ -409,12 +412,9 @@ class SimBoard:
 
     def inject(self, kind: str, duration_s: float | None = None, value=None) -> None:
         """Make a fault happen now (see the module docstring for the kinds)."""
-        if kind == "unplug":
+        if kind in ("unplug", "stall"):
             # takes effect once the host has read what was sent before T (deterministic tests)
-            self._unplug_after_drain = 0.5 if duration_s is None else duration_s
-        elif kind == "stall":
-            self.faults["stall"] = True
-            self._until["stall"] = self._clock() + (1.0 if duration_s is None else duration_s)
+            self._after_drain[kind] = (0.5 if kind == "unplug" else 1.0) if duration_s is None else duration_s
         elif kind == "reset":
             line = encode_line("S", (self._seq, int(self._ms), 1, 2, 3, 0, 0))
             self._out += line[: len(line) // 2]  # the reset cuts the line being sent

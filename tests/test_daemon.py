@@ -1,0 +1,232 @@
+"""The daemon under injected faults, as a user would see it: it keeps running, every sample the
+device sent reaches it exactly once and in order (sequence numbers and raw values compared with
+what the simulated board emitted), and a calibration that failed a gate or was not verified by
+read-back is never reported (and the previous one is put back)."""
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from magcal import config
+from magcal.daemon import Daemon
+from magcal.devices import open_device
+from magcal.devices.simboard import _BOARDS, forget_boards
+from magcal.protocol import record_from_calibration
+from magcal.state import StateStore
+
+_names = itertools.count()
+
+
+@pytest.fixture(autouse=True)
+def _fresh_boards():
+    forget_boards()
+    yield
+    forget_boards()
+
+
+def make_settings(port, **daemon):
+    d = {"reconnect_min_s": 0.01, "reconnect_max_s": 0.05, "stall_s": 0.3, "state_every_s": 0.2,
+         "monitor_window": 200, "socket": False}
+    d.update(daemon)
+    return config.load(None, {"port": port, "rate_hz": 100, "daemon": d}, environ={})
+
+
+class Tracked:
+    """A named sim board whose every emitted sample line is logged, and the daemon's view."""
+
+    def __init__(self, query):
+        self.url = f"sim://?board=t{next(_names)}&{query}"
+        open_device(self.url)  # creates the board; the daemon's opens reconnect to it
+        self.board = _BOARDS[self.url.split("board=")[1].split("&")[0]]
+        self.emitted = []
+        emit = self.board._emit
+
+        def logging_emit(kind, *fields):
+            if kind == "S":
+                self.emitted.append((self.board._seq, tuple(fields[1:4])))
+            emit(kind, *fields)
+
+        self.board._emit = logging_emit
+        self.collected = []
+
+    def on_sample(self, epoch, s):
+        self.collected.append((epoch, s.seq, s.raw))
+
+    def run(self, tmp_path, samples, **daemon):
+        settings = make_settings(self.url, **daemon)
+        d = Daemon(settings, state_dir=tmp_path / "state", on_sample=self.on_sample, max_samples=samples,
+                   device_options={"reply_timeout_s": 0.25})
+        assert d.run() == 0
+        return d
+
+    def assert_exactly_once(self):
+        got = [(seq, raw) for _, seq, raw in self.collected]
+        assert got == self.emitted[: len(got)], "a sample was lost, duplicated or reordered"
+        unread = bytes(self.board._out).count(b"$S,")
+        assert len(self.emitted) - len(got) == unread
+        # within one epoch the sequence numbers only go up
+        for epoch, group in itertools.groupby(self.collected, key=lambda c: c[0]):
+            seqs = [c[1] for c in group]
+            assert all(b > a for a, b in zip(seqs, seqs[1:])), f"sequence went back in epoch {epoch}"
+
+
+def test_unplugged_twice_reconnects_and_loses_nothing(tmp_path):
+    t = Tracked("seed=3&fault=unplug@3+0.2&fault=unplug@6+0.05")
+    d = t.run(tmp_path, 1000)
+    assert d.faults["port_lost"] == 2
+    assert d.faults["connect_failed"] >= 1  # the port was still gone at the first retry
+    assert d.epoch == 3
+    assert d.samples >= 1000
+    t.assert_exactly_once()
+
+
+def test_stall_is_detected_and_the_link_reopened(tmp_path):
+    t = Tracked("seed=4&fault=stall@2+0.6")
+    d = t.run(tmp_path, 500)
+    assert d.faults["stalls"] == 1
+    assert d.epoch >= 2
+    t.assert_exactly_once()
+
+
+def test_reset_mid_line_restarts_the_stream(tmp_path):
+    t = Tracked("seed=5&fault=reset@2")
+    d = t.run(tmp_path, 600)
+    assert d.faults["device_resets"] == 1
+    assert d.epoch == 2
+    assert d.samples >= 600  # streaming was started again after the reset
+    t.assert_exactly_once()
+
+
+def test_garbage_bursts_are_counted_and_lose_no_sample(tmp_path):
+    t = Tracked("seed=6&fault=garbage@1=400&fault=garbage@2.5=2000&fault=garbage@4=50")
+    d = t.run(tmp_path, 600)
+    assert d.samples >= 600
+    t.assert_exactly_once()
+    # the framer counted the noise (the device object is closed; its counters went to the log)
+    assert any(e["what"] == "connected" for e in d.decisions)
+
+
+def _stored_record(board):
+    status, values = board.eeprom.load_record()
+    return status, values
+
+
+def _calibrated_then(tmp_path, faults, samples=12500):
+    """Blank board, recalibration on: the daemon calibrates, then a payload adds hard iron at
+    t = 50 s together with ``faults``."""
+    t = Tracked(f"seed=7&fault=hard_iron@50=30.5,-38.2,14.8{faults}")
+    d = t.run(tmp_path, samples, recalibrate=True)
+    t.assert_exactly_once()
+    return t, d
+
+
+def test_new_hard_iron_is_detected_and_recalibrated(tmp_path):
+    t, d = _calibrated_then(tmp_path, "")
+    assert d.recalibrations == 2  # the first one on a blank board, then after the payload
+    assert d.faults["drift_alarms"] >= 1
+    np.testing.assert_allclose(d.calibration.offset_ut, [30.5, -38.2, 14.8], atol=0.6)
+    status, values = _stored_record(t.board)
+    assert status == "OK" and values == record_from_calibration(d.calibration)
+    assert d.last_calibration["verified"] is True
+    whats = [e["what"] for e in d.decisions]
+    assert "calibration no longer fits the data" in whats
+
+
+@pytest.mark.parametrize("fault", ["mute", "no_write_ack", "corrupt_write"])
+def test_a_write_that_is_not_verified_is_never_reported(tmp_path, fault):
+    t, d = _calibrated_then(tmp_path, f"&fault={fault}@50")
+    first = d.decisions  # the first calibration succeeded before the fault
+    assert d.recalibrations == 1
+    assert d.faults["drift_alarms"] >= 1
+    assert any(e["what"] == "calibration NOT written" for e in first)
+    # what the daemon reports is the calibration it verified, and the device still holds it
+    status, values = _stored_record(t.board)
+    assert status == "OK" and values == record_from_calibration(d.calibration)
+    assert np.linalg.norm(d.calibration.offset_ut - np.array([23.5, -41.2, 12.8])) < 1.0
+    assert d.last_calibration["calibration"] == d.calibration.to_dict()
+
+
+def test_a_calibration_failing_a_gate_is_never_written(tmp_path):
+    t = Tracked("seed=8")
+    settings = config.load(None, {"port": t.url, "gates": {"max_rms_ut": 0.05},
+                                  "daemon": {"recalibrate": True, "socket": False, "monitor_window": 200}},
+                           environ={})
+    d = Daemon(settings, state_dir=tmp_path, on_sample=t.on_sample, max_samples=4000)
+    d.run()
+    assert d.recalibrations == 0 and d.last_calibration is None and d.calibration is None
+    assert _stored_record(t.board)[0] == "BLANK"
+    t.assert_exactly_once()
+
+
+def test_full_disk_for_captures_keeps_streaming(tmp_path, monkeypatch):
+    import errno
+
+    from magcal import capture
+
+    t = Tracked("seed=9")
+    real_append = capture.CaptureWriter.append
+    calls = {"n": 0}
+
+    def append(self, data, t_rx_s=None):
+        calls["n"] += 1
+        if calls["n"] == 20:  # the disk fills up mid-run
+            self._fail(OSError(errno.ENOSPC, "No space left on device"), len(data))
+            return False
+        return real_append(self, data, t_rx_s)
+
+    monkeypatch.setattr(capture.CaptureWriter, "append", append)
+    d = t.run(tmp_path, 1500, capture_max_bytes=1 << 20)
+    assert d.faults["capture_failed"] == 1, (calls, d.faults, list(d.decisions))
+    assert d.samples >= 1500
+    t.assert_exactly_once()
+    assert "disk full" in d.capture.stats()["error"]
+
+
+def test_rolling_capture_stays_within_its_bound(tmp_path):
+    t = Tracked("seed=10")
+    d = t.run(tmp_path, 3000, capture_max_bytes=40_000)
+    files = list((tmp_path / "state").glob("capture.cap*"))
+    assert 1 <= len(files) <= 2
+    assert sum(f.stat().st_size for f in files) <= 40_000
+    assert d.capture.stats()["rolls"] >= 1
+
+
+def test_restart_resumes_the_accumulated_state(tmp_path):
+    t = Tracked("seed=11")
+    a = t.run(tmp_path, 800)
+    saved = StateStore(tmp_path / "state").load()
+    assert saved["resume"]["samples"] == a.samples
+    b = t.run(tmp_path, a.samples + 500)
+    assert b.samples >= a.samples + 500
+    assert b.session.accumulator.n == b.session.counters["samples_in"]  # nothing counted twice
+    assert b.session.counters["samples_in"] == b.samples  # the session spans both runs
+    assert any(e["what"] == "resumed" for e in b.decisions)
+    assert b.generation > a.generation
+
+
+def test_torn_state_file_falls_back_to_the_previous_one(tmp_path):
+    t = Tracked("seed=12")
+    a = t.run(tmp_path, 600, state_every_s=0.01)
+    store = StateStore(tmp_path / "state")
+    blob = store.current.read_bytes()
+    store.current.write_bytes(blob[: len(blob) // 3])
+    b = Daemon(make_settings(t.url), state_dir=tmp_path / "state", max_samples=a.samples + 100)
+    b.resume()
+    assert 0 < b.samples <= a.samples
+    assert "refusing state.json" in json.dumps(list(b.decisions))
+
+
+def test_reload_rejects_an_invalid_config_and_keeps_the_old(tmp_path):
+    cfg = tmp_path / "magcal.yaml"
+    cfg.write_text("daemon:\n  monitor_alpha: 0.01\n")
+    settings = config.load(str(cfg), environ={})
+    d = Daemon(settings, state_dir=tmp_path, config_path=str(cfg))
+    cfg.write_text("daemon:\n  monitor_alpha: 2\n")
+    d.reload()
+    assert d.settings.daemon.monitor_alpha == 0.01
+    assert d.faults["config_rejected"] == 1
+    cfg.write_text("daemon:\n  monitor_alpha: 0.002\n")
+    d.reload()
+    assert d.settings.daemon.monitor_alpha == 0.002
