@@ -288,3 +288,16 @@ def test_load_log_without_readings_names_the_file(tmp_path):
         mc.load_log(p)
     with pytest.raises(InputError, match="cannot read"):
         mc.load_log(tmp_path / "missing.log")
+
+
+def test_serial_monitor_timestamps_ahead_of_lines_are_tolerated():
+    """The Arduino IDE's serial monitor can prefix every line with 'hh:mm:ss.mmm -> '."""
+    data = (b"12:00:00.001 -> Adafruit AHRS - IMU Calibration!\n"
+            b"12:00:00.011 -> Raw:0,0,8192,0,0,0,235,-412,128\n"
+            b"12:00:00.012 -> Uni:0.00,0.00,9.80,0.0000,0.0000,0.0000,23.54,-41.27,12.86\n"
+            b"12:00:00.021 -> Raw:0,0,8192,0,0,0,236,-413,129\n"
+            b"12:00:00.022 -> Uni:0.00,0.00,9.80,0.0000,0.0000,0.0000,23.61,-41.33,12.94\n")
+    assert mc.looks_like_motioncal(data.splitlines())
+    s = mc.parse_log(data)
+    assert np.allclose(s.field_ut, [[23.5, -41.2, 12.8], [23.61, -41.33, 12.94]])
+    assert list(s.row) == [1, 4]
