@@ -171,6 +171,19 @@ def test_splitter_gives_the_same_lines_for_any_chunking(ending, cuts):
     assert got == lines
 
 
+@settings(max_examples=150, deadline=None)
+@given(data=st.binary(max_size=600))
+def test_arbitrary_bytes_never_raise_and_only_whole_lines_become_readings(data):
+    sp, asm = mc.LineSplitter(), mc.SampleAssembler()
+    for line in sp.feed(data + b"\n"):
+        parsed = mc.parse_line(line)
+        f = asm.push(parsed)
+        if f is not None:
+            assert isinstance(parsed, (mc.RawLine, mc.UniLine)) and len(f) == 3
+    assert asm.counters["lines"] == asm.counters["raw"] + asm.counters["uni"] + asm.counters["junk"] \
+        + asm.counters["cal1"] + asm.counters["cal2"]
+
+
 def test_splitter_drops_overlong_runs():
     sp = mc.LineSplitter()
     got = sp.feed(b"x" * 1000 + b"\r\nRaw:1,2,3,4,5,6,7,8,9\r\n")
