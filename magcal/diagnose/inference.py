@@ -47,8 +47,9 @@ def _block_sums(x: np.ndarray, r: np.ndarray, blocks: list[slice]) -> np.ndarray
 def _orth(a: np.ndarray) -> np.ndarray:
     if a.shape[1] == 0:
         return a
-    u, s, _ = np.linalg.svd(a, full_matrices=False)
-    return u[:, s > s.max() * 1e-9]
+    q, r = np.linalg.qr(a)
+    d = np.abs(np.diag(r))
+    return q[:, d > max(d.max(), 1e-300) * 1e-7]
 
 
 def block_wald(
@@ -77,9 +78,9 @@ def block_wald(
         q = _orth(xs[:, other])
         xc = xs[:, cols]
         xp = xc - q @ (q.T @ xc)
-        _, sv, vt = np.linalg.svd(xp, full_matrices=False)
-        keep = sv >= min_unique
-        basis_s = vt[keep].T  # in scaled-column units
+        ev, vec = np.linalg.eigh(xp.T @ xp)  # singular values² and right singular vectors
+        keep = np.sqrt(np.maximum(ev, 0.0)) >= min_unique
+        basis_s = vec[:, keep]  # in scaled-column units
         k = int(keep.sum())
         if k == 0 or nb - k < 2:
             out[name] = WaldResult(0.0, max(k, 1), max(nb - k, 1), 1.0, np.zeros(len(cols)), 0.0, basis_s / scale[cols, None])
