@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from firmware_support import require_firmware
 from magcal.calibration import Calibration
 from magcal.cli import main as cli_main
 from magcal.devices import Event, open_device
+from magcal.physics import HOFL_SUM_UT, Motion, demo_scenario
 from magcal.protocol import record_from_calibration
 from magcal.sample import Sample
 
@@ -132,3 +134,38 @@ def test_calibrate_write_restart_read_back_and_calibrated_stream(tmp_path, capsy
     assert abs(np.median(norms) - truth.field_ut) < 0.6, np.median(norms)
     assert np.percentile(np.abs(norms - truth.field_ut), 95) < 1.5
     np.testing.assert_allclose(stored.offset_ut, truth.hard_iron_ut, atol=0.5)
+
+
+def test_overflow_is_flagged_in_st2_exactly_when_the_sensor_overflowed(tmp_path):
+    # a still board whose |x|+|y|+|z| sits on the AK8975's 2400 µT overflow limit: noise decides
+    still = replace(demo_scenario(2), motion=Motion("still"))
+    sc = still.with_physics(hard_iron_ut=(800.0, 800.0, 800.0))
+    m, _ = sc.field_ut([0.0], [0])
+    sc = sc.with_physics(hard_iron_ut=(800.0 - (float(np.abs(m[0]).sum()) - HOFL_SUM_UT), 800.0, 800.0))
+    dev = open_device(f"emu://?eeprom={tmp_path / 'ee.bin'}", scenario=sc)
+    with dev:
+        dev.open()
+        dev.start(100)
+        items = []
+        while len(_samples(items)) < 400:
+            items.extend(dev.read(0.2))
+        dev.stop()
+    samples = _samples(items)
+    served = list(dev.board.served)[: len(samples)]
+    assert [s.raw for s in samples] == [r for (_, _, r, _, _) in served]
+    st2 = [s.st2 for s in samples]
+    assert st2 == [s for (_, _, _, s, _) in served]
+    assert 0 < st2.count(0x08) < len(st2), "the scenario should straddle the overflow limit"
+    assert all(not s.valid for s in samples if s.st2 & 0x08)
+
+
+def test_a_magnetometer_that_never_finishes_is_logged_and_the_board_stays_responsive(tmp_path):
+    dev = open_device(f"emu://?faults=4&eeprom={tmp_path / 'ee.bin'}")  # MPU_FAULT_STUCK_DRDY
+    with dev:
+        dev.open()
+        dev.start(50)
+        items = dev.read(1.0) + dev.read(0.5)
+        assert _samples(items) == []
+        assert dev.read_record().status == "BLANK"  # commands still answered
+        dev.stop()
+        assert dev.counters["log_lines"] >= 3  # one "DRDY timeout" line per attempt
