@@ -169,3 +169,26 @@ def test_a_magnetometer_that_never_finishes_is_logged_and_the_board_stays_respon
         assert dev.read_record().status == "BLANK"  # commands still answered
         dev.stop()
         assert dev.counters["log_lines"] >= 3  # one "DRDY timeout" line per attempt
+
+
+def test_through_the_host_client_bad_commands_are_refused_and_streaming_goes_on(tmp_path):
+    from magcal.errors import DeviceError
+
+    dev = open_device(f"emu://?seed=3&eeprom={tmp_path / 'ee.bin'}")
+    with dev:
+        dev.open()
+        dev.start(100)
+        dev.read(0.3)
+        dev.transport.write(b"$G,9*00\n~~~ line noise ~~~\n$Q\n")  # bad CRC, noise, no CRC
+        with pytest.raises(DeviceError, match="UNKNOWN"):
+            dev.command("Q")
+        with pytest.raises(DeviceError, match="RANGE"):
+            dev.command("R", 0)
+        with pytest.raises(DeviceError, match="RANGE"):
+            dev.command("F", 10)
+        items = []
+        while len(_samples(items)) < 100:
+            items.extend(dev.read(0.2))
+        dev.stop()
+        assert dev.framer.counters["lost_lines"] == 0
+    assert not _events(items, "gap") and not _events(items, "reset")

@@ -62,6 +62,8 @@ def ensure_built() -> tuple[Path, Path]:
     with _build_lock:
         if ELF.exists() and HARNESS.exists():
             return ELF, HARNESS
+        if not (FIRMWARE_DIR / "Makefile").exists():
+            raise DeviceError(f"emu:// needs a source checkout: no firmware/Makefile at {FIRMWARE_DIR}")
         problem = toolchain_problem()
         if problem:
             raise DeviceError(f"emu:// needs the firmware build: {problem}")
