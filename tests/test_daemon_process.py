@@ -1,0 +1,89 @@
+"""``magcal run`` as a real process: SIGHUP reloads the config (an invalid one is rejected and
+the old kept), ``magcal status`` answers from the UNIX socket while it runs and from the state
+file after SIGTERM stopped it cleanly."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from magcal.daemon import query_socket
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    for k in list(env):
+        if k.startswith("MAGCAL_"):
+            del env[k]
+    return env
+
+
+def _status(state_dir, *extra):
+    p = subprocess.run([sys.executable, "-m", "magcal", "status", "--state-dir", str(state_dir), *extra],
+                       capture_output=True, text=True, env=_env(), timeout=60)
+    return p.returncode, p.stdout, p.stderr
+
+
+def _wait_for(pred, timeout_s=30.0):
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        v = pred()
+        if v:
+            return v
+        time.sleep(0.1)
+    raise AssertionError("condition not met in time")
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="POSIX signals")
+def test_signals_and_status(tmp_path):
+    if not hasattr(signal, "SIGHUP") and os.environ.get("CI") == "true":
+        pytest.fail("POSIX signals are required in CI")
+    state = tmp_path / "state"
+    cfg = tmp_path / "magcal.yaml"
+    cfg.write_text("rate_hz: 50\ndaemon:\n  monitor_alpha: 0.01\n  state_every_s: 0.2\n")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "magcal", "run", "--port", "sim://?seed=4&speed=20", "--config", str(cfg),
+         "--state-dir", str(state), "--recalibrate"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+    )
+    try:
+        _wait_for(lambda: (query_socket(state) or {}).get("samples", 0) > 100)
+        code, out, _ = _status(state, "--json")
+        s = json.loads(out)
+        assert code == 0 and s["source"] == "socket"
+        assert s["running"] and s["connected"] and s["port"].startswith("sim://")
+
+        cfg.write_text("daemon:\n  monitor_alpha: 7\n")  # invalid: rejected, old settings kept
+        proc.send_signal(signal.SIGHUP)
+        _wait_for(lambda: (query_socket(state) or {}).get("faults", {}).get("config_rejected") == 1)
+        cfg.write_text("rate_hz: 50\ndaemon:\n  monitor_alpha: 0.02\n  state_every_s: 0.2\n")
+        proc.send_signal(signal.SIGHUP)
+        _wait_for(lambda: any(d["what"] == "config reloaded" for d in (query_socket(state) or {}).get("decisions", [])))
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "config reload rejected; keeping the old settings" in err
+    assert "daemon stopped" in err
+    assert not (state / "status.sock").exists()
+    code, out, _ = _status(state, "--json")
+    s = json.loads(out)
+    assert code == 1 and s["source"] == "state file" and s["running"] is False
+    assert s["samples"] > 100 and s["faults"]["config_rejected"] == 1
+    code, out, _ = _status(state)
+    assert "not running" in out and "samples" in out
+
+
+def test_status_without_state_says_so(tmp_path):
+    code, _, err = _status(tmp_path / "nothing")
+    assert code == 2 and "no daemon state" in err
