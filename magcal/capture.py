@@ -1,0 +1,634 @@
+"""Captures (the raw bytes a device sent, with receive times), CSV in and out, and
+``load_series``: any recording file → ``Series``.
+
+Capture file format, version 1
+------------------------------
+One header line of UTF-8 JSON, then binary chunks until the end of the file::
+
+    {"format": "magcal-capture", "version": 1, "port": "...", "baud": 115200,
+     "start_utc": "2026-11-22T05:00:00.000000+00:00", "tool": "magcal 0.1.0",
+     "dialect": "native"}\\n
+    chunk*
+
+    chunk = b"K" | t_rx (float64 LE, seconds since the start of the recording)
+                 | n (uint32 LE) | n bytes exactly as read from the port
+
+The header names where the bytes came from; nothing in it is needed to parse them. A chunk is
+appended whole with one ``write`` and the file is flushed often (``flush_interval_s``), so a
+capture is readable after a crash mid-write: a truncated last chunk is ignored and reported
+(``CaptureReader.truncated_bytes``), never fatal. A bad chunk marker in the middle ends the
+readable part the same way (reported, with its offset).
+
+Replaying a capture feeds the same bytes through the same parser as the live link, so it
+reproduces the same samples; ``load_series`` uses the bulk parser (``magcal.protocol_bulk``),
+which gives the same result as the incremental one (tests hold the two together).
+
+Writing: ``CaptureWriter`` appends chunks; ``writer.tap(transport)`` (or ``writer(transport)``)
+wraps a pyserial-like transport so that every byte read is also recorded. ``max_bytes`` bounds
+the file: when the next chunk would cross it, ``on_full(writer)`` may return a path to continue
+in (``roll_keep_one`` keeps one previous file), otherwise recording stops (``writer.full``) and
+further bytes are only counted. A failed write (disk full, I/O error) stops recording and raises
+``CaptureWriteError`` once, from the *next* read of the tap, after the bytes of the failed chunk
+have already been handed to the caller — so what the device sent is never lost and the caller
+can keep streaming.
+
+CSV: a header row naming columns; ``mx,my,mz`` (µT) required, ``t`` (s) optional, every other
+numeric column kept as a channel (``temp_c``, ``current_a`` …; a ``valid`` column of 0/1 is the
+validity flag). ``save_csv`` writes ``t,mx,my,mz,temp_c`` then the other channels, with floats
+in shortest round-trip form so that loading the CSV again gives the same numbers bit for bit.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import struct
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Callable, Iterator
+
+import numpy as np
+
+from . import __version__
+from .errors import InputError, MagcalError
+from .protocol_bulk import Frames, parse_stream
+from .sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
+from .series import Series
+
+FORMAT = "magcal-capture"
+VERSION = 1
+CHUNK_MARK = b"K"
+_CHUNK_HEAD = struct.Struct("<dI")
+CHUNK_OVERHEAD = 1 + _CHUNK_HEAD.size  # 13 bytes per chunk
+MAX_HEADER = 64 * 1024
+
+
+class CaptureWriteError(MagcalError):
+    """Recording stopped because the capture file could not be written (disk full, I/O error).
+    The bytes of the failed chunk were delivered to the caller; the file holds everything
+    before them."""
+
+
+def make_header(port: str, baud: int | None = None, dialect: str = "native", start_utc: datetime | None = None) -> dict:
+    start = start_utc or datetime.now(timezone.utc)
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "port": str(port),
+        "baud": None if baud is None else int(baud),
+        "start_utc": start.isoformat(timespec="microseconds"),
+        "tool": f"magcal {__version__}",
+        "dialect": dialect,
+    }
+
+
+def _header_line(header: dict) -> bytes:
+    h = {"format": FORMAT, "version": VERSION, **header}
+    return (json.dumps(h, ensure_ascii=True, sort_keys=False) + "\n").encode("ascii")
+
+
+def roll_keep_one(writer: "CaptureWriter") -> str:
+    """An ``on_full`` policy: the full file becomes ``PATH.1`` (replacing an older one) and
+    recording continues in a fresh ``PATH``."""
+    os.replace(writer.path, writer.path + ".1")
+    return writer.path
+
+
+class CaptureWriter:
+    """Append-only capture file. See the module docstring for the format and failure rules."""
+
+    def __init__(
+        self,
+        path,
+        header: dict,
+        max_bytes: int | None = None,
+        on_full: Callable[["CaptureWriter"], str | None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        flush_interval_s: float = 0.2,
+    ):
+        self.path = os.fspath(path)
+        self.header = dict(header)
+        self.max_bytes = max_bytes
+        self.on_full = on_full
+        self.flush_interval_s = flush_interval_s
+        self._clock = clock
+        self._t0 = clock()
+        self._last_flush = self._t0
+        self.chunks = 0  # chunks written (all files)
+        self.bytes_recorded = 0  # payload bytes written (all files)
+        self.dropped_bytes = 0  # payload bytes not written (full or failed)
+        self.rolls = 0
+        self.full = False
+        self.error: CaptureWriteError | None = None
+        self._pending_error: CaptureWriteError | None = None
+        self._fh = None
+        self._size = 0
+        self._open_file(self.path)
+
+    # -- file handling -----------------------------------------------------------------------
+    def _open_file(self, path: str) -> None:
+        line = _header_line(self.header)
+        if self.max_bytes is not None and len(line) + CHUNK_OVERHEAD + 1 > self.max_bytes:
+            raise ValueError(f"max_bytes={self.max_bytes} cannot hold even the capture header")
+        try:
+            fh = open(path, "wb")
+            fh.write(line)
+            fh.flush()
+        except OSError as exc:
+            raise CaptureWriteError(f"cannot start capture {path}: {exc.strerror or exc}") from exc
+        self._fh = fh
+        self._size = len(line)
+        self.path = path
+
+    def _fail(self, exc: OSError, n: int) -> None:
+        good = self._size
+        try:  # best effort: leave no half chunk behind
+            self._fh.flush()
+        except OSError:
+            pass
+        try:
+            self._fh.truncate(good)
+            self._fh.close()
+        except OSError:
+            pass
+        self._fh = None
+        what = "disk full" if getattr(exc, "errno", None) == 28 else (exc.strerror or str(exc))
+        self.error = CaptureWriteError(
+            f"capture {self.path}: {what}; recording stopped after {self.bytes_recorded} bytes "
+            f"(the device's data is still delivered)"
+        )
+        self._pending_error = self.error
+        self.dropped_bytes += n
+
+    @property
+    def recording(self) -> bool:
+        return self._fh is not None and not self.full
+
+    def append(self, data: bytes, t_rx_s: float | None = None) -> bool:
+        """Record one chunk; True when written. Never raises for a full or failed file (see
+        ``error``/``full``); the tap turns a failure into one CaptureWriteError."""
+        data = bytes(data)
+        if not data:
+            return True
+        if not self.recording:
+            self.dropped_bytes += len(data)
+            return False
+        now = self._clock()
+        t = (now - self._t0) if t_rx_s is None else float(t_rx_s)
+        blob = CHUNK_MARK + _CHUNK_HEAD.pack(t, len(data)) + data
+        if self.max_bytes is not None and self._size + len(blob) > self.max_bytes:
+            if not self._roll():
+                self.full = True
+                self.dropped_bytes += len(data)
+                return False
+            if self._size + len(blob) > self.max_bytes:  # one chunk bigger than a whole file
+                self.dropped_bytes += len(data)
+                return False
+        try:
+            self._fh.write(blob)
+            if now - self._last_flush >= self.flush_interval_s:
+                self._fh.flush()
+                self._last_flush = now
+        except OSError as exc:
+            self._fail(exc, len(data))
+            return False
+        self._size += len(blob)
+        self.chunks += 1
+        self.bytes_recorded += len(data)
+        return True
+
+    def _roll(self) -> bool:
+        if self.on_full is None:
+            return False
+        self._fh.close()
+        self._fh = None
+        new_path = self.on_full(self)
+        if not new_path:
+            return False
+        self._open_file(os.fspath(new_path))
+        self.rolls += 1
+        return True
+
+    def take_error(self) -> CaptureWriteError | None:
+        """The failure not yet reported, if any (reported once)."""
+        e, self._pending_error = self._pending_error, None
+        return e
+
+    def flush(self) -> None:
+        if self._fh is not None:
+            try:
+                self._fh.flush()
+            except OSError as exc:
+                self._fail(exc, 0)
+            self._last_flush = self._clock()
+
+    def close(self) -> None:
+        if self._fh is not None:
+            try:
+                self._fh.flush()
+                self._fh.close()
+            except OSError as exc:
+                self._fail(exc, 0)
+            self._fh = None
+
+    def stats(self) -> dict:
+        return {
+            "path": self.path,
+            "chunks": self.chunks,
+            "bytes": self.bytes_recorded,
+            "dropped_bytes": self.dropped_bytes,
+            "rolls": self.rolls,
+            "full": self.full,
+            "error": None if self.error is None else str(self.error),
+        }
+
+    # -- the transport tap -------------------------------------------------------------------
+    def tap(self, transport) -> "TapTransport":
+        return TapTransport(transport, self)
+
+    __call__ = tap
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class TapTransport:
+    """A pyserial-like transport that records every byte read from the one it wraps."""
+
+    def __init__(self, inner, writer: CaptureWriter):
+        self.inner = inner
+        self.writer = writer
+
+    def read(self, n: int = 1) -> bytes:
+        err = self.writer.take_error()
+        if err is not None:
+            raise err  # nothing was read in this call, so nothing is lost
+        data = self.inner.read(n)
+        if data:
+            self.writer.append(data)
+        return data
+
+    @property
+    def in_waiting(self) -> int:
+        if self.writer._pending_error is not None:
+            return 0  # let the caller finish with what it has; the next read reports
+        return self.inner.in_waiting
+
+    @property
+    def timeout(self):
+        return self.inner.timeout
+
+    @timeout.setter
+    def timeout(self, value) -> None:
+        self.inner.timeout = value
+
+    def write(self, data: bytes) -> int:
+        return self.inner.write(data)
+
+    def close(self) -> None:
+        try:
+            self.inner.close()
+        finally:
+            self.writer.flush()
+
+    def __getattr__(self, name):  # reset_input_buffer, dtr, … of the wrapped transport
+        return getattr(self.inner, name)
+
+
+def open_capture_tap(path, settings, max_bytes: int | None = None, on_full=None) -> CaptureWriter:
+    """A writer whose header names ``settings.port``/``baud``/``dialect``; pass it as the
+    device's ``tap`` option."""
+    header = make_header(
+        getattr(settings, "port", "?"), getattr(settings, "baud", None), getattr(settings, "dialect", "native")
+    )
+    return CaptureWriter(path, header, max_bytes=max_bytes, on_full=on_full)
+
+
+# -- reading -------------------------------------------------------------------------------
+def is_capture(head: bytes) -> bool:
+    """True when ``head`` (the first bytes of a file) starts a magcal capture."""
+    line = head.split(b"\n", 1)[0]
+    if not line.startswith(b"{"):
+        return False
+    try:
+        return json.loads(line.decode("utf-8")).get("format") == FORMAT
+    except (ValueError, AttributeError):
+        return False
+
+
+class CaptureReader:
+    """A capture file: ``header`` (dict), iteration yields ``(t_rx_s, bytes)`` per chunk;
+    ``truncated_bytes`` > 0 when the file ends inside a chunk (a crash mid-write) and
+    ``problem`` says where."""
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        try:
+            with open(self.path, "rb") as fh:
+                blob = fh.read()
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
+        self._parse(blob)
+
+    @classmethod
+    def from_bytes(cls, blob: bytes, name: str = "<capture>") -> "CaptureReader":
+        self = cls.__new__(cls)
+        self.path = name
+        self._parse(bytes(blob))
+        return self
+
+    def _parse(self, blob: bytes) -> None:
+        nl = blob.find(b"\n", 0, MAX_HEADER)
+        if nl < 0 or not is_capture(blob[: nl + 1]):
+            raise InputError(f"{self.path} line 1: not a magcal capture (no capture header)")
+        self.header = json.loads(blob[:nl].decode("utf-8"))
+        if self.header.get("version") != VERSION:
+            raise InputError(f"{self.path} line 1: capture version {self.header.get('version')!r} is not {VERSION}")
+        self.problem = ""
+        times: list[float] = []
+        spans: list[tuple[int, int]] = []
+        i, n = nl + 1, len(blob)
+        while i < n:
+            if blob[i : i + 1] != CHUNK_MARK:
+                self.problem = f"bad chunk marker at byte {i}"
+                break
+            if i + CHUNK_OVERHEAD > n:
+                self.problem = f"truncated chunk header at byte {i}"
+                break
+            t, size = _CHUNK_HEAD.unpack_from(blob, i + 1)
+            start = i + CHUNK_OVERHEAD
+            if start + size > n:
+                self.problem = f"truncated chunk at byte {i} ({n - start} of {size} bytes)"
+                break
+            times.append(t)
+            spans.append((start, start + size))
+            i = start + size
+        self.truncated_bytes = n - i
+        self._blob = blob
+        self._spans = spans
+        self.t_rx_s = np.array(times, np.float64)
+
+    def __len__(self) -> int:
+        return len(self._spans)
+
+    def __iter__(self) -> Iterator[tuple[float, bytes]]:
+        for t, (a, b) in zip(self.t_rx_s.tolist(), self._spans):
+            yield t, self._blob[a:b]
+
+    def data(self) -> bytes:
+        """All recorded bytes, concatenated."""
+        return b"".join(self._blob[a:b] for a, b in self._spans)
+
+
+# -- samples from frames, exactly as the live client builds them ---------------------------
+def series_from_frames(frames: Frames) -> Series:
+    """The Series a passive ``ProtocolDevice`` reading the same bytes would collect:
+    field from the latest hello's ASA (unity before any hello), device time unwrapped per
+    reset epoch, validity by ``Sample.valid``'s rules. Bit-identical (tests hold it)."""
+    n = len(frames)
+    pos = frames.pos
+    hellos = [(p, m) for p, m in frames.others if type(m).__name__ == "Hello"]
+    h_pos = np.array([p for p, _ in hellos], np.int64)
+    gains = np.array([[1.0, 1.0, 1.0]] + [[asa_gain(a) for a in m.asa] for _, m in hellos], np.float64)
+    which = np.searchsorted(h_pos, pos)  # 0: before any hello
+    raw_kind = frames.kind == ord("S")
+    vals = frames.values
+    field = np.empty((n, 3), np.float64)
+    # counts_to_ut: raw * (0.3 * gains), element by element
+    field[raw_kind] = vals[raw_kind].astype(np.float64) * (UT_PER_COUNT * gains[which[raw_kind]])
+    field[~raw_kind] = vals[~raw_kind].astype(np.float64) / 1000.0
+    # time: t_k = t_{k-1} + Δ, with Δ = ms/1000 at the start of an epoch (after a reset)
+    r_pos = np.array([p for p, e in frames.events if type(e).__name__ == "Restart"], np.int64)
+    epoch = np.searchsorted(r_pos, pos, side="right")
+    inc = np.empty(n, np.float64)
+    if n:
+        first = np.ones(n, bool)
+        first[1:] = epoch[1:] != epoch[:-1]
+        step = np.empty(n, np.int64)
+        step[1:] = (frames.ms[1:] - frames.ms[:-1]) % (1 << 32)
+        step[0] = 0
+        inc[first] = frames.ms[first] / 1000.0
+        inc[~first] = step[~first] / 1000.0
+    t = np.cumsum(inc)
+    temp_c = frames.temp / 340.0 + 36.53
+    st2_bad = (frames.st2 & (ST2_DERR | ST2_HOFL)) != 0
+    rails = np.any((vals <= COUNT_MIN) | (vals >= COUNT_MAX), axis=1)
+    zero = np.all(vals == 0, axis=1)
+    valid = ~st2_bad & np.where(raw_kind, ~rails & ~zero, True)
+    channels = {"temp_c": temp_c} if n else {}
+    if n and not raw_kind.all():
+        channels["calibrated"] = np.where(raw_kind, np.nan, 1.0)
+    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, seq=frames.seq.copy())
+
+
+def load_capture(path) -> Series:
+    reader = CaptureReader(path)
+    dialect = reader.header.get("dialect", "native")
+    if dialect not in ("native", None):
+        return _foreign_capture(reader, dialect)
+    return _native_series(reader.data(), str(path))
+
+
+def _native_series(data: bytes, name: str) -> Series:
+    frames = parse_stream(data)
+    if any(type(m).__name__ in ("RawSample", "CalibratedSample") for _, m in frames.others):
+        # a number too large for the fast arrays: take the live client's path instead
+        return _series_via_device(data, name)
+    return series_from_frames(frames)
+
+
+def _series_via_device(data: bytes, name: str) -> Series:
+    from .devices.link import ProtocolDevice
+    from .devices.replay import BytesTransport
+
+    dev = ProtocolDevice(name, BytesTransport([(0.0, data)]), transport_name="replay", passive=True)
+    from .devices.replay import collect_samples
+
+    return Series.from_samples(collect_samples(dev))
+
+
+def _foreign_capture(reader: CaptureReader, dialect: str) -> Series:
+    if dialect == "motioncal":
+        try:
+            from .motioncal import parse_log
+        except ImportError:
+            raise InputError(f"{reader.path}: MotionCal captures need magcal.motioncal") from None
+        return parse_log(reader.data(), source=reader.path)
+    raise InputError(f"{reader.path} line 1: unknown capture dialect {dialect!r}")
+
+
+# -- CSV -----------------------------------------------------------------------------------
+REQUIRED = ("mx", "my", "mz")
+
+
+def _number(text: str) -> float | None:
+    try:
+        v = float(text)
+    except ValueError:
+        return None
+    return v
+
+
+def parse_csv(text: str, name: str = "<csv>") -> Series:
+    """CSV text → Series (see the module docstring). Lines starting with '#' and blank lines
+    are skipped; ``row`` is the 0-based data row counted from the line after the header."""
+    lines = text.splitlines()
+    hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
+    if hdr_i is None:
+        raise InputError(f"{name}: empty file (no header row)")
+    cols = [c.strip() for c in next(csv.reader([lines[hdr_i]]))]
+    missing = [c for c in REQUIRED if c not in cols]
+    if missing:
+        raise InputError(
+            f"{name} line {hdr_i + 1}: header row lacks column(s) {', '.join(missing)} "
+            f"(need mx,my,mz in µT; found {','.join(cols)})"
+        )
+    dup = sorted({c for c in cols if cols.count(c) > 1})
+    if dup:
+        raise InputError(f"{name} line {hdr_i + 1}: duplicate column(s) {', '.join(dup)}")
+    must = set(REQUIRED) | ({"t"} & set(cols))
+    data: dict[str, list] = {c: [] for c in cols}
+    rows: list[int] = []
+    first_line: dict[str, int] = {}
+    text_cols: set[str] = set()
+    for i in range(hdr_i + 1, len(lines)):
+        ln = lines[i]
+        if not ln.strip() or ln.lstrip().startswith("#"):
+            continue
+        cells = next(csv.reader([ln]))
+        if len(cells) != len(cols):
+            raise InputError(f"{name} line {i + 1}: {len(cells)} values, the header has {len(cols)}")
+        for c, cell in zip(cols, cells):
+            cell = cell.strip()
+            if c in text_cols:
+                continue
+            v = _number(cell) if cell else math.nan
+            if v is None or (c in must and not cell):
+                if c in must:
+                    problem = "is empty" if not cell else f"{cell!r} is not a number"
+                    raise InputError(f"{name} line {i + 1}: column {c!r}: {problem}")
+                if not data[c]:  # a text column: not a channel
+                    text_cols.add(c)
+                    continue
+                raise InputError(f"{name} line {i + 1}: column {c!r}: {cell!r} is not a number")
+            if c in must and not math.isfinite(v):
+                raise InputError(f"{name} line {i + 1}: column {c!r}: {cell!r} is not finite")
+            data[c].append(v)
+            first_line.setdefault(c, i + 1)
+        rows.append(i - hdr_i - 1)
+    if not rows:
+        raise InputError(f"{name}: no data rows after the header (line {hdr_i + 1})")
+    n = len(rows)
+    field = np.column_stack([np.array(data[c], np.float64) for c in REQUIRED])
+    t = np.array(data["t"], np.float64) if "t" in cols else np.arange(n, dtype=np.float64)
+    valid = None
+    channels = {}
+    for c in cols:
+        if c in must or c in text_cols or c in ("t",):
+            continue
+        arr = np.array(data[c], np.float64)
+        if len(arr) != n:  # became a text column late: cannot happen (raised above)
+            continue
+        if c == "valid":
+            valid = arr != 0
+            continue
+        channels[c] = arr
+    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=np.array(rows, np.int64))
+
+
+def load_csv(path) -> Series:
+    try:
+        with open(path, "r", encoding="utf-8-sig", newline="") as fh:
+            text = fh.read()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read as text: {getattr(exc, 'strerror', None) or exc}") from exc
+    return parse_csv(text, str(path))
+
+
+def _fmt(v: float) -> str:
+    return "" if v != v else repr(float(v))
+
+
+def save_csv(series: Series, path) -> None:
+    """Write ``t,mx,my,mz,temp_c`` (µT, °C), then the other channels, then ``valid`` when any
+    sample is flagged invalid. Floats in shortest round-trip form (``load_csv`` reads back the
+    same bits). Missing temperature → the column is left out."""
+    names = ["t", "mx", "my", "mz"]
+    cols = [series.t_s, series.field_ut[:, 0], series.field_ut[:, 1], series.field_ut[:, 2]]
+    ch = dict(series.channels)
+    if "temp_c" in ch:
+        names.append("temp_c")
+        cols.append(ch.pop("temp_c"))
+    for k in sorted(ch):
+        names.append(k)
+        cols.append(ch[k])
+    with_valid = not bool(np.all(series.valid))
+    buf = io.StringIO()
+    buf.write(",".join(names + (["valid"] if with_valid else [])) + "\n")
+    lists = [c.tolist() for c in cols]
+    vl = series.valid.tolist()
+    for i in range(len(series)):
+        row = [_fmt(c[i]) for c in lists]
+        if with_valid:
+            row.append("1" if vl[i] else "0")
+        buf.write(",".join(row) + "\n")
+    tmp = os.fspath(path) + ".tmp"
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
+            fh.write(buf.getvalue())
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
+
+
+# -- any recording -------------------------------------------------------------------------
+def load_series(path) -> Series:
+    """A capture, a CSV with a header row, a MotionCal log, or a raw protocol-v1 byte dump,
+    told apart by content. InputError (naming file, line and problem) for anything else."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(MAX_HEADER)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    if not head.strip():
+        raise InputError(f"{path}: empty file")
+    if is_capture(head):
+        return load_capture(path)
+    first = _first_lines(head)
+    if first and "mx" in [c.strip() for c in first[0].split(",")]:
+        return load_csv(path)
+    if sum(1 for ln in first if ln.startswith("$") and "*" in ln) > len(first) // 2:
+        with open(path, "rb") as fh:
+            return _native_series(fh.read(), str(path))
+    try:
+        from . import motioncal
+    except ImportError:
+        motioncal = None
+    if motioncal is not None and motioncal.looks_like_motioncal(first):
+        return motioncal.load_log(path)
+    if "," in (first[0] if first else ""):
+        return load_csv(path)  # names the missing columns
+    hint = "" if motioncal is not None else "; MotionCal logs need magcal.motioncal"
+    raise InputError(
+        f"{path} line 1: not a recording magcal reads (a capture, a CSV with a header row "
+        f"mx,my,mz in µT, a MotionCal Raw:/Uni: log, or protocol v1 lines){hint}"
+    )
+
+
+def _first_lines(head: bytes, k: int = 20) -> list[str]:
+    text = head.decode("utf-8", "replace").lstrip("\ufeff")
+    out = []
+    for ln in text.splitlines():
+        s = ln.strip()
+        if s and not s.startswith("#"):
+            out.append(s)
+        if len(out) >= k:
+            break
+    return out
