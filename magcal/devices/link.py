@@ -60,9 +60,12 @@ class ProtocolDevice(Device):
         boot_timeout_s: float = 3.0,
         clock: Callable[[], float] = time.monotonic,
         initial: bytes = b"",
+        tap: Callable | None = None,
     ):
         super().__init__(url)
-        self.transport = transport
+        # ``tap(transport) -> transport``: a wrapper that sees every byte read (e.g. a capture
+        # writer, ``magcal.capture.CaptureWriter.tap``); it must keep the transport's surface.
+        self.transport = tap(transport) if tap is not None else transport
         self.transport_name = transport_name
         self.passive = passive
         self.can_store = not passive
@@ -156,7 +159,9 @@ class ProtocolDevice(Device):
         return t
 
     def _sample(self, s: RawSample) -> Sample:
-        asa = self.identity.asa if self.identity else (self._hello.asa if self._hello else (128,) * 3)
+        # the latest hello describes the chip that sent this sample (so a replay does not
+        # depend on how its bytes were chunked); before any hello, the identity or unity gain
+        asa = self._hello.asa if self._hello else (self.identity.asa if self.identity else (128,) * 3)
         field = counts_to_ut(s.raw, asa)
         return Sample(
             seq=s.seq,
