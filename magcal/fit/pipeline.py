@@ -69,11 +69,11 @@ def _fit_kind(m, kind, theta0, sigma0, use_outliers, alpha):
     keep = np.ones(len(m), bool)
     theta = robust.theta
     resid = robust.residual_ut
-    for _ in range(4):
+    for round_ in range(4):
         if use_outliers:
             kept_idx = np.flatnonzero(keep)
             drop = kept_idx[_outliers.grubbs(resid[kept_idx], alpha=alpha)]
-            if len(drop) == 0 and _ > 0:
+            if len(drop) == 0 and round_ > 0:
                 break
             keep[drop] = False
         ml = geometric.solve(m[keep], kind, theta)
