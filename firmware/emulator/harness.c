@@ -106,8 +106,12 @@ static int provide(void *ctx, uint64_t t_us, mpu_measurement *out)
     printf("M %llu %llu\n", (unsigned long long)t_us, (unsigned long long)k);
     fflush(stdout);
     char line[128];
-    if (!fgets(line, sizeof line, stdin)) {
-        g_stop = 1;
+    while (!fgets(line, sizeof line, stdin)) {
+        if (ferror(stdin) && errno == EINTR && !g_stop) { /* a reset request: keep waiting */
+            clearerr(stdin);
+            continue;
+        }
+        g_stop = 1; /* the host is gone */
         return -1;
     }
     int hx, hy, hz, hofl, temp;
@@ -380,6 +384,7 @@ int main(int argc, char **argv)
     sigaction(SIGTERM, &sa, NULL);
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGHUP, &sa, NULL);
+    sa.sa_flags = SA_RESTART; /* a reset request must not break a blocking read or write */
     sigaction(SIGUSR1, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);
 

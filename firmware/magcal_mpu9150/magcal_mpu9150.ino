@@ -27,7 +27,8 @@ static const uint8_t MPU_ADDR = 0x68;
 static const uint8_t AK_ADDR = 0x0C;
 static const uint8_t MPU_INT_PIN_CFG = 0x37, MPU_TEMP_OUT_H = 0x41, MPU_USER_CTRL = 0x6A,
                      MPU_PWR_MGMT_1 = 0x6B, MPU_WHO_AM_I = 0x75;
-static const uint8_t AK_WIA = 0x00, AK_ST1 = 0x02, AK_HXL = 0x03, AK_CNTL = 0x0A, AK_ASAX = 0x10;
+static const uint8_t AK_WIA = 0x00, AK_ST1 = 0x02, AK_HXL = 0x03, AK_ST2 = 0x09, AK_CNTL = 0x0A,
+                     AK_ASAX = 0x10;
 static const uint8_t AK_SINGLE = 0x01, AK_FUSE_ROM = 0x0F, AK_POWER_DOWN = 0x00;
 static const uint8_t ST2_DERR = 0x04, ST2_HOFL = 0x08;
 static const uint16_t DRDY_FIRST_POLL_US = 7000, DRDY_POLL_US = 500;
@@ -339,6 +340,13 @@ static float counts_to_ut(int16_t counts, uint8_t axis)
 
 static void start_measurement(uint32_t now_us)
 {
+    // A result nobody read (a measurement in flight when the board reset, or one that finished
+    // after a DRDY timeout) leaves DRDY set: it would be taken for the new one, read while the
+    // next conversion runs (DERR), and every later read would be one measurement late. Reading
+    // ST2 clears DRDY.
+    uint8_t st = 0;
+    if (i2c_read(AK_ADDR, AK_ST1, &st, 1) && (st & 0x01))
+        i2c_read(AK_ADDR, AK_ST2, &st, 1);
     g_trig_ms = millis();
     g_trig_us = now_us;
     if (!i2c_write(AK_ADDR, AK_CNTL, AK_SINGLE)) {
