@@ -19,14 +19,16 @@ from scipy import stats
 DEFAULT_ALPHA = 0.01
 
 
-def grubbs_critical(n: int, alpha: float = DEFAULT_ALPHA) -> float:
-    """Two-sided Grubbs critical value for n samples at level α."""
-    if n < 3:
-        raise ValueError(f"the Grubbs test needs at least 3 samples, got {n}")
+def grubbs_critical(n, alpha: float = DEFAULT_ALPHA):
+    """Two-sided Grubbs critical value for n samples at level α (n may be an array)."""
+    na = np.asarray(n, dtype=np.float64)
+    if np.any(na < 3):
+        raise ValueError(f"the Grubbs test needs at least 3 samples, got {int(np.min(na))}")
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
-    t = stats.t.ppf(1.0 - alpha / (2.0 * n), n - 2)
-    return float((n - 1) / np.sqrt(n) * np.sqrt(t * t / (n - 2 + t * t)))
+    t = stats.t.ppf(1.0 - alpha / (2.0 * na), na - 2)
+    g = (na - 1) / np.sqrt(na) * np.sqrt(t * t / (na - 2 + t * t))
+    return float(g) if np.ndim(g) == 0 else g
 
 
 def grubbs(residual, alpha: float = DEFAULT_ALPHA, max_fraction: float = 0.2) -> np.ndarray:
@@ -34,28 +36,38 @@ def grubbs(residual, alpha: float = DEFAULT_ALPHA, max_fraction: float = 0.2) ->
 
     Stops when the most extreme remaining sample passes, when 3 samples remain, or when
     ``max_fraction`` of the samples have gone (beyond that the residuals are not "Gaussian
-    plus a few outliers" and the test's premise is broken)."""
+    plus a few outliers" and the test's premise is broken). O(n log n): the sample farthest
+    from the mean is always the smallest or the largest remaining one, so one sort suffices."""
     e = np.asarray(residual, dtype=np.float64).reshape(-1)
     n = len(e)
-    keep = np.ones(n, bool)
+    order = np.argsort(e, kind="stable")
+    v = e[order]
+    lo, hi = 0, n - 1  # remaining samples are v[lo..hi]
     removed: list[int] = []
-    # running sums make each step O(n) for the arg-max only
-    s1, s2, k = float(e.sum()), float(e @ e), n
+    s1, s2, k = float(v.sum()), float(v @ v), n
     limit = int(max_fraction * n)
+    if n <= 3 or limit == 0:
+        return np.zeros(0, dtype=np.int64)
+    # critical values for k = n, n−1, … in one vectorised call
+    ks = np.arange(n, max(n - limit, 3) - 1, -1)
+    crit = grubbs_critical(ks, alpha)
     while k > 3 and len(removed) < limit:
         mean = s1 / k
         var = (s2 - k * mean * mean) / (k - 1)
         if var <= 0:
             break
-        dev = np.where(keep, np.abs(e - mean), -1.0)
-        i = int(np.argmax(dev))
-        if dev[i] / np.sqrt(var) <= grubbs_critical(k, alpha):
+        d_lo, d_hi = mean - v[lo], v[hi] - mean
+        j = hi if d_hi >= d_lo else lo
+        if max(d_lo, d_hi) / np.sqrt(var) <= crit[n - k]:
             break
-        keep[i] = False
-        removed.append(i)
-        s1 -= e[i]
-        s2 -= e[i] * e[i]
+        removed.append(int(order[j]))
+        s1 -= v[j]
+        s2 -= v[j] * v[j]
         k -= 1
+        if j == hi:
+            hi -= 1
+        else:
+            lo += 1
     return np.asarray(removed, dtype=np.int64)
 
 
