@@ -161,3 +161,43 @@ def describe(
 
 def _vec(v: np.ndarray) -> str:
     return ", ".join(f"{x:+.2f}" for x in v)
+
+
+def wander_shares(e: np.ndarray, u: np.ndarray, xs: dict[str, np.ndarray], coefs: dict[str, np.ndarray], n_blocks: int = 20):
+    """How much of the recording's slow offset wander each channel term explains.
+
+    The radial residual is split into contiguous time blocks and an offset δ_b fitted in each
+    (e ≈ uᵀδ_b; the radius is global). The channel terms predict δ_b by the same block fit applied to uᵀK_c x_c. Returns ({name: variance of
+    its predicted block offsets}, variance left unexplained), both in µT² with the estimation
+    noise of δ_b removed. Real recordings wander (environment, 1/f noise); a channel term that
+    explains less than what is left unexplained is a slow coincidence, not an effect."""
+    from .inference import contiguous_blocks
+
+    blocks = contiguous_blocks(len(e), n_blocks)
+    deltas, noise, means = [], [], {c: [] for c in xs}
+    for b in blocks:
+        a = u[b]
+        if len(a) < 12:
+            continue
+        ata = a.T @ a
+        try:
+            inv = np.linalg.inv(ata)
+        except np.linalg.LinAlgError:
+            continue
+        sol = inv @ (a.T @ e[b])
+        rss = float(np.sum((e[b] - a @ sol) ** 2))
+        s2 = rss / max(len(a) - 3, 1)
+        deltas.append(sol[:3])
+        noise.append(s2 * float(np.trace(inv[:3, :3])))
+        for c, x in xs.items():  # the same block fit applied to what the channel term predicts
+            means[c].append(inv @ (a.T @ ((u[b] @ coefs[c]) * x[b])))
+    if len(deltas) < 4:
+        return {c: 0.0 for c in xs}, float("inf")
+    d = np.array(deltas)
+    nv = float(np.mean(noise))
+    pred = {c: np.array(means[c]).reshape(-1, 3) for c in xs}
+    rem = d - sum(pred.values()) if pred else d
+    rem = rem - rem.mean(axis=0)
+    v_rem = max(float(np.mean(np.sum(rem**2, axis=1))) - nv, 0.0)
+    shares = {c: float(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1))) for c, p in pred.items()}
+    return shares, v_rem

@@ -5,9 +5,12 @@
 2. Baseline: hard iron + radius (the sphere), fitted on the rest.
 3. Candidates: soft iron (5 degree-2 regressors) and one offset-vs-channel term per auxiliary
    channel and for time, tested jointly at the baseline by a block-HAC Wald test, with Holm's
-   family-wise control at ``alpha``.
+   family-wise control at ``alpha``; degree-3/4 direction harmonics are nuisance terms in every
+   test (magcal.diagnose.harmonics).
 4. An effect earns its place only if it is also larger than a practical floor (µT relative to
-   the recording's own noise) and improves the held-out residual over contiguous time blocks.
+   the recording's own noise), a channel term explains at least as much of the slow offset
+   wander (offsets fitted per time block) as is left unexplained, and it improves the
+   held-out residual over contiguous time blocks.
 5. The accepted terms are refitted jointly (nonlinear least squares on the radial residual)
    and the held-out RMS of baseline and final models reported.
 6. Simulation vs recording: the fitted model, driven with the recording's own directions,
@@ -25,6 +28,7 @@ from ..errors import InputError
 from ..series import Series
 from . import channels as ch
 from . import glitches as gl
+from . import harmonics
 from . import softiron as si
 from .finding import Finding
 from .inference import block_wald, contiguous_blocks, heldout_sse, holm
@@ -160,6 +164,8 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         groups[c.effect] = np.arange(k, k + 3)
         by_effect[c.effect] = c
         k += 3
+    d0 = mk - base0.offset_ut
+    cols.append(harmonics.regressors(d0 / np.linalg.norm(d0, axis=1, keepdims=True)))  # nuisance
     xmat = np.concatenate(cols, axis=1)
     tests = block_wald(xmat, e0, groups)
     rejected = holm({g: r.p for g, r in tests.items()}, alpha)
@@ -174,6 +180,20 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
             if np.any(np.linalg.eigvalsh(w_lin) <= 0) or si.max_deviation(w_lin) < si.MIN_GAIN_DEVIATION:
                 continue
         survivors.append(g)
+
+    # real recordings wander slowly: a channel term must explain at least as much of the block
+    # offsets as is left unexplained (channels.wander_shares)
+    chan_surv = [g for g in survivors if g != si.EFFECT]
+    wander = {}
+    if chan_surv:
+        shares, v_rem = ch.wander_shares(
+            e0,
+            d0 / np.linalg.norm(d0, axis=1, keepdims=True),
+            {g: chk[by_effect[g].channel] - by_effect[g].reference for g in chan_surv},
+            {g: -tests[g].beta for g in chan_surv},
+        )
+        wander = {g: (shares[g], v_rem) for g in chan_surv}
+        survivors = [g for g in survivors if g == si.EFFECT or shares[g] >= v_rem]
 
     base_cols = np.arange(j0.shape[1])
     accepted = list(survivors)
@@ -243,6 +263,9 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
             "heldout_rms_ut_with": cv.get("_all"),
             "heldout_rms_ut_without": cv.get(g),
         }
+        if g in wander:
+            ev["block_offset_rms_ut_explained"] = float(np.sqrt(wander[g][0]))
+            ev["block_offset_rms_ut_unexplained"] = float(np.sqrt(wander[g][1]))
         if g == si.EFFECT:
             findings.append(si.describe(final.soft_iron, ev))
         else:

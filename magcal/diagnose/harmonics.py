@@ -1,0 +1,52 @@
+"""Pure degree-3 and degree-4 spherical-harmonic functions of the field direction.
+
+A linear sensor error shows in a sphere fit's residual as degrees 0–2 (physics.md); degrees
+≥ 3 are something else (nonlinearity, field gradients, an imperfect environment). Real
+recordings carry such direction-dependent residue, and when the mix of directions changes
+during a recording a slow channel (temperature) times the direction can soak it up. Diagnosis
+therefore adds these functions as nuisance regressors when it tests soft iron and channels, so
+a channel effect must be more than a direction-dependent misfit seen at different times.
+
+The functions are the degree-3 and degree-4 monomials with their lower-degree parts removed
+(least squares over a uniform spherical design), so they are orthogonal to degrees 0–2 over
+the sphere and do not compete with hard iron, radius or soft iron.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from itertools import combinations_with_replacement
+
+import numpy as np
+
+
+def _monomials(u: np.ndarray, degree: int) -> np.ndarray:
+    return np.stack([np.prod(u[:, list(c)], axis=1) for c in combinations_with_replacement(range(3), degree)], axis=1)
+
+
+@lru_cache(maxsize=1)
+def _coefficients():
+    k = 4000  # Fibonacci sphere: a near-uniform design
+    i = np.arange(k) + 0.5
+    z = 1 - 2 * i / k
+    phi = np.pi * (1 + 5**0.5) * i
+    r = np.sqrt(1 - z * z)
+    q = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+    out = []
+    for deg, lower in ((3, (1,)), (4, (0, 2))):
+        p = _monomials(q, deg)
+        low = np.concatenate([_monomials(q, d) if d else np.ones((k, 1)) for d in lower], axis=1)
+        c, *_ = np.linalg.lstsq(low, p, rcond=None)
+        out.append((deg, lower, c))
+    return out
+
+
+def regressors(u: np.ndarray) -> np.ndarray:
+    """(n, 25) columns spanning the degree-3 (7-dim) and degree-4 (9-dim) harmonics of unit
+    directions u (n, 3); the columns are redundant, rank 16."""
+    cols = []
+    for deg, lower, c in _coefficients():
+        p = _monomials(u, deg)
+        low = np.concatenate([_monomials(u, d) if d else np.ones((len(u), 1)) for d in lower], axis=1)
+        cols.append(p - low @ c)
+    return np.concatenate(cols, axis=1)
