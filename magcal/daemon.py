@@ -56,7 +56,7 @@ log = logging.getLogger("magcal.daemon")
 
 READ_S = 0.1  # one read's wait
 READY_EVERY = 100  # samples between gate checks while a recalibration waits for data
-BASELINE_WINDOWS = 4  # monitor windows that learn the noise after a calibration is (re)loaded
+BASELINE_WINDOWS = 8  # monitor windows that learn the noise after a calibration is (re)loaded
 SOCKET_NAME = "status.sock"
 CAPTURE_NAME = "capture.cap"
 DECISIONS_KEPT = 50

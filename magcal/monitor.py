@@ -11,12 +11,16 @@ temperature, the fit's own small misfit move together), so the noise is not whit
 σ² of the window residuals and the integrated-autocorrelation factor τ (variance of batch means
 × batch length / σ², "effective sample size" n/τ) are estimated while the calibration is known
 good (the first ``baseline_windows`` windows after it was loaded or written), together with the
-baseline θ₀ and its covariance.
+baseline θ₀ and its covariance, and a dispersion factor φ ≥ 1: each baseline window tested
+against the others — a calibration that is slightly off in soft iron leaves a residual whose
+degree-1 projection depends on which directions a window sees, and φ scales the variance so that
+this, which is not a change, does not raise alarms.
 
 Each later window is tested: Δ = θ − θ₀ in the directions the window's motion determines
 (eigenvectors of XᵀX that carry information; a still board tests only the one combination it
-sees), C = σ²τ (XᵀX)⁻¹ + Cov(θ₀), T = Δᵀ C⁻¹ Δ; under "nothing changed" T/k ~ F(k, ν) with k the
-tested dimensions and ν the baseline's batch count − 1 (the dof of σ²τ). The calibration no longer
+sees), C = φσ²τ ((XᵀX)⁻¹ + (X₀ᵀX₀)⁻¹), T = Δᵀ C⁻¹ Δ; under "nothing changed" T/k ~ F(k, ν) with
+k the tested dimensions and ν the degrees of freedom of the estimated scale (the baseline's
+batches for σ²τ, or the leave-one-out dimensions when φ > 1). The calibration no longer
 fits when the p-value is below ``alpha`` — the configured false-alarm probability of one test,
 not a fixed threshold in µT. ``estimated_shift_ut`` turns d back into the sensor-frame offset
 change W⁻¹(d − d₀) so a log line can say how large the new hard iron is.
@@ -99,7 +103,7 @@ def window_fit(cal: Calibration, m_ut: np.ndarray, channels=None) -> dict:
 class DriftMonitor:
     """Feed valid samples (µT, sensor frame) with ``add``; it returns a Verdict per full window."""
 
-    def __init__(self, calibration: Calibration, window: int = 500, alpha: float = 0.001, baseline_windows: int = 4):
+    def __init__(self, calibration: Calibration, window: int = 500, alpha: float = 0.001, baseline_windows: int = 8):
         if window < 4 * MIN_BATCHES:
             raise ValueError(f"monitor window must hold at least {4 * MIN_BATCHES} samples, got {window}")
         if not 0 < alpha < 0.5:
@@ -126,6 +130,9 @@ class DriftMonitor:
         self._bm0 = 0.0
         self._nb0 = 0
         self._base_done = 0
+        self._base_windows: list[tuple[np.ndarray, np.ndarray]] = []  # (θ, XᵀX) per baseline window
+        self._phi = 1.0  # over-dispersion of θ between baseline windows (≥ 1)
+        self._phi_dof = 0
 
     # -- feeding ---------------------------------------------------------------------------------
     @property
@@ -167,6 +174,9 @@ class DriftMonitor:
             self._bm0 += w["bm_ss"]
             self._nb0 += w["nb"]
             self._base_done += 1
+            self._base_windows.append((w["theta"], w["a"]))
+            if self._base_done == self.baseline_windows:
+                self._phi, self._phi_dof = self._dispersion()
             v = Verdict(self.windows, "baseline", len(m), float("nan"), float("nan"), 0, float("nan"), False,
                         w["rms_ut"], (0.0, 0.0, 0.0))
         else:
@@ -185,26 +195,55 @@ class DriftMonitor:
         pinv = np.linalg.pinv(self._a0, rcond=1e-10, hermitian=True)
         return pinv @ self._b0, pinv
 
-    def _test(self, w: dict, n: int) -> Verdict:
-        sigma, tau = self.noise()
-        var = max(sigma * sigma * tau, 1e-12)
-        theta0, a0_inv = self._baseline()
-        lam, vec = np.linalg.eigh(w["a"])
+    @staticmethod
+    def _statistic(theta, a, n, theta0, a0_inv, var):
+        """T² of θ − θ₀ in the directions this window determines, its dimension k, and the
+        tested part of the difference (4-vector)."""
+        lam, vec = np.linalg.eigh(a)
         keep = lam > EIG_FLOOR * n
         k = int(np.count_nonzero(keep))
-        nu = max(1, self._nb0 - 1)
-        delta_theta = w["theta"] - theta0
+        if k == 0:
+            return 0.0, 0, np.zeros(4)
+        v = vec[:, keep]
+        delta = v.T @ (theta - theta0)
+        cov = var * (np.diag(1.0 / lam[keep]) + v.T @ a0_inv @ v)
+        return float(delta @ np.linalg.solve(cov, delta)), k, v @ delta
+
+    def _dispersion(self) -> tuple[float, int]:
+        """How much more θ varies between baseline windows than the noise explains: each
+        baseline window tested against the others (leave one out), φ = ΣT²/Σk ≥ 1. It absorbs
+        a small misfit of the calibration whose degree-1 projection depends on which
+        directions a window happens to see."""
+        if len(self._base_windows) < 2:
+            return 1.0, 0
+        sigma, tau = self.noise()
+        var = max(sigma * sigma * tau, 1e-12)
+        t2_sum, k_sum = 0.0, 0
+        for theta, a in self._base_windows:
+            a_rest = self._a0 - a
+            b_rest = self._b0 - a @ theta
+            rest_inv = np.linalg.pinv(a_rest, rcond=1e-10, hermitian=True)
+            t2, k, _ = self._statistic(theta, a, self.window, rest_inv @ b_rest, rest_inv, var)
+            t2_sum += t2
+            k_sum += k
+        if k_sum == 0:
+            return 1.0, 0
+        return max(1.0, t2_sum / k_sum), k_sum
+
+    def _test(self, w: dict, n: int) -> Verdict:
+        sigma, tau = self.noise()
+        var = max(sigma * sigma * tau, 1e-12) * self._phi
+        theta0, a0_inv = self._baseline()
+        t2, k, seen = self._statistic(w["theta"], w["a"], n, theta0, a0_inv, var)
         if k == 0:
             return Verdict(self.windows, "test", n, 0.0, float("inf"), 0, 1.0, False, w["rms_ut"], (0.0, 0.0, 0.0))
-        v = vec[:, keep]
-        delta = v.T @ delta_theta
-        cov = var * (np.diag(1.0 / lam[keep]) + v.T @ a0_inv @ v)
-        t2 = float(delta @ np.linalg.solve(cov, delta))
+        # the scale σ²τφ is estimated: its dof are the baseline batches (σ²τ) or, when the
+        # windows disagree more than the noise explains, the leave-one-out dimensions (φ)
+        nu = max(1, self._phi_dof if self._phi > 1.0 else self._nb0 - 1)
         p = float(stats.f.sf(t2 / k, k, nu))
         threshold = float(k * stats.f.isf(self.alpha, k, nu))
         drifted = p < self.alpha
-        seen = v @ delta  # only what this window's directions determine (minimum norm)
-        shift = self._w_inv @ seen[1:]  # e ≈ u·Wδ ⇒ δ = W⁻¹d
+        shift = self._w_inv @ seen[1:]  # only what this window determines; e ≈ u·Wδ ⇒ δ = W⁻¹d
         if drifted:
             self.alarms += 1
             if self.first_alarm_window is None:
@@ -233,6 +272,9 @@ class DriftMonitor:
                 "bm_ss": self._bm0,
                 "nb": self._nb0,
                 "done": self._base_done,
+                "windows": [[t.tolist(), a.tolist()] for t, a in self._base_windows],
+                "phi": self._phi,
+                "phi_dof": self._phi_dof,
             },
         }
 
@@ -257,6 +299,10 @@ class DriftMonitor:
             mon._bm0 = float(base["bm_ss"])
             mon._nb0 = int(base["nb"])
             mon._base_done = int(base["done"])
+            mon._base_windows = [(np.asarray(t, dtype=np.float64).reshape(4), np.asarray(a, dtype=np.float64).reshape(4, 4))
+                                 for t, a in base["windows"]]
+            mon._phi = float(base["phi"])
+            mon._phi_dof = int(base["phi_dof"])
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"monitor state is malformed: {exc!r}") from None
         return mon
@@ -270,6 +316,7 @@ class DriftMonitor:
             "first_alarm_window": self.first_alarm_window,
             "noise_ut": sigma,
             "autocorrelation_factor": tau,
+            "dispersion_factor": self._phi,
             "pending_samples": self._fill,
             "last": self.last.to_dict() if self.last else None,
         }
