@@ -80,6 +80,13 @@ def test_wrong_echo_exits_nonzero_and_says_which_value(capsys):
 
 
 # -- offline --------------------------------------------------------------------------------
+SENSOR_DETAILS = [  # what Adafruit_Sensor::printSensorDetails() prints, once per sensor
+    b"------------------------------------", b"Sensor:       LSM6DSOX_A", b"Type:         Acceleration (m/s2)",
+    b"Driver Ver:   1", b"Unique ID:    1", b"Min Value:    -156.91", b"Max Value:    156.91",
+    b"Resolution:   0.06", b"------------------------------------", b"",
+]
+
+
 def write_adafruit_log(path, board_seed: int = 4, n: int = 1500) -> np.ndarray:
     """A serial-monitor capture of the Adafruit sketch: banner, Raw:/Uni: pairs, Cal lines,
     a torn line now and then; returns the true readings (µT) behind it."""
@@ -88,7 +95,8 @@ def write_adafruit_log(path, board_seed: int = 4, n: int = 1500) -> np.ndarray:
     sc = adafruit_scenario(seed=board_seed)
     run = sc.simulate(n, rate_hz=50)
     m, _ = sc.field_ut(run.series.t_s, np.arange(n))
-    out = [b"Adafruit AHRS - IMU Calibration!", b"Calibration filesys test"]
+    out = [b"Adafruit AHRS - IMU Calibration!", b"Calibration filesys test",
+           b"No calibration loaded/found... will start with defaults"] + SENSOR_DETAILS * 3
     for i, v in enumerate(m):
         c = np.round(v * 10).astype(int)
         out.append(b"Raw:0,0,8192,0,0,0,%d,%d,%d" % tuple(c))
@@ -113,13 +121,17 @@ def test_saved_motioncal_log_reads_and_fits(tmp_path):
     assert np.abs(cal.offset_ut - truth.offset_ut).max() < 0.3
 
 
-def test_diagnose_reads_a_motioncal_log(tmp_path, capsys):
+@pytest.mark.parametrize("command", ["fit", "diagnose"])
+def test_fit_and_diagnose_read_a_motioncal_log(tmp_path, capsys, command):
     p = tmp_path / "motioncal.log"
     write_adafruit_log(p)
-    rc = main(["diagnose", str(p), "--json"])
+    rc = main([command, str(p), "--json"])
     out = json.loads(capsys.readouterr().out)
     assert rc == 0
-    assert out["n_samples"] == len(load_series(p))
     truth = __import__("adafruit_device").adafruit_scenario(seed=4).physics.truth()
-    assert "soft_iron" in [f["effect"] for f in out["findings"]]  # the board has 6 % cross terms
     assert np.abs(np.array(out["calibration"]["offset_ut"]) - truth.offset_ut).max() < 0.3
+    if command == "diagnose":
+        assert out["n_samples"] == len(load_series(p))
+        assert "soft_iron" in [f["effect"] for f in out["findings"]]  # the board has 6 % cross terms
+    else:
+        assert out["model"] == "ellipsoid"
