@@ -342,7 +342,7 @@ int main(int argc, char **argv)
     memset(&h, 0, sizeof h);
     uint8_t asa[3] = {176, 178, 166};
     unsigned faults = 0, measure_us = 7300, addr = 0x68;
-    int boot_delay_ms = 30;
+    int boot_delay_ms = 100;
     const char *elf = NULL;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];

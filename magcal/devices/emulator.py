@@ -114,7 +114,7 @@ class EmulatedBoard:
         pace: bool = False,
         faults: int = 0,
         measure_us: int | None = None,
-        boot_delay_ms: int = 30,
+        boot_delay_ms: int = 100,
     ):
         self.scenario = scenario
         self._tmpdir = None
