@@ -93,16 +93,18 @@ class RawBoard:
                 raise AssertionError(f"no {what} within {timeout_s} s; saw {seen[-5:]}")
             self._receive()
 
-    def close(self) -> None:
+    def close(self) -> str:
+        """Stop the harness; returns what it wrote to stderr."""
+        if self.proc.returncode is not None:
+            return ""
         self.port.close()
         self.proc.terminate()
         try:
-            self.proc.wait(timeout=5)
+            _, err = self.proc.communicate(timeout=5)
         except subprocess.TimeoutExpired:
             self.proc.kill()
-            self.proc.wait()
-        self.proc.stdout.close()
-        self.proc.stderr.close()
+            _, err = self.proc.communicate()
+        return err
 
 
 def make_size_output() -> str:

@@ -269,3 +269,28 @@ def test_a_line_of_exactly_120_bytes_is_accepted_and_121_is_too_long(board):
     board.write(longer)
     err = board.wait_for(lambda i: isinstance(i, ErrorReply), 5, "LONG")
     assert (err.tag, err.code) == (0, "LONG")
+
+
+def test_the_deepest_paths_leave_stack_headroom_in_2k_of_ram(tmp_path):
+    b = RawBoard(tmp_path, extra=("--stack-report",))
+    try:
+        _boot(b)
+        vals = _record()
+        for cmd in [("R", 100), ("G",), ("W", *vals, f"{record_crc(vals):04X}"), ("M", 1),
+                    ("K",), ("Q",), ("R", "x")]:
+            _reply(b, b.send(*cmd))
+        b.write(b"$" + b"A" * 200 + b"\n")
+        b.wait_for(lambda i: isinstance(i, ErrorReply) and i.code == "LONG", 5, "LONG")
+        for cmd in ("N", "F"):
+            tag = b.send(cmd, 50)
+            from magcal.protocol import FitReply
+
+            b.wait_for(lambda i: isinstance(i, FitReply) and i.tag == tag, 10, f"{cmd} result")
+        _reply(b, b.send("Z"))
+        b.wait_for(lambda i: isinstance(i, Hello), 5, "hello after Z")
+    finally:
+        err = b.close()
+    m = re.search(r"stack used at most (\d+) bytes; (\d+) bytes of SRAM never touched", err)
+    assert m, err
+    used, free = int(m.group(1)), int(m.group(2))
+    assert free >= 400, f"stack peak {used} bytes leaves only {free} bytes of 2048 untouched"

@@ -328,11 +328,31 @@ static int wait_for_host(harness *h, int boot_delay_ms)
     return 0;
 }
 
+/* Stack high-water mark: SRAM is painted before the CPU starts; at exit the longest run of
+ * paint left between the static data and the stack is the RAM never used. */
+#define PAINT 0xC5
+static void paint_sram(avr_t *avr)
+{
+    memset(avr->data + 0x100, PAINT, avr->ramend + 1 - 0x100);
+}
+
+static void report_stack(avr_t *avr)
+{
+    unsigned best_len = 0, best_end = 0, run = 0;
+    for (unsigned a = 0x100; a <= avr->ramend; a++) {
+        run = avr->data[a] == PAINT ? run + 1 : 0;
+        if (run > best_len)
+            best_len = run, best_end = a;
+    }
+    fprintf(stderr, "magcal-emu: stack used at most %u bytes; %u bytes of SRAM never touched\n",
+            (unsigned)(avr->ramend - best_end), best_len);
+}
+
 static void usage(void)
 {
     fprintf(stderr, "usage: magcal-emu [--eeprom FILE] [--field hx,hy,hz] [--asa a,b,c] "
                     "[--addr 0x68|0x69] [--faults N] [--measure-us N] [--pace] "
-                    "[--boot-delay-ms N] firmware.elf\n");
+                    "[--boot-delay-ms N] [--stack-report] firmware.elf\n");
     exit(2);
 }
 
@@ -342,13 +362,15 @@ int main(int argc, char **argv)
     memset(&h, 0, sizeof h);
     uint8_t asa[3] = {176, 178, 166};
     unsigned faults = 0, measure_us = 7300, addr = 0x68;
-    int boot_delay_ms = 100;
+    int boot_delay_ms = 100, stack_report = 0;
     const char *elf = NULL;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *val = (i + 1 < argc) ? argv[i + 1] : NULL;
         if (!strcmp(a, "--pace")) {
             h.pace = 1;
+        } else if (!strcmp(a, "--stack-report")) {
+            stack_report = 1;
         } else if (!strcmp(a, "--eeprom") && val) {
             h.eeprom_path = val, i++;
         } else if (!strcmp(a, "--field") && val) {
@@ -399,6 +421,7 @@ int main(int argc, char **argv)
     avr_init(h.avr);
     h.avr->frequency = FREQ_HZ;
     avr_load_firmware(h.avr, &fw);
+    paint_sram(h.avr);
     h.avr->log = LOG_ERROR;
     h.avr->sleep = no_wall_sleep;
 
@@ -474,6 +497,8 @@ int main(int argc, char **argv)
         }
     }
 done:
+    if (stack_report)
+        report_stack(h.avr);
     eeprom_save_if_changed(&h);
     close(h.pty);
     return rc;
