@@ -235,7 +235,8 @@ def open_emulated(url: str, dialect: str = "native", **opts):
         measure_us = int(measure_us) if measure_us is not None else None
     except ValueError:
         raise DeviceError(f"emu:// options faults and measure_us must be integers: {url!r}") from None
-    pace = q.get("pace", "0") not in ("0", "", "false", "no") or bool(opts.pop("pace", False))
+    pace_opt = bool(opts.pop("pace", False))
+    pace = q.get("pace", "0") not in ("0", "", "false", "no") or pace_opt
     board = EmulatedBoard(scenario, q.get("eeprom") or opts.pop("eeprom", None), pace=pace,
                           faults=faults, measure_us=measure_us)
     pty = board.start()
