@@ -18,7 +18,7 @@ from magcal.cli import main as cli_main
 from magcal.devices import Event, open_device
 from magcal.physics import HOFL_SUM_UT, Motion, demo_scenario
 from magcal.protocol import record_from_calibration
-from magcal.sample import Sample
+from magcal.sample import Sample, counts_to_ut, temp_raw_to_c
 
 
 @pytest.fixture(autouse=True)
@@ -132,6 +132,12 @@ def test_calibrate_write_restart_read_back_and_calibrated_stream(tmp_path, capsy
         dev.stop()
     cal = np.array([s.field_ut for s in _samples(items)])
     assert all(s.aux.get("calibrated") for s in _samples(items))
+    # the board's float32 correction equals the host's float64 one for the same measurements
+    served = list(dev.board.served)[: len(cal)]
+    m = counts_to_ut([r for (_, _, r, _, _) in served], truth.asa)
+    temp_c = np.array([temp_raw_to_c(t) for (_, _, _, _, t) in served])
+    want = stored.correct(m, {"temp_c": temp_c})
+    np.testing.assert_allclose(cal, want, atol=0.005)
     norms = np.linalg.norm(cal, axis=1)
     # centred: every calibrated sample sits on the sphere of the Earth field around the origin
     assert abs(np.median(norms) - truth.field_ut) < 0.6, np.median(norms)

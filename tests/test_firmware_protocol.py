@@ -9,6 +9,7 @@ import re
 import struct
 import time
 
+import numpy as np
 import pytest
 
 from magcal.protocol import (
@@ -202,11 +203,12 @@ def test_corrupt_eeprom_is_reported_and_never_applied(tmp_path, flip):
 
 
 def test_calibrated_output_applies_the_stored_record(tmp_path):
-    # field (100, -200, 300) counts with ASA 176/178/166 → m in nT; record: offset only
-    gains = [(a + 128) / 256 for a in (176, 178, 166)]
-    m_nt = [c * 300 * g for c, g in zip((100, -200, 300), gains)]
-    vals = (1, 10000, -20000, 30000, 50000, 1000000, 1000000, 1000000, 0, 0, 0,
-            0, 0, 0, 0, 0, 0, 0)
+    """U lines = W (m − o − t (T − tref)) as the host computes it, from the stored record."""
+    from magcal.protocol import CalibratedSample, calibration_from_record
+    from magcal.sample import counts_to_ut, temp_raw_to_c
+
+    vals = (1, 10000, -20000, 30000, 50000, 1020000, 980000, 1005000, 12000, -8000, 5000,
+            150, -300, 220, 2500, 0, 0, 0)
     ee = tmp_path / "ee.bin"
     ee.write_bytes(_eeprom_blob(vals))
     b = RawBoard(tmp_path, eeprom=ee)
@@ -214,13 +216,13 @@ def test_calibrated_output_applies_the_stored_record(tmp_path):
         _boot(b)
         assert isinstance(_reply(b, b.send("M", 1)), Ack)
         b.send("G")
-        from magcal.protocol import CalibratedSample
-
         u = b.wait_for(lambda i: isinstance(i, CalibratedSample), 5, "calibrated sample")
-        want = [m - o for m, o in zip(m_nt, vals[1:4])]
-        assert all(abs(a - w) <= 2 for a, w in zip(u.field_nt, want)), (u.field_nt, want)
     finally:
         b.close()
+    m = counts_to_ut([(100, -200, 300)], (176, 178, 166))
+    want = calibration_from_record(vals).correct(m, {"temp_c": [temp_raw_to_c(-2150)]})[0] * 1000
+    assert np.allclose(u.field_nt, want, atol=2), (u.field_nt, want)
+    assert u.temp_raw == -2150
 
 
 def test_software_reset_restarts_the_sequence(board):
