@@ -179,6 +179,12 @@ class EmulatedBoard:
                 proc.stdin.flush()
         except (OSError, ValueError) as exc:  # harness gone: the reader side reports it
             self._error = str(exc)
+        except Exception as exc:  # the physics failed: stop the board rather than hang it
+            self._error = f"physics provider failed: {exc!r}"
+            try:
+                proc.stdin.close()
+            except (OSError, ValueError):
+                pass
 
     def reset(self) -> None:
         """Reset the AVR now (like pressing the reset button); the host sees a fresh hello."""
