@@ -186,11 +186,18 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     chan_surv = [g for g in survivors if g != si.EFFECT]
     wander = {}
     if chan_surv:
+        # the residual with everything but the channel terms fitted out (soft iron and the
+        # direction harmonics would otherwise alias into block offsets under partial coverage)
+        colscale = np.sqrt(np.maximum((xmat * xmat).sum(axis=0), 1e-300))
+        beta_all = np.linalg.lstsq(xmat / colscale, e0, rcond=1e-10)[0] / colscale
+        chan_cols = np.concatenate([groups[g] for g in groups if g != si.EFFECT]) if len(groups) > 1 else np.zeros(0, int)
+        other = np.setdiff1d(np.arange(xmat.shape[1]), chan_cols)
+        e_w = e0 - xmat[:, other] @ beta_all[other]
         shares, v_rem = ch.wander_shares(
-            e0,
+            e_w,
             d0 / np.linalg.norm(d0, axis=1, keepdims=True),
             {g: chk[by_effect[g].channel] - by_effect[g].reference for g in chan_surv},
-            {g: -tests[g].beta for g in chan_surv},
+            {g: -beta_all[groups[g]] for g in chan_surv},
         )
         wander = {g: (shares[g], v_rem) for g in chan_surv}
         survivors = [g for g in survivors if g == si.EFFECT or shares[g] >= v_rem]
@@ -303,11 +310,11 @@ def _outlier_finding(s: Series, glitch: gl.Glitches, base0: ModelFit, baseline: 
     radial = np.abs(base0.residual(s.field_ut[idx], {}))
     rows = [int(v) for v in s.row[idx]]
     times = s.t_s[idx]
+    seen = float(np.median(radial / np.maximum(glitch.jump_ut, 1e-9)))
     summary = (
         f"{len(idx)} sample(s) jump off the smooth trajectory by {np.median(glitch.jump_ut):.1f} µT "
-        f"(median) and back: isolated read glitches or stale/corrupted samples, not field; "
-        f"most of the jump is sideways, so |m| alone (median radial change "
-        f"{np.median(radial):.2f} µT) would not show them."
+        f"(median) and straight back: isolated read glitches or corrupted samples, not field. "
+        f"Only about {100 * min(seen, 1.0):.0f} % of a jump shows in |m|, so a radius check alone misses the sideways ones."
     )
     return Finding(
         effect="outliers",
@@ -319,6 +326,7 @@ def _outlier_finding(s: Series, glitch: gl.Glitches, base0: ModelFit, baseline: 
             "z": [float(v) for v in glitch.z[:200]],
             "jump_ut": [float(v) for v in glitch.jump_ut[:200]],
             "median_radial_change_ut": float(np.median(radial)),
+            "median_radial_share_of_jump": seen,
         },
         params={"indices": rows},
     )
