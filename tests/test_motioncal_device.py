@@ -161,7 +161,7 @@ def test_device_that_never_echoes_gets_a_plain_no_reply():
             assert dev.read_calibration() is None
     msg = str(err.value)
     assert "no Cal1/Cal2 echo within 1.8 s after 3 tries" in msg
-    assert "no calibration packet handler" in msg
+    assert "no calibration packet handler" in msg and "does not print them at all" in msg
 
 
 @pytest.mark.parametrize("mode", ["wrong", "ignore"])
@@ -176,6 +176,10 @@ def test_device_that_echoes_other_values_is_rejected(mode):
             assert not dev.matches(want, dev.read_calibration())
     if mode == "wrong":  # it did store the packet: the CRC was fine, its echo was not
         assert board.packets_stored == 2 and board.crc_failures == 0
+        assert "before" not in str(err.value)
+    else:  # prints Cal lines, never takes the packet: the echo is the old calibration
+        assert board.packets_stored == 0
+        assert "probably has no packet handler" in str(err.value)
     assert "echo" in str(err.value)
 
 

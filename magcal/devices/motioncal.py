@@ -67,6 +67,7 @@ class MotionCalDevice(Device):
         self._t0 = 0.0
         self._echoed: Calibration | None = None
         self.last_echo_mismatch: list[str] = []
+        self._last_pair: tuple | None = None
 
     # -- bytes in ----------------------------------------------------------------------------
     def _pull(self, wait_s: float) -> list[mc.Line]:
@@ -214,6 +215,8 @@ class MotionCalDevice(Device):
         sent = mc.packet_values(cal, acc, gyr)
         self.last_echo_mismatch = []
         self._echo_stats = [0, 0]  # complete echoes seen, "couldn't save" warnings
+        before = self._read_calibration()  # what it holds now (waits one echo period at most)
+        self._last_pair = None
         for attempt in range(1, self.tries + 1):
             self._drain()  # lines that waited in the OS buffer predate the packet
             self._send(packet)
@@ -224,11 +227,20 @@ class MotionCalDevice(Device):
         echoes, warned = self._echo_stats
         total = self.echo_timeout_s * self.tries
         if echoes == 0:
+            listened = time.monotonic() - self._t0
+            never = (
+                f" (nor any Cal1/Cal2 line in {listened:.0f} s on this port: the sketch does not "
+                "print them at all)" if self._asm.counters["cal1"] + self._asm.counters["cal2"] == 0 else ""
+            )
             raise NoReply(
                 f"{self.url}: no Cal1/Cal2 echo within {total:g} s after {self.tries} tries: "
-                "the firmware probably has no calibration packet handler"
+                f"the firmware probably has no calibration packet handler{never}"
             )
         hint = " (the device reported it could not save)" if warned else ""
+        last = mc.calibration_from_echo(*self._last_pair) if self._last_pair else None
+        if not hint and before is not None and last is not None and last.close_to(before, **self.compare_tolerance):
+            hint = (" (it still reports the calibration it had before: the sketch prints Cal1/Cal2"
+                    " but probably has no packet handler)")
         raise WriteRejected(
             f"{self.url}: the device echoed a different calibration after {self.tries} tries"
             f"{hint}: " + "; ".join(self.last_echo_mismatch[:6])
@@ -271,6 +283,7 @@ class MotionCalDevice(Device):
                 if cal[1] is None or cal[2] is None:
                     continue
                 self._echo_stats[0] += 1
+                self._last_pair = (cal[1], cal[2])
                 diff = mc.compare_echo(sent, cal[1], cal[2])
                 if not diff:
                     echoed = mc.calibration_from_echo(cal[1], cal[2])
