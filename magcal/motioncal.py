@@ -1,4 +1,5 @@
-"""The PJRC MotionCal / Adafruit convention, pure: lines in, values out; packets out. No I/O.
+"""The PJRC MotionCal / Adafruit convention, pure: lines in, values out; packets out. No ports
+or clocks; the one effect is ``load_log``, which reads a saved log file.
 
 Device → host, one text line per reading (we accept CR, LF or CRLF endings)::
 
