@@ -108,57 +108,92 @@ def _runs(a: np.ndarray):
     return d, ends, kind
 
 
+_CRC8_PAIR = None
+
+
+def _crc8_pairs() -> np.ndarray:
+    """T2[(x << 8) | y] = T[T[x] ^ y]: two bytes per lookup."""
+    global _CRC8_PAIR
+    if _CRC8_PAIR is None:
+        t = CRC8_TABLE_NP
+        x = np.arange(65536)
+        _CRC8_PAIR = t[t[x >> 8] ^ (x & 0xFF)].astype(np.uint16)
+    return _CRC8_PAIR
+
+
+# byte classes for the numeric fields: 0 digit, 1 comma, 2 sign, 3 anything else
+_CLASS = np.full(256, 3, np.uint8)
+_CLASS[0x30:0x3A] = 0
+_CLASS[_COMMA] = 1
+_CLASS[0x2B] = 2
+_CLASS[0x2D] = 2
+_BAD_PAIR = np.zeros(16, bool)
+for _p in range(4):
+    for _c in range(4):
+        _BAD_PAIR[_p * 4 + _c] = (
+            _p == 3 or _c == 3  # a byte that has no place in a number
+            or (_c == 2 and _p != 1)  # a sign that does not open a token
+            or (_c == 1 and _p != 0)  # a token that does not end with a digit (or is empty)
+        )
+
+
 def _fast_group(a: np.ndarray, starts: np.ndarray, le: int):
     """Lines of effective length ``le`` (no '\\r') starting at ``starts``, all beginning with
     ``$S,`` or ``$U,``: returns (ok mask, values (k, 7) int64)."""
     k = len(starts)
-    m = a[starts[:, None] + np.arange(le)]  # (k, le) uint8
-    ok = np.all((m >= 32) & (m < 127), axis=1)
+    m = np.lib.stride_tricks.sliding_window_view(a, le)[starts]  # (k, le) uint8 copy
+    ok = np.all((m - np.uint8(32)) < 95, axis=1)  # printable ASCII (uint8 wraps below 32)
     ok &= m[:, le - 3] == _STAR
     h1 = _HEXVAL[m[:, le - 2]]
     h0 = _HEXVAL[m[:, le - 1]]
     ok &= (h1 >= 0) & (h0 >= 0)
-    crc = np.zeros(k, np.uint8)
-    for j in range(1, le - 3):
-        crc = CRC8_TABLE_NP[crc ^ m[:, j]]
+    # CRC-8 of the payload m[:, 1 : le - 3], column by column, two bytes per table lookup
+    pt = np.ascontiguousarray(m[:, 1 : le - 3].T).astype(np.uint16)
+    pair = _crc8_pairs()
+    crc = np.zeros(k, np.uint16)
+    j = 0
+    while j + 1 < len(pt):
+        crc = pair[((crc ^ pt[j]) << 8) | pt[j + 1]]
+        j += 2
+    if j < len(pt):
+        crc = CRC8_TABLE_NP[crc ^ pt[j]].astype(np.uint16)
     ok &= crc.astype(np.int16) == (h1 * 16 + h0)
     # the seven decimal tokens after "S," with a closing comma appended
-    f = np.empty((k, le - 5), np.uint8)
+    w = le - 5
+    f = np.empty((k, w), np.uint8)
     f[:, :-1] = m[:, 3 : le - 3]
     f[:, -1] = _COMMA
-    w = f.shape[1]
-    comma = f == _COMMA
-    digit = (f >= 0x30) & (f <= 0x39)
-    sign = (f == 0x2B) | (f == 0x2D)
-    ok &= np.all(comma | digit | sign, axis=1)
-    ok &= comma.sum(axis=1) == 7
-    prev = np.empty_like(f)
-    prev[:, 0] = _COMMA
-    prev[:, 1:] = f[:, :-1]
-    start = prev == _COMMA
-    ok &= ~np.any(sign & ~start, axis=1)  # a sign only opens a token
-    prev_digit = np.zeros_like(comma)
-    prev_digit[:, 1:] = digit[:, :-1]
-    ok &= ~np.any(comma & ~prev_digit, axis=1)  # every token ends with a digit
-    cols = np.arange(w)
-    nxt = np.where(comma, cols, w)
+    cls = _CLASS[f]
+    comma = cls == 1
+    ok &= np.count_nonzero(comma, axis=1) == 7
+    # (previous class, class) pairs, with a virtual comma before column 0: one table says
+    # which pairs break "[+-]?digits" tokens
+    pairs = np.empty((k, w), np.uint8)
+    pairs[:, 0] = 4 + cls[:, 0]
+    pairs[:, 1:] = cls[:, :-1] * np.uint8(4) + cls[:, 1:]
+    ok &= ~np.any(_BAD_PAIR[pairs], axis=1)
+    start = np.empty_like(comma)  # a token starts at column 0 and after every comma
+    start[:, 0] = True
+    start[:, 1:] = comma[:, :-1]
+    if not ok.any():
+        return ok, np.zeros((k, 7), np.int64)
+    sel = np.flatnonzero(ok)
+    fs, cs, st = f[sel], cls[sel], start[sel]
+    cols = np.arange(w, dtype=np.int16)
+    nxt = np.where(cs == 1, cols, np.int16(w))
     nxt = np.minimum.accumulate(nxt[:, ::-1], axis=1)[:, ::-1]  # next comma at or after
     expo = nxt - cols - 1
-    ok &= ~np.any(digit & (expo >= _MAX_DIGITS), axis=1)
-    vals = np.zeros((k, 7), np.int64)
-    if not ok.any():
-        return ok, vals
-    sel = np.flatnonzero(ok)
-    fs, dg, ex, st = f[sel], digit[sel], np.clip(expo[sel], 0, _MAX_DIGITS - 1), start[sel]
-    pw = 10 ** np.arange(_MAX_DIGITS, dtype=np.int64)
-    contrib = np.where(dg, (fs.astype(np.int64) - 0x30) * pw[ex], 0)
-    flat = contrib.reshape(-1)
+    digit = cs == 0
+    long_tok = np.any(digit & (expo >= _MAX_DIGITS), axis=1)
+    pw = 10 ** np.arange(_MAX_DIGITS + 1, dtype=np.int64)
+    contrib = np.where(digit, (fs - np.uint8(0x30)).astype(np.int64) * pw[np.minimum(expo, _MAX_DIGITS)], 0)
     tok_start = np.flatnonzero(st.reshape(-1))  # exactly 7 per line, in order
-    sums = np.add.reduceat(flat, tok_start).reshape(len(sel), 7)
+    sums = np.add.reduceat(contrib.reshape(-1), tok_start).reshape(len(sel), 7)
     neg = (fs.reshape(-1)[tok_start] == 0x2D).reshape(len(sel), 7)
     v = np.where(neg, -sums, sums)
-    good = (v[:, 0] >= 0) & (v[:, 0] < SEQ_MOD)
+    good = ~long_tok & (v[:, 0] >= 0) & (v[:, 0] < SEQ_MOD)
     ok[sel[~good]] = False
+    vals = np.zeros((k, 7), np.int64)
     vals[sel] = v
     return ok, vals
 
