@@ -22,13 +22,13 @@ json_values = st.recursive(
 )
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.dictionaries(st.text(max_size=8), json_values, max_size=6))
 def test_round_trip(payload):
     assert decode_state(encode_state(payload)) == payload
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(st.data())
 def test_every_truncation_is_refused(data):
     blob = encode_state({"samples": 1234, "offset_ut": [1.5, -2.25, 3.0], "note": "x" * 20})
@@ -37,7 +37,7 @@ def test_every_truncation_is_refused(data):
         decode_state(blob[:cut])
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(st.data())
 def test_every_single_byte_change_is_refused_or_harmless(data):
     payload = {"samples": 1234, "offset_ut": [1.5, -2.25, 3.0]}
