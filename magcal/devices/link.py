@@ -91,23 +91,28 @@ class ProtocolDevice(Device):
     # -- low level -------------------------------------------------------------------------
     def _pump(self, timeout_s: float) -> bool:
         """Read what the transport has (waiting at most ``timeout_s``); False if nothing."""
+        lost = None
         try:
             self.transport.timeout = max(0.0, timeout_s)
             waiting = getattr(self.transport, "in_waiting", 0) or 0
             data = self.transport.read(max(1, min(waiting, 65536)))
-            if data and self.transport.in_waiting:
-                data += self.transport.read(self.transport.in_waiting)
+            try:
+                if data and self.transport.in_waiting:
+                    data += self.transport.read(self.transport.in_waiting)
+            except (OSError, ValueError) as exc:  # keep what was read before the port went
+                lost = exc
         except EOFError:
             self._eof = True
             return False
         except (OSError, ValueError) as exc:  # serial.SerialException is an OSError
             raise PortUnavailable(f"{self.url}: port lost ({exc})") from exc
-        if not data:
-            return False
-        self.counters["bytes_in"] += len(data)
-        for item in self.framer.feed(data):
-            self._dispatch(item)
-        return True
+        if data:
+            self.counters["bytes_in"] += len(data)
+            for item in self.framer.feed(data):
+                self._dispatch(item)
+        if lost is not None:
+            raise PortUnavailable(f"{self.url}: port lost ({lost})") from lost
+        return bool(data)
 
     def _dispatch(self, item) -> None:
         if isinstance(item, RawSample):
@@ -279,7 +284,12 @@ class ProtocolDevice(Device):
                 left = deadline - self._clock()
                 if left <= 0:
                     break
-                self._pump(min(left, 0.1))
+                try:
+                    self._pump(min(left, 0.1))
+                except PortUnavailable:
+                    if not self._pending:
+                        raise
+                    break  # hand over what arrived first; the next read finds the port gone
         out = list(self._pending)
         self._pending.clear()
         return out
