@@ -47,7 +47,6 @@ import math
 import os
 import struct
 import time
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Callable, Iterator
 
@@ -55,6 +54,7 @@ import numpy as np
 
 from . import __version__
 from .errors import InputError, MagcalError
+from .protocol import CalibratedSample, Hello, RawSample, Restart
 from .protocol_bulk import Frames, parse_stream
 from .sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
 from .series import Series
@@ -394,7 +394,7 @@ def series_from_frames(frames: Frames) -> Series:
     reset epoch, validity by ``Sample.valid``'s rules. Bit-identical (tests hold it)."""
     n = len(frames)
     pos = frames.pos
-    hellos = [(p, m) for p, m in frames.others if type(m).__name__ == "Hello"]
+    hellos = [(p, m) for p, m in frames.others if isinstance(m, Hello)]
     h_pos = np.array([p for p, _ in hellos], np.int64)
     gains = np.array([[1.0, 1.0, 1.0]] + [[asa_gain(a) for a in m.asa] for _, m in hellos], np.float64)
     which = np.searchsorted(h_pos, pos)  # 0: before any hello
@@ -405,7 +405,7 @@ def series_from_frames(frames: Frames) -> Series:
     field[raw_kind] = vals[raw_kind].astype(np.float64) * (UT_PER_COUNT * gains[which[raw_kind]])
     field[~raw_kind] = vals[~raw_kind].astype(np.float64) / 1000.0
     # time: t_k = t_{k-1} + Δ, with Δ = ms/1000 at the start of an epoch (after a reset)
-    r_pos = np.array([p for p, e in frames.events if type(e).__name__ == "Restart"], np.int64)
+    r_pos = np.array([p for p, e in frames.events if isinstance(e, Restart)], np.int64)
     epoch = np.searchsorted(r_pos, pos, side="right")
     inc = np.empty(n, np.float64)
     if n:
@@ -438,7 +438,7 @@ def load_capture(path) -> Series:
 
 def _native_series(data: bytes, name: str) -> Series:
     frames = parse_stream(data)
-    if any(type(m).__name__ in ("RawSample", "CalibratedSample") for _, m in frames.others):
+    if any(isinstance(m, (RawSample, CalibratedSample)) for _, m in frames.others):
         # a number too large for the fast arrays: take the live client's path instead
         return _series_via_device(data, name)
     return series_from_frames(frames)
@@ -446,11 +446,9 @@ def _native_series(data: bytes, name: str) -> Series:
 
 def _series_via_device(data: bytes, name: str) -> Series:
     from .devices.link import ProtocolDevice
-    from .devices.replay import BytesTransport
+    from .devices.replay import BytesTransport, collect_samples
 
     dev = ProtocolDevice(name, BytesTransport([(0.0, data)]), transport_name="replay", passive=True)
-    from .devices.replay import collect_samples
-
     return Series.from_samples(collect_samples(dev))
 
 
@@ -611,7 +609,8 @@ def load_series(path) -> Series:
         from . import motioncal
     except ImportError:
         motioncal = None
-    if motioncal is not None and motioncal.looks_like_motioncal(first):
+    # an Adafruit sketch prints ~30 banner lines (sensor details) before its first Raw: line
+    if motioncal is not None and motioncal.looks_like_motioncal(_first_lines(head, 200)):
         return motioncal.load_log(path)
     if "," in (first[0] if first else ""):
         return load_csv(path)  # names the missing columns

@@ -191,3 +191,13 @@ def test_a_capture_of_another_version_is_refused_by_name(tmp_path):
     p.write_bytes(json.dumps({"format": "magcal-capture", "version": 9}).encode() + b"\n")
     with pytest.raises(InputError, match="version 9"):
         CaptureReader(p)
+
+
+def test_numbers_beyond_int64_take_the_live_clients_path(tmp_path):
+    data = stream_bytes(50) + encode_line("S", (51, 2**70, 1, 2, 3, 0, 0)) + encode_line("S", (52, 5, 1, 2, 3, 0, 0))
+    p = tmp_path / "odd.cap"
+    with CaptureWriter(p, make_header("x"), clock=Clock()) as w:
+        w.append(data)
+    s = load_series(p)
+    ref = Series.from_samples(collect_samples(ProtocolDevice("r", BytesTransport([(0.0, data)]), passive=True)))
+    assert len(s) == 52 and np.array_equal(s.t_s, ref.t_s) and np.array_equal(s.field_ut, ref.field_ut)

@@ -2,8 +2,6 @@
 never raises, never yields a message that was not sent intact, counts every defect, and the
 bulk parser used for replays gives exactly the same answer."""
 
-from collections import Counter
-
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
