@@ -30,6 +30,10 @@ from ..sample import Sample
 from .base import Device, Identity, Item
 
 _QUEUE_MAX = 100_000
+# More than a port can hold buffered between the device and us (Linux: a 4 KB line-discipline
+# buffer in front of a tty buffer limited to 64 KB), plus one read's worth: any line received
+# after this many bytes since the packet went out was printed after the device got it.
+BACKLOG_BYTES = (4 + 64 + 4) * 1024
 
 
 class MotionCalDevice(Device):
@@ -260,11 +264,12 @@ class MotionCalDevice(Device):
     def _await_echo(self, sent: tuple) -> bool:
         """One attempt: True once a Cal1/Cal2 pair matches ``sent``. A mismatching pair ends
         the attempt early only when both lines are certainly newer than the store — printed
-        after the sketch's "Wrote calibration" line, or the second of their kind since the
-        send; an older pair may still have been in flight when the packet went out."""
+        after the sketch's "Wrote calibration" line, or received after more bytes than the OS
+        can hold buffered (``BACKLOG_BYTES``); an older pair may still have been in the port's
+        buffers when the packet went out. Otherwise the attempt runs to its timeout."""
         cal = {1: None, 2: None}
         fresh = {1: False, 2: False}
-        seen = {1: 0, 2: 0}
+        rx0 = self.counters["bytes"]
         stored = False
         deadline = time.monotonic() + self.echo_timeout_s
         while time.monotonic() < deadline:
@@ -277,9 +282,8 @@ class MotionCalDevice(Device):
                     continue
                 if not isinstance(line, mc.CalLine):
                     continue
-                seen[line.kind] += 1
                 cal[line.kind] = line
-                fresh[line.kind] = stored or seen[line.kind] >= 2
+                fresh[line.kind] = stored or self.counters["bytes"] - rx0 > BACKLOG_BYTES
                 if cal[1] is None or cal[2] is None:
                     continue
                 self._echo_stats[0] += 1
