@@ -55,6 +55,8 @@ from .state import StateStore
 log = logging.getLogger("magcal.daemon")
 
 READ_S = 0.1  # one read's wait
+BATCH_S = 0.05  # a read that brought only a trickle waits out this much, so lines are taken in
+BATCH_MIN = 16  # batches rather than one wake-up per line (100 Hz ⇒ ~20 wake-ups a second)
 READY_EVERY = 100  # samples between gate checks while a recalibration waits for data
 BASELINE_WINDOWS = 8  # monitor windows that learn the noise after a calibration is (re)loaded
 SOCKET_NAME = "status.sock"
@@ -161,6 +163,7 @@ class Daemon:
 
     def step(self) -> None:
         """One read and everything it leads to."""
+        t_read = self._clock()
         try:
             items = self.device.read(READ_S)
         except EOFError:
@@ -192,6 +195,10 @@ class Daemon:
         if self.max_samples is not None and self.samples >= self.max_samples:
             self.exit_reason = f"collected {self.samples} samples"
             self._stop.set()
+        if 0 < len(items) < BATCH_MIN and not self._stop.is_set():
+            rest = BATCH_S - (self._clock() - t_read)
+            if rest > 0:
+                self._sleep(rest)
 
     # -- connection -----------------------------------------------------------------------------
     def _backoff(self) -> float:
