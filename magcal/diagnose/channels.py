@@ -167,37 +167,38 @@ def wander_shares(e: np.ndarray, u: np.ndarray, xs: dict[str, np.ndarray], coefs
     """How much of the recording's slow offset wander each channel term explains.
 
     The radial residual is split into contiguous time blocks and an offset δ_b fitted in each
-    (e ≈ uᵀδ_b; the radius is global). The channel terms predict δ_b by the same block fit applied to uᵀK_c x_c. Returns ({name: variance of
-    its predicted block offsets}, variance left unexplained), both in µT² with the estimation
-    noise of δ_b removed. Real recordings wander (environment, 1/f noise); a channel term that
-    explains less than what is left unexplained is a slow coincidence, not an effect."""
+    (e ≈ uᵀδ_b; the radius is global). The channel terms' predictions uᵀK_c x_c go through the
+    same block fit. Energies are measured in the sample domain (δᵀ U_bᵀU_b δ summed over blocks,
+    per sample), so a block whose directions pin an offset only weakly counts only weakly.
+    Returns ({name: mean-square its block offsets explain}, mean square left unexplained beyond
+    what the noise alone gives), both µT². Real recordings wander (environment, 1/f noise); a
+    channel term that explains less than what is left is a slow coincidence, not an effect."""
     from .inference import contiguous_blocks
 
-    blocks = contiguous_blocks(len(e), n_blocks)
-    deltas, noise, means = [], [], {c: [] for c in xs}
+    blocks = [b for b in contiguous_blocks(len(e), n_blocks) if b.stop - b.start >= 12]
+    n = sum(b.stop - b.start for b in blocks)
+    if len(blocks) < 4:
+        return {c: 0.0 for c in xs}, float("inf")
+    grams, d_e, d_c, rss = [], [], {c: [] for c in xs}, 0.0
     for b in blocks:
         a = u[b]
-        if len(a) < 12:
-            continue
-        ata = a.T @ a
-        try:
-            inv = np.linalg.inv(ata)
-        except np.linalg.LinAlgError:
-            continue
+        g = a.T @ a
+        inv = np.linalg.pinv(g)
         sol = inv @ (a.T @ e[b])
-        rss = float(np.sum((e[b] - a @ sol) ** 2))
-        s2 = rss / max(len(a) - 3, 1)
-        deltas.append(sol[:3])
-        noise.append(s2 * float(np.trace(inv[:3, :3])))
-        for c, x in xs.items():  # the same block fit applied to what the channel term predicts
-            means[c].append(inv @ (a.T @ ((u[b] @ coefs[c]) * x[b])))
-    if len(deltas) < 4:
-        return {c: 0.0 for c in xs}, float("inf")
-    d = np.array(deltas)
-    nv = float(np.mean(noise))
-    pred = {c: np.array(means[c]).reshape(-1, 3) for c in xs}
-    rem = d - sum(pred.values()) if pred else d
-    rem = rem - rem.mean(axis=0)
-    v_rem = max(float(np.mean(np.sum(rem**2, axis=1))) - nv, 0.0)
-    shares = {c: float(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1))) for c, p in pred.items()}
-    return shares, v_rem
+        rss += float(np.sum((e[b] - a @ sol) ** 2))
+        grams.append(g)
+        d_e.append(sol)
+        for c, x in xs.items():
+            d_c[c].append(inv @ (a.T @ ((a @ coefs[c]) * x[b])))
+    grams = np.array(grams)
+    s2 = rss / max(n - 3 * len(blocks), 1)
+
+    def energy(d: np.ndarray) -> float:
+        mean = np.linalg.solve(grams.sum(axis=0), np.einsum("bij,bj->i", grams, d))
+        dc = d - mean
+        return float(np.einsum("bi,bij,bj->", dc, grams, dc)) / n
+
+    pred = {c: np.array(v) for c, v in d_c.items()}
+    rem = np.array(d_e) - sum(pred.values())
+    v_rem = max(energy(rem) - 3 * (len(blocks) - 1) * s2 / n, 0.0)
+    return {c: energy(p) for c, p in pred.items()}, v_rem

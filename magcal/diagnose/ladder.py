@@ -212,7 +212,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         subsets = {"_all": full_cols}
         for g in accepted:
             subsets[g] = np.concatenate([base_cols] + [groups[h] for h in accepted if h != g])
-        cv = heldout_sse(xmat, e0, subsets, folds)
+        cv = heldout_sse(xmat, e0, subsets, 2 * folds)
         worst = max(accepted, key=lambda g: -(cv[g] - cv["_all"]))
         if cv[worst] - cv["_all"] > 0:
             break
