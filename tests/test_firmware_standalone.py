@@ -68,13 +68,15 @@ def test_centred_float32_sums_keep_precision_that_naive_sums_lose(tmp_path):
         f"(float64 fit of the same samples {np.round(ref_c, 3)} r={ref_r:.3f}, error "
         f"{err_centred * 1000:.1f} nT); naive sums → {np.round(n_c, 3)} r={n_r:.3f} (float64 "
         f"{np.round(nref_c, 3)} r={nref_r:.3f}, error {err_naive * 1000:.1f} nT); "
-        f"truth {truth}, 50 µT"
+        f"truth {truth}, 50 µT; pivot ratio ×1000 centred {fit_c.cond_milli}, naive {fit_n.cond_milli}"
     )
     print(msg)
     assert err_centred < 0.02, msg           # centred float32 ≈ float64
     assert abs(c_r - ref_r) < 0.02, msg
     assert err_naive > 5 * err_centred, msg  # the naive sums lose precision
     assert np.linalg.norm(c_c - truth) < 0.3, msg
+    # the centred system is well conditioned; the naive one is dominated by the offset
+    assert fit_c.cond_milli > 10 * max(fit_n.cond_milli, 1), msg
     # the centred fit is stored as the board's record (identity soft iron); the naive one is not
     assert stored.status == "OK"
     assert stored.values[1:5] == (*fit_c.offset_nt, fit_c.radius_nt)

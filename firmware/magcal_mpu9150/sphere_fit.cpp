@@ -44,6 +44,19 @@ int8_t sphere_solve(const SphereSums *s, float centre[3], float *radius, int32_t
         {s->ss[4], s->ss[5], s->ss[2], s->s[2], s->sr_p[2]},
         {s->s[0], s->s[1], s->s[2], s->n, s->sr},
     };
+    // Equilibrate (divide row and column i by sqrt(M_ii)) so that the pivot ratio reported as
+    // `cond` measures how well the samples pin the sphere down, not the units of the sums.
+    float d[4];
+    for (uint8_t i = 0; i < 4; i++) {
+        if (!(a[i][i] > 0.0f))
+            return -1;
+        d[i] = 1.0f / sqrtf(a[i][i]);
+    }
+    for (uint8_t i = 0; i < 4; i++) {
+        for (uint8_t k = 0; k < 4; k++)
+            a[i][k] *= d[i] * d[k];
+        a[i][4] *= d[i];
+    }
     float pmin = 0.0f, pmax = 0.0f;
     for (uint8_t col = 0; col < 4; col++) {
         uint8_t best = col;
@@ -74,6 +87,8 @@ int8_t sphere_solve(const SphereSums *s, float centre[3], float *radius, int32_t
             acc -= a[row][k] * q[k];
         q[row] = acc / a[row][row];
     }
+    for (uint8_t i = 0; i < 4; i++)
+        q[i] *= d[i];
     float c2 = 0.0f;
     for (uint8_t i = 0; i < 3; i++) {
         float c = 0.5f * q[i];

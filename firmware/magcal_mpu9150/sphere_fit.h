@@ -26,7 +26,9 @@ struct SphereSums {
 void sphere_begin(SphereSums *s, const float *ref);
 void sphere_add(SphereSums *s, float x, float y, float z);
 // Solve; returns 0 and fills centre/radius (same unit as the samples) and the pivot ratio
-// (smallest / largest pivot magnitude, times 1000), or -1 when the system is singular.
+// (smallest / largest pivot magnitude of the equilibrated system, times 1000: near 0 when the
+// samples hardly constrain the sphere or the sums are dominated by an offset), or -1 when the
+// system is singular.
 int8_t sphere_solve(const SphereSums *s, float centre[3], float *radius, int32_t *pivot_milli);
 
 #endif
