@@ -230,3 +230,36 @@ def test_reload_rejects_an_invalid_config_and_keeps_the_old(tmp_path):
     cfg.write_text("daemon:\n  monitor_alpha: 0.002\n")
     d.reload()
     assert d.settings.daemon.monitor_alpha == 0.002
+
+
+def _record_capture(path, seconds=12.0, seed=13):
+    """A capture of a sim board streaming at 100 Hz, chunks stamped with the board's time."""
+    from magcal.capture import CaptureWriter, make_header
+    from magcal.devices.simboard import SimBoard
+    from magcal.physics import demo_scenario
+    from magcal.protocol import encode_command
+
+    board = SimBoard(demo_scenario(seed), rate_hz=100)
+    w = CaptureWriter(path, make_header("sim://", 115200))
+    board.write(encode_command("G", 1))
+    while board._t_s < seconds:
+        w.append(board.read(700), t_rx_s=board._t_s)
+    w.close()
+
+
+def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
+    from magcal.devices.replay import collect_samples
+
+    cap = tmp_path / "run.cap"
+    _record_capture(cap)
+    clean = [(s.seq, s.raw) for s in collect_samples(open_device(f"replay://{cap}")) if s.valid]
+    url = (f"replay://{cap}?fault=unplug@3+0.1&fault=stall@5+0.5&fault=garbage@7=500"
+           f"&fault=reset@8&fault=unplug@10+0.05")
+    got = []
+    d = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)))
+    assert d.run() == 0
+    assert d.exit_reason == "the recording ended"
+    assert got == clean
+    assert d.faults["port_lost"] == 2, (d.faults, list(d.decisions))
+    assert d.faults["stalls"] == 1
+    assert d.faults["device_resets"] == 1

@@ -6,6 +6,12 @@ as fast as they are read; ``pace=1`` at the recorded pace (each chunk released a
 time), ``pace=N`` N times faster. The end of the recording → ``read`` raises ``EOFError``.
 A capture cut short by a crash replays up to its last whole chunk; the device's counters say
 how many bytes were cut (``capture_truncated_bytes``).
+
+Fault injection (for the daemon's tests): ``fault=KIND@T[+D][=N]``, repeatable, at recorded
+time T s, always between two recorded lines — ``unplug`` (reads fail for D wall seconds; opening
+the same URL again resumes where the replay was, after the recording's hello re-sent with seq 0
+as a replugged board would send it), ``stall`` (no bytes for D s), ``garbage`` (N random bytes),
+``reset`` (a torn line, then that hello). Same syntax as ``sim://``.
 """
 
 from __future__ import annotations
@@ -90,9 +96,9 @@ def parse_replay_url(url: str) -> tuple[str, float]:
     if not path:
         raise DeviceError(f"{url!r}: replay:// needs a file, e.g. replay://session.cap")
     q = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
-    unknown = set(q) - {"pace"}
+    unknown = set(q) - {"pace", "fault"}
     if unknown:
-        raise DeviceError(f"replay:// does not know option(s) {sorted(unknown)}; known: ['pace']")
+        raise DeviceError(f"replay:// does not know option(s) {sorted(unknown)}; known: ['fault', 'pace']")
     try:
         pace = float(q.get("pace", 0) or 0)
     except ValueError:
@@ -102,10 +108,145 @@ def parse_replay_url(url: str) -> tuple[str, float]:
     return path, pace
 
 
+REPLAY_FAULTS = ("unplug", "stall", "garbage", "reset")
+_FAULTY: dict = {}  # url → FaultyTransport, so a reopened faulty replay resumes in place
+
+
+class FaultyTransport:
+    """A ``BytesTransport`` with faults fired at recorded times (see the module docstring)."""
+
+    def __init__(self, inner: BytesTransport, faults, clock: Callable[[], float] = time.monotonic):
+        import random
+
+        self.inner = inner
+        self.faults = sorted(faults)
+        self._clock = clock
+        self._rng = random.Random(0xFA17)
+        self._extra = b""  # injected bytes served before the recording continues
+        self._until = {"unplug": 0.0, "stall": 0.0}
+        self._closed = False
+        self._at_line_end = True  # faults fire between recorded lines, never inside one
+        self._hello = self._boot_hello()
+
+    def _boot_hello(self) -> bytes:
+        """The recording's first hello, as a freshly booted board sends it (seq 0)."""
+        from ..protocol import Hello, classify_line, encode_line
+
+        data = b"".join(c for _, c in self.inner._chunks[:50])
+        start = data.find(b"$H,")
+        end = data.find(b"\n", start)
+        if start < 0 or end < 0:
+            return b""
+        h = classify_line(data[start:end].rstrip(b"\r"))
+        if not isinstance(h, Hello):
+            return b""
+        return encode_line("H", (0, h.proto, h.firmware, f"{h.who_am_i:02X}", f"{h.wia:02X}", *h.asa, h.rate_hz))
+
+    def _now_s(self) -> float:
+        i = min(self.inner._i, len(self.inner._chunks) - 1)
+        return self.inner._chunks[i][0] - self.inner._t0_rec if self.inner._chunks else 0.0
+
+    def _due(self) -> bool:
+        return bool(self.faults) and self.faults[0][0] <= self._now_s() + 1e-9
+
+    def _fire(self) -> None:
+        while self._due():
+            _, kind, duration, value = self.faults.pop(0)
+            if kind in ("unplug", "stall"):
+                self._until[kind] = self._clock() + (0.5 if duration is None else duration)
+            elif kind == "garbage":
+                self._extra += bytes(self._rng.randrange(256) for _ in range(200 if value is None else int(value)))
+            elif kind == "reset":
+                self._extra += b"$S,9,12345,1,2"[: self._rng.randrange(3, 14)] + self._hello
+
+    def check_present(self) -> None:
+        if self._clock() < self._until["unplug"]:
+            raise OSError("replay unplugged (device not present)")
+
+    @property
+    def in_waiting(self) -> int:
+        if self._clock() < max(self._until.values()):
+            return 0
+        return len(self._extra) or self.inner.in_waiting
+
+    @property
+    def timeout(self):
+        return self.inner.timeout
+
+    @timeout.setter
+    def timeout(self, value) -> None:
+        self.inner.timeout = value
+
+    def read(self, n: int = 1) -> bytes:
+        if self._closed:
+            raise OSError("replay closed")
+        if self._due() and not self._at_line_end:  # finish the line being served first
+            out = b""
+            while not out.endswith(b"\n"):
+                b = self.inner.read(1)
+                if not b:
+                    break
+                out += b
+            self._at_line_end = out.endswith(b"\n")
+            return out
+        self._fire()
+        self.check_present()
+        if self._clock() < self._until["stall"]:
+            self.inner._sleep(min(self.inner.timeout or 0.0, self._until["stall"] - self._clock()))
+            return b""
+        if self._extra:
+            out, self._extra = self._extra[: max(1, n)], self._extra[max(1, n) :]
+            return out
+        out = self.inner.read(n)
+        if out:
+            self._at_line_end = out.endswith(b"\n")
+        return out
+
+    def write(self, data: bytes) -> int:
+        return self.inner.write(data)
+
+    def reset_input_buffer(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self._closed = True
+
+    def reopen(self) -> None:
+        self.check_present()
+        if self._closed:
+            self._extra += self._hello  # a replugged board boots and says hello first
+        self._closed = False
+
+
+def replay_faults(url: str) -> list:
+    """The ``fault=`` options of a replay URL as (t_s, kind, duration_s, value), sorted."""
+    from .simboard import parse_fault
+
+    query = url.partition("?")[2]
+    specs = [f for v in parse_qs(query, keep_blank_values=True).get("fault", []) for f in v.split(";") if f]
+    faults = [parse_fault(f) for f in specs]
+    for f in faults:
+        if f[1] not in REPLAY_FAULTS:
+            raise DeviceError(f"replay:// cannot inject {f[1]!r}; it can: {', '.join(REPLAY_FAULTS)}")
+    return sorted(faults)
+
+
 def open_replay(url: str, dialect: str = "native", **options) -> ProtocolDevice:
     from ..capture import CaptureReader
 
     path, pace = parse_replay_url(url)
+    faults = replay_faults(url)
+    if faults and url in _FAULTY:
+        transport = _FAULTY[url]
+        try:
+            transport.reopen()
+        except OSError as exc:
+            from ..errors import PortUnavailable
+
+            raise PortUnavailable(f"cannot open {url}: {exc}") from None
+        options.pop("baud", None)
+        options.pop("sleep", None)
+        return ProtocolDevice(url, transport, transport_name="replay", passive=True, **options)
     try:
         reader = CaptureReader(path)
     except InputError as exc:
@@ -114,6 +255,8 @@ def open_replay(url: str, dialect: str = "native", **options) -> ProtocolDevice:
     if recorded != "native":
         raise DeviceError(f"{url}: this capture was recorded in the {recorded!r} dialect; replay:// speaks protocol v1")
     transport = BytesTransport(reader, pace=pace, **{k: options.pop(k) for k in ("sleep",) if k in options})
+    if faults:
+        transport = _FAULTY[url] = FaultyTransport(transport, faults)
     options.pop("baud", None)
     dev = ProtocolDevice(url, transport, transport_name="replay", passive=True, **options)
     dev.capture_header = reader.header
