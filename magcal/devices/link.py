@@ -370,6 +370,9 @@ def open_serial(url: str, dialect: str = "native", baud: int = 115200, **options
         port = serial.serial_for_url(url, baudrate=baud, timeout=0.05)
     except (serial.SerialException, OSError, ValueError) as exc:
         raise PortUnavailable(f"cannot open {url}: {exc}") from exc
+    tap = options.pop("tap", None)
+    if tap is not None:  # a capture records from the first byte, the detection's included
+        port = tap(port)
     if dialect == "auto":
         from .autodetect import detect_dialect
 
@@ -378,6 +381,8 @@ def open_serial(url: str, dialect: str = "native", baud: int = 115200, **options
             from .motioncal import open_motioncal
 
             port.close()
+            if tap is not None:
+                options["tap"] = tap
             return open_motioncal(url, dialect="motioncal", baud=baud, **options)
         return ProtocolDevice(url, port, transport_name="serial", initial=seen, **options)
     return ProtocolDevice(url, port, transport_name="serial", **options)
