@@ -376,7 +376,7 @@ class SimBoard:
             self._wall0, self._sim0_ms = self._clock(), self._ms
             self._emit("A", tag, cmd, n)
         else:
-            self._emit("E", tag, cmd, "UNKNOWN")
+            self._emit("E", tag, "?", "UNKNOWN")  # as the firmware and PROTOCOL.md (Versioning)
 
     def power_cycle(self) -> None:
         """An unsolicited reset (brown-out, watchdog): a fresh hello with seq 0, EEPROM kept."""
