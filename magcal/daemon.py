@@ -557,6 +557,12 @@ class Daemon:
             self.faults["state_refused"] += 1
             self.decide("state unusable; starting fresh", logging.ERROR, error=str(exc))
             return
+        if r.get("port") != self.settings.port:
+            # another device's samples and calibration must not be mixed into this one's
+            self.decide("state was written for another port; keeping its counters only", logging.WARNING,
+                        state_port=r.get("port"), port=self.settings.port)
+            session, monitor, cal = Session(self.settings.gates, self.settings.model), None, None
+            r = dict(r, last_calibration=None)
         self.session, self.monitor, self.calibration = session, monitor, cal
         self.generation = generation
         self.samples, self.samples_in, self.epoch, self.recalibrations = counts

@@ -206,6 +206,16 @@ def test_restart_resumes_the_accumulated_state(tmp_path):
     assert b.generation > a.generation
 
 
+def test_state_of_another_port_is_not_mixed_in(tmp_path):
+    t = Tracked("seed=14")
+    a = t.run(tmp_path, 700)
+    other = Daemon(make_settings("sim://?seed=15"), state_dir=tmp_path / "state")
+    other.resume()
+    assert other.session.accumulator.n == 0 and other.monitor is None
+    assert other.samples == a.samples  # the counters go on
+    assert any("another port" in e["what"] for e in other.decisions)
+
+
 def test_torn_state_file_falls_back_to_the_previous_one(tmp_path):
     t = Tracked("seed=12")
     a = t.run(tmp_path, 600, state_every_s=0.01)

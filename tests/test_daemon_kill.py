@@ -30,14 +30,17 @@ def _mtime(path) -> int:
 def _child(state_dir: str, seed: int) -> None:
     # runs in a forked child: the imports are already done, so a start costs milliseconds
     from magcal.daemon import Daemon
+    from magcal.devices import open_device
 
+    port = f"sim://?eeprom={state_dir}/eeprom.bin"  # one device; each boot moves through other directions
     settings = config.load(None, {
-        "port": f"sim://?seed={seed}&eeprom={state_dir}/eeprom.bin",
+        "port": port,
         "rate_hz": 100,
         "daemon": {"state_every_s": 0.005, "socket": False, "monitor_window": 200, "recalibrate": True},
     }, environ={})
     try:
-        Daemon(settings, state_dir=state_dir).run()
+        Daemon(settings, state_dir=state_dir,
+               open_device=lambda url, **kw: open_device(f"{url}&seed={seed}", **kw)).run()
     finally:
         os._exit(0)
 
@@ -75,7 +78,7 @@ def test_kill_9_at_random_points_always_resumes(tmp_path):
         mtime = _mtime(store.current)
         pid = os.fork()
         if pid == 0:
-            _child(str(tmp_path), seed=1 + i)  # each boot moves through other directions
+            _child(str(tmp_path), seed=1 + i)
         if rng.random() < 0.75:  # mostly after this run has saved at least once, at any point later
             end = time.monotonic() + 20
             while _mtime(store.current) == mtime and time.monotonic() < end:
