@@ -149,16 +149,18 @@ class Daemon:
                     self._reload.clear()
                     self.reload()
                 if self.device is None and not self._connect():
+                    if self._clock() >= self._next_save:
+                        self.save()  # the status file shows the outage too
                     self._wait(self._backoff())
                     continue
                 self.step()
         finally:
             self._drain()
             self._disconnect("daemon stopping")
+            self.decide("daemon stopped", reason=self.exit_reason or "requested")
             self.save(final=True)
             self._close_capture()
             self._close_socket()
-            self.decide("daemon stopped", reason=self.exit_reason or "requested")
         return 0
 
     def step(self) -> None:
@@ -177,14 +179,14 @@ class Daemon:
         except (DeviceError, OSError) as exc:
             self._lost(exc)
             return
-        now = self._clock()
         if items:
             try:
                 self.handle(items)
             except (DeviceError, OSError) as exc:
                 self._lost(exc)
                 return
-        elif now - self._last_data > self.settings.daemon.stall_s:
+        now = self._clock()
+        if now - self._last_data > self.settings.daemon.stall_s:  # no sample (events do not count)
             self.faults["stalls"] += 1
             self._lost(DeviceError(f"no data for {now - self._last_data:.1f} s (stall)"))
             return
@@ -467,6 +469,11 @@ class Daemon:
         self.decide("config reloaded", config=self.config_path)
         if (old.port, old.dialect, old.baud, old.rate_hz) != (new.port, new.dialect, new.baud, new.rate_hz):
             self._disconnect("settings changed: reconnecting")
+        if old.port != new.port:  # another device: nothing collected so far belongs to it
+            self.session = Session(new.gates, new.model)
+            self.monitor, self.calibration = None, None
+        else:  # the samples stay; the new gates and model judge them
+            self.session.gates_cfg, self.session.model = new.gates, new.model
         if self.calibration is not None and (old.daemon.monitor_window, old.daemon.monitor_alpha) != (
             new.daemon.monitor_window, new.daemon.monitor_alpha
         ):
