@@ -41,10 +41,11 @@ def _wait_for(pred, timeout_s=30.0):
     raise AssertionError("condition not met in time")
 
 
-@pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="POSIX signals")
 def test_signals_and_status(tmp_path):
-    if not hasattr(signal, "SIGHUP") and os.environ.get("CI") == "true":
-        pytest.fail("POSIX signals are required in CI")
+    if not hasattr(signal, "SIGHUP"):  # a real platform condition (Windows); never skipped in CI
+        if os.environ.get("CI") == "true":
+            pytest.fail("POSIX signals are required in CI")
+        pytest.skip("needs POSIX signals")
     state = tmp_path / "state"
     cfg = tmp_path / "magcal.yaml"
     cfg.write_text("rate_hz: 50\ndaemon:\n  monitor_alpha: 0.01\n  state_every_s: 0.2\n")
