@@ -44,12 +44,13 @@ def _block_sums(x: np.ndarray, r: np.ndarray, blocks: list[slice]) -> np.ndarray
     return np.stack([x[b].T @ r[b] for b in blocks])
 
 
-def _orth(a: np.ndarray) -> np.ndarray:
-    if a.shape[1] == 0:
-        return a
-    q, r = np.linalg.qr(a)
-    d = np.abs(np.diag(r))
-    return q[:, d > max(d.max(), 1e-300) * 1e-7]
+def _pinv_sym(g: np.ndarray) -> np.ndarray:
+    """Pseudo-inverse of a symmetric PSD matrix (redundant columns get no weight)."""
+    if g.size == 0:
+        return g
+    w, v = np.linalg.eigh(g)
+    keep = w > max(w.max(), 1e-300) * 1e-12
+    return (v[:, keep] / w[keep]) @ v[:, keep].T
 
 
 def block_wald(
@@ -72,12 +73,15 @@ def block_wald(
     blocks = contiguous_blocks(n, n_blocks or n_test_blocks(n))
     nb = len(blocks)
     out = {}
+    gram = xs.T @ xs  # everything below works from Gram blocks: no n-row factorisations
+    xte = xs.T @ e
     for name, cols in groups.items():
         cols = np.asarray(cols)
         other = np.setdiff1d(np.arange(p), cols)
-        q = _orth(xs[:, other])
+        goo = _pinv_sym(gram[np.ix_(other, other)])
+        xo = xs[:, other]
         xc = xs[:, cols]
-        xp = xc - q @ (q.T @ xc)
+        xp = xc - xo @ (goo @ gram[np.ix_(other, cols)])
         ev, vec = np.linalg.eigh(xp.T @ xp)  # singular values² and right singular vectors
         keep = np.sqrt(np.maximum(ev, 0.0)) >= min_unique
         basis_s = vec[:, keep]  # in scaled-column units
@@ -86,7 +90,7 @@ def block_wald(
             out[name] = WaldResult(0.0, max(k, 1), max(nb - k, 1), 1.0, np.zeros(len(cols)), 0.0, basis_s / scale[cols, None])
             continue
         z = xp @ basis_s  # the identifiable part, already orthogonal to the other columns
-        r0 = e - q @ (q.T @ e)
+        r0 = e - xo @ (goo @ xte[other])
         ztz = z.T @ z
         bz = np.linalg.solve(ztz, z.T @ r0)
         r = r0 - z @ bz

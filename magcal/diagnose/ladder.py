@@ -31,7 +31,7 @@ from . import glitches as gl
 from . import harmonics
 from . import softiron as si
 from .finding import Finding
-from .inference import block_wald, contiguous_blocks, heldout_sse, holm
+from .inference import _pinv_sym, block_wald, contiguous_blocks, heldout_sse, holm
 from .model import FitFailure, ModelFit, Spec, fit_model
 
 ALPHA = 0.01
@@ -189,7 +189,8 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         # the residual with everything but the channel terms fitted out (soft iron and the
         # direction harmonics would otherwise alias into block offsets under partial coverage)
         colscale = np.sqrt(np.maximum((xmat * xmat).sum(axis=0), 1e-300))
-        beta_all = np.linalg.lstsq(xmat / colscale, e0, rcond=1e-10)[0] / colscale
+        xsc = xmat / colscale
+        beta_all = (_pinv_sym(xsc.T @ xsc) @ (xsc.T @ e0)) / colscale
         chan_cols = np.concatenate([groups[g] for g in groups if g != si.EFFECT]) if len(groups) > 1 else np.zeros(0, int)
         other = np.setdiff1d(np.arange(xmat.shape[1]), chan_cols)
         e_w = e0 - xmat[:, other] @ beta_all[other]
@@ -213,7 +214,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         subsets = {"_all": full_cols}
         for g in accepted:
             subsets[g] = np.concatenate([base_cols] + [groups[h] for h in accepted if h != g])
-        cv = heldout_sse(xmat, e0, subsets, 2 * folds)
+        cv = heldout_sse(xmat[:, :k], e0, subsets, 2 * folds)
         worst = max(accepted, key=lambda g: -(cv[g] - cv["_all"]))
         if cv[worst] - cv["_all"] > 0:
             break
