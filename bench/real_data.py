@@ -9,6 +9,10 @@ these splits (figures given with the task; not re-run here).
 
 Data: ../shared/data/real relative to the repository (override with MAGCAL_REAL_DATA).
 Run: python bench/real_data.py  → prints the table and writes bench/results/real_data.md
+     python bench/real_data.py --study  → also prints why the recordings differ (≈ 1 min): the
+     error structure of each recording, how much the held-out spread moves with which time
+     blocks of the fit half are used, and whether blocked cross-validation inside the fit half
+     predicts the held-out ranking of two sample selections (see bench/README.md).
 """
 
 from __future__ import annotations
@@ -123,6 +127,124 @@ def table(rows) -> str:
     return "\n".join(lines)
 
 
+def _harmonics(u, degree):
+    """Monomials x^a y^b z^c of unit directions up to ``degree`` (spans the spherical harmonics)."""
+    x, y, z = u.T
+    cols = [np.ones(len(u))]
+    for a in range(degree + 1):
+        for b in range(degree + 1 - a):
+            for c in range(degree + 1 - a - b):
+                if a + b + c:
+                    cols.append(x**a * y**b * z**c)
+    return np.column_stack(cols)
+
+
+def error_structure(m):
+    """Where a recording's residual comes from (ellipsoid fitted on the whole file, µT):
+    total RMS, white noise (from successive differences), what is left after a degree-4 function
+    of direction is fitted out (shape error the ellipsoid cannot follow), the spread of 40
+    time-block means before and after that (slow, time-correlated error), and the floor: the
+    held-out half's spread under an ellipsoid fitted on that half itself."""
+    r = fit(m, model="ellipsoid")
+    c = r.calibration
+    h = (m - c.offset_ut) @ c.soft_iron.T
+    nh = np.linalg.norm(h, axis=1)
+    e = nh - c.field_ut
+    u = h / nh[:, None]
+    H = _harmonics(u, 4)
+    e_dir = e - H @ np.linalg.lstsq(H, e, rcond=None)[0]
+    w = max(len(m) // 40, 5)
+    k = len(m) // w * w
+    half = len(m) // 2
+    own = fit(m[half:], model="ellipsoid").calibration
+    return {
+        "field": c.field_ut, "rms": float(e.std()),
+        "white": float(1.4826 * np.median(np.abs(np.diff(e))) / np.sqrt(2)),
+        "after_dir": float(e_dir.std()),
+        "blocks": float(e[:k].reshape(-1, w).mean(1).std()),
+        "blocks_after_dir": float(e_dir[:k].reshape(-1, w).mean(1).std()),
+        "floor": spread_pct(m[half:], own.offset_ut, own.soft_iron),
+    }
+
+
+def block_sensitivity(m, draws=20, blocks=12, keep=9, seed=1):
+    """Held-out spread when the fit uses only ``keep`` of ``blocks`` contiguous time blocks of
+    the fit half (random draws): how much the figure depends on which stretch of motion was fitted."""
+    half = len(m) // 2
+    edges = np.linspace(0, half, blocks + 1).astype(int)
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(draws):
+        ks = np.sort(rng.choice(blocks, keep, replace=False))
+        idx = np.concatenate([np.arange(edges[k], edges[k + 1]) for k in ks])
+        c = fit(m[idx], model="ellipsoid").calibration
+        out.append(spread_pct(m[half:], c.offset_ut, c.soft_iron))
+    return np.array(out)
+
+
+def closest_pair_buffer(m, size=650):
+    """Indices kept by a fixed-size buffer fed in time order that, when full, evicts the older
+    of the two closest stored points (the spreading idea of MotionCal's buffer; no field-error
+    eviction). A baseline for the study, not a part of magcal."""
+    n = len(m)
+    if n <= size:
+        return np.arange(n)
+    P, ids = m[:size].copy(), np.arange(size)
+    Dm = np.linalg.norm(P[:, None] - P[None], axis=2)
+    np.fill_diagonal(Dm, np.inf)
+    for t in range(size, n):
+        flat = int(np.argmin(Dm))
+        i, j = divmod(flat, size)
+        ev = i if ids[i] < ids[j] else j
+        P[ev], ids[ev] = m[t], t
+        d = np.linalg.norm(P - m[t], axis=1)
+        d[ev] = np.inf
+        Dm[ev], Dm[:, ev] = d, d
+    return np.sort(ids)
+
+
+def _cal(m):
+    c = fit(m, model="ellipsoid").calibration
+    return c.offset_ut, c.soft_iron
+
+
+def _buffered(m):
+    return _cal(m[closest_pair_buffer(m)])
+
+
+def blocked_cv(m, fn, folds=4):
+    """Mean held-out spread over ``folds`` contiguous blocks of ``m``, each judged by a fit on the rest."""
+    edges = np.linspace(0, len(m), folds + 1).astype(int)
+    s = []
+    for k in range(folds):
+        train = np.r_[0 : edges[k], edges[k + 1] : len(m)]
+        s.append(spread_pct(m[edges[k] : edges[k + 1]], *fn(m[train])))
+    return float(np.mean(s))
+
+
+def study(data) -> None:
+    print("\n## Error structure (ellipsoid on the whole file; µT, floor in %)\n")
+    print("| recording | field | rms | white | after direction deg 4 | 40 block means | same after direction | floor % |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, (m, _) in data.items():
+        s = error_structure(m)
+        print(f"| {name} | {s['field']:.2f} | {s['rms']:.3f} | {s['white']:.3f} | {s['after_dir']:.3f}"
+              f" | {s['blocks']:.3f} | {s['blocks_after_dir']:.3f} | {s['floor']:.3f} |")
+    print("\n## Held-out spread when only 9 of 12 time blocks of the fit half are used (20 draws)\n")
+    for name, (m, _) in data.items():
+        b = block_sensitivity(m)
+        print(f"{name}: mean {b.mean():.3f} sd {b.std():.3f} range {b.min():.3f}–{b.max():.3f}")
+    print("\n## Blocked 4-fold CV inside the fit half vs the held-out half: magcal vs a 650-point buffer\n")
+    print("| recording | CV magcal | CV buffer | held-out magcal | held-out buffer | CV picks the better? |")
+    print("|---|---|---|---|---|---|")
+    for name, (m, _) in data.items():
+        half = len(m) // 2
+        cv = [blocked_cv(m[:half], fn) for fn in (_cal, _buffered)]
+        ho = [spread_pct(m[half:], *fn(m[:half])) for fn in (_cal, _buffered)]
+        agree = (cv[0] <= cv[1]) == (ho[0] <= ho[1])
+        print(f"| {name} | {cv[0]:.3f} | {cv[1]:.3f} | {ho[0]:.3f} | {ho[1]:.3f} | {'yes' if agree else 'no'} |")
+
+
 def main() -> None:
     rows = [evaluate(name, m, pub) for name, (m, pub) in load_all().items()]
     md = table(rows)
@@ -138,6 +260,8 @@ def main() -> None:
     with open(os.path.join(HERE, "results", "real_data.md"), "w") as f:
         f.write("# Real recordings: held-out spread of |calibrated field|\n\n" + md + "\n\n" + note
                 + f"\nmagcal no worse than MotionCal on {wins} of {len(rows)} recordings.\n")
+    if "--study" in sys.argv[1:]:
+        study(load_all())
 
 
 if __name__ == "__main__":
