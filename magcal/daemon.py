@@ -138,6 +138,7 @@ class Daemon:
 
     # -- the loop -----------------------------------------------------------------------------------
     def run(self) -> int:
+        self._lock_state_dir()
         self._install_signals()
         self.resume()
         self._open_socket()
@@ -161,6 +162,7 @@ class Daemon:
             self.save(final=True)
             self._close_capture()
             self._close_socket()
+            self._unlock_state_dir()
         return 0
 
     def step(self) -> None:
@@ -601,6 +603,29 @@ class Daemon:
     def _close_capture(self) -> None:
         if self.capture is not None:
             self.capture.close()
+
+    # -- one daemon per state directory ---------------------------------------------------------
+    def _lock_state_dir(self) -> None:
+        """An exclusive lock on ``state_dir/lock`` for the daemon's lifetime (released by the
+        kernel even after kill -9): two daemons must never write one state."""
+        self._lock_fd = None
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: no lock
+            return
+        self.state_dir.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.state_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise StateError(f"another magcal daemon is running on {self.state_dir}") from None
+        self._lock_fd = fd
+
+    def _unlock_state_dir(self) -> None:
+        if getattr(self, "_lock_fd", None) is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     # -- signals and the status socket ------------------------------------------------------------
     def _install_signals(self) -> None:

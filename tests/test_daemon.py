@@ -273,3 +273,27 @@ def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
     assert d.faults["port_lost"] == 2, (d.faults, list(d.decisions))
     assert d.faults["stalls"] == 1
     assert d.faults["device_resets"] == 1
+
+
+def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
+    import threading
+
+    from magcal.errors import StateError
+
+    first = Daemon(make_settings("sim://?seed=16&speed=5"), state_dir=tmp_path)
+    th = threading.Thread(target=first.run)
+    th.start()
+    try:
+        import time
+
+        end = time.monotonic() + 20
+        while first.samples == 0 and time.monotonic() < end:
+            time.sleep(0.02)
+        second = Daemon(make_settings("sim://?seed=16"), state_dir=tmp_path)
+        with pytest.raises(StateError, match="another magcal daemon"):
+            second.run()
+    finally:
+        first.request_stop()
+        th.join(10)
+    assert not th.is_alive()
+    assert StateStore(tmp_path).load()["resume"]["samples"] == first.samples  # its state is intact
