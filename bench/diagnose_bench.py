@@ -278,7 +278,7 @@ def main(argv=None) -> int:
     ap.add_argument("--real-seeds", type=int, default=2, help="injections per real recording and kind")
     ap.add_argument("--no-real", action="store_true")
     ap.add_argument("--no-big", action="store_true")
-    ap.add_argument("--real-max", type=int, default=20000, help="truncate real recordings to this many samples")
+    ap.add_argument("--real-max", type=int, default=8000, help="truncate real recordings to this many samples")
     args = ap.parse_args(argv)
     warnings.filterwarnings("ignore")
 
