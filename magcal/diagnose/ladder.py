@@ -262,7 +262,6 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     findings: list[Finding] = []
     if outlier.any():
         findings.append(_outlier_finding(s, glitch, base0, baseline))
-    base_mse = cv.get("_base") if cv else None
     for g in accepted:
         r = tests[g]
         ev = {
@@ -286,7 +285,6 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
             findings.append(
                 ch.describe(c, final.coef_ut_per_unit[c.channel], chans_all[c.channel], t, ev, chans_src.get(ch.TEMP))
             )
-    del base_mse
 
     sim = simulated_rms(final, mk, chk, noise)
     extra = {"skipped_channels": skipped, "candidates": {
