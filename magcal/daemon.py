@@ -55,8 +55,9 @@ from .state import StateStore
 log = logging.getLogger("magcal.daemon")
 
 READ_S = 0.1  # one read's wait
-BATCH_S = 0.05  # a read that brought only a trickle waits out this much, so lines are taken in
-BATCH_MIN = 16  # batches rather than one wake-up per line (100 Hz ⇒ ~20 wake-ups a second)
+BATCH_S = 0.1  # a read that brought only a trickle waits out this much, so lines are taken in
+BATCH_MIN = 16  # batches rather than one wake-up per line (100 Hz ⇒ ~10 wake-ups a second;
+# measured with bench/daemon_soak.py --realtime 40: 1.7 % of one core at 0.1 s, 2.3 % at 0.05 s)
 READY_EVERY = 100  # samples between gate checks while a recalibration waits for data
 BASELINE_WINDOWS = 8  # monitor windows that learn the noise after a calibration is (re)loaded
 SOCKET_NAME = "status.sock"

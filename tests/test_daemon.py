@@ -263,8 +263,8 @@ def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
     cap = tmp_path / "run.cap"
     _record_capture(cap)
     clean = [(s.seq, s.raw) for s in collect_samples(open_device(f"replay://{cap}")) if s.valid]
-    url = (f"replay://{cap}?fault=unplug@3+0.1&fault=stall@5+0.5&fault=garbage@7=500"
-           f"&fault=reset@8&fault=unplug@10+0.05")
+    url = (f"replay://{cap}?fault=unplug@3+0.4&fault=stall@5+0.5&fault=garbage@7=500"
+           f"&fault=reset@8&fault=unplug@10+0.4")
     got = []
     d = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)))
     assert d.run() == 0
