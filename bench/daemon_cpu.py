@@ -50,26 +50,11 @@ def stream(dev, seconds: float, poll_s: float = 0.0) -> tuple[int, float, float]
 
 def board_process(master_fd: int) -> None:
     """Child: the simulated board, real time, speaking over the pty master."""
-    from magcal.devices.simboard import SimBoard
+    from magcal.devices.simboard import SimBoard, serve_fd
 
     board = SimBoard(rate_hz=100, speed=1.0)
     board.timeout = 0.02
-    os.set_blocking(master_fd, False)
-    while True:
-        try:
-            cmd = os.read(master_fd, 4096)
-            if cmd:
-                board.write(cmd)
-        except BlockingIOError:
-            pass
-        except OSError:
-            return  # the host closed the pty
-        out = board.read(4096)
-        if out:
-            try:
-                os.write(master_fd, out)
-            except OSError:
-                return
+    serve_fd(board, master_fd)
 
 
 def report(label: str, n: int, wall: float, cpu: float) -> None:

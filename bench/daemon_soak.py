@@ -94,27 +94,12 @@ def main() -> None:
 
 def _serve_board(fd: int, seed: int) -> None:
     """Child process: a real-time simulated board on the pty master ``fd``."""
-    from magcal.devices.simboard import SimBoard
+    from magcal.devices.simboard import SimBoard, serve_fd
     from magcal.physics import demo_scenario
 
     board = SimBoard(demo_scenario(seed), rate_hz=RATE_HZ, speed=1.0)
     board.timeout = 0.01
-    os.set_blocking(fd, False)
-    while True:
-        try:
-            cmd = os.read(fd, 4096)
-            if cmd:
-                board.write(cmd)
-        except BlockingIOError:
-            pass
-        except OSError:
-            return
-        out = board.read(4096)
-        if out:
-            try:
-                os.write(fd, out)
-            except OSError:
-                return
+    serve_fd(board, fd)
 
 
 def realtime(seconds: float, seed: int) -> None:

@@ -488,6 +488,27 @@ def forget_boards() -> None:
     _BOARDS.clear()
 
 
+def serve_fd(board: SimBoard, fd: int) -> None:
+    """Run ``board`` behind a file descriptor (a pty master) until the other side closes it,
+    so a host can open the pty's slave as a serial port exactly as it opens /dev/ttyACM0."""
+    os.set_blocking(fd, False)
+    while True:
+        try:
+            cmd = os.read(fd, 4096)
+            if cmd:
+                board.write(cmd)
+        except BlockingIOError:
+            pass
+        except OSError:
+            return  # the host side is gone
+        out = board.read(4096)
+        if out:
+            try:
+                os.write(fd, out)
+            except OSError:
+                return
+
+
 def parse_sim_url(url: str) -> dict:
     """``sim://?seed=3&rate=50`` → options dict (values validated, with clear errors)."""
     parts = urlsplit(url)
