@@ -98,7 +98,10 @@ def test_kill_9_at_random_points_always_resumes(tmp_path):
         before = payload
     assert resumed >= ITERATIONS // 2  # most kills came after the restart had saved again
     assert before["resume"]["samples"] > 0
-    assert before["resume"]["recalibrations"] >= 1, json.dumps(before["status"])  # a calibration was written, verified and kept
+    # a calibration was written, verified and kept: either this state counted the write, or a
+    # kill fell between the verified write and the next save, and the restarted daemon read the
+    # calibration back from the board (it never recalibrates over a good one)
+    assert before["resume"]["recalibrations"] >= 1 or before["status"]["calibration"], json.dumps(before["status"])
     print(f"\n{resumed} of {ITERATIONS} kills came after a resumed save; final state: generation "
           f"{before['generation']}, {before['resume']['samples']} samples, epoch {before['resume']['epoch']}")
     leftovers = [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
