@@ -14,6 +14,7 @@ from magcal.capture import save_csv
 from magcal.cli import main
 from magcal.diagnose import diagnose
 from magcal.physics import Current, Motion, Physics, Scenario, Temperature
+from magcal.series import Series
 
 N = 5000
 HARD = (21.0, -33.0, 8.0)
@@ -191,3 +192,31 @@ def test_unreadable_or_too_short_input_is_a_clear_error(tmp_path, capsys):
     path.write_text("t,mx,my,mz\n0,1,2,3\n1,2,3,4\n")
     assert main(["diagnose", str(path)]) == 2
     assert "at least" in capsys.readouterr().err
+
+
+def _wandering(run, seed, amp_ut=0.6):
+    """The recording with a slow random offset wander added (a few smooth components over its
+    length, ``amp_ut`` peak per axis), as real recordings show."""
+    s = run.series
+    rng = np.random.default_rng(seed)
+    tau = (s.t_s - s.t_s[0]) / np.ptp(s.t_s)
+    w = np.zeros((len(tau), 3))
+    for f in (0.5, 1.0, 1.7, 2.6):
+        w += np.sin(2 * np.pi * f * tau[:, None] + rng.uniform(0, 2 * np.pi, 3)) * rng.uniform(0.3, 1.0, 3) / f
+    w *= amp_ut / np.max(np.abs(w), axis=0)
+    return Series(t_s=s.t_s, field_ut=s.field_ut + w, channels=s.channels)
+
+
+def test_intermittent_current_found_through_slow_wander():
+    k = np.array([0.35, -0.3, 0.2])
+    run = _sim(131, current=Current(level_a=2.0, segment_s=4.0), current_coef_ut_per_a=tuple(k))
+    d = diagnose(_wandering(run, 131))
+    assert "current_interference" in d.effects
+    coef = np.array(_finding(d, "current_interference").params["coef_ut_per_unit"])
+    assert np.linalg.norm(coef - k) <= 0.3 * np.linalg.norm(k)
+
+
+def test_slow_unrelated_temperature_is_not_credited_with_wander():
+    run = _sim(132, temperature=Temperature(swing_c=20.0, period_s=80.0))
+    d = diagnose(_wandering(run, 132, amp_ut=0.8))
+    assert "temperature_drift" not in d.effects

@@ -150,14 +150,24 @@ def holm(pvals: dict[str, float], alpha: float) -> dict[str, bool]:
     return out
 
 
-def heldout_sse(x: np.ndarray, e: np.ndarray, subsets: dict[str, np.ndarray], k_folds: int = 5) -> dict[str, float]:
+def heldout_sse(
+    x: np.ndarray, e: np.ndarray, subsets: dict[str, np.ndarray], k_folds: int = 5, interleave: int = 1
+) -> dict[str, float]:
     """Held-out mean squared residual of the linearised model restricted to each column
-    subset: fit on all but one contiguous block, predict that block, over k_folds blocks."""
+    subset: fit on all but one fold, predict that fold, over k_folds folds. A fold is one
+    contiguous block (``interleave`` 1) or ``interleave`` contiguous blocks spread over the
+    recording (k_folds·interleave blocks dealt round-robin), so a smooth nuisance in time is
+    interpolated into a held-out block rather than extrapolated."""
     n = len(e)
-    folds = contiguous_blocks(n, k_folds)
+    blocks = contiguous_blocks(n, k_folds * max(int(interleave), 1))
     scale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
     xs = x / scale
-    parts = [(xs[f].T @ xs[f], xs[f].T @ e[f], float(e[f] @ e[f])) for f in folds]
+
+    def part(bs):
+        a = sum(xs[b].T @ xs[b] for b in bs)
+        return a, sum(xs[b].T @ e[b] for b in bs), float(sum(e[b] @ e[b] for b in bs))
+
+    parts = [part(blocks[i :: k_folds]) for i in range(min(k_folds, len(blocks)))]
     tot_a = sum(p[0] for p in parts)
     tot_b = sum(p[1] for p in parts)
     out = {}

@@ -30,6 +30,7 @@ from . import channels as ch
 from . import glitches as gl
 from . import harmonics
 from . import softiron as si
+from . import wander as wd
 from .finding import Finding
 from .inference import _pinv_sym, block_wald, contiguous_blocks, heldout_sse, holm
 from .model import FitFailure, ModelFit, Spec, fit_model
@@ -41,6 +42,12 @@ MAX_ANALYSED = 200_000
 # a channel term must explain at least 4× the (variance of the) slow offset wander it leaves
 # unexplained, i.e. ≥ 80 % of it: one slow channel cycle otherwise matches real wander by chance
 WANDER_RATIO = 4.0
+# the slow wander as a nuisance (magcal.diagnose.wander): Legendre degrees 2..WANDER_DEGREE of
+# the offset versus time, in every test and held-out comparison; with it, no wander gate
+WANDER_DEGREE = 2
+WANDER_GATE = True
+RICH_DEGREE = 12
+HELDOUT_INTERLEAVE = 4
 
 
 @dataclass(frozen=True)
@@ -168,14 +175,36 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         by_effect[c.effect] = c
         k += 3
     d0 = mk - base0.offset_ut
-    cols.append(harmonics.regressors(d0 / np.linalg.norm(d0, axis=1, keepdims=True)))  # nuisance
+    u0 = d0 / np.linalg.norm(d0, axis=1, keepdims=True)
+    cols.append(harmonics.regressors(u0))  # nuisance
+    n_harm = cols[-1].shape[1]
+    nuis = wd.regressors(tk, u0, WANDER_DEGREE)
+    cols.append(nuis)  # nuisance: the slow offset wander
     xmat = np.concatenate(cols, axis=1)
+    wander_cols = np.arange(k + n_harm, xmat.shape[1])
     tests = block_wald(xmat, e0, groups)
-    rejected = holm({g: r.p for g, r in tests.items()}, alpha)
+    # each channel is tested a second time against a rich wander nuisance (Legendre degrees
+    # 2..RICH_DEGREE of the offset vs time): a channel that varies faster than the wander (an
+    # intermittent current) keeps most of its variation and needs no wander gate; a slow one
+    # (a temperature cycle) is absorbed and left to the first test and the gate. Holm runs
+    # over both families together.
+    rich = {}
+    chan_groups = {g: c for g, c in groups.items() if g != si.EFFECT}
+    if chan_groups and RICH_DEGREE >= 2:
+        x_rich = np.concatenate([xmat[:, : k + n_harm], wd.regressors(tk, u0, RICH_DEGREE)], axis=1)
+        rich = block_wald(x_rich, e0, chan_groups)
+    pvals = {g: r.p for g, r in tests.items()}
+    pvals.update({("rich", g): r.p for g, r in rich.items()})
+    rejected_all = holm(pvals, alpha)
+    rejected = {g: rejected_all[g] for g in tests}
+    fast = {g for g, r in rich.items() if rejected_all[("rich", g)] and r.effect_rms_ut >= _practical_floor_ut(noise)}
     floor = _practical_floor_ut(noise)
 
     survivors = []
     for g, r in tests.items():
+        if g in fast:
+            survivors.append(g)
+            continue
         if not rejected[g] or r.effect_rms_ut < floor:
             continue
         if g == si.EFFECT:
@@ -188,14 +217,14 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     # (channels.wander_shares, WANDER_RATIO)
     chan_surv = [g for g in survivors if g != si.EFFECT]
     wander = {}
-    if chan_surv:
+    if chan_surv and WANDER_GATE:
         # the residual with everything but the channel terms fitted out (soft iron and the
         # direction harmonics would otherwise alias into block offsets under partial coverage)
         colscale = np.sqrt(np.maximum((xmat * xmat).sum(axis=0), 1e-300))
         xsc = xmat / colscale
         beta_all = (_pinv_sym(xsc.T @ xsc) @ (xsc.T @ e0)) / colscale
         chan_cols = np.concatenate([groups[g] for g in groups if g != si.EFFECT]) if len(groups) > 1 else np.zeros(0, int)
-        other = np.setdiff1d(np.arange(xmat.shape[1]), chan_cols)
+        other = np.setdiff1d(np.arange(xmat.shape[1]), np.concatenate([chan_cols, wander_cols]))
         e_w = e0 - xmat[:, other] @ beta_all[other]
         shares, v_rem = ch.wander_shares(
             e_w,
@@ -204,11 +233,11 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
             {g: -beta_all[groups[g]] for g in chan_surv},
         )
         wander = {g: (shares[g], v_rem) for g in chan_surv}
-        survivors = [g for g in survivors if g == si.EFFECT or shares[g] >= WANDER_RATIO * v_rem]
+        survivors = [g for g in survivors if g == si.EFFECT or g in fast or shares[g] >= WANDER_RATIO * v_rem]
 
     # held-out comparisons: baseline columns + candidates (the 16 nuisance harmonics are left
     # out here: fitted on 90 % of a recording they extrapolate badly into the held-out block)
-    base_cols = np.arange(j0.shape[1])
+    base_cols = np.concatenate([np.arange(j0.shape[1]), wander_cols])
     accepted = list(survivors)
     cv = {}
     # drop, one at a time, any survivor whose removal does not hurt the held-out residual
@@ -217,7 +246,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         subsets = {"_all": full_cols}
         for g in accepted:
             subsets[g] = np.concatenate([base_cols] + [groups[h] for h in accepted if h != g])
-        cv = heldout_sse(xmat[:, :k], e0, subsets, 2 * folds)
+        cv = heldout_sse(xmat, e0, subsets, 2 * folds, HELDOUT_INTERLEAVE)
         worst = max(accepted, key=lambda g: -(cv[g] - cv["_all"]))
         if cv[worst] - cv["_all"] > 0:
             break
@@ -287,7 +316,9 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
             )
 
     sim = simulated_rms(final, mk, chk, noise)
-    extra = {"skipped_channels": skipped, "candidates": {
+    extra = {"skipped_channels": skipped, "against_rich_wander": {
+            g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in fast} for g, r in rich.items()
+        }, "survivors": list(survivors), "heldout": dict(cv), "candidates": {
             g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "coef_ut_per_unit": -r.beta if g != si.EFFECT else None}
             for g, r in tests.items()
         }}
