@@ -123,3 +123,16 @@ def test_bad_config_key_is_named(capsys, tmp_path):
     cfg.write_text("gates:\n  min_coverag: 0.5\n")
     code, _, err = run_cli(capsys, "calibrate", "--config", str(cfg))
     assert code == 2 and "gates.min_coverag" in err
+
+
+def test_replaying_the_capture_of_a_calibration_gives_the_same_bits(capsys, tmp_path):
+    cap = tmp_path / "live.cap"
+    code, out, _ = run_cli(capsys, "calibrate", "--port", "sim://?seed=6", "--record", str(cap), "--json")
+    assert code == 0
+    live = json.loads(out)
+    code, out, _ = run_cli(capsys, "calibrate", "--port", f"replay://{cap}", "--json")
+    replayed = json.loads(out)
+    assert code == 0 and replayed["written"] is False  # a replay cannot store
+    assert replayed["calibration"] == live["calibration"]
+    assert replayed["uncertainty"] == live["uncertainty"]
+    assert replayed["quality"]["kept"] == live["quality"]["kept"]
