@@ -110,7 +110,10 @@ def block_wald(
         f = wald * df2 / (k * nu)
         pval = max(float(stats.f.sf(f, k, df2)), _wild_block_p(z, r0, blocks, wald, zinv))
         beta = (basis_s @ bz) / scale[cols]
-        out[name] = WaldResult(f, k, int(round(df2)), pval, beta, float(np.sqrt(np.mean((z @ bz) ** 2))), basis_s / scale[cols, None])
+        # the effect's size is that of the whole term (not only of its part the other columns
+        # cannot mimic: a nuisance that shares part of a slow channel must not shrink it)
+        size = float(np.sqrt(np.mean((xc @ (basis_s @ bz)) ** 2)))
+        out[name] = WaldResult(f, k, int(round(df2)), pval, beta, size, basis_s / scale[cols, None])
     return out
 
 
