@@ -5,12 +5,16 @@
 2. Baseline: hard iron + radius (the sphere), fitted on the rest.
 3. Candidates: soft iron (5 degree-2 regressors) and one offset-vs-channel term per auxiliary
    channel and for time, tested jointly at the baseline by a block-HAC Wald test, with Holm's
-   family-wise control at ``alpha``; degree-3/4 direction harmonics are nuisance terms in every
-   test (magcal.diagnose.harmonics).
+   family-wise control at ``alpha``; degree-3/4 direction harmonics and a quadratic offset
+   wander in time are nuisance terms in every test (magcal.diagnose.harmonics, .wander).
+   Each channel is also tested against a rich wander (offset vs time up to degree
+   RICH_DEGREE); Holm runs over both families together.
 4. An effect earns its place only if it is also larger than a practical floor (µT relative to
-   the recording's own noise), a channel term explains at least 80 % of the slow offset
-   wander (offsets fitted per time block) it is offered, and it improves the
-   held-out residual over contiguous time blocks.
+   the recording's own noise) and improves the held-out residual (interleaved time blocks,
+   both models carrying the wander nuisance). A channel that is significant only in the first
+   family (it varies as slowly as the wander) must also explain at least 80 % of the slow
+   offset wander (offsets fitted per time block) it is offered; one that stays significant
+   against the rich wander (an intermittent current) needs no such gate.
 5. The accepted terms are refitted jointly (nonlinear least squares on the radial residual)
    and the held-out RMS of baseline and final models reported.
 6. Simulation vs recording: the fitted model, driven with the recording's own directions,
