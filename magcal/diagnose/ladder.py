@@ -194,7 +194,9 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     # (a temperature cycle) is absorbed and left to the first test and the gate. Holm runs
     # over both families together.
     rich = {}
-    chan_groups = {g: c for g, c in groups.items() if g != si.EFFECT}
+    # time itself is the slowest channel: a straight line is what wander and drift share, so
+    # time_drift always goes through the wander gate
+    chan_groups = {g: c for g, c in groups.items() if g != si.EFFECT and by_effect[g].channel != ch.TIME}
     if chan_groups and RICH_DEGREE >= 2:
         # on a systematic subsample of at most RICH_MAX rows: the wide design stays small in memory
         sel = slice(None, None, max(1, -(-len(e0) // RICH_MAX)))
@@ -300,9 +302,11 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     if outlier.any():
         findings.append(_outlier_finding(s, glitch, base0, baseline))
     for g in accepted:
-        r = tests[g]
+        r = rich[g] if g in fast else tests[g]
         ev = {
-            "test": "Wald, block-HAC (batch means over contiguous time blocks), Holm-controlled",
+            "test": "Wald, block-HAC (batch means over contiguous time blocks), Holm-controlled, with a "
+            + (f"slow offset wander up to degree {RICH_DEGREE} in time" if g in fast else "quadratic offset wander in time")
+            + " as a nuisance",
             "F": r.f,
             "df": [r.df1, r.df2],
             "p_value": r.p,
