@@ -220,3 +220,9 @@ def test_slow_unrelated_temperature_is_not_credited_with_wander():
     run = _sim(132, temperature=Temperature(swing_c=20.0, period_s=80.0))
     d = diagnose(_wandering(run, 132, amp_ut=0.8))
     assert "temperature_drift" not in d.effects
+
+
+def test_wander_alone_is_not_reported_as_drift_or_current():
+    run = _sim(133, current=Current(level_a=2.0, segment_s=4.0))
+    d = diagnose(_wandering(run, 133, amp_ut=0.8))
+    assert not {"time_drift", "current_interference"} & set(d.effects)
