@@ -53,6 +53,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import __version__
+from .devices.transport import WrappedTransport
 from .errors import InputError, MagcalError
 from .protocol import CalibratedSample, Hello, RawSample, Restart
 from .protocol_bulk import Frames, parse_stream
@@ -259,11 +260,11 @@ class CaptureWriter:
         self.close()
 
 
-class TapTransport:
+class TapTransport(WrappedTransport):
     """A pyserial-like transport that records every byte read from the one it wraps."""
 
     def __init__(self, inner, writer: CaptureWriter):
-        self.inner = inner
+        super().__init__(inner)
         self.writer = writer
 
     def read(self, n: int = 1) -> bytes:
@@ -280,17 +281,6 @@ class TapTransport:
         if self.writer._pending_error is not None:
             return 0  # let the caller finish with what it has; the next read reports
         return self.inner.in_waiting
-
-    @property
-    def timeout(self):
-        return self.inner.timeout
-
-    @timeout.setter
-    def timeout(self, value) -> None:
-        self.inner.timeout = value
-
-    def write(self, data: bytes) -> int:
-        return self.inner.write(data)
 
     def close(self) -> None:
         try:

@@ -22,6 +22,7 @@ from urllib.parse import parse_qs
 
 from ..errors import DeviceError, InputError
 from .link import ProtocolDevice
+from .transport import WrappedTransport
 
 
 class BytesTransport:
@@ -112,13 +113,13 @@ REPLAY_FAULTS = ("unplug", "stall", "garbage", "reset")
 _FAULTY: dict = {}  # url → FaultyTransport, so a reopened faulty replay resumes in place
 
 
-class FaultyTransport:
+class FaultyTransport(WrappedTransport):
     """A ``BytesTransport`` with faults fired at recorded times (see the module docstring)."""
 
     def __init__(self, inner: BytesTransport, faults, clock: Callable[[], float] = time.monotonic):
         import random
 
-        self.inner = inner
+        super().__init__(inner)
         self.faults = sorted(faults)
         self._clock = clock
         self._rng = random.Random(0xFA17)
@@ -169,14 +170,6 @@ class FaultyTransport:
             return 0
         return len(self._extra) or self.inner.in_waiting
 
-    @property
-    def timeout(self):
-        return self.inner.timeout
-
-    @timeout.setter
-    def timeout(self, value) -> None:
-        self.inner.timeout = value
-
     def read(self, n: int = 1) -> bytes:
         if self._closed:
             raise OSError("replay closed")
@@ -201,9 +194,6 @@ class FaultyTransport:
         if out:
             self._at_line_end = out.endswith(b"\n")
         return out
-
-    def write(self, data: bytes) -> int:
-        return self.inner.write(data)
 
     def reset_input_buffer(self) -> None:
         pass
