@@ -39,6 +39,13 @@ def test_stream_has_consecutive_sequence_numbers_and_asa_adjusted_field():
         assert np.allclose(np.diff(t), 0.01)
 
 
+def test_identity_reports_the_rate_the_device_was_set_to():
+    with open_device("sim://") as dev:
+        assert dev.open().rate_hz == 100
+        dev.start(25)
+        assert dev.identity.rate_hz == 25
+
+
 def test_unsolicited_reset_is_reported_and_no_sample_is_invented():
     with open_device("sim://?seed=4") as dev:
         dev.open()

@@ -15,6 +15,7 @@ from __future__ import annotations
 import itertools
 import time
 from collections import deque
+from dataclasses import replace
 from typing import Callable, Iterable
 
 from ..calibration import Calibration
@@ -269,6 +270,8 @@ class ProtocolDevice(Device):
             return
         if rate_hz:
             self.command("R", int(rate_hz))
+            if self.identity is not None:  # what the device now runs at, for reports
+                self.identity = replace(self.identity, rate_hz=int(rate_hz))
         self.command("G")
 
     def _stop(self) -> None:
