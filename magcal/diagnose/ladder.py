@@ -129,7 +129,7 @@ def _prepare(series: Series) -> Series:
 
 def _require(fit, what: str) -> ModelFit:
     if isinstance(fit, FitFailure):
-        raise InputError(f"cannot fit the {what}: {fit.reason}")
+        raise InputError(f"cannot fit the {what}: {fit.message}")
     return fit
 
 

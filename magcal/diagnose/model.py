@@ -22,6 +22,8 @@ from typing import Mapping
 import numpy as np
 
 from ..calibration import Calibration
+from ..fit.accumulator import SphereAccumulator
+from ..fit.failure import FitFailure
 
 _R2 = np.sqrt(2.0)
 _R6 = np.sqrt(6.0)
@@ -66,14 +68,6 @@ class Spec:
     @property
     def n_params(self) -> int:
         return 4 + self.n_soft + 3 * len(self.channels)
-
-
-@dataclass(frozen=True)
-class FitFailure:
-    reason: str
-
-    def __bool__(self) -> bool:
-        return False
 
 
 @dataclass(frozen=True)
@@ -161,22 +155,6 @@ def residual_jacobian(p, spec: Spec, m, xs, want_j=True):
     return e, np.concatenate(cols, axis=1)
 
 
-def algebraic_sphere(m: np.ndarray) -> tuple[np.ndarray, float] | FitFailure:
-    """Centre and radius minimising Σ(|m − c|² − r²)², solved in float64 about the mean."""
-    if len(m) < 4:
-        return FitFailure(f"need at least 4 samples for a sphere, got {len(m)}")
-    mu = m.mean(axis=0)
-    x = m - mu
-    a = np.column_stack([2 * x, np.ones(len(x))])
-    y = np.einsum("ij,ij->i", x, x)
-    sol, *_ = np.linalg.lstsq(a, y, rcond=None)
-    c = sol[:3]
-    r2 = sol[3] + c @ c
-    if not np.all(np.isfinite(sol)) or r2 <= 0:
-        return FitFailure("the samples do not determine a sphere (too little direction coverage)")
-    return c + mu, float(np.sqrt(r2))
-
-
 def fit_model(
     m: np.ndarray,
     channels: Mapping[str, np.ndarray],
@@ -189,7 +167,7 @@ def fit_model(
     m = np.asarray(m, np.float64)
     ref = {c: float((reference or {}).get(c, 0.0)) for c in spec.channels}
     if len(m) < spec.n_params + 3:
-        return FitFailure(f"{len(m)} samples cannot determine {spec.n_params} parameters")
+        return FitFailure("too_few_samples", f"{len(m)} samples cannot determine {spec.n_params} parameters")
     xs = _centred(channels, spec, ref)
     p = np.zeros(spec.n_params)
     if start is not None:
@@ -204,10 +182,12 @@ def fit_model(
             if c in old:
                 p[k0 + 1 + 3 * j : k0 + 4 + 3 * j] = old[c]
     else:
-        sph = algebraic_sphere(m)
+        acc = SphereAccumulator()
+        acc.add_batch(m)
+        sph = acc.solve(min_samples=4, max_condition=np.inf)  # a start only: coverage is judged elsewhere
         if not sph:
             return sph
-        p[0:3], p[3 + spec.n_soft] = sph
+        p[0:3], p[3 + spec.n_soft] = sph.offset_ut, sph.field_ut
     e, j = residual_jacobian(p, spec, m, xs)
     cost = e @ e
     lam = 1e-6
@@ -241,11 +221,11 @@ def fit_model(
         if rel < 1e-10:
             break
     if not np.all(np.isfinite(p)):
-        return FitFailure("the fit diverged")
+        return FitFailure("no_convergence", "the fit diverged")
     if spec.n_soft:
         w = np.eye(3) + np.tensordot(p[3 : 3 + spec.n_soft], spec.basis, axes=1)
         if np.any(np.linalg.eigvalsh(w) <= 0):
-            return FitFailure("the fitted soft-iron matrix is not positive definite")
+            return FitFailure("not_positive_definite", "the fitted soft-iron matrix is not positive definite")
     n = len(m)
     dof = max(n - len(p), 1)
     s2 = cost / dof
