@@ -53,6 +53,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import __version__
+from .atomic import write_atomic
 from .devices.transport import WrappedTransport
 from .errors import InputError, MagcalError
 from .protocol import CalibratedSample, Hello, RawSample, Restart
@@ -567,11 +568,8 @@ def save_csv(series: Series, path) -> None:
         if with_valid:
             row.append("1" if vl[i] else "0")
         buf.write(",".join(row) + "\n")
-    tmp = os.fspath(path) + ".tmp"
     try:
-        with open(tmp, "w", encoding="utf-8", newline="") as fh:
-            fh.write(buf.getvalue())
-        os.replace(tmp, path)
+        write_atomic(path, buf.getvalue().encode("utf-8"))
     except OSError as exc:
         raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
 

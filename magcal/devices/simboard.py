@@ -38,6 +38,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
+from ..atomic import write_atomic
 from ..errors import DeviceError
 from ..physics import Motion, Scenario, demo_scenario
 from ..protocol import (
@@ -45,10 +46,12 @@ from ..protocol import (
     RECORD_FIELDS,
     RECORD_VERSION,
     ParseError,
+    calibration_from_record,
     encode_line,
     parse_command,
     record_crc,
 )
+from ..sample import counts_to_ut, temp_raw_to_c
 from .link import ProtocolDevice
 
 FIRMWARE = "0.1.0"
@@ -70,12 +73,7 @@ class SimEeprom:
     def store(self, offset: int, payload: bytes) -> None:
         self.data[offset : offset + len(payload)] = payload
         if self.path:
-            tmp = self.path + ".tmp"
-            with open(tmp, "wb") as f:
-                f.write(self.data)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, self.path)
+            write_atomic(self.path, bytes(self.data))
 
     def load_record(self) -> tuple[str, tuple[int, ...]]:
         blob = bytes(self.data[: 1 + 4 * RECORD_FIELDS + 2])
@@ -241,24 +239,17 @@ class SimBoard:
             self._emit("S", ms, hx, hy, hz, st2, temp)
 
     def _apply(self, values, raw, temp_raw) -> tuple[int, int, int]:
-        gain = np.array([(a + 128) / 256.0 for a in self.asa]) * 0.3
-        m_nt = np.asarray(raw, float) * gain * 1000.0
-        o = np.asarray(values[1:4], float)
-        t = np.asarray(values[11:14], float)
-        temp_c = temp_raw / 340.0 + 36.53
-        d = m_nt - o - t * (temp_c - values[14] / 100.0)
-        w00, w11, w22, w01, w02, w12 = (v / 1e6 for v in values[5:11])
-        w = np.array([[w00, w01, w02], [w01, w11, w12], [w02, w12, w22]])
-        h = w @ d
-        return tuple(int(round(x)) for x in h)
+        """The stored record applied to one reading, in nT (what a ``U`` line carries)."""
+        cal = calibration_from_record(values)
+        h_ut = cal.correct(counts_to_ut(raw, self.asa), {"temp_c": [temp_raw_to_c(temp_raw)]})[0]
+        return tuple(int(round(x * 1000.0)) for x in h_ut)
 
     # -- standalone fit (centred float32 sums, as the firmware does) --------------------------
     def _fit_add(self, hx, hy, hz, st2) -> None:
         f = self._fit
         if st2 & 0x0C:
             return
-        gain = np.array([(a + 128) / 256.0 for a in self.asa], np.float32) * np.float32(0.3)
-        m = np.array([hx, hy, hz], np.float32) * gain
+        m = counts_to_ut((hx, hy, hz), self.asa).astype(np.float32)
         if f["ref"] is None:
             f["ref"] = m.copy()
         f["pts"].append(m - (f["ref"] if not f["naive"] else 0))
