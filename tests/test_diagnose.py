@@ -226,3 +226,59 @@ def test_wander_alone_is_not_reported_as_drift_or_current():
     run = _sim(133, current=Current(level_a=2.0, segment_s=4.0))
     d = diagnose(_wandering(run, 133, amp_ut=0.8))
     assert not {"time_drift", "current_interference"} & set(d.effects)
+
+
+def _glitch_f1(d, truth):
+    got = set(_finding(d, "outliers").params["indices"]) if "outliers" in d.effects else set()
+    return 2 * len(got & truth) / max(len(got) + len(truth), 1)
+
+
+def test_glitches_beside_gaps_in_the_timestamps_are_found():
+    # a logger that drops samples: every glitch sits just after a gap of 10–20 sample periods,
+    # so the prediction of the sample before it reaches across the gap and is poor
+    run = _sim(131)
+    rng = np.random.default_rng(131)
+    starts = np.arange(200, N - 200, 150)
+    drop = np.concatenate([np.arange(a, a + rng.integers(10, 21)) for a in starts])
+    keep = np.setdiff1d(np.arange(N), drop)
+    s = run.series.take(keep)
+    m = s.field_ut.copy()
+    pos = np.searchsorted(keep, starts) + 1  # the second sample after each gap
+    d3 = rng.standard_normal((len(pos), 3))
+    m[pos] += 8.0 * d3 / np.linalg.norm(d3, axis=1, keepdims=True)
+    d = diagnose(Series(t_s=s.t_s, field_ut=m))
+    assert _glitch_f1(d, set(int(i) for i in pos)) >= 0.9
+
+
+def test_glitches_are_found_from_the_field_magnitude_when_fast_motion_hides_the_jump():
+    # a quick wave at a low sample rate: the 3-vector moves several µT between samples, so its
+    # own innovations are large, but |m| stays smooth and shows each jump's radial part
+    sc = Scenario(physics=Physics(hard_iron_ut=HARD, noise_ut=0.2), motion=Motion("sphere", period_s=1.5), seed=132)
+    run = sc.simulate(3000, 10.0)
+    rng = np.random.default_rng(132)
+    pos = rng.choice(np.arange(10, 2990), 20, replace=False)
+    m = run.series.field_ut.copy()
+    h = m - np.asarray(HARD)
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    m[pos] += 6.0 * u[pos] * rng.choice([-1.0, 1.0], (20, 1))
+    d = diagnose(Series(t_s=run.series.t_s, field_ut=m))
+    assert _glitch_f1(d, set(int(i) for i in pos)) >= 0.9
+
+
+def test_soft_iron_on_a_short_single_sweep_is_named_as_suspected_not_silently_dropped():
+    # 30 s, one sweep of the sphere: every direction is visited once, so a direction-dependent
+    # gain cannot be told apart from a slow wander in time; the fit is visibly worse than noise
+    distortion = ((1.02, 0.0, 0.0), (0.0, 0.985, 0.0), (0.0, 0.0, 0.995))
+    d = diagnose(_sim(144, n=1500, distortion=distortion).series)
+    assert "soft_iron" not in d.effects
+    (limit,) = [x for x in d.to_dict()["limits"] if x["effect"] == "soft_iron"]
+    assert limit["suspected"] is True
+    assert "suspected but not identifiable" in limit["summary"]
+    assert limit["identifiable_directions"] < 5
+
+    clean = diagnose(_sim(144, n=1500).series).to_dict()["limits"]
+    assert not any(x["suspected"] for x in clean)
+
+
+def test_a_well_covered_recording_states_no_limits():
+    assert diagnose(_sim(142).series).to_dict()["limits"] == []

@@ -33,6 +33,8 @@ def format_text(d: dict) -> str:
         lines.append("findings    none — the sphere (hard iron) model explains the recording")
     for k in d["findings"]:
         lines.append(f"finding     {k['effect']}: {k['summary']}")
+    for k in d.get("limits", []):
+        lines.append(f"limit       {k['effect']}: {k['summary']}")
     lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT")
     c = d["calibration"]
     lines.append("offset_ut   " + " ".join(f"{v:9.3f}" for v in c["offset_ut"]) + f"   field {c['field_ut']:.3f} µT")

@@ -7,18 +7,31 @@ per axis by a robust (MAD) scale of the data's own innovations, taken locally (m
 and sample rate differ between recordings) and never below the quantisation step. The squared
 scaled innovation is referred to χ²(3) with a Bonferroni threshold over the samples. Flagged
 samples are removed one cluster peak at a time (a glitch also disturbs its neighbours'
-predictions), repaired by interpolation, and the innovations recomputed. A flagged sample must
+predictions), repaired by interpolation, and the innovations recomputed; when repairing the
+peak does not explain its neighbourhood but repairing a neighbour does, the neighbour is the
+glitch (beside a gap in the timestamps a neighbour's prediction reaches across the gap and can
+outscore the glitch's own). Each innovation is divided by its own prediction-noise gain. A flagged sample must
 also stand off the linear trend from its left and from its right (a glitch jumps and comes
 back; a level step or a fast swing agrees with one side), and bursts of flags are fast motion.
 Neighbours are taken on the nominal sample grid, not the logged timestamps (logging jitters).
+
+A second, radial channel watches |m − c| − r about a quick sphere fit. Rotation leaves |m|
+unchanged, so this series stays smooth however fast the sensor turns, while the 3-vector's
+innovations grow with the motion; on fast-moving recordings a glitch's radial part (half its
+length on average) stands out there long before its 3-D jump does. Each channel gets half of
+the Bonferroni budget, and a flagged sample must stand off both one-sided trends in the channel
+that flagged it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
+
+from ..fit.failure import FitFailure
+from ..fit.sphere import sphere_start
 
 _LOCAL = 128  # samples per block of the local scale
 _TRIM = 0.9  # the scale is the RMS of the central 90 % of |d| …
@@ -32,6 +45,8 @@ class Glitches:
     jump_ut: np.ndarray  # innovation vector length, µT
     threshold_z: float
     noise_ut: float  # robust white-noise σ per axis implied by the innovations
+    threshold_radial_z: float = float("inf")  # the radial channel's (inf: no sphere to watch)
+    radial: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # flagged by the radial channel
 
 
 def _weights(t: np.ndarray) -> np.ndarray:
@@ -54,22 +69,29 @@ def _weights(t: np.ndarray) -> np.ndarray:
     return w
 
 
-def innovations(m: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, float]:
-    """m − (prediction from the two neighbours on each side), and the noise-variance gain
-    1 + Σw² of that difference (1.944 for uniform sampling)."""
+def innovations(m: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """m − (prediction from the two neighbours on each side) divided by the square root of
+    its own noise-variance gain 1 + Σw² (1.944 for uniform sampling), and that gain per
+    sample. Normalised so, a sample whose prediction reaches across a gap in the timestamps
+    (large weights on a few neighbours) is not mistaken for a jump when one of those
+    neighbours is the glitch."""
     n = len(m)
     d = np.zeros_like(m)
+    gain = np.ones(n)
     if n < 5:
-        return d, 1.0
+        return d, gain
     w = _weights(t)
     pred = w[:, 0:1] * m[:-4] + w[:, 1:2] * m[1:-3] + w[:, 2:3] * m[3:-1] + w[:, 3:4] * m[4:]
     d[2:-2] = m[2:-2] - pred
+    gain[2:-2] = 1.0 + np.sum(w * w, axis=1)
     # the two samples at each end: linear extrapolation from the next two inside
     d[0] = m[0] - (2 * m[1] - m[2])
     d[1] = m[1] - 0.5 * (m[0] + m[2])
     d[-2] = m[-2] - 0.5 * (m[-1] + m[-3])
     d[-1] = m[-1] - (2 * m[-2] - m[-3])
-    return d, float(1.0 + np.mean(np.sum(w * w, axis=1)))
+    gain[[0, -1]] = 6.0
+    gain[[1, -2]] = 1.5
+    return d / np.sqrt(gain)[:, None], gain
 
 
 def _quantum(m: np.ndarray) -> np.ndarray:
@@ -100,7 +122,7 @@ def local_scale(d: np.ndarray, floor: np.ndarray) -> np.ndarray:
     if nb == 1:
         blk = glob[None]
     else:
-        blk = trimmed_scale(d[: nb * _LOCAL].reshape(nb, _LOCAL, 3), axis=1)
+        blk = trimmed_scale(d[: nb * _LOCAL].reshape(nb, _LOCAL, d.shape[1]), axis=1)
     if nb >= 3:  # max with the neighbours: a block boundary inside a fast swing stays covered
         pad = np.vstack([blk[:1], blk, blk[-1:]])
         blk = np.maximum(np.maximum(pad[:-2], pad[1:-1]), pad[2:])
@@ -138,50 +160,121 @@ def _z(d: np.ndarray, floor: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum((d / local_scale(d, floor)) ** 2, axis=1))
 
 
+def _culprit(i: int, m: np.ndarray, g: np.ndarray, candidate: np.ndarray, worst) -> int:
+    """Peak ``i`` or, if repairing it (replaced by interpolation from its neighbours) leaves
+    a score over the threshold around it, the candidate within ±2 (over the threshold and
+    isolated) whose repair leaves none: a glitch disturbs its neighbours' predictions too, and
+    next to a gap in the timestamps a neighbour's disturbance can outscore the glitch's own
+    innovation."""
+    n = len(m)
+    lo, hi = max(i - 7, 0), min(i + 8, n)
+
+    def left_over(j: int) -> float:
+        mw = m[lo:hi].copy()
+        gw = g[lo:hi]
+        k = j - lo
+        others = np.flatnonzero(np.arange(hi - lo) != k)
+        for a in range(3):
+            mw[k, a] = np.interp(gw[k], gw[others], mw[others, a])
+        sc = worst(mw, gw, lo)
+        sc[k] = 0.0
+        return float(np.max(sc[max(i - 3 - lo, 0) : i + 4 - lo]))
+
+    if left_over(i) <= 1.0:
+        return i
+    for j in sorted((j for j in range(max(i - 2, 0), min(i + 3, n)) if j != i and candidate[j]), key=lambda j: abs(j - i)):
+        if left_over(j) <= 1.0:
+            return j
+    return i
+
+
+def _radial(m: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Centre and radius of a quick sphere fit for the radial channel, or None when the samples
+    describe no sphere (a still board). Thin coverage is accepted: only the smoothness of
+    |m − c| − r matters here, not the centre's accuracy."""
+    start = sphere_start(m, max_condition=np.inf) if len(m) >= 10 else None
+    if start is None or isinstance(start, FitFailure):
+        return None
+    return start[:3], float(start[3])
+
+
+def _side_ok(m: np.ndarray, floor: np.ndarray, thr: float) -> np.ndarray:
+    """Off the linear trend from the left AND from the right (a step or a fast swing agrees
+    with one side; a glitch jumps and comes back)."""
+    left, right = _one_sided(m)
+    return np.minimum(_z(left, floor), _z(right, floor)) > thr
+
+
 def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 8) -> Glitches:
     m = np.array(m, dtype=np.float64, copy=True)
     n = len(m)
     g = sample_grid(np.asarray(t, np.float64))
     floor = 0.5 * _quantum(m) if n > 3 else np.full(3, 1e-3)
     d, gain = innovations(m, g)
-    noise = float(np.median(trimmed_scale(d)) / np.sqrt(gain)) if n else 0.0
-    thr = float(np.sqrt(stats.chi2.isf(alpha / max(n, 1), 3))) if n else np.inf
+    noise = float(np.median(trimmed_scale(d))) if n else 0.0
+    sphere = _radial(m) if n >= 10 else None
+    channels = 2 if sphere is not None else 1
+    thr = float(np.sqrt(stats.chi2.isf(alpha / (channels * max(n, 1)), 3))) if n else np.inf
+    thr_r = float(np.sqrt(stats.chi2.isf(alpha / (2 * max(n, 1)), 1))) if sphere is not None else np.inf
     side_thr = float(np.sqrt(stats.chi2.isf(alpha, 3)))
+    side_thr_r = float(np.sqrt(stats.chi2.isf(alpha, 1)))
+    floor_r = np.array([float(np.min(floor))])
+
+    def radial_series(mm):
+        return (np.linalg.norm(mm - sphere[0], axis=1) - sphere[1])[:, None]
+
     flagged = np.zeros(n, bool)
+    by_radial = np.zeros(n, bool)
     zs = np.zeros(n)
     jumps = np.zeros(n)
     for _ in range(max_rounds):
         z = _z(d, floor)
         z[flagged] = 0
-        over = z > thr
-        if not over.any():
+        score = z / thr
+        if sphere is not None:
+            r = radial_series(m)
+            dr, _ = innovations(r, g)
+            zr = _z(dr, floor_r)
+            zr[flagged] = 0
+            score = np.maximum(score, zr / thr_r)
+        ok3 = (z > thr) & _side_ok(m, floor, side_thr)
+        okr = np.zeros(n, bool)
+        if sphere is not None:
+            okr = (zr > thr_r) & _side_ok(r, floor_r, side_thr_r)
+        # candidates: over the threshold and isolated in the channel that flags them; of
+        # those, the largest within ±2 samples (a glitch also disturbs its neighbours'
+        # predictions, and a gap in the timestamps can make a neighbour's larger still)
+        cand = np.where(ok3 | okr, score, 0.0)
+        if not cand.any():
             break
-        # peaks: larger than both neighbours within ±2 samples
-        zp = np.pad(z, 2)
-        peak = over.copy()
+        zp = np.pad(cand, 2)
+        peak = cand > 0
         for s in (1, 2):
-            peak &= z >= zp[2 - s : 2 - s + n]
-            peak &= z >= zp[2 + s : 2 + s + n]
-        # isolated: off the trend from the left AND from the right (a step or a fast swing
-        # agrees with one side; a glitch jumps and comes back)
-        left, right = _one_sided(m)
-        peak &= np.minimum(_z(left, floor), _z(right, floor)) > side_thr
-        idx = np.flatnonzero(peak)
-        if len(idx) == 0:
-            break
+            peak &= cand >= zp[2 - s : 2 - s + n]
+            peak &= cand >= zp[2 + s : 2 + s + n]
+        def worst(mw, gw, lo, s3=local_scale(d, floor), sr=local_scale(dr, floor_r) if sphere is not None else None):
+            dw, _ = innovations(mw, gw)
+            sc = np.sqrt(np.sum((dw / s3[lo : lo + len(mw)]) ** 2, axis=1)) / thr
+            if sr is not None:
+                drw, _ = innovations(radial_series(mw), gw)
+                sc = np.maximum(sc, np.abs(drw[:, 0]) / sr[lo : lo + len(mw), 0] / thr_r)
+            return sc
+
+        idx = np.unique([_culprit(int(i), m, g, cand > 0, worst) for i in np.flatnonzero(peak)]).astype(np.int64)
         flagged[idx] = True
+        by_radial[idx] = okr[idx] & ~ok3[idx]
         zs[idx] = z[idx]
-        jumps[idx] = np.linalg.norm(d[idx], axis=1)
+        jumps[idx] = np.linalg.norm(d[idx], axis=1) * np.sqrt(gain[idx])
         good = np.flatnonzero(~flagged)
         if len(good) < 3:
             break
         for a in range(3):  # repair by interpolation from unflagged samples
             m[idx, a] = np.interp(g[idx], g[good], m[good, a])
-        d, _ = innovations(m, g)
+        d, gain = innovations(m, g)
     # bursts (three or more flags within five samples) are fast motion, not glitches
     if flagged.any():
         c = np.convolve(flagged.astype(int), np.ones(5, int), mode="same")
         burst = np.convolve((c >= 3).astype(int), np.ones(5, int), mode="same") > 0
         flagged &= ~burst
     idx = np.flatnonzero(flagged)
-    return Glitches(idx, zs[idx], jumps[idx], thr, noise)
+    return Glitches(idx, zs[idx], jumps[idx], thr, noise, thr_r, by_radial[idx])

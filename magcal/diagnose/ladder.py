@@ -70,6 +70,7 @@ class Diagnosis:
     tests: dict = field(default_factory=dict, repr=False)
     folds: tuple = field(default=(), repr=False)
     fold_rms: tuple = field(default=(), repr=False)  # ((baseline, final) per fold)
+    limits: tuple = ()  # what this recording could not test, and whether it is suspected (dicts)
 
     @property
     def effects(self) -> list[str]:
@@ -111,6 +112,7 @@ class Diagnosis:
                 "simulated_rms_ut": float(self.simulated_rms_ut),
             },
             "noise_ut": float(self.noise_ut),
+            "limits": [dict(x) for x in self.limits],
             "calibration": calib,
         }
 
@@ -328,6 +330,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
             )
 
     sim = simulated_rms(final, mk, chk, noise)
+    limits = _soft_iron_limits(tests[si.EFFECT], si.EFFECT in accepted, final.rms_ut, sim, float(t[-1] - t[0]))
     extra = {"skipped_channels": skipped, "against_rich_wander": {
             g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in fast} for g, r in rich.items()
         }, "survivors": list(survivors), "heldout": dict(cv), "candidates": {
@@ -348,6 +351,53 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         tests=extra,
         folds=tuple((int(sub[sl.start]), int(sub[sl.stop - 1]) + 1) for sl in fold_slices),
         fold_rms=tuple(fold_rms),
+        limits=limits,
+    )
+
+
+# the final model's residual this much above what it predicts for the measured noise is
+# practically "something left unmodelled" (simulated clean recordings stay within ±7 %)
+SUSPECT_EXCESS = 1.15
+
+
+def _soft_iron_limits(test, accepted: bool, rms_ut: float, simulated_rms_ut: float, duration_s: float) -> tuple:
+    """Say so when the recording could not test soft iron fully — too few directions covered,
+    or too few independent stretches of motion — and whether the residual suggests it is
+    there: silence must not read as "no soft iron"."""
+    k = int(test.basis.shape[1])
+    untested = test.p >= 1.0 and test.f == 0.0
+    if k >= 5 and not untested:
+        return ()
+    reasons = []
+    if k < 5:
+        reasons.append(
+            f"with this motion only {k} of the 5 soft-iron directions can be told apart from the offset, the "
+            "radius and a slow wander in time, so a scale mismatch along the others would go unseen; turn the "
+            "board through all orientations, visiting each more than once"
+        )
+    if untested and k > 0:
+        reasons.append(
+            f"the {duration_s:.0f} s of motion hold too few independent stretches to test it against slow "
+            "wander; record longer (a few minutes), turning through all orientations more than once"
+        )
+    excess = rms_ut / simulated_rms_ut if simulated_rms_ut > 0 else float("nan")
+    suspected = bool(np.isfinite(excess) and excess >= SUSPECT_EXCESS)
+    part = "along the directions it could test, soft iron is modelled; beyond them it " if accepted else "Soft iron "
+    lead = (
+        part[0].upper() + part[1:] + f"is suspected but not identifiable: the residual ({rms_ut:.2f} µT) is "
+        f"{excess:.2f}× what the fitted model predicts for this noise, and "
+        if suspected
+        else "Soft iron could not be fully tested: "
+    )
+    return (
+        {
+            "effect": si.EFFECT,
+            "suspected": suspected,
+            "identifiable_directions": k,
+            "of_directions": 5,
+            "residual_over_predicted": float(excess),
+            "summary": lead + "; ".join(reasons) + ".",
+        },
     )
 
 

@@ -200,6 +200,9 @@ def _html(diagnosis, names: dict, title: str) -> str:
     rows = "".join(
         f"<li><b>{esc(f['effect'])}</b> — {esc(f['summary'])}</li>" for f in d["findings"]
     ) or "<li>Nothing left out: the sphere (hard-iron) model explains the recording to its noise.</li>"
+    limits = "".join(f"<li><b>{esc(x['effect'])}</b> — {esc(x['summary'])}</li>" for x in d.get("limits", []))
+    if limits:
+        limits = f"<h2>What this recording could not test</h2><ul>{limits}</ul>"
     b, fi = d["baseline"], d["final"]
     imgs = "".join(
         f'<figure><img src="{esc(v)}" alt="{esc(k)}" style="max-width:100%"></figure>' for k, v in names.items()
@@ -211,6 +214,7 @@ def _html(diagnosis, names: dict, title: str) -> str:
 <h1>What the calibration left out — {esc(title)}</h1>
 <p>{d['n_samples']} samples; white-noise level {d['noise_ut']:.3f} µT per axis.</p>
 <h2>Findings</h2><ul>{rows}</ul>
+{limits}
 <h2>Fit, in-sample and on held-out contiguous blocks</h2>
 <table><tr><th></th><th>model</th><th>RMS (µT)</th><th>held-out RMS (µT)</th></tr>
 <tr><td>before</td><td>{esc(b['model'])}</td><td>{b['rms_ut']:.3f}</td><td>{b['heldout_rms_ut']:.3f}</td></tr>
