@@ -117,6 +117,47 @@ def block_wald(
     return out
 
 
+def shift_inflation(x_other: np.ndarray, e: np.ndarray, shifted_cols, n_blocks: int | None = None) -> float:
+    """λ ≥ 1: how much larger the block-HAC F statistic of a channel's columns runs on this
+    recording's own residual, once the channel is circularly shifted out of alignment (so it
+    cannot carry the effect), than the F distribution expects — the median of F / median(F).
+
+    Real residuals hold structure at every time scale; when some of it is shorter than the
+    test's blocks, an unrelated channel that switches on the same scale collects it and the F
+    approximation over-rejects. Dividing the aligned statistic by λ calibrates it against this
+    recording's own null (shifted channels keep their time structure exactly).
+    ``shifted_cols``: an iterable of (n, k) regressor arrays of the shifted channel."""
+    n = len(e)
+    scale = np.sqrt(np.maximum((x_other * x_other).sum(axis=0), 1e-300))
+    q, rr = np.linalg.qr(x_other / scale)
+    q = q[:, np.abs(np.diag(rr)) > 1e-10 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)]
+    r0 = e - q @ (q.T @ e)
+    blocks = contiguous_blocks(n, n_blocks or n_test_blocks(n))
+    edges = np.array([b.start for b in blocks])
+    ratios = []
+    for xc in shifted_cols:
+        xc = xc / np.sqrt(np.maximum((xc * xc).sum(axis=0), 1e-300))
+        z = xc - q @ (q.T @ xc)
+        ztz = z.T @ z
+        k = int(np.linalg.matrix_rank(ztz, tol=1e-8 * max(float(np.trace(ztz)), 1e-300)))
+        if k == 0:
+            continue
+        zinv = _pinv_sym(ztz)
+        bz = zinv @ (z.T @ r0)
+        r = r0 - z @ bz
+        gz = np.add.reduceat(z * r[:, None], edges, axis=0)
+        v = zinv @ (gz.T @ gz) @ zinv
+        wald = float(bz @ _pinv_sym(v) @ bz)
+        zz = np.add.reduceat(z[:, :, None] * z[:, None, :], edges, axis=0)
+        share = np.einsum("kl,blk->b", zinv, zz) / k
+        nu = 1.0 / float(np.sum(share**2)) - 1.0
+        df2 = nu - k + 1
+        if df2 < 2:
+            continue
+        ratios.append(wald * df2 / (k * nu) / float(stats.f.ppf(0.5, k, df2)))
+    return max(1.0, float(np.median(ratios))) if ratios else 1.0
+
+
 _REPS = 1999
 
 

@@ -8,7 +8,8 @@
    family-wise control at ``alpha``; degree-3/4 direction harmonics and a quadratic offset
    wander in time are nuisance terms in every test (magcal.diagnose.harmonics, .wander).
    Each channel is also tested against a rich wander (offset vs time up to degree
-   RICH_DEGREE); Holm runs over both families together.
+   RICH_DEGREE), its statistic calibrated against the same test of the channel circularly
+   shifted out of alignment (inference.shift_inflation); Holm runs over both families together.
 4. An effect earns its place only if it is also larger than a practical floor (µT relative to
    the recording's own noise) and improves the held-out residual (interleaved time blocks,
    both models carrying the wander nuisance). A channel that is significant only in the first
@@ -24,9 +25,10 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import stats
 
 from ..errors import InputError
 from ..series import Series
@@ -36,7 +38,7 @@ from . import harmonics
 from . import softiron as si
 from . import wander as wd
 from .finding import Finding
-from .inference import _pinv_sym, block_wald, contiguous_blocks, heldout_sse, holm
+from .inference import _pinv_sym, block_wald, contiguous_blocks, heldout_sse, holm, shift_inflation
 from .model import FitFailure, ModelFit, Spec, fit_model
 
 ALPHA = 0.01
@@ -53,6 +55,7 @@ WANDER_GATE = True
 RICH_DEGREE = 12
 RICH_MAX = 50_000
 HELDOUT_INTERLEAVE = 4
+SHIFTS = 63  # circular shifts calibrating the rich-wander test of a channel (shift_inflation)
 
 
 @dataclass(frozen=True)
@@ -196,6 +199,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     # (a temperature cycle) is absorbed and left to the first test and the gate. Holm runs
     # over both families together.
     rich = {}
+    inflation: dict[str, float] = {}
     # time itself is the slowest channel: a straight line is what wander and drift share, so
     # time_drift always goes through the wander gate
     chan_groups = {g: c for g, c in groups.items() if g != si.EFFECT and by_effect[g].channel != ch.TIME}
@@ -204,6 +208,21 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         sel = slice(None, None, max(1, -(-len(e0) // RICH_MAX)))
         x_rich = np.concatenate([xmat[sel, : k + n_harm], wd.regressors(tk[sel], u0[sel], RICH_DEGREE)], axis=1)
         rich = block_wald(x_rich, e0[sel], chan_groups)
+        # calibrate each channel that could pass against its own circular shifts (a channel
+        # switching on the scale of the residual's own fast structure otherwise over-rejects)
+        for g in chan_groups:
+            if rich[g].p > alpha:
+                continue
+            c = by_effect[g]
+            xg = chk[c.channel][sel]
+            lags = np.unique((np.linspace(0.05, 0.95, SHIFTS) * len(xg)).round().astype(int))
+            shifted = (ch.regressors(np.roll(xg, lag), c.reference, mk[sel], base0.offset_ut) for lag in lags)
+            others = np.setdiff1d(np.arange(x_rich.shape[1]), groups[g])
+            lam = shift_inflation(x_rich[:, others], e0[sel], shifted)
+            inflation[g] = lam
+            if lam > 1.0:
+                p_cal = float(stats.f.sf(rich[g].f / lam, rich[g].df1, rich[g].df2))
+                rich[g] = replace(rich[g], p=max(rich[g].p, p_cal))
         del x_rich
     pvals = {g: r.p for g, r in tests.items()}
     pvals.update({("rich", g): r.p for g, r in rich.items()})
@@ -332,7 +351,8 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     sim = simulated_rms(final, mk, chk, noise)
     limits = _soft_iron_limits(tests[si.EFFECT], si.EFFECT in accepted, final.rms_ut, sim, float(t[-1] - t[0]))
     extra = {"skipped_channels": skipped, "against_rich_wander": {
-            g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in fast} for g, r in rich.items()
+            g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in fast,
+                "shift_inflation": inflation.get(g)} for g, r in rich.items()
         }, "survivors": list(survivors), "heldout": dict(cv), "candidates": {
             g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "coef_ut_per_unit": -r.beta if g != si.EFFECT else None}
             for g, r in tests.items()
