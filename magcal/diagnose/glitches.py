@@ -228,13 +228,15 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
     zs = np.zeros(n)
     jumps = np.zeros(n)
     for _ in range(max_rounds):
-        z = _z(d, floor)
+        s3 = local_scale(d, floor)
+        z = np.sqrt(np.sum((d / s3) ** 2, axis=1))
         z[flagged] = 0
         score = z / thr
         if sphere is not None:
             r = radial_series(m)
             dr, _ = innovations(r, g)
-            zr = _z(dr, floor_r)
+            sr = local_scale(dr, floor_r)
+            zr = np.abs(dr[:, 0]) / sr[:, 0]
             zr[flagged] = 0
             score = np.maximum(score, zr / thr_r)
         ok3 = (z > thr) & _side_ok(m, floor, side_thr)
@@ -252,10 +254,12 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
         for s in (1, 2):
             peak &= cand >= zp[2 - s : 2 - s + n]
             peak &= cand >= zp[2 + s : 2 + s + n]
-        def worst(mw, gw, lo, s3=local_scale(d, floor), sr=local_scale(dr, floor_r) if sphere is not None else None):
+
+        def worst(mw, gw, lo):
+            """Each sample's larger channel score (over its threshold) in a repaired window."""
             dw, _ = innovations(mw, gw)
             sc = np.sqrt(np.sum((dw / s3[lo : lo + len(mw)]) ** 2, axis=1)) / thr
-            if sr is not None:
+            if sphere is not None:
                 drw, _ = innovations(radial_series(mw), gw)
                 sc = np.maximum(sc, np.abs(drw[:, 0]) / sr[lo : lo + len(mw), 0] / thr_r)
             return sc

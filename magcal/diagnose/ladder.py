@@ -438,8 +438,11 @@ def _outlier_finding(s: Series, glitch: gl.Glitches, base0: ModelFit, baseline: 
         summary=summary,
         where={"time_s": [float(v) for v in times[:200]], "n": int(len(idx))},
         evidence={
-            "test": "neighbour-interpolation innovation, robust local scale, chi2(3) with Bonferroni over samples",
+            "test": "neighbour-interpolation innovation of the 3-vector (chi2(3)) and of |m - c| - r (chi2(1)), "
+            "robust local scales, Bonferroni over samples and both channels",
             "threshold_z": glitch.threshold_z,
+            "threshold_radial_z": glitch.threshold_radial_z if np.isfinite(glitch.threshold_radial_z) else None,
+            "n_seen_in_magnitude_only": int(np.sum(glitch.radial)),
             "z": [float(v) for v in glitch.z[:200]],
             "jump_ut": [float(v) for v in glitch.jump_ut[:200]],
             "median_radial_change_ut": float(np.median(radial)),
