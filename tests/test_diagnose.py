@@ -282,3 +282,13 @@ def test_soft_iron_on_a_short_single_sweep_is_named_as_suspected_not_silently_dr
 
 def test_a_well_covered_recording_states_no_limits():
     assert diagnose(_sim(142).series).to_dict()["limits"] == []
+
+
+def test_the_text_summary_does_not_call_a_suspect_recording_explained(tmp_path, capsys):
+    distortion = ((1.02, 0.0, 0.0), (0.0, 0.985, 0.0), (0.0, 0.0, 0.995))
+    path = tmp_path / "short.csv"
+    save_csv(_sim(144, n=1500, distortion=distortion).series, path)
+    assert main(["diagnose", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "explains the recording" not in out
+    assert "limit       soft_iron: Soft iron is suspected but not identifiable" in out

@@ -29,8 +29,13 @@ def format_text(d: dict) -> str:
         f"samples     {d['n_samples']}",
         f"baseline    {b['model']:<28} rms {b['rms_ut']:.3f} µT   held-out {b['heldout_rms_ut']:.3f} µT",
     ]
+    suspected = any(k.get("suspected") for k in d.get("limits", []))
     if not d["findings"]:
-        lines.append("findings    none — the sphere (hard iron) model explains the recording")
+        lines.append(
+            "findings    none proven — but see the limit below"
+            if suspected
+            else "findings    none — the sphere (hard iron) model explains the recording"
+        )
     for k in d["findings"]:
         lines.append(f"finding     {k['effect']}: {k['summary']}")
     for k in d.get("limits", []):

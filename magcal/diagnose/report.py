@@ -199,7 +199,11 @@ def _html(diagnosis, names: dict, title: str) -> str:
     esc = html.escape
     rows = "".join(
         f"<li><b>{esc(f['effect'])}</b> — {esc(f['summary'])}</li>" for f in d["findings"]
-    ) or "<li>Nothing left out: the sphere (hard-iron) model explains the recording to its noise.</li>"
+    ) or (
+        "<li>Nothing proven — but see what this recording could not test, below.</li>"
+        if any(x.get("suspected") for x in d.get("limits", []))
+        else "<li>Nothing left out: the sphere (hard-iron) model explains the recording to its noise.</li>"
+    )
     limits = "".join(f"<li><b>{esc(x['effect'])}</b> — {esc(x['summary'])}</li>" for x in d.get("limits", []))
     if limits:
         limits = f"<h2>What this recording could not test</h2><ul>{limits}</ul>"
