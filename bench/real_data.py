@@ -13,6 +13,9 @@ Run: python bench/real_data.py  → prints the table and writes bench/results/re
      error structure of each recording, how much the held-out spread moves with which time
      blocks of the fit half are used, and whether blocked cross-validation inside the fit half
      predicts the held-out ranking of two sample selections (see bench/README.md).
+     python bench/real_data.py --uncertainty → only: does the reported offset σ cover the change
+     of the offset between the two halves (fit separately)? z = Δ / √(σ₁² + σ₂²) with the
+     reported σ and with σ ÷ autocorrelation factor (the independent-noise figure).
 """
 
 from __future__ import annotations
@@ -245,7 +248,29 @@ def study(data) -> None:
         print(f"| {name} | {cv[0]:.3f} | {cv[1]:.3f} | {ho[0]:.3f} | {ho[1]:.3f} | {'yes' if agree else 'no'} |")
 
 
+def uncertainty_check(recordings) -> None:
+    print("recording                     |Δ offset| µT (x y z)          reported σ            factor  "
+          "RMS z reported  RMS z independent-noise")
+    for name, (m, _) in recordings.items():
+        half = len(m) // 2
+        a, b = fit(m[:half], model="ellipsoid"), fit(m[half:], model="ellipsoid")
+        if not a or not b:
+            print(f"{name:30s} no fit: {a if not a else b}")
+            continue
+        d = a.calibration.offset_ut - b.calibration.offset_ut
+        sa, sb = np.asarray(a.uncertainty["offset_ut"]), np.asarray(b.uncertainty["offset_ut"])
+        fa, fb = a.uncertainty["autocorrelation_factor"], b.uncertainty["autocorrelation_factor"]
+        s = np.hypot(sa, sb)
+        s_iid = np.hypot(sa / fa, sb / fb)
+        z, z_iid = np.sqrt(np.mean((d / s) ** 2)), np.sqrt(np.mean((d / s_iid) ** 2))
+        print(f"{name:30s}{np.array2string(np.abs(d), precision=3):>28s}{np.array2string(s, precision=3):>24s}"
+              f"  {fa:4.1f}/{fb:4.1f}  {z:8.1f}  {z_iid:12.1f}")
+
+
 def main() -> None:
+    if "--uncertainty" in sys.argv[1:]:
+        uncertainty_check(load_all())
+        return
     rows = [evaluate(name, m, pub) for name, (m, pub) in load_all().items()]
     md = table(rows)
     print(md)

@@ -110,3 +110,21 @@ def test_cli_exit_codes(tmp_path, capsys):
     assert "ill_conditioned" in capsys.readouterr().err
     code, _ = run_cli(["fit", str(tmp_path / "missing.csv")])
     assert code == 2
+
+
+def test_uncertainty_on_a_real_recording_covers_the_offset_change_between_its_halves():
+    # the real sensor's offset wanders slowly: the independent-noise σ is 10× too small to
+    # cover the difference between the two halves' offsets; the reported one must cover it
+    m = np.loadtxt(os.path.join(DATA, "lsm9ds1_ckexplorer_every4th.csv"), delimiter=",", skiprows=1)
+    half = len(m) // 2
+    a, b = fit(m[:half], model="sphere"), fit(m[half:], model="sphere")
+    d = a.calibration.offset_ut - b.calibration.offset_ut
+    s = np.hypot(a.uncertainty["offset_ut"], b.uncertainty["offset_ut"])
+    assert np.sqrt(np.mean((d / s) ** 2)) < 2.5
+    assert a.uncertainty["autocorrelation_factor"] > 3 and b.uncertainty["autocorrelation_factor"] > 3
+
+
+def test_independent_noise_keeps_the_plain_uncertainty():
+    sc = Scenario(physics=Physics(hard_iron_ut=(12.0, -8.0, 30.0), noise_ut=0.4), motion=Motion("sphere"), seed=21)
+    r = fit(sc.simulate(3000, 50.0).series.field_ut, model="sphere")
+    assert r.uncertainty["autocorrelation_factor"] < 1.5

@@ -3,7 +3,7 @@
 FILE is a capture or a CSV (``mx,my,mz`` µT required, ``t`` optional). The JSON object::
 
     {"model": ..., "calibration": {"offset_ut": [3], "field_ut": r, "soft_iron": [[3×3]]},
-     "uncertainty": {"offset_ut": [3], "field_ut": σ, "soft_iron": [[3×3]]},
+     "uncertainty": {"offset_ut": [3], "field_ut": σ, "soft_iron": [[3×3]], "autocorrelation_factor": f},
      "rms_ut": ..., "n_used": ..., "outliers": [indices into FILE's samples], ...}
 
 where a calibrated sample is ``soft_iron @ (m − offset_ut)``. Exit code 0 on a fit, 1 when the
@@ -36,7 +36,9 @@ def format_text(d: dict) -> str:
     lines = [
         f"model       {d['model']}",
         "offset_ut   " + " ".join(f"{v:9.3f}" for v in c["offset_ut"])
-        + "   ± " + " ".join(f"{v:.3f}" for v in u["offset_ut"]),
+        + "   ± " + " ".join(f"{v:.3f}" for v in u["offset_ut"])
+        + (f"   (widened ×{u['autocorrelation_factor']:.1f}: the residuals are correlated in time)"
+           if u.get("autocorrelation_factor", 1.0) >= 1.5 else ""),
         f"field_ut    {c['field_ut']:9.3f}   ± {u['field_ut']:.3f}",
     ]
     for i, row in enumerate(c["soft_iron"]):

@@ -218,7 +218,12 @@ def fit(
     return FitResult(
         model=MODEL_NAMES[chosen],
         calibration=cal,
-        uncertainty={"offset_ut": u["offset_ut"], "field_ut": u["field_ut"], "soft_iron": u["soft_iron"]},
+        uncertainty={
+            "offset_ut": u["offset_ut"],
+            "field_ut": u["field_ut"],
+            "soft_iron": u["soft_iron"],
+            "autocorrelation_factor": u["autocorrelation_factor"],
+        },
         crlb_offset_ut=u["crlb_offset_ut"],
         rms_ut=g.rms_ut,
         n_used=int(keep.sum()),

@@ -5,6 +5,13 @@ and the information-matrix conditioning that decides which model the coverage ca
 For residuals e = |W(m − b)| − r with independent Gaussian noise of σ per sample, the Fisher
 information is JᵀJ/σ², so Cov(θ) ≥ σ²(JᵀJ)⁻¹ (the CRLB), which the ML fit attains to first order.
 Reported covariance uses σ̂² = Σe²/(n − p); the CRLB uses a given noise σ (or σ̂ when none).
+
+Real recordings are not independent samples: the motion is smooth and slow unmodelled terms
+(the offset wandering by tenths of a µT over a minute) make neighbouring residuals alike, and
+the independent-noise covariance is then optimistic. Samples are in time order, so the
+reported covariance is the larger of that and a batch-means (block) sandwich that sums the
+score over contiguous time blocks and so keeps any correlation shorter than a block; the ratio
+is reported as ``autocorrelation_factor`` (≈ 1 on independent noise).
 """
 
 from __future__ import annotations
@@ -44,13 +51,35 @@ def weighted_covariance(jac: np.ndarray, weights: np.ndarray, sigma_ut: float) -
     return sigma_ut**2 * A @ B @ A
 
 
+def block_covariance(jac: np.ndarray, residual_ut: np.ndarray, weights=None, n_blocks: int | None = None) -> np.ndarray:
+    """Batch-means sandwich A (Σ_b g_b g_bᵀ) A · B/(B − 1), A = (JᵀWJ)⁻¹, g_b = J_bᵀW_b e_b over
+    B contiguous blocks of the (time-ordered) samples: robust to residuals correlated over
+    less than a block. B = √n/2 within 12…40 (enough blocks for a usable variance estimate)."""
+    n = len(residual_ut)
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    b = int(n_blocks or np.clip(np.sqrt(n) / 2.0, 12, 40))
+    b = max(min(b, n // 4), 2) if n >= 8 else 1
+    A = np.linalg.pinv(jac.T @ (w[:, None] * jac), rcond=1e-15, hermitian=True)
+    if b < 2:
+        return np.full_like(A, np.nan)
+    edges = np.linspace(0, n, b + 1).round().astype(int)[:-1]
+    g = np.add.reduceat(jac * (w * np.asarray(residual_ut))[:, None], edges, axis=0)
+    g -= g.mean(axis=0)  # the scores sum to zero at the optimum; remove rounding
+    return A @ (g.T @ g) @ A * (b / (b - 1.0))
+
+
 def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weights=None) -> dict:
     """{'offset_ut': [3], 'field_ut': σ, 'soft_iron': [[3×3]]} (1σ) and the CRLB of the offset
     (the bound of any unbiased estimator for this data's geometry — the weighted fit's own
     covariance sits at or above it)."""
     p = geometric.n_params(fit.kind)
     s_hat = residual_sigma(fit.residual_ut, p)
-    cov = covariance(fit.jac, s_hat) if weights is None else weighted_covariance(fit.jac, weights, s_hat)
+    cov_iid = covariance(fit.jac, s_hat) if weights is None else weighted_covariance(fit.jac, weights, s_hat)
+    cov_blk = block_covariance(fit.jac, fit.residual_ut, weights)
+    t_iid = float(np.trace(cov_iid[:3, :3]))
+    t_blk = float(np.trace(cov_blk[:3, :3])) if np.all(np.isfinite(cov_blk)) else 0.0
+    factor = float(np.sqrt(t_blk / t_iid)) if t_iid > 0 and t_blk > 0 else 1.0
+    cov = cov_blk if factor > 1.0 else cov_iid
     crlb = covariance(fit.jac, s_hat if noise_ut is None else float(noise_ut))
     return {
         "offset_ut": np.sqrt(np.clip(np.diag(cov)[:3], 0.0, None)),
@@ -58,6 +87,7 @@ def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weight
         "soft_iron": soft_iron_sigma(fit.theta, fit.kind, cov),
         "crlb_offset_ut": np.sqrt(np.clip(np.diag(crlb)[:3], 0.0, None)),
         "sigma_ut": s_hat,
+        "autocorrelation_factor": max(factor, 1.0),
     }
 
 
