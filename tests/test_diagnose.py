@@ -292,3 +292,9 @@ def test_the_text_summary_does_not_call_a_suspect_recording_explained(tmp_path, 
     out = capsys.readouterr().out
     assert "explains the recording" not in out
     assert "limit       soft_iron: Soft iron is suspected but not identifiable" in out
+
+
+@pytest.mark.parametrize("seed", [151, 152, 153])
+def test_a_simulated_recording_without_wander_states_none(seed):
+    limits = diagnose(_sim(seed, temperature=Temperature(swing_c=20.0, period_s=60.0)).series).to_dict()["limits"]
+    assert not [x for x in limits if x["effect"] == "offset_wander"]

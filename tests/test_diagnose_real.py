@@ -53,3 +53,12 @@ def test_a_current_that_acts_on_the_real_recording_is_found_with_its_coefficient
     (f,) = [f for f in d.findings if f.effect == "current_interference"]
     got = np.array(f.params["coef_ut_per_unit"])
     assert np.linalg.norm(got - coef) / np.linalg.norm(coef) < 0.3
+
+
+def test_the_real_recordings_own_offset_wander_is_stated_as_a_limit_not_a_finding(tilt_sphere):
+    t, h = tilt_sphere
+    d = diagnose(Series(t_s=t, field_ut=h, channels={"temp_c": 25.0 + 10.0 * np.sin(2 * np.pi * t / 40.0)}))
+    assert "time_drift" not in d.effects and "temperature_drift" not in d.effects
+    (w,) = [x for x in d.to_dict()["limits"] if x["effect"] == "offset_wander"]
+    assert w["rms_ut"] > 0.1 and w["p_value"] < 0.01
+    assert "temp_c" in w["summary"]

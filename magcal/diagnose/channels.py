@@ -163,23 +163,17 @@ def _vec(v: np.ndarray) -> str:
     return ", ".join(f"{x:+.2f}" for x in v)
 
 
-def wander_shares(e: np.ndarray, u: np.ndarray, xs: dict[str, np.ndarray], coefs: dict[str, np.ndarray], n_blocks: int = 20):
-    """How much of the recording's slow offset wander each channel term explains.
-
-    The radial residual is split into contiguous time blocks and an offset δ_b fitted in each
-    (e ≈ uᵀδ_b; the radius is global). The channel terms' predictions uᵀK_c x_c go through the
-    same block fit. Energies are measured in the sample domain (δᵀ U_bᵀU_b δ summed over blocks,
-    per sample), so a block whose directions pin an offset only weakly counts only weakly.
-    Returns ({name: mean-square its block offsets explain}, mean square left unexplained beyond
-    what the noise alone gives), both µT². Real recordings wander (environment, 1/f noise); a
-    channel term that explains less than what is left is a slow coincidence, not an effect."""
+def _block_offsets(e: np.ndarray, u: np.ndarray, series: dict[str, np.ndarray], n_blocks: int):
+    """Offsets δ_b fitted per contiguous time block (e ≈ uᵀδ_b) to the residual and to each of
+    ``series`` (radial predictions), with each block's Gram matrix, the samples used and the
+    within-block noise variance; None when there are fewer than 4 usable blocks."""
     from .inference import contiguous_blocks
 
     blocks = [b for b in contiguous_blocks(len(e), n_blocks) if b.stop - b.start >= 12]
     n = sum(b.stop - b.start for b in blocks)
     if len(blocks) < 4:
-        return {c: 0.0 for c in xs}, float("inf")
-    grams, d_e, d_c, rss = [], [], {c: [] for c in xs}, 0.0
+        return None
+    grams, d_e, d_c, rss = [], [], {c: [] for c in series}, 0.0
     for b in blocks:
         a = u[b]
         g = a.T @ a
@@ -188,17 +182,50 @@ def wander_shares(e: np.ndarray, u: np.ndarray, xs: dict[str, np.ndarray], coefs
         rss += float(np.sum((e[b] - a @ sol) ** 2))
         grams.append(g)
         d_e.append(sol)
-        for c, x in xs.items():
-            d_c[c].append(inv @ (a.T @ ((a @ coefs[c]) * x[b])))
-    grams = np.array(grams)
+        for c, y in series.items():
+            d_c[c].append(inv @ (a.T @ y[b]))
     s2 = rss / max(n - 3 * len(blocks), 1)
+    return np.array(grams), np.array(d_e), {c: np.array(v) for c, v in d_c.items()}, n, s2
 
-    def energy(d: np.ndarray) -> float:
-        mean = np.linalg.solve(grams.sum(axis=0), np.einsum("bij,bj->i", grams, d))
-        dc = d - mean
-        return float(np.einsum("bi,bij,bj->", dc, grams, dc)) / n
 
-    pred = {c: np.array(v) for c, v in d_c.items()}
-    rem = np.array(d_e) - sum(pred.values())
-    v_rem = max(energy(rem) - 3 * (len(blocks) - 1) * s2 / n, 0.0)
-    return {c: energy(p) for c, p in pred.items()}, v_rem
+def _energy(grams: np.ndarray, d: np.ndarray, n: int) -> float:
+    """Mean square (per sample) of block offsets about their weighted mean, in the sample
+    domain: δᵀU_bᵀU_bδ summed over blocks, so a block whose directions pin an offset only
+    weakly counts only weakly."""
+    mean = np.linalg.solve(grams.sum(axis=0), np.einsum("bij,bj->i", grams, d))
+    dc = d - mean
+    return float(np.einsum("bi,bij,bj->", dc, grams, dc)) / n
+
+
+def wander_shares(e: np.ndarray, u: np.ndarray, xs: dict[str, np.ndarray], coefs: dict[str, np.ndarray], n_blocks: int = 20):
+    """How much of the recording's slow offset wander each channel term explains.
+
+    The radial residual is split into contiguous time blocks and an offset δ_b fitted in each
+    (e ≈ uᵀδ_b; the radius is global). The channel terms' predictions uᵀK_c x_c go through the
+    same block fit. Returns ({name: mean-square its block offsets explain}, mean square left
+    unexplained beyond what the noise alone gives), both µT². Real recordings wander
+    (environment, 1/f noise); a channel term that explains less than what is left is a slow
+    coincidence, not an effect."""
+    fitted = _block_offsets(e, u, {c: (u @ coefs[c]) * x for c, x in xs.items()}, n_blocks)
+    if fitted is None:
+        return {c: 0.0 for c in xs}, float("inf")
+    grams, d_e, pred, n, s2 = fitted
+    rem = d_e - sum(pred.values())
+    v_rem = max(_energy(grams, rem, n) - 3 * (len(grams) - 1) * s2 / n, 0.0)
+    return {c: _energy(grams, p, n) for c, p in pred.items()}, v_rem
+
+
+def offset_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> tuple[float, float]:
+    """The offset's slow wander in a model's residual: (RMS beyond noise in µT, p-value of
+    "no wander"). Under independent noise the block offsets' energy × n / σ² is χ² with
+    3(B − 1) degrees of freedom (σ² from the scatter inside the blocks)."""
+    from scipy import stats
+
+    fitted = _block_offsets(e, u, {}, n_blocks)
+    if fitted is None:
+        return 0.0, 1.0
+    grams, d_e, _, n, s2 = fitted
+    energy = _energy(grams, d_e, n)
+    df = 3 * (len(grams) - 1)
+    v = max(energy - df * s2 / n, 0.0)
+    return float(np.sqrt(v)), float(stats.chi2.sf(energy * n / max(s2, 1e-300), df))

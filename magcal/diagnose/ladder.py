@@ -351,6 +351,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
 
     sim = simulated_rms(final, mk, chk, noise)
     limits = _soft_iron_limits(tests[si.EFFECT], si.EFFECT in accepted, final.rms_ut, sim, float(t[-1] - t[0]))
+    limits += _wander_limit(final, mk, chk, alpha, _practical_floor_ut(noise), [by_effect[g].channel for g in by_effect if g not in accepted])
     extra = {"skipped_channels": skipped, "against_rich_wander": {
             g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in fast,
                 "shift_inflation": inflation.get(g)} for g, r in rich.items()
@@ -373,6 +374,45 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         folds=tuple((int(sub[sl.start]), int(sub[sl.stop - 1]) + 1) for sl in fold_slices),
         fold_rms=tuple(fold_rms),
         limits=limits,
+    )
+
+
+WANDER_BLOCKS = 20
+
+
+def _wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, floor_ut: float, untested: list) -> tuple:
+    """Real recordings wander: the offset moves slowly in a way no logged channel explains.
+    That is not a calibration term (it cannot be predicted for the next session), but it bounds
+    what the calibration is good for and what slow effects this recording can identify, so it
+    is stated when the final model's block offsets scatter beyond the noise (χ², at ``alpha``)
+    by more than the practical floor."""
+    used = {c: chans[c] for c in final.spec.channels}
+    e = final.residual(m, used)
+    h = final.calibration().correct(m, used)
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    rms, p = ch.offset_wander(e, u, WANDER_BLOCKS)
+    if not (p < alpha and rms >= floor_ut):
+        return ()
+    others = [c for c in untested if c != ch.TIME]
+    tail = (
+        f"; an effect of {', '.join(others)} or of time that varies this slowly could not be told apart from it"
+        if others
+        else "; a temperature or drift effect that varies this slowly could not be told apart from it"
+    )
+    p_text = "p < 1e-12" if p < 1e-12 else f"p = {p:.1g}"
+    return (
+        {
+            "effect": "offset_wander",
+            "suspected": True,
+            "rms_ut": rms,
+            "p_value": p,
+            "blocks": WANDER_BLOCKS,
+            "summary": (
+                f"The offset wanders slowly by about {rms:.2f} µT RMS between {WANDER_BLOCKS} stretches of the recording, "
+                f"more than the noise allows ({p_text}) and explained by no logged channel (environment, sensor drift, an "
+                f"unlogged temperature): a calibration from this recording is good to about that much{tail}."
+            ),
+        },
     )
 
 
