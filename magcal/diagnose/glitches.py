@@ -198,11 +198,19 @@ def _radial(m: np.ndarray) -> tuple[np.ndarray, float] | None:
     return start[:3], float(start[3])
 
 
-def _side_ok(m: np.ndarray, floor: np.ndarray, thr: float) -> np.ndarray:
-    """Off the linear trend from the left AND from the right (a step or a fast swing agrees
-    with one side; a glitch jumps and comes back)."""
+def _side_ok(m: np.ndarray, g: np.ndarray, floor: np.ndarray, thr: float) -> np.ndarray:
+    """Off the linear trend from the left AND from the right, and to the same side of both (a
+    step or a fast swing agrees with one side, a transition leaves one trend upwards and meets
+    the other from below; a glitch jumps and comes back). Where a gap in the timestamps lies
+    inside either trend's pair of samples, the direction of that trend says little and only
+    the distance is asked for."""
     left, right = _one_sided(m)
-    return np.minimum(_z(left, floor), _z(right, floor)) > thr
+    same_way = np.sum(left * right, axis=1) > 0
+    step = np.diff(g)
+    gap = np.zeros(len(m), bool)
+    gap[2:] |= step[:-1] > 1.5  # between i−2 and i−1
+    gap[:-2] |= step[1:] > 1.5  # between i+1 and i+2
+    return (np.minimum(_z(left, floor), _z(right, floor)) > thr) & (same_way | gap)
 
 
 def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 8) -> Glitches:
@@ -239,10 +247,10 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
             zr = np.abs(dr[:, 0]) / sr[:, 0]
             zr[flagged] = 0
             score = np.maximum(score, zr / thr_r)
-        ok3 = (z > thr) & _side_ok(m, floor, side_thr)
+        ok3 = (z > thr) & _side_ok(m, g, floor, side_thr)
         okr = np.zeros(n, bool)
         if sphere is not None:
-            okr = (zr > thr_r) & _side_ok(r, floor_r, side_thr_r)
+            okr = (zr > thr_r) & _side_ok(r, g, floor_r, side_thr_r)
         # candidates: over the threshold and isolated in the channel that flags them; of
         # those, the largest within ±2 samples (a glitch also disturbs its neighbours'
         # predictions, and a gap in the timestamps can make a neighbour's larger still)
