@@ -298,3 +298,36 @@ def test_the_text_summary_does_not_call_a_suspect_recording_explained(tmp_path, 
 def test_a_simulated_recording_without_wander_states_none(seed):
     limits = diagnose(_sim(seed, temperature=Temperature(swing_c=20.0, period_s=60.0)).series).to_dict()["limits"]
     assert not [x for x in limits if x["effect"] == "offset_wander"]
+
+
+def test_several_channels_that_only_drift_with_time_are_tested_as_one_term_and_named():
+    # an outdoor warm-up: die temperature, ambient temperature and humidity all move
+    # monotonically; tested against one another none of them could be tested at all
+    run = _sim(161, drift_ut_per_s=(0.01, 0.0, -0.008))
+    s = run.series
+    frac = s.t_s / s.t_s[-1]
+    rng = np.random.default_rng(161)
+    chans = {
+        "temp_c": 20.0 + 15.0 * frac,
+        "ambient_c": 12.0 - 3.0 * frac + 0.05 * rng.standard_normal(len(frac)),
+        "humidity_pct": 40.0 + 9.0 * frac + 0.1 * rng.standard_normal(len(frac)),
+    }
+    d = diagnose(Series(t_s=s.t_s, field_ut=s.field_ut, channels=chans))
+    assert d.effects == ["time_drift"]
+    f = _finding(d, "time_drift")
+    assert set(f.evidence["confounded_with"].split(", ")) == set(chans)
+    assert "equivalent_coef_ut_per_c" in f.evidence  # the temperature is among them
+
+
+def test_a_channel_the_motion_cannot_test_is_named_under_limits():
+    # a logged channel that follows the board's attitude (here the field's vertical share, as a
+    # tilt or heading log would): an offset following it is a direction-dependent error, so it
+    # cannot be tested; the user is told so instead of reading silence as "no effect"
+    run = _sim(162)
+    s = run.series
+    h = s.field_ut - np.asarray(HARD)
+    tilt = h[:, 2] / np.linalg.norm(h, axis=1)
+    d = diagnose(Series(t_s=s.t_s, field_ut=s.field_ut, channels={"tilt_log": tilt}))
+    assert "covariate:tilt_log" not in d.effects
+    (lim,) = [x for x in d.to_dict()["limits"] if x["effect"] == "covariate:tilt_log"]
+    assert lim["channel"] == "tilt_log" and "could not be tested" in lim["summary"]

@@ -9,7 +9,10 @@ temperature history is explained by a straight line in time (|corr| ≥ CONFOUND
 cannot be told apart from one recording. Diagnosis then tests a single term and reports it as
 ``time_drift`` — the offset moved during the recording — with ``confounded_with: temp_c`` and
 the equivalent µT/°C in the evidence, rather than guessing a temperature law that would be
-applied (wrongly, if it is really drift) to future sessions.
+applied (wrongly, if it is really drift) to future sessions. The same holds for any other
+channel that only rises or falls during the recording (ambient temperature, humidity, a
+discharging battery): each is folded into the one time term and named there, instead of all
+of them being tested against one another, which leaves none testable.
 """
 
 from __future__ import annotations
@@ -39,8 +42,18 @@ class ChannelCandidate:
     channel: str
     effect: str
     reference: float
-    confounded_with: str | None = None
-    confound_corr: float | None = None
+    confounded: tuple = ()  # ((channel, correlation with time), …) folded into this (time) term
+
+    @property
+    def confounded_with(self) -> str | None:
+        return ", ".join(n for n, _ in self.confounded) or None
+
+    @property
+    def confound_corr(self) -> float | None:
+        """The temperature's correlation with time when it is among them, else the first's."""
+        if not self.confounded:
+            return None
+        return dict(self.confounded).get(TEMP, self.confounded[0][1])
 
 
 def effect_name(channel: str) -> str:
@@ -60,30 +73,24 @@ def candidates(t_s: np.ndarray, channels: dict[str, np.ndarray]) -> tuple[list[C
     with missing values)."""
     out: list[ChannelCandidate] = []
     skipped = []
-    temp_confounded = None
+    confounded = []
+    time_ok = usable(t_s)
     for name, x in channels.items():
         if name == TIME:
             continue
         if not usable(x):
             skipped.append(name)
             continue
-        if name == TEMP:
-            c = float(np.corrcoef(x, t_s)[0, 1]) if np.ptp(t_s) > 0 else 0.0
+        if time_ok and name != CURRENT:
+            c = float(np.corrcoef(x, t_s)[0, 1])
             if abs(c) >= CONFOUND_CORR:
-                temp_confounded = c
+                confounded.append((name, c))
                 continue
         ref = 0.0 if name == CURRENT else float(np.mean(x))
         out.append(ChannelCandidate(name, effect_name(name), ref))
-    if usable(t_s):
-        out.append(
-            ChannelCandidate(
-                TIME,
-                effect_name(TIME),
-                float(np.mean(t_s)),
-                TEMP if temp_confounded is not None else None,
-                temp_confounded,
-            )
-        )
+    if time_ok:
+        confounded.sort(key=lambda nc: nc[0] != TEMP)  # the temperature first when it is there
+        out.append(ChannelCandidate(TIME, effect_name(TIME), float(np.mean(t_s)), tuple(confounded)))
     return out, skipped
 
 
@@ -123,12 +130,20 @@ def describe(
             f"The offset drifted by {size:.3g} µT/s ({span:.2f} µT over the recording) along "
             f"({_vec(direction)}): the hard iron is not constant in time."
         )
-        if cand.confounded_with:
-            summary += (
-                " The temperature rose or fell monotonically with time here, so this drift cannot be "
-                "told apart from a temperature coefficient; record again with a non-monotone "
-                "temperature history to separate them."
-            )
+        if cand.confounded:
+            names = [n for n, _ in cand.confounded]
+            if names == [TEMP]:
+                summary += (
+                    " The temperature rose or fell monotonically with time here, so this drift cannot be "
+                    "told apart from a temperature coefficient; record again with a non-monotone "
+                    "temperature history to separate them."
+                )
+            else:
+                summary += (
+                    f" The channels {', '.join(names)} rose or fell monotonically with time here, so this drift "
+                    "cannot be told apart from an effect of any of them; record again while they go up and "
+                    "down to separate them."
+                )
     elif name == TEMP:
         summary = (
             f"The offset moves with {what} by {size:.3g} µT/°C along ({_vec(direction)}): "
@@ -148,7 +163,7 @@ def describe(
     if cand.confounded_with:
         ev["confounded_with"] = cand.confounded_with
         ev["confound_corr"] = cand.confound_corr
-        if temp is not None and np.ptp(temp) > 0:
+        if temp is not None and np.ptp(temp) > 0 and TEMP in dict(cand.confounded):
             ev["equivalent_coef_ut_per_c"] = [float(v) for v in coef * np.ptp(x) / np.ptp(temp) * np.sign(cand.confound_corr)]
     return Finding(
         effect=cand.effect,

@@ -351,6 +351,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
 
     sim = simulated_rms(final, mk, chk, noise)
     limits = _soft_iron_limits(tests[si.EFFECT], si.EFFECT in accepted, final.rms_ut, sim, float(t[-1] - t[0]))
+    limits += _untested_channels(tests, by_effect)
     limits += _wander_limit(final, mk, chk, alpha, _practical_floor_ut(noise), [by_effect[g].channel for g in by_effect if g not in accepted])
     extra = {"skipped_channels": skipped, "against_rich_wander": {
             g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in fast,
@@ -375,6 +376,30 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
         fold_rms=tuple(fold_rms),
         limits=limits,
     )
+
+
+def _untested_channels(tests: dict, by_effect: dict) -> tuple:
+    """A channel term the recording could not test at all is named, with why: silence about a
+    column the user logged must not read as "it has no effect"."""
+    out = []
+    for g, r in tests.items():
+        if g == si.EFFECT or not (r.f == 0.0 and r.p >= 1.0):
+            continue
+        c = by_effect[g]
+        what = "time" if c.channel == ch.TIME else c.channel
+        if c.confounded:
+            what += " (with " + ", ".join(n for n, _ in c.confounded) + ", which only rose or fell with it)"
+        if r.basis.shape[1] == 0:
+            why = (
+                "with this motion an offset that follows it looks the same as the hard iron, a "
+                "direction-dependent error or the slow wander (the sensor pointed in different "
+                "directions while it changed); record while it goes up and down with the board "
+                "turning through all orientations"
+            )
+        else:
+            why = "it varies in too few independent stretches of the recording to be tested against the slow wander"
+        out.append({"effect": g, "suspected": False, "channel": c.channel, "summary": f"An offset following {what} could not be tested: {why}."})
+    return tuple(out)
 
 
 WANDER_BLOCKS = 20
