@@ -11,6 +11,7 @@ to be read against what is known of the hardware (see each folder's PROVENANCE.m
   logged together at about 10 Hz with the ICM die temperature (`imu_T`, 12 → 8 °C), ambient
   temperature, pressure and humidity. The log's clock has whole seconds only, so the samples are
   placed on a uniform grid over the logged span (128 s).
+* the same board's 1.5 h balloon flight (53 322 samples of each sensor, µT, no channels).
 * qmc5883l_betaflight_pichim: the calibration windows of four Betaflight flight-controller logs
   (QMC5883L at ±8 G, 3000 LSB/G → 1/30 µT per count), with the controller's current sensor
   (0–3.2 A from the electronics; the motors were stopped), battery voltage and throttle.
@@ -63,6 +64,16 @@ def umich_preflight():
     yield "umich preflight, PNI RM3100", Series(t_s=t, field_ut=a[:, [col["mag_x"], col["mag_y"], col["mag_z"]]] / 75.0, channels=chans)
 
 
+def umich_flight():
+    """The 1.5 h balloon flight of the same board (µT files; no channels in them). The unix
+    times are fractional here and only used for their span."""
+    base = ROOT / "icm20948_rm3100_umich_ads" / "flight"
+    t = np.loadtxt(base / "data_ADSflight_times.csv", delimiter=",", ndmin=1)
+    t = np.linspace(0.0, float(t.max() - t.min()), len(t))
+    for label, fname in (("ICM-20948 (AK09916)", "data_ADSflight_imu.csv"), ("PNI RM3100", "data_ADSflight_pni.csv")):
+        yield f"umich flight, {label}", Series(t_s=t, field_ut=np.loadtxt(base / fname, delimiter=","))
+
+
 def betaflight():
     for path in sorted((ROOT / "qmc5883l_betaflight_pichim").glob("*_calwindow_mag.csv")):
         col, a = _table(path)
@@ -75,7 +86,7 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     warnings.filterwarnings("ignore")
     out = []
-    for source in (umich_preflight, betaflight):
+    for source in (umich_preflight, umich_flight, betaflight):
         try:
             cases = list(source())
         except OSError as e:
