@@ -200,13 +200,13 @@ def _html(diagnosis, names: dict, title: str) -> str:
     rows = "".join(
         f"<li><b>{esc(f['effect'])}</b> — {esc(f['summary'])}</li>" for f in d["findings"]
     ) or (
-        "<li>Nothing proven — but see what this recording could not test, below.</li>"
+        "<li>Nothing proven — but see the limits below.</li>"
         if any(x.get("suspected") for x in d.get("limits", []))
         else "<li>Nothing left out: the sphere (hard-iron) model explains the recording to its noise.</li>"
     )
     limits = "".join(f"<li><b>{esc(x['effect'])}</b> — {esc(x['summary'])}</li>" for x in d.get("limits", []))
     if limits:
-        limits = f"<h2>What this recording could not test</h2><ul>{limits}</ul>"
+        limits = f"<h2>Limits: what this recording could not test or pin down</h2><ul>{limits}</ul>"
     b, fi = d["baseline"], d["final"]
     imgs = "".join(
         f'<figure><img src="{esc(v)}" alt="{esc(k)}" style="max-width:100%"></figure>' for k, v in names.items()
