@@ -53,6 +53,26 @@ def _pinv_sym(g: np.ndarray) -> np.ndarray:
     return (v[:, keep] / w[keep]) @ v[:, keep].T
 
 
+def _block_wald_stat(z: np.ndarray, r0: np.ndarray, blocks: list[slice]):
+    """The block-HAC Wald statistic of regressing r0 on z (z already orthogonal to every other
+    column): coefficients, (ZᵀZ)⁻¹, the statistic, the effective number of independent blocks
+    ν and the F denominator degrees of freedom ν − k + 1."""
+    k = z.shape[1]
+    ztz = z.T @ z
+    zinv = np.linalg.inv(ztz)
+    bz = zinv @ (z.T @ r0)
+    r = r0 - z @ bz
+    # covariance of bz: (ZᵀZ)⁻¹ Σ_b G_b G_bᵀ (ZᵀZ)⁻¹ with G_b = Σ_{i∈b} z_i r_i (Z ⟂ Q)
+    gz = _block_sums(z, r, blocks)
+    v = zinv @ (gz.T @ gz) @ zinv
+    wald = float(bz @ np.linalg.solve(v, bz))
+    # effective number of independent blocks (Satterthwaite): a regressor whose weight sits
+    # in a few blocks (time, an intermittent current) gives a noisier covariance estimate
+    share = np.array([np.trace(zinv @ (z[b].T @ z[b])) for b in blocks]) / k
+    nu = 1.0 / float(np.sum(share**2)) - 1.0  # −1: the block sums add up to zero
+    return bz, zinv, wald, nu, nu - k + 1
+
+
 def block_wald(
     x: np.ndarray,
     e: np.ndarray,
@@ -91,19 +111,7 @@ def block_wald(
             continue
         z = xp @ basis_s  # the identifiable part, already orthogonal to the other columns
         r0 = e - xo @ (goo @ xte[other])
-        ztz = z.T @ z
-        bz = np.linalg.solve(ztz, z.T @ r0)
-        r = r0 - z @ bz
-        # covariance of bz: (ZᵀZ)⁻¹ Σ_b G_b G_bᵀ (ZᵀZ)⁻¹ with G_b = Σ_{i∈b} z_i r_i (Z ⟂ Q)
-        gz = _block_sums(z, r, blocks)
-        zinv = np.linalg.inv(ztz)
-        v = zinv @ (gz.T @ gz) @ zinv
-        wald = float(bz @ np.linalg.solve(v, bz))
-        # effective number of independent blocks (Satterthwaite): a regressor whose weight sits
-        # in a few blocks (time, an intermittent current) gives a noisier covariance estimate
-        share = np.array([np.trace(zinv @ (z[b].T @ z[b])) for b in blocks]) / k
-        nu = 1.0 / float(np.sum(share**2)) - 1.0  # −1: the block sums add up to zero
-        df2 = nu - k + 1
+        bz, zinv, wald, nu, df2 = _block_wald_stat(z, r0, blocks)
         if df2 < 2:
             out[name] = WaldResult(0.0, k, max(int(df2), 1), 1.0, np.zeros(len(cols)), 0.0, basis_s / scale[cols, None])
             continue
@@ -133,25 +141,16 @@ def shift_inflation(x_other: np.ndarray, e: np.ndarray, shifted_cols, n_blocks: 
     q = q[:, np.abs(np.diag(rr)) > 1e-10 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)]
     r0 = e - q @ (q.T @ e)
     blocks = contiguous_blocks(n, n_blocks or n_test_blocks(n))
-    edges = np.array([b.start for b in blocks])
     ratios = []
     for xc in shifted_cols:
         xc = xc / np.sqrt(np.maximum((xc * xc).sum(axis=0), 1e-300))
         z = xc - q @ (q.T @ xc)
-        ztz = z.T @ z
-        k = int(np.linalg.matrix_rank(ztz, tol=1e-8 * max(float(np.trace(ztz)), 1e-300)))
+        ev, vec = np.linalg.eigh(z.T @ z)
+        z = z @ vec[:, ev > 1e-8 * max(float(ev.max()), 1e-300)]  # its identifiable directions
+        k = z.shape[1]
         if k == 0:
             continue
-        zinv = _pinv_sym(ztz)
-        bz = zinv @ (z.T @ r0)
-        r = r0 - z @ bz
-        gz = np.add.reduceat(z * r[:, None], edges, axis=0)
-        v = zinv @ (gz.T @ gz) @ zinv
-        wald = float(bz @ _pinv_sym(v) @ bz)
-        zz = np.add.reduceat(z[:, :, None] * z[:, None, :], edges, axis=0)
-        share = np.einsum("kl,blk->b", zinv, zz) / k
-        nu = 1.0 / float(np.sum(share**2)) - 1.0
-        df2 = nu - k + 1
+        _, _, wald, nu, df2 = _block_wald_stat(z, r0, blocks)
         if df2 < 2:
             continue
         ratios.append(wald * df2 / (k * nu) / float(stats.f.ppf(0.5, k, df2)))
