@@ -18,7 +18,8 @@ full disk for captures or state (counted, logged, the data keeps flowing).
 
 State survives a crash: every ``daemon.state_every_s`` the accumulated session, the monitor and
 the counters are written through ``magcal.state.StateStore`` (atomic, checksummed, previous
-good file kept); a restart resumes from them. SIGTERM/SIGINT stop cleanly (state written);
+good file kept); a restart resumes from them (on a ``replay://`` source, after the lines the
+saved session already holds). SIGTERM/SIGINT stop cleanly (state written);
 SIGHUP reloads the config file, keeping the old settings when the new ones are invalid. A local
 UNIX socket ``status.sock`` in the state directory answers ``magcal status`` with one JSON
 object; there is no network listener.
@@ -103,6 +104,7 @@ class Daemon:
         self.samples_in = 0  # every sample line received
         self.epoch = 0  # increases at every connection and every device reset
         self.last_seq: int | None = None
+        self.replay_lines = 0  # sample lines taken from a replay:// source since its start
         self.faults: Counter = Counter()
         self.calibration: Calibration | None = None  # the one on the device, as last verified
         self.last_calibration: dict | None = None  # the last calibration this daemon wrote and verified
@@ -120,6 +122,7 @@ class Daemon:
         self._next_save = 0.0
         self._last_data = 0.0
         self._since_ready = 0
+        self._skip_lines = 0  # a resumed replay: lines taken before the restart, read again from its start
         self._sock: socket.socket | None = None
         self.exit_reason = ""
 
@@ -285,16 +288,16 @@ class Daemon:
 
     def _drain(self) -> None:
         """Stopping: ask the device to stop streaming and take in what already arrived, so a
-        clean stop leaves no received sample unprocessed."""
-        if self.device is None:
+        clean stop leaves no received sample unprocessed. A replay has nothing in flight:
+        reading on would only consume more of the recording, which a restart resumes from."""
+        if self.device is None or getattr(self.device, "passive", False):
             return
         try:
-            if not getattr(self.device, "passive", False):
-                try:
-                    self.device.stop()
-                except DeviceError as exc:
-                    if isinstance(exc, PortUnavailable):
-                        return
+            try:
+                self.device.stop()
+            except DeviceError as exc:
+                if isinstance(exc, PortUnavailable):
+                    return
             for _ in range(20):
                 try:
                     items = self.device.read(0.02)
@@ -327,7 +330,14 @@ class Daemon:
     # -- data -------------------------------------------------------------------------------------
     def handle(self, items) -> None:
         fields, temps = [], []
+        replay = scheme_of(self.settings.port) == "replay"
         for item in items:
+            if self._skip_lines:
+                # already in the resumed session: neither its samples nor its events count again
+                self._skip_lines -= int(isinstance(item, Sample))
+                continue
+            if replay and isinstance(item, Sample):
+                self.replay_lines += 1
             if isinstance(item, Event):
                 self._event(item)
                 self.session.add(item)
@@ -518,6 +528,7 @@ class Daemon:
                 "port": self.settings.port,
                 "samples": self.samples,
                 "samples_in": self.samples_in,
+                "replay_lines": self.replay_lines,
                 "epoch": self.epoch,
                 "faults": dict(self.faults),
                 "calibration": None if self.calibration is None else self.calibration.to_dict(),
@@ -562,6 +573,7 @@ class Daemon:
             cal = Calibration.from_dict(r["calibration"]) if r["calibration"] else None
             generation = int(data["generation"])
             counts = (int(r["samples"]), int(r["samples_in"]), int(r["epoch"]), int(r["recalibrations"]))
+            replay_lines = int(r.get("replay_lines", 0))
             faults = Counter({str(k): int(v) for k, v in r["faults"].items()})
         except (KeyError, TypeError, ValueError) as exc:
             self.faults["state_refused"] += 1
@@ -573,6 +585,7 @@ class Daemon:
                         state_port=r.get("port"), port=self.settings.port)
             session, monitor, cal = Session(self.settings.gates, self.settings.model), None, None
             r = dict(r, last_calibration=None)
+            replay_lines = 0
         self.session, self.monitor, self.calibration = session, monitor, cal
         self.generation = generation
         self.samples, self.samples_in, self.epoch, self.recalibrations = counts
@@ -580,6 +593,11 @@ class Daemon:
         self.last_calibration = r.get("last_calibration")
         self.decisions.extend(r.get("decisions", []))
         self.decide("resumed", generation=generation, samples=self.samples, note=self.store.last_load_note)
+        if replay_lines and scheme_of(self.settings.port) == "replay":
+            # a replay is read from its start again: the lines the saved session already holds
+            # are skipped, not counted twice
+            self.replay_lines = self._skip_lines = replay_lines
+            self.decide("replay resumes after the lines already taken", skipped_lines=replay_lines)
 
     # -- capture --------------------------------------------------------------------------------------
     def _open_capture(self) -> None:

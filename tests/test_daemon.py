@@ -275,6 +275,31 @@ def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
     assert d.faults["device_resets"] == 1
 
 
+def test_a_restarted_daemon_resumes_a_replay_where_it_stopped(tmp_path):
+    """A replay is read from its start each time it is opened; a daemon restarted on the same
+    state must not feed the lines it already took into the resumed session a second time."""
+    from magcal.devices.replay import collect_samples
+
+    cap = tmp_path / "run.cap"
+    _record_capture(cap)
+    recorded = collect_samples(open_device(f"replay://{cap}"))
+    clean = [(s.seq, s.raw) for s in recorded if s.valid]
+    url = f"replay://{cap}"
+    got = []
+    first = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)),
+                   max_samples=len(clean) // 3)
+    assert first.run() == 0
+    taken = len(got)
+    assert 0 < taken < len(clean)
+    second = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)))
+    assert second.run() == 0
+    assert second.exit_reason == "the recording ended"
+    assert got == clean  # every recorded sample once, in order, across the restart
+    assert second.samples == len(clean)
+    assert second.session.progress()["samples"] == len(recorded)  # the resumed session took each line once
+    assert any(e["what"].startswith("replay resumes") and e.get("skipped_lines") == taken for e in second.decisions)
+
+
 def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
     import threading
 
