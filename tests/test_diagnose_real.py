@@ -62,3 +62,23 @@ def test_the_real_recordings_own_offset_wander_is_stated_as_a_limit_not_a_findin
     (w,) = [x for x in d.to_dict()["limits"] if x["effect"] == "offset_wander"]
     assert w["rms_ut"] > 0.1 and w["p_value"] < 0.01
     assert "temp_c" in w["summary"]
+
+
+def test_the_wander_limit_names_how_large_a_slow_term_would_have_had_to_be(tilt_sphere):
+    """The limit's per-channel floor is the detector's real boundary on this recording: a
+    temperature term of half the stated size is not reported, one of twice the size is."""
+    t, h = tilt_sphere
+    temp = 25.0 + 10.0 * np.sin(2 * np.pi * t / (t[-1] / 1.3))
+    cur = _current(t, 7)
+    chans = {"temp_c": temp, "current_a": cur}
+    d = diagnose(Series(t_s=t, field_ut=h, channels=chans))
+    (w,) = [x for x in d.to_dict()["limits"] if x["effect"] == "offset_wander"]
+    floors = w["slow_term_floor_ut_per_unit"]
+    assert set(floors) == {"temp_c", "t_s"}  # the intermittent current is judged by its own test, not the gate
+    assert f"{floors['temp_c']:.2g} µT/°C of temp_c" in w["summary"]
+    for direction in ([1.0, 0.0, 0.0], [0.6, 0.64, -0.48]):
+        k = floors["temp_c"] * np.array(direction)
+        small = diagnose(Series(t_s=t, field_ut=h + np.outer(temp - temp.mean(), 0.5 * k), channels=chans))
+        large = diagnose(Series(t_s=t, field_ut=h + np.outer(temp - temp.mean(), 2.0 * k), channels=chans))
+        assert "temperature_drift" not in small.effects
+        assert "temperature_drift" in large.effects

@@ -109,7 +109,7 @@ def describe(
     temp: np.ndarray | None = None,
 ) -> Finding:
     name = cand.channel
-    unit = _UNIT.get(name, "unit")
+    unit = unit_of(name)
     size = float(np.linalg.norm(coef))
     contrib = np.abs((x - cand.reference)) * size
     peak = float(contrib.max()) if len(contrib) else 0.0
@@ -228,6 +228,43 @@ def wander_shares(e: np.ndarray, u: np.ndarray, xs: dict[str, np.ndarray], coefs
     rem = d_e - sum(pred.values())
     v_rem = max(_energy(grams, rem, n) - 3 * (len(grams) - 1) * s2 / n, 0.0)
     return {c: _energy(grams, p, n) for c, p in pred.items()}, v_rem
+
+
+SLOW_DEGREE = 6  # a channel is "slow" when a degree-6 curve in time carries SLOW_SHARE of its variance
+SLOW_SHARE = 0.8
+
+
+def unit_of(channel: str) -> str:
+    return _UNIT.get(channel, "unit")
+
+
+def slow_term_floor(x: np.ndarray, wander_rms_ut: float, ratio: float, n_blocks: int = 20) -> float | None:
+    """The smallest coefficient (µT per unit of x, averaged over its direction) whose block
+    offsets would carry ``ratio`` × the energy of a wander of ``wander_rms_ut`` — the size a
+    slow term must reach before a recording that wanders this much can tell it apart (the
+    wander gate). None when x varies mostly within blocks (a fast channel: the rich-wander test
+    judges it, not the gate) or not at all; the sample index stands for time. A term uᵀk·x has block offsets k·x̄_b, and over
+    directions of k its energy per sample is |k|²/3 · Σ_b n_b (x̄_b − x̄)² / n (|u| = 1)."""
+    from .inference import contiguous_blocks
+
+    from numpy.polynomial import legendre
+
+    x = np.asarray(x, np.float64)
+    total = float(np.var(x))
+    if total <= 0 or len(x) < 4 * n_blocks:
+        return None
+    # slow: a smooth curve in time (Legendre, degree SLOW_DEGREE over the recording) carries most of it
+    vand = legendre.legvander(np.linspace(-1.0, 1.0, len(x)), SLOW_DEGREE)
+    smooth = vand @ np.linalg.lstsq(vand, x, rcond=None)[0]
+    if np.var(smooth) < SLOW_SHARE * total:
+        return None
+    blocks = contiguous_blocks(len(x), n_blocks)
+    nb = np.array([b.stop - b.start for b in blocks], np.float64)
+    means = np.array([x[b].mean() for b in blocks])
+    between = float(np.sum(nb * (means - np.sum(nb * means) / nb.sum()) ** 2) / nb.sum())
+    if between <= 0:
+        return None
+    return float(np.sqrt(ratio * 3.0 / between) * wander_rms_ut)
 
 
 def offset_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> tuple[float, float]:

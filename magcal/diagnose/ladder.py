@@ -424,6 +424,16 @@ def _wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, flo
         if others
         else "; a temperature or drift effect that varies this slowly could not be told apart from it"
     )
+    # how large a slow term of each channel not in the model would have had to be
+    floors = {}
+    for c in untested:
+        f = ch.slow_term_floor(chans[c], rms, WANDER_RATIO, WANDER_BLOCKS) if c in chans else None
+        if f is not None:
+            floors[c] = f
+    if floors:
+        tail += " (to be reported, a slowly varying term would have needed about " + ", ".join(
+            f"{v:.2g} µT/{ch.unit_of(c)} of {'drift in time' if c == ch.TIME else c}" for c, v in floors.items()
+        ) + ")"
     p_text = "p < 1e-12" if p < 1e-12 else f"p = {p:.1g}"
     return (
         {
@@ -432,6 +442,7 @@ def _wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, flo
             "rms_ut": rms,
             "p_value": p,
             "blocks": WANDER_BLOCKS,
+            "slow_term_floor_ut_per_unit": floors,
             "summary": (
                 f"The offset wanders slowly by about {rms:.2f} µT RMS between {WANDER_BLOCKS} stretches of the recording, "
                 f"more than the noise allows ({p_text}) and explained by no logged channel (environment, sensor drift, an "
