@@ -201,3 +201,30 @@ def test_through_the_host_client_bad_commands_are_refused_and_streaming_goes_on(
         dev.stop()
         assert dev.framer.counters["lost_lines"] == 0
     assert not _events(items, "gap") and not _events(items, "reset")
+
+
+@pytest.mark.parametrize("addr", ["0x68", "0x69"])
+def test_the_firmware_finds_the_mpu_with_ad0_low_or_high(tmp_path, addr):
+    """Breakouts differ in how they tie AD0; the firmware looks at both addresses, so the same
+    sketch identifies and streams from either."""
+    dev = open_device(f"emu://?seed=5&addr={addr}&eeprom={tmp_path / 'ee.bin'}")
+    with dev:
+        ident = dev.open()
+        assert (ident.who_am_i, ident.wia) == (0x68, 0x48)
+        dev.start(100)
+        items = []
+        deadline = time.monotonic() + 30
+        while len(_samples(items)) < 50 and time.monotonic() < deadline:
+            items.extend(dev.read(0.2))
+        dev.stop()
+    samples = _samples(items)
+    assert len(samples) >= 50 and all(s.valid for s in samples)
+    served = [r for (_, _, r, _, _) in dev.board.served]
+    assert [s.raw for s in samples] == served[: len(samples)]
+
+
+def test_an_emulated_board_at_an_impossible_address_is_refused_plainly():
+    from magcal.errors import DeviceError
+
+    with pytest.raises(DeviceError, match="0x68 .AD0 low. or 0x69"):
+        open_device("emu://?addr=0x70")

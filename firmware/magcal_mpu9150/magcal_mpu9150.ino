@@ -5,8 +5,9 @@
 // (version + CRC-16, never applied when blank or corrupt), calibrated output, and a standalone
 // sphere fit that needs no host.
 //
-// Wiring: SDA A4, SCL A5, VCC 3.3 V (through a level shifter or a 3.3 V-tolerant breakout), AD0
-// low (0x68). The AK8975 is reached through the MPU's I2C bypass.
+// Wiring: SDA A4, SCL A5, VCC 3.3 V (through a level shifter or a 3.3 V-tolerant breakout). AD0
+// either way: the MPU is looked for at 0x68 (AD0 low), then 0x69 (AD0 high), at every bring-up.
+// The AK8975 is reached through the MPU's I2C bypass.
 //
 // Everything is float32 or integer: on the AVR `double` is 32-bit and `int` 16-bit.
 
@@ -23,7 +24,7 @@
 #define PROTO_VERSION 1
 
 // ---- chip facts (MPU-6050/9150 register map, AK8975 datasheet MS1187-E-02) ----------------
-static const uint8_t MPU_ADDR = 0x68;
+static const uint8_t MPU_ADDR_AD0_LOW = 0x68, MPU_ADDR_AD0_HIGH = 0x69;
 static const uint8_t AK_ADDR = 0x0C;
 static const uint8_t MPU_INT_PIN_CFG = 0x37, MPU_TEMP_OUT_H = 0x41, MPU_USER_CTRL = 0x6A,
                      MPU_PWR_MGMT_1 = 0x6B, MPU_WHO_AM_I = 0x75;
@@ -46,6 +47,7 @@ enum RecordStatus : uint8_t { REC_OK, REC_BLANK, REC_CORRUPT };
 // ---- state --------------------------------------------------------------------------------
 static uint16_t g_seq;
 static uint8_t g_who, g_wia, g_asa[3];
+static uint8_t g_mpu = MPU_ADDR_AD0_LOW; // the MPU-9150 address found at bring-up
 static uint8_t g_rate_hz;
 static bool g_streaming;
 static uint8_t g_mode;                  // 0 raw S lines, 1 calibrated U lines
@@ -213,14 +215,19 @@ static void bring_up()
 {
     g_who = g_wia = 0;
     g_asa[0] = g_asa[1] = g_asa[2] = 0;
-    if (!i2c_write(MPU_ADDR, MPU_PWR_MGMT_1, 0x80))
-        return;
+    // the address that acknowledges (WHO_AM_I reads 0x68 at either: it does not show AD0)
+    g_mpu = MPU_ADDR_AD0_LOW;
+    if (!i2c_write(g_mpu, MPU_PWR_MGMT_1, 0x80)) {
+        g_mpu = MPU_ADDR_AD0_HIGH;
+        if (!i2c_write(g_mpu, MPU_PWR_MGMT_1, 0x80))
+            return;
+    }
     delay(100);
-    i2c_write(MPU_ADDR, MPU_PWR_MGMT_1, 0x01); // wake, PLL with X gyro reference
-    i2c_write(MPU_ADDR, MPU_USER_CTRL, 0x00);  // I2C_MST_EN = 0
+    i2c_write(g_mpu, MPU_PWR_MGMT_1, 0x01); // wake, PLL with X gyro reference
+    i2c_write(g_mpu, MPU_USER_CTRL, 0x00);  // I2C_MST_EN = 0
     delay(3);
-    i2c_write(MPU_ADDR, MPU_INT_PIN_CFG, 0x02); // I2C_BYPASS_EN
-    i2c_read(MPU_ADDR, MPU_WHO_AM_I, &g_who, 1);
+    i2c_write(g_mpu, MPU_INT_PIN_CFG, 0x02); // I2C_BYPASS_EN
+    i2c_read(g_mpu, MPU_WHO_AM_I, &g_who, 1);
     if (!i2c_read(AK_ADDR, AK_WIA, &g_wia, 1)) {
         g_wia = 0;
         return;
@@ -394,7 +401,7 @@ static void finish_measurement()
         h[i] = (int16_t)((uint16_t)b[2 * i] | ((uint16_t)b[2 * i + 1] << 8));
     uint8_t st2 = b[6];
     uint8_t t[2] = {0, 0};
-    i2c_read(MPU_ADDR, MPU_TEMP_OUT_H, t, 2);
+    i2c_read(g_mpu, MPU_TEMP_OUT_H, t, 2);
     int16_t temp = (int16_t)(((uint16_t)t[0] << 8) | t[1]);
     if (g_streaming)
         emit_sample(h, st2, temp);

@@ -9,7 +9,8 @@ serial client (``ProtocolDevice`` over a pyserial port on the pty).
 URL options (query string): ``seed=N`` (physics seed, default 1), ``eeprom=PATH`` (EEPROM file,
 kept across restarts; default a temporary file), ``pace=1`` (simulated time follows the wall
 clock), ``offset=x,y,z`` (hard iron µT), ``noise=UT``, ``faults=N`` (register-model fault flags),
-``measure_us=N`` (AK8975 measurement time). Keyword options: ``scenario=`` (a ``Scenario``,
+``measure_us=N`` (AK8975 measurement time), ``addr=0x68|0x69`` (the MPU-9150's I2C address: AD0
+low or high). Keyword options: ``scenario=`` (a ``Scenario``,
 overrides the URL's physics), ``asa=(x, y, z)``.
 
 Nothing is built implicitly unless the build is missing: then ``make -C firmware`` and
@@ -115,6 +116,7 @@ class EmulatedBoard:
         faults: int = 0,
         measure_us: int | None = None,
         boot_delay_ms: int = 100,
+        mpu_addr: int = 0x68,
     ):
         self.scenario = scenario
         self._tmpdir = None
@@ -126,6 +128,7 @@ class EmulatedBoard:
         self.faults = int(faults)
         self.measure_us = measure_us
         self.boot_delay_ms = boot_delay_ms
+        self.mpu_addr = int(mpu_addr)
         self.served: deque = deque(maxlen=200_000)
         self.pty: str | None = None
         self._proc: subprocess.Popen | None = None
@@ -137,7 +140,8 @@ class EmulatedBoard:
         elf, harness = ensure_built()
         asa = self.scenario.physics.asa
         cmd = [str(harness), "--eeprom", self.eeprom_path, "--asa", ",".join(str(int(a)) for a in asa),
-               "--faults", str(self.faults), "--boot-delay-ms", str(self.boot_delay_ms)]
+               "--faults", str(self.faults), "--boot-delay-ms", str(self.boot_delay_ms),
+               "--addr", f"0x{self.mpu_addr:02x}"]
         if self.measure_us is not None:
             cmd += ["--measure-us", str(int(self.measure_us))]
         if self.pace:
@@ -241,10 +245,14 @@ def open_emulated(url: str, dialect: str = "native", **opts):
         measure_us = int(measure_us) if measure_us is not None else None
     except ValueError:
         raise DeviceError(f"emu:// options faults and measure_us must be integers: {url!r}") from None
+    addr_text = q.get("addr", "0x68").lower()
+    if addr_text not in ("0x68", "0x69", "104", "105"):
+        raise DeviceError(f"emu:// option addr is the MPU-9150's I2C address, 0x68 (AD0 low) or 0x69 (AD0 high); got {addr_text!r}")
+    mpu_addr = int(addr_text, 0)
     pace_opt = bool(opts.pop("pace", False))
     pace = q.get("pace", "0") not in ("0", "", "false", "no") or pace_opt
     board = EmulatedBoard(scenario, q.get("eeprom") or opts.pop("eeprom", None), pace=pace,
-                          faults=faults, measure_us=measure_us)
+                          faults=faults, measure_us=measure_us, mpu_addr=mpu_addr)
     pty = board.start()
     try:
         port = serial.Serial(pty, baudrate=int(opts.pop("baud", 115200)), timeout=0.05)
