@@ -419,11 +419,12 @@ def _wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, flo
     if not (p < alpha and rms >= floor_ut):
         return ()
     others = [c for c in untested if c != ch.TIME]
-    tail = (
-        f"; an effect of {', '.join(others)} or of time that varies this slowly could not be told apart from it"
-        if others
-        else "; a temperature or drift effect that varies this slowly could not be told apart from it"
-    )
+    if others:
+        tail = f"; an effect of {', '.join(others)} or of time that varies this slowly could not be told apart from it"
+    elif any(c != ch.TIME for c in chans):  # every logged channel is in the model
+        tail = "; a drift in time that varies this slowly could not be told apart from it"
+    else:
+        tail = "; a temperature (none is logged) or drift effect that varies this slowly could not be told apart from it"
     # how large a slow term of each channel not in the model would have had to be
     floors = {}
     for c in untested:
@@ -507,7 +508,11 @@ def _outlier_finding(s: Series, glitch: gl.Glitches, base0: ModelFit, baseline: 
     summary = (
         f"{len(idx)} sample(s) jump off the smooth trajectory by {np.median(glitch.jump_ut):.1f} µT "
         f"(median) and straight back: isolated read glitches or corrupted samples, not field. "
-        f"Only about {100 * min(seen, 1.0):.0f} % of a jump shows in |m|, so a radius check alone misses the sideways ones."
+        + (
+            f"Only about {100 * seen:.0f} % of a jump shows in |m|, so a radius check alone misses the sideways ones."
+            if seen < 0.7
+            else f"About {100 * min(seen, 1.0):.0f} % of a jump shows in |m|: these jumps are mostly radial."
+        )
     )
     return Finding(
         effect="outliers",

@@ -120,7 +120,9 @@ def write_report(diagnosis, directory, title: str = "recording") -> Path:
         cx, cy = _running(t[good], r[good], 60)
         ax.plot(cx, cy, "-", color="black" if col == _BEFORE else _AFTER, lw=2)
     if bad.any():
-        ax.plot(t[bad], np.clip(before[bad], -3 * lim, 3 * lim), "x", color=_BAD, ms=7, label=f"{int(bad.sum())} glitch(es) set aside")
+        ax.plot(t[bad], np.clip(before[bad], -3 * lim, 3 * lim), "x", color=_BAD, ms=7)
+        # the legend scales markers ×4 (for the tiny residual dots): its cross is drawn at 7/4
+        ax.plot([], [], "x", color=_BAD, ms=7 / 4, label=f"{int(bad.sum())} glitch(es) set aside")
     for a, b in diagnosis.folds:
         ax.axvline(t[min(a, len(t) - 1)], color="0.85", lw=0.8, zorder=0)
     ax.set_ylim(-3 * lim, 3 * lim)
@@ -163,7 +165,7 @@ def write_report(diagnosis, directory, title: str = "recording") -> Path:
         ax.set_xlabel(c)
         ax.set_ylabel("offset along (" + ", ".join(f"{v:+.2f}" for v in kd) + ") (µT)")
         ax.set_title(
-            f"{c}: FOUND {found[c]} ({size:.3g} µT/unit)" if c in found else f"{c}: nothing found",
+            f"{c}: FOUND {found[c]} ({size:.3g} µT/{ch.unit_of(c)})" if c in found else f"{c}: nothing found",
             color=_BAD if c in found else "black",
         )
         ax.legend(fontsize=8, loc="upper left")
