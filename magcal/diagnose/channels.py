@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.polynomial import legendre
 
 from .finding import Finding
 
@@ -242,12 +243,11 @@ def slow_term_floor(x: np.ndarray, wander_rms_ut: float, ratio: float, n_blocks:
     """The smallest coefficient (µT per unit of x, averaged over its direction) whose block
     offsets would carry ``ratio`` × the energy of a wander of ``wander_rms_ut`` — the size a
     slow term must reach before a recording that wanders this much can tell it apart (the
-    wander gate). None when x varies mostly within blocks (a fast channel: the rich-wander test
-    judges it, not the gate) or not at all; the sample index stands for time. A term uᵀk·x has block offsets k·x̄_b, and over
-    directions of k its energy per sample is |k|²/3 · Σ_b n_b (x̄_b − x̄)² / n (|u| = 1)."""
+    wander gate). None when x is not slow (a fast channel such as an intermittent current is
+    judged by the rich-wander test, not the gate) or does not vary; the sample index stands for
+    time. A term uᵀk·x has block offsets k·x̄_b, and over directions of k its energy per sample
+    is |k|²/3 · Σ_b n_b (x̄_b − x̄)² / n (|u| = 1)."""
     from .inference import contiguous_blocks
-
-    from numpy.polynomial import legendre
 
     x = np.asarray(x, np.float64)
     total = float(np.var(x))
