@@ -55,7 +55,7 @@ import numpy as np
 from . import __version__
 from .atomic import write_atomic
 from .devices.transport import WrappedTransport
-from .errors import InputError, MagcalError
+from .errors import DeviceError, InputError, MagcalError
 from .protocol import CalibratedSample, Hello, RawSample, Restart
 from .protocol_bulk import Frames, parse_stream
 from .sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
@@ -77,6 +77,8 @@ class CaptureWriteError(MagcalError):
 
 def make_header(port: str, baud: int | None = None, dialect: str = "native", start_utc: datetime | None = None) -> dict:
     start = start_utc or datetime.now(timezone.utc)
+    if str(port).startswith("replay://") and dialect == "native":
+        dialect = "auto"  # a replay speaks its own capture's convention: read back from the bytes
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -419,10 +421,26 @@ def series_from_frames(frames: Frames) -> Series:
     return Series(t_s=t, field_ut=field, channels=channels, valid=valid, seq=frames.seq.copy())
 
 
+def recorded_dialect(reader: "CaptureReader") -> str:
+    """The convention a capture was recorded in. A capture taken with ``--dialect auto`` names
+    no convention in its header: its first bytes tell (protocol v1 when they cannot)."""
+    dialect = reader.header.get("dialect") or "native"
+    if dialect == "auto":
+        from .devices.autodetect import dialect_of
+
+        head = b""
+        for _, chunk in reader:
+            head += chunk
+            if len(head) >= 4096:
+                break
+        dialect = dialect_of(head) or "native"
+    return dialect
+
+
 def load_capture(path) -> Series:
     reader = CaptureReader(path)
-    dialect = reader.header.get("dialect", "native")
-    if dialect not in ("native", None):
+    dialect = recorded_dialect(reader)
+    if dialect != "native":
         return _foreign_capture(reader, dialect)
     return _native_series(reader.data(), str(path))
 
@@ -445,11 +463,16 @@ def _series_via_device(data: bytes, name: str) -> Series:
 
 def _foreign_capture(reader: CaptureReader, dialect: str) -> Series:
     if dialect == "motioncal":
+        # read as it was live (the same device on the recorded bytes): each reading timed by
+        # when its bytes arrived
+        from .devices.motioncal import MotionCalDevice
+        from .devices.replay import BytesTransport, collect_samples
+
+        dev = MotionCalDevice(str(reader.path), transport=BytesTransport(reader), passive=True)
         try:
-            from .motioncal import parse_log
-        except ImportError:
-            raise InputError(f"{reader.path}: MotionCal captures need magcal.motioncal") from None
-        return parse_log(reader.data(), source=reader.path)
+            return Series.from_samples(collect_samples(dev))
+        except DeviceError as exc:
+            raise InputError(str(exc)) from None
     raise InputError(f"{reader.path} line 1: unknown capture dialect {dialect!r}")
 
 

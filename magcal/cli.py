@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from . import __version__
@@ -66,6 +67,12 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"magcal {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader went away (`magcal fit x --json | head`): not an error of ours
+        try:
+            sys.stdout = open(os.devnull, "w")  # nothing more can be written; keep exit quiet
+        except OSError:
+            pass
+        return 141
 
 
 if __name__ == "__main__":

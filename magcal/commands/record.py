@@ -28,7 +28,8 @@ def add_arguments(p) -> None:
     p.add_argument("--count", type=int, default=None, help="stop after this many samples")
     p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 115200)")
     p.add_argument("--rate", type=int, default=None, help="measurement rate in Hz (default: the device's)")
-    p.add_argument("--dialect", default="native", choices=("native",), help="wire convention (protocol v1)")
+    p.add_argument("--dialect", default="native", choices=("native", "motioncal", "auto"),
+                   help="wire convention: protocol v1, a MotionCal/Adafruit sketch's Raw: lines, or detect")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
 
 

@@ -44,9 +44,9 @@ def scheme_of(url: str) -> str:
 def open_device(url: str, dialect: str = "native", **options) -> Device:
     """Build (not yet open) the device a port string names."""
     scheme = scheme_of(url)
-    if dialect == "motioncal":
+    if dialect == "motioncal" and scheme != "replay":  # a replay follows its capture's header
         if scheme != "serial":
-            raise DeviceError(f"--dialect motioncal needs a serial port, not {url!r}")
+            raise DeviceError(f"--dialect motioncal needs a serial port or a replay://, not {url!r}")
         scheme = "motioncal"
     elif dialect not in ("native", "auto"):
         raise DeviceError(f"unknown dialect {dialect!r} (native, motioncal, auto)")

@@ -15,6 +15,10 @@ Options (``open_device(url, dialect="motioncal", **opts)``): ``baud`` (115200),
 loops), ``tries`` (3), ``accel_offset``/``gyro_offset`` (sent in the packet; by default the
 device's own, from its last Cal1 echo, else zeros), ``tap`` (``tap(port) -> port``, e.g. a
 capture writer that records every byte read).
+
+A recorded session (``replay://`` of a capture in this dialect) is the same device on an
+already-open read-only ``transport`` with ``passive=True``: it never writes, and a sample's
+``t_s`` is the recorded receive time of its bytes (the transport's ``t_rx_s``), as it was live.
 """
 
 from __future__ import annotations
@@ -52,6 +56,8 @@ class MotionCalDevice(Device):
         accel_offset=None,
         gyro_offset=None,
         tap=None,
+        transport=None,
+        passive: bool = False,
     ):
         super().__init__(url)
         if tries < 1 or echo_timeout_s <= 0:
@@ -63,6 +69,12 @@ class MotionCalDevice(Device):
         self.accel_offset = accel_offset
         self.gyro_offset = gyro_offset
         self._tap = tap  # tap(transport) -> transport: sees every byte read (a capture writer)
+        self._transport = transport  # an open pyserial-like object (a replay), instead of the url
+        self.passive = bool(passive)  # a recording: nothing is ever written
+        self.can_store = not self.passive
+        # a sample's time: the host's clock live, the recorded receive time on a replay
+        self._data_clock = (lambda: transport.t_rx_s) if hasattr(transport, "t_rx_s") else time.monotonic
+        self._t0_data = 0.0
         self._ser = None
         self._splitter = mc.LineSplitter()
         self._asm = mc.SampleAssembler()
@@ -85,6 +97,8 @@ class MotionCalDevice(Device):
             data = ser.read(max(1, ser.in_waiting))
             if data and ser.in_waiting:
                 data += ser.read(ser.in_waiting)
+        except EOFError:  # the end of a recording
+            raise
         except Exception as exc:  # pyserial raises SerialException/OSError when unplugged
             raise PortUnavailable(f"{self.url}: {exc}") from exc
         if not data:
@@ -97,7 +111,7 @@ class MotionCalDevice(Device):
             field = self._asm.push(line)
             if field is not None:
                 self._queue.append(
-                    Sample(seq=self._seq % 65536, t_s=time.monotonic() - self._t0, field_ut=field)
+                    Sample(seq=self._seq % 65536, t_s=self._data_clock() - self._t0_data, field_ut=field)
                 )
                 self._seq += 1
             elif isinstance(line, mc.CalLine):
@@ -119,30 +133,40 @@ class MotionCalDevice(Device):
 
     # -- Device hooks ----------------------------------------------------------------------
     def _open(self) -> Identity:
-        try:
-            import serial
-        except ImportError as exc:  # pragma: no cover - pyserial is a dependency
-            raise DeviceError("pyserial is needed for serial ports") from exc
-        try:
-            self._ser = serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise PortUnavailable(f"{self.url}: cannot open: {exc}") from exc
+        if self._transport is not None:
+            self._ser = self._transport
+        else:
+            try:
+                import serial
+            except ImportError as exc:  # pragma: no cover - pyserial is a dependency
+                raise DeviceError("pyserial is needed for serial ports") from exc
+            try:
+                self._ser = serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05)
+            except (serial.SerialException, OSError, ValueError) as exc:
+                raise PortUnavailable(f"{self.url}: cannot open: {exc}") from exc
         if self._tap is not None:
             self._ser = self._tap(self._ser)
         self._t0 = time.monotonic()
+        self._t0_data = self._data_clock()
         if self.open_timeout_s > 0:
             deadline = self._t0 + self.open_timeout_s
-            while not self._queue and time.monotonic() < deadline:
-                self._pull(min(0.05, max(0.0, deadline - time.monotonic())))
+            try:
+                while not self._queue and time.monotonic() < deadline:
+                    self._pull(min(0.05, max(0.0, deadline - time.monotonic())))
+            except EOFError:
+                pass  # a recording that ends before its first reading: refused just below
             if not self._queue:
                 self._ser.close()
+                if self.passive:
+                    raise DeviceError(f"{self.url}: the recording holds no Raw: or Uni: line "
+                                      f"({self.counters['lines']} other lines)")
                 raise NoReply(
                     f"{self.url}: no Raw: or Uni: line within {self.open_timeout_s:g} s at "
                     f"{self.baud} baud ({self.counters['lines']} other lines): is a MotionCal/"
                     "Adafruit calibration sketch running, at this baud rate?"
                 )
         return Identity(
-            transport="motioncal",
+            transport="replay" if self.passive else "motioncal",
             proto=0,
             firmware="",
             asa=(128, 128, 128),
@@ -173,8 +197,9 @@ class MotionCalDevice(Device):
         """The calibration of the last complete Cal1/Cal2 echo seen, or None. Right after
         ``open`` it listens until one echo period (``echo_timeout_s``) has passed since the
         port was opened, since the sketches print Cal1/Cal2 only now and then; readings that
-        arrive meanwhile are kept for ``read``."""
-        if self._echoed is None and self._ser is not None:
+        arrive meanwhile are kept for ``read``. A recording is not listened ahead of: what it
+        has echoed so far."""
+        if self._echoed is None and self._ser is not None and not self.passive:
             deadline = self._t0 + self.echo_timeout_s
             while self._echoed is None and time.monotonic() < deadline:
                 self._pull(min(0.05, max(0.0, deadline - time.monotonic())))

@@ -79,6 +79,14 @@ class BytesTransport:
             self._off = 0
         return out
 
+    @property
+    def t_rx_s(self) -> float:
+        """The recorded receive time of the bytes last served (the first chunk's before any)."""
+        if not self._chunks:
+            return 0.0
+        i = self._i - 1 if self._off == 0 and self._i > 0 else self._i
+        return self._chunks[min(i, len(self._chunks) - 1)][0]
+
     def write(self, data: bytes) -> int:
         raise OSError("a replay cannot take commands")
 
@@ -221,8 +229,10 @@ def replay_faults(url: str) -> list:
     return sorted(faults)
 
 
-def open_replay(url: str, dialect: str = "native", **options) -> ProtocolDevice:
-    from ..capture import CaptureReader
+def open_replay(url: str, dialect: str = "native", **options):
+    """The capture's own convention decides how it is read: protocol v1 through
+    ``ProtocolDevice``, a MotionCal-dialect capture through ``MotionCalDevice`` (passive)."""
+    from ..capture import CaptureReader, recorded_dialect
 
     path, pace = parse_replay_url(url)
     faults = replay_faults(url)
@@ -241,10 +251,20 @@ def open_replay(url: str, dialect: str = "native", **options) -> ProtocolDevice:
         reader = CaptureReader(path)
     except InputError as exc:
         raise DeviceError(f"cannot replay {url!r}: {exc}") from exc
-    recorded = reader.header.get("dialect") or "native"
-    if recorded != "native":
-        raise DeviceError(f"{url}: this capture was recorded in the {recorded!r} dialect; replay:// speaks protocol v1")
+    recorded = recorded_dialect(reader)
+    if dialect == "motioncal" and recorded != "motioncal":
+        raise DeviceError(f"{url}: this capture was recorded in the {recorded!r} dialect, not motioncal")
     transport = BytesTransport(reader, pace=pace, **{k: options.pop(k) for k in ("sleep",) if k in options})
+    if recorded == "motioncal":
+        if faults:
+            raise DeviceError(f"{url}: fault injection replays protocol v1 captures only")
+        from .motioncal import MotionCalDevice
+
+        options.pop("baud", None)
+        dev = MotionCalDevice(url, transport=transport, passive=True,
+                              **{k: v for k, v in options.items() if k in ("open_timeout_s", "tap")})
+        dev.capture_header = reader.header
+        return dev
     if faults:
         transport = _FAULTY[url] = FaultyTransport(transport, faults)
     options.pop("baud", None)
