@@ -65,7 +65,7 @@ SOCKET_NAME = "status.sock"
 CAPTURE_NAME = "capture.cap"
 DECISIONS_KEPT = 50
 STATE_KIND = "magcal-daemon"
-TAP_SCHEMES = ("sim", "emu", "replay", "serial")  # backends built on ProtocolDevice
+TAP_SCHEMES = ("sim", "emu", "replay", "serial")  # backends that take a capture tap (either dialect)
 
 
 class Daemon:
@@ -227,7 +227,7 @@ class Daemon:
     def _connect(self) -> bool:
         s = self.settings
         options = dict(self.device_options)
-        if self.capture is not None and scheme_of(s.port) in TAP_SCHEMES and s.dialect != "motioncal":
+        if self.capture is not None and scheme_of(s.port) in TAP_SCHEMES:
             options["tap"] = self.capture.tap
         if s.baud != 115200:
             options["baud"] = s.baud
@@ -610,8 +610,8 @@ class Daemon:
         try:
             self.state_dir.mkdir(parents=True, exist_ok=True)
             # two files (current and .1) of half the bound each: the total stays within it
-            self.capture = CaptureWriter(path, make_header(self.settings.port, self.settings.baud, "native"),
-                                         max_bytes=max(4096, limit // 2), on_full=roll_keep_one)
+            header = make_header(self.settings.port, self.settings.baud, self.settings.dialect or "native")
+            self.capture = CaptureWriter(path, header, max_bytes=max(4096, limit // 2), on_full=roll_keep_one)
         except (CaptureWriteError, OSError, ValueError) as exc:
             self.faults["capture_failed"] += 1
             self.decide("capture not started; streaming without it", logging.ERROR, error=str(exc))

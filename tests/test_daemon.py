@@ -322,3 +322,21 @@ def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
         th.join(10)
     assert not th.is_alive()
     assert StateStore(tmp_path).load()["resume"]["samples"] == first.samples  # its state is intact
+
+
+def test_the_daemon_keeps_a_capture_of_a_motioncal_board_that_replays_to_the_same_readings(tmp_path):
+    from adafruit_device import AdafruitBoard
+
+    from magcal.devices.replay import collect_samples
+
+    got = []
+    with AdafruitBoard(lines_per_s=1000, seed=4) as board:
+        settings = config.load(None, {"port": board.port, "dialect": "motioncal", "rate_hz": 100,
+                                      "daemon": {"stall_s": 2.0, "state_every_s": 0.5, "socket": False,
+                                                 "capture_max_bytes": 10_000_000}}, environ={})
+        d = Daemon(settings, state_dir=tmp_path / "state", on_sample=lambda e, s: got.append(s.field_ut),
+                   max_samples=500)
+        assert d.run() == 0
+    cap = tmp_path / "state" / "capture.cap"
+    replayed = [s.field_ut for s in collect_samples(open_device(f"replay://{cap}"))]
+    assert len(got) >= 500 and replayed[: len(got)] == got
