@@ -81,6 +81,15 @@ class Physics:
     drift_ut_per_s: tuple = (0.0, 0.0, 0.0)
     glitch_rate: float = 0.0
     glitch_ut: tuple = (4.0, 15.0)
+    # what the AK8975's internal self-test coil reads, in ASA-adjusted counts (the datasheet's
+    # pass window is X, Y in [-100, 100], Z in [-1000, -300]; a dead coil reads about 0)
+    self_test_counts: tuple = (12, -18, -640)
+
+    def self_test_raw(self) -> tuple[int, int, int]:
+        """The data registers in self-test mode: the adjusted reading undone by this chip's
+        ASA (sensitivity adjustment: adjusted = raw · (ASA + 128) / 256), truncated as the
+        register holds it."""
+        return tuple(int(max(-4096, min(4095, int(c * 256 / (a + 128))))) for c, a in zip(self.self_test_counts, self.asa))
 
     def truth(self) -> Calibration:
         """The calibration that exactly inverts this physics (at T_ref, I = 0, t = 0)."""

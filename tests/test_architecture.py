@@ -5,7 +5,7 @@ import os
 
 ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "magcal")
 
-VALUES = {"sample", "series", "calibration", "errors"}
+VALUES = {"sample", "series", "calibration", "errors", "selftest"}
 PURE = {"protocol", "coverage", "session", "physics", "motioncal", "monitor"}
 PURE_PACKAGES = {"fit", "diagnose"}
 EFFECTS = {"serial", "smbus2", "socket", "signal", "subprocess", "threading", "select", "fcntl"}

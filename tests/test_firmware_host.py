@@ -228,3 +228,34 @@ def test_an_emulated_board_at_an_impossible_address_is_refused_plainly():
 
     with pytest.raises(DeviceError, match="0x68 .AD0 low. or 0x69"):
         open_device("emu://?addr=0x70")
+
+
+def test_the_firmware_self_test_reads_the_coil_and_streaming_goes_on(tmp_path):
+    """``T`` on the real sketch: the coil's registers as the chip holds them, judged with the
+    board's ASA; a dead coil fails on z alone; a self-test in the middle of a stream loses and
+    invents no sample."""
+    healthy = demo_scenario(7)
+    dev = open_device(f"emu://?eeprom={tmp_path / 'ee.bin'}", scenario=healthy)
+    with dev:
+        dev.open()
+        dev.start(100)
+        items = []
+        while len(_samples(items)) < 100:
+            items.extend(dev.read(0.2))
+        result = dev.self_test()
+        while len(_samples(items)) < 250:
+            items.extend(dev.read(0.2))
+        dev.stop()
+        items.extend(dev.read(0.3))
+    assert result.passed and result.raw == healthy.physics.self_test_raw()
+    samples = _samples(items)
+    assert not _events(items, "gap")
+    served = [r for (_, _, r, _, _) in dev.board.served]
+    assert [s.raw for s in samples] == served[: len(samples)], "a sample was lost or invented around the self-test"
+
+    dead = demo_scenario(7).with_physics(self_test_counts=(12, -18, -4))  # the coil gives nothing on z
+    dev = open_device(f"emu://?eeprom={tmp_path / 'ee2.bin'}", scenario=dead)
+    with dev:
+        dev.open()
+        result = dev.self_test()
+    assert result.axis_passed == (True, True, False) and not result.passed

@@ -279,7 +279,7 @@ def test_the_deepest_paths_leave_stack_headroom_in_2k_of_ram(tmp_path):
         _boot(b)
         vals = _record()
         for cmd in [("R", 100), ("G",), ("W", *vals, f"{record_crc(vals):04X}"), ("M", 1),
-                    ("K",), ("Q",), ("R", "x")]:
+                    ("K",), ("T",), ("Q",), ("R", "x")]:
             _reply(b, b.send(*cmd))
         b.write(b"$" + b"A" * 200 + b"\n")
         b.wait_for(lambda i: isinstance(i, ErrorReply) and i.code == "LONG", 5, "LONG")

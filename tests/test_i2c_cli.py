@@ -154,6 +154,18 @@ def test_show_self_test_prints_each_axis_against_the_window(rig, capsys):
     assert d["self_test"]["passed"] and d["self_test"]["axes"]["x"]["window"] == [-100, 100]
 
 
-def test_show_self_test_on_a_backend_without_one_is_a_clear_error(capsys):
-    rc = main(["show", "--port", "sim://", "--self-test"])
+def test_show_self_test_on_a_backend_without_one_is_a_clear_error(capsys, tmp_path):
+    cap = tmp_path / "run.cap"
+    assert main(["record", "--port", "sim://", "-o", str(cap), "--count", "20"]) == 0
+    capsys.readouterr()
+    rc = main(["show", "--port", f"replay://{cap}", "--self-test"])  # a recording cannot be tested
     assert rc == 2 and "cannot run the AK8975 self-test" in capsys.readouterr().err
+
+
+def test_show_self_test_on_the_simulated_board_reads_its_physics(capsys):
+    from magcal.physics import demo_scenario
+
+    rc = main(["show", "--port", "sim://", "--self-test", "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert rc == 1 and d["self_test"]["passed"]  # passed; nothing stored yet
+    assert [d["self_test"]["axes"][a]["raw"] for a in "xyz"] == list(demo_scenario().physics.self_test_raw())

@@ -11,7 +11,7 @@
  *     again after a close, like the DTR reset of an Uno); SIGUSR1 resets the board at once;
  *   - simulated time paced to the wall clock with --pace.
  *
- * usage: magcal-emu [--eeprom FILE] [--field hx,hy,hz] [--asa a,b,c] [--addr 0x68|0x69]
+ * usage: magcal-emu [--eeprom FILE] [--field hx,hy,hz] [--asa a,b,c] [--self-test x,y,z] [--addr 0x68|0x69]
  *                   [--faults N] [--measure-us N] [--pace] [--boot-delay-ms N] firmware.elf
  */
 #define _GNU_SOURCE
@@ -351,7 +351,7 @@ static void report_stack(avr_t *avr)
 static void usage(void)
 {
     fprintf(stderr, "usage: magcal-emu [--eeprom FILE] [--field hx,hy,hz] [--asa a,b,c] "
-                    "[--addr 0x68|0x69] [--faults N] [--measure-us N] [--pace] "
+                    "[--self-test x,y,z] [--addr 0x68|0x69] [--faults N] [--measure-us N] [--pace] "
                     "[--boot-delay-ms N] [--stack-report] firmware.elf\n");
     exit(2);
 }
@@ -362,6 +362,7 @@ int main(int argc, char **argv)
     memset(&h, 0, sizeof h);
     uint8_t asa[3] = {176, 178, 166};
     unsigned faults = 0, measure_us = 7300, addr = 0x68;
+    int16_t self_test[3] = {0, 0, 0};
     int boot_delay_ms = 100, stack_report = 0;
     const char *elf = NULL;
     for (int i = 1; i < argc; i++) {
@@ -383,6 +384,11 @@ int main(int argc, char **argv)
             if (sscanf(val, "%u,%u,%u", &x, &y, &z) != 3 || x > 255 || y > 255 || z > 255)
                 usage();
             asa[0] = x, asa[1] = y, asa[2] = z, i++;
+        } else if (!strcmp(a, "--self-test") && val) {
+            int x, y, z;
+            if (sscanf(val, "%d,%d,%d", &x, &y, &z) != 3)
+                usage();
+            self_test[0] = (int16_t)x, self_test[1] = (int16_t)y, self_test[2] = (int16_t)z, i++;
         } else if (!strcmp(a, "--addr") && val) {
             addr = (unsigned)strtoul(val, NULL, 0), i++;
         } else if (!strcmp(a, "--faults") && val) {
@@ -431,6 +437,7 @@ int main(int argc, char **argv)
     mpu_model_init(h.model, (uint8_t)addr, asa, provide, &h);
     mpu_model_set_faults(h.model, faults);
     mpu_model_set_measure_us(h.model, measure_us);
+    mpu_model_set_self_test(h.model, self_test);
 
     avr_irq_register_notify(avr_io_getirq(h.avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT),
                             twi_hook, &h);

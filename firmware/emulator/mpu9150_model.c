@@ -63,6 +63,7 @@ struct mpu_model {
     uint8_t ak_st1;
     uint8_t ak_st2;     /* HOFL | DERR */
     int16_t ak_data[3];
+    int16_t self_test[3]; /* data registers in self-test mode (0 until the host sets them) */
     int measuring;
     uint8_t measuring_mode;
     uint64_t t_trigger_us;
@@ -111,6 +112,12 @@ static int16_t clamp_count(int v)
     return (int16_t)v;
 }
 
+void mpu_model_set_self_test(mpu_model *m, const int16_t raw[3])
+{
+    for (int i = 0; i < 3; i++)
+        m->self_test[i] = clamp_count(raw[i]);
+}
+
 /* Finish a measurement whose delay has elapsed at time t_us. */
 static void settle(mpu_model *m, uint64_t t_us)
 {
@@ -119,11 +126,10 @@ static void settle(mpu_model *m, uint64_t t_us)
     m->measuring = 0;
     m->ak_mode = AK_MODE_POWER_DOWN; /* single and self-test return to power-down */
     if (m->measuring_mode == AK_MODE_SELF_TEST) {
-        /* The internal coil's field, chosen so that the ASA-adjusted values sit well inside
-         * the datasheet pass window (X, Y in [-100, 100], Z in [-1000, -300]). */
-        static const int target[3] = {12, -18, -640};
+        /* The internal coil's reading: set by the host from its physics (mpu_model_set_self_test),
+         * so the one simulator decides what a healthy or a dead coil reads. */
         for (int i = 0; i < 3; i++)
-            m->ak_data[i] = clamp_count(target[i] * 256 / (m->asa[i] + 128));
+            m->ak_data[i] = m->self_test[i];
         m->ak_st2 &= (uint8_t)~AK_HOFL;
         m->ak_st1 |= AK_DRDY;
         return;

@@ -49,6 +49,9 @@ void mpu_model_init(mpu_model *m, uint8_t mpu_addr, const uint8_t asa[3],
                     mpu_provider_fn provider, void *ctx);
 void mpu_model_set_faults(mpu_model *m, unsigned faults);
 void mpu_model_set_measure_us(mpu_model *m, uint32_t us); /* default 7300 */
+/* The data registers a self-test measurement returns (raw counts; the host's physics decides
+ * them: Physics.self_test_raw). Zero until set. */
+void mpu_model_set_self_test(mpu_model *m, const int16_t raw[3]);
 
 /* One I2C transaction, byte by byte. Each returns 0 for ACK, -1 for NACK. */
 int mpu_model_start(mpu_model *m, uint8_t addr7, int is_read, uint64_t t_us);

@@ -30,7 +30,8 @@ static const uint8_t MPU_INT_PIN_CFG = 0x37, MPU_TEMP_OUT_H = 0x41, MPU_USER_CTR
                      MPU_PWR_MGMT_1 = 0x6B, MPU_WHO_AM_I = 0x75;
 static const uint8_t AK_WIA = 0x00, AK_ST1 = 0x02, AK_HXL = 0x03, AK_ST2 = 0x09, AK_CNTL = 0x0A,
                      AK_ASAX = 0x10;
-static const uint8_t AK_SINGLE = 0x01, AK_FUSE_ROM = 0x0F, AK_POWER_DOWN = 0x00;
+static const uint8_t AK_ASTC = 0x0C, ASTC_SELF = 0x40;
+static const uint8_t AK_SINGLE = 0x01, AK_SELF_TEST = 0x08, AK_FUSE_ROM = 0x0F, AK_POWER_DOWN = 0x00;
 static const uint8_t ST2_DERR = 0x04, ST2_HOFL = 0x08;
 static const uint16_t DRDY_FIRST_POLL_US = 7000, DRDY_POLL_US = 500;
 static const uint16_t DRDY_TIMEOUT_US = 30000;
@@ -90,6 +91,7 @@ static void load_record();
 static void store_record(const int32_t *v);
 static void start_measurement(uint32_t now_us);
 static void finish_measurement();
+static void self_test(uint16_t tag);
 static void poll_measurement();
 static void emit_sample(const int16_t h[3], uint8_t st2, int16_t temp);
 static void fit_add(const int16_t h[3]);
@@ -413,6 +415,48 @@ static void finish_measurement()
         fit_add(h);
 }
 
+// The AK8975 self-test (datasheet MS1187-E-02): power-down, ASTC.SELF on, self-test mode, wait
+// for DRDY, read HXL..ST2, ASTC.SELF off. Blocking (about 8 ms, 15 with a measurement in flight,
+// which is finished and sent first: no sample is lost); streaming carries on with the next
+// period. The reply carries the raw registers; the host applies ASA and judges them.
+static void self_test(uint16_t tag)
+{
+    while (g_measuring)
+        poll_measurement(); // completes it (or gives up at the DRDY timeout)
+    uint8_t st = 0;
+    if (i2c_read(AK_ADDR, AK_ST1, &st, 1) && (st & 0x01))
+        i2c_read(AK_ADDR, AK_ST2, &st, 1);
+    if (!i2c_write(AK_ADDR, AK_CNTL, AK_POWER_DOWN) || !i2c_write(AK_ADDR, AK_ASTC, ASTC_SELF)) {
+        send_error_P(tag, 'T', PSTR("I2C"));
+        return;
+    }
+    delayMicroseconds(100);
+    bool ready = false;
+    uint8_t b[7];
+    if (i2c_write(AK_ADDR, AK_CNTL, AK_SELF_TEST)) {
+        uint32_t t0 = micros();
+        delayMicroseconds(DRDY_FIRST_POLL_US);
+        while (micros() - t0 <= DRDY_TIMEOUT_US) {
+            if (i2c_read(AK_ADDR, AK_ST1, &st, 1) && (st & 0x01)) {
+                ready = i2c_read(AK_ADDR, AK_HXL, b, 7);
+                break;
+            }
+            delayMicroseconds(DRDY_POLL_US);
+        }
+    }
+    i2c_write(AK_ADDR, AK_ASTC, 0x00); // SELF must be off for normal measurements
+    if (!ready) {
+        i2c_write(AK_ADDR, AK_CNTL, AK_POWER_DOWN);
+        send_error_P(tag, 'T', PSTR("I2C"));
+        return;
+    }
+    send_ack(tag, 'T');
+    for (uint8_t i = 0; i < 3; i++)
+        out_int((int16_t)((uint16_t)b[2 * i] | ((uint16_t)b[2 * i + 1] << 8)));
+    out_int(b[6]);
+    out_end();
+}
+
 static void emit_sample(const int16_t h[3], uint8_t st2, int16_t temp)
 {
     if (g_mode == 1 && g_rec_status == REC_OK) {
@@ -601,7 +645,7 @@ static void handle_command(char cmd, uint16_t tag, const int32_t *args, uint8_t 
 {
     uint8_t want;
     switch (cmd) {
-    case 'I': case 'G': case 'X': case 'K': case 'Z': want = 0; break;
+    case 'I': case 'G': case 'X': case 'K': case 'Z': case 'T': want = 0; break;
     case 'R': case 'M': case 'F': case 'N': want = 1; break;
     case 'W': want = MAX_ARGS; break;
     default:
@@ -675,6 +719,9 @@ static void handle_command(char cmd, uint16_t tag, const int32_t *args, uint8_t 
         send_ack(tag, cmd);
         out_end();
         soft_reset();
+        break;
+    case 'T':
+        self_test(tag);
         break;
     case 'F':
     case 'N':

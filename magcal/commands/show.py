@@ -3,7 +3,8 @@ store) holds. Works for every backend through the generic Device API: serial boa
 from EEPROM, ``i2c:`` devices from the host-side store. Exit code 0 when a calibration is
 stored, 1 when none is, 2 on errors (a torn or edited store file is an error, never applied).
 
-``--self-test`` also runs the AK8975 self-test on backends that can (``i2c:``) and prints each
+``--self-test`` also runs the AK8975 self-test on backends that can (``i2c:``, the magcal firmware
+over serial, ``sim://``, ``emu://``) and prints each
 axis against the datasheet window; exit code 3 when it fails."""
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ def add_arguments(p) -> None:
     p.add_argument("--port", required=True, help="device: i2c:1, /dev/ttyACM0, sim://, … (see magcal.devices)")
     p.add_argument("--dialect", default="native", choices=("native", "motioncal", "auto"))
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--self-test", action="store_true", help="also run the AK8975 self-test (i2c: devices)")
+    p.add_argument("--self-test", action="store_true", help="also run the AK8975 self-test (i2c:, the magcal firmware, sim://, emu://)")
 
 
 def _fmt_vec(v) -> str:
@@ -65,8 +66,9 @@ def run(args) -> int:
     with dev:
         identity = dev.open()
         if args.self_test:
-            if not callable(getattr(dev, "self_test", None)):
-                raise DeviceError(f"{args.port}: this backend cannot run the AK8975 self-test (i2c: devices can)")
+            if not callable(getattr(dev, "self_test", None)) or getattr(dev, "passive", False):
+                raise DeviceError(f"{args.port}: this backend cannot run the AK8975 self-test "
+                                  "(i2c:, the magcal firmware over serial, sim:// and emu:// can)")
             result = dev.self_test()
         cal = dev.read_calibration()
         where = getattr(dev, "store_path", None)

@@ -141,7 +141,8 @@ class EmulatedBoard:
         asa = self.scenario.physics.asa
         cmd = [str(harness), "--eeprom", self.eeprom_path, "--asa", ",".join(str(int(a)) for a in asa),
                "--faults", str(self.faults), "--boot-delay-ms", str(self.boot_delay_ms),
-               "--addr", f"0x{self.mpu_addr:02x}"]
+               "--addr", f"0x{self.mpu_addr:02x}",
+               "--self-test", ",".join(str(v) for v in self.scenario.physics.self_test_raw())]
         if self.measure_us is not None:
             cmd += ["--measure-us", str(int(self.measure_us))]
         if self.pace:

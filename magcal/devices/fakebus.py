@@ -123,6 +123,8 @@ def load_model_library() -> ctypes.CDLL:
         lib.mpu_model_set_faults.argtypes = [ctypes.c_void_p, ctypes.c_uint]
         lib.mpu_model_set_measure_us.restype = None
         lib.mpu_model_set_measure_us.argtypes = [ctypes.c_void_p, ctypes.c_uint32]
+        lib.mpu_model_set_self_test.restype = None
+        lib.mpu_model_set_self_test.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_int16)]
         lib.mpu_model_start.restype = ctypes.c_int
         lib.mpu_model_start.argtypes = [ctypes.c_void_p, ctypes.c_uint8, ctypes.c_int, ctypes.c_uint64]
         lib.mpu_model_write.restype = ctypes.c_int
@@ -192,6 +194,7 @@ class FakeBus:
         asa = (ctypes.c_uint8 * 3)(*[int(a) for a in self.scenario.physics.asa])
         self._lib.mpu_model_init(self._mem, address, asa, self._provider, None)
         self._lib.mpu_model_set_measure_us(self._mem, int(measure_us))
+        self._lib.mpu_model_set_self_test(self._mem, (ctypes.c_int16 * 3)(*self.scenario.physics.self_test_raw()))
         self.set_faults(faults)
 
     # -- configuration ---------------------------------------------------------------------

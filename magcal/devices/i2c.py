@@ -38,10 +38,10 @@ from ..sample import (
     ST2_DERR,
     ST2_HOFL,
     Sample,
-    asa_gain,
     counts_to_ut,
     temp_raw_to_c,
 )
+from ..selftest import SELF_TEST_WINDOW, SelfTestResult  # noqa: F401 (SELF_TEST_WINDOW: re-exported)
 from .base import Device, Event, Identity, Item
 
 # -- registers ---------------------------------------------------------------------------------
@@ -82,8 +82,6 @@ MAX_CONSECUTIVE_BUS_ERRORS = 5
 RATE_MIN_HZ, RATE_MAX_HZ = 1, 100
 DEFAULT_RATE_HZ = 50
 
-# Self-test pass window in ASA-adjusted counts (datasheet MS1187-E-02, self-test judgement).
-SELF_TEST_WINDOW = ((-100, 100), (-100, 100), (-1000, -300))
 
 NACK_ERRNOS = (errno.EREMOTEIO, errno.ENXIO, errno.EIO)
 
@@ -94,37 +92,6 @@ class MagnetometerMissing(DeviceError):
 
 class DataNotReady(NoReply):
     """The AK8975 never raised DRDY within the deadline: a stuck or absent measurement."""
-
-
-@dataclass(frozen=True)
-class SelfTestResult:
-    """The AK8975 self-test: the internal field's reading per axis against the pass window."""
-
-    raw: tuple[int, int, int]
-    adjusted: tuple[float, float, float]  # raw · (ASA+128)/256, what the window applies to
-    window: tuple[tuple[int, int], ...] = SELF_TEST_WINDOW
-    st2: int = 0
-
-    @property
-    def axis_passed(self) -> tuple[bool, bool, bool]:
-        ok = tuple(lo <= v <= hi for v, (lo, hi) in zip(self.adjusted, self.window))
-        if self.st2 & (ST2_DERR | ST2_HOFL):
-            return (False, False, False)
-        return ok  # type: ignore[return-value]
-
-    @property
-    def passed(self) -> bool:
-        return all(self.axis_passed)
-
-    def to_dict(self) -> dict:
-        return {
-            "passed": self.passed,
-            "axes": {
-                name: {"raw": r, "adjusted": round(a, 2), "window": list(w), "passed": p}
-                for name, r, a, w, p in zip("xyz", self.raw, self.adjusted, self.window, self.axis_passed)
-            },
-            "st2": self.st2,
-        }
 
 
 # -- the port string ---------------------------------------------------------------------------------
@@ -469,8 +436,7 @@ class I2CDevice(Device):
                 self._running = True
                 self._next_due = self.clock()
         raw = (_int16(burst[0], burst[1]), _int16(burst[2], burst[3]), _int16(burst[4], burst[5]))
-        adjusted = tuple(float(r) * asa_gain(a) for r, a in zip(raw, self.asa))
-        result = SelfTestResult(raw=raw, adjusted=adjusted, st2=burst[6])  # type: ignore[arg-type]
+        result = SelfTestResult.from_registers(raw, self.asa, burst[6])
         self.counters["self_test_pass" if result.passed else "self_test_fail"] += 1
         return result
 

@@ -40,6 +40,7 @@ from ..protocol import (
     record_from_calibration,
 )
 from ..sample import Sample, counts_to_ut, temp_raw_to_c
+from ..selftest import SelfTestResult
 from .base import Device, Event, Identity, Item
 
 WHO_AM_I_MPU9150 = 0x68
@@ -348,6 +349,24 @@ class ProtocolDevice(Device):
         if rec.status != "OK" or record_crc(rec.values) != rec.crc:
             raise WriteRejected(f"{self.url}: device reports its stored record as {rec.status} after W")
         return calibration_from_record(rec.values)
+
+    def self_test(self) -> SelfTestResult:
+        """The AK8975 self-test on the board (``T``): the coil's raw reading, judged here
+        against the datasheet window with the ASA bytes of the board's hello."""
+        try:
+            ack = self.command("T")
+        except DeviceError as exc:
+            if "UNKNOWN" in str(exc):
+                raise DeviceError(f"{self.url}: this firmware has no self-test command (T); flash the current "
+                                  "sketch from firmware/") from None
+            raise
+        try:
+            raw, st2 = tuple(int(v) for v in ack.result[:3]), int(ack.result[3])
+        except (ValueError, IndexError):
+            raise DeviceError(f"{self.url}: malformed self-test reply {','.join(ack.result)!r}") from None
+        result = SelfTestResult.from_registers(raw, self.identity.asa if self.identity else (128, 128, 128), st2)
+        self.counters["self_test_pass" if result.passed else "self_test_fail"] += 1
+        return result
 
     def standalone_fit(self, n: int, naive: bool = False, timeout_s: float = 60.0) -> FitReply:
         """Ask the board to collect ``n`` samples and solve the sphere fit itself."""

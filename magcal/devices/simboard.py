@@ -355,6 +355,8 @@ class SimBoard:
         elif cmd == "Z":
             self._emit("A", tag, "Z")
             self._boot()
+        elif cmd == "T":  # the AK8975 self-test: the coil's reading from the physics, this chip's ASA
+            self._emit("A", tag, "T", *replace(self.scenario.physics, asa=self.asa).self_test_raw(), 0)
         elif cmd in ("F", "N"):
             n = int(args[0])
             if not 50 <= n <= 2000:
