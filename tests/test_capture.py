@@ -201,3 +201,12 @@ def test_numbers_beyond_int64_take_the_live_clients_path(tmp_path):
     s = load_series(p)
     ref = Series.from_samples(collect_samples(ProtocolDevice("r", BytesTransport([(0.0, data)]), passive=True)))
     assert len(s) == 52 and np.array_equal(s.t_s, ref.t_s) and np.array_equal(s.field_ut, ref.field_ut)
+
+
+def test_record_refused_before_reading_leaves_no_empty_capture(tmp_path, capsys):
+    from magcal.cli import main
+
+    out = tmp_path / "never.cap"
+    rc = main(["record", "--port", "sim://", "--dialect", "motioncal", "-o", str(out), "--count", "5"])
+    assert rc == 2 and "needs a serial port" in capsys.readouterr().err
+    assert not out.exists()

@@ -9,6 +9,8 @@ the live link saw. Stops after S seconds, N samples, the end of a finite source,
 
 from __future__ import annotations
 
+import contextlib
+import os
 import time
 
 from ..capture import CaptureWriteError, CaptureWriter, make_header
@@ -45,7 +47,13 @@ def run(args) -> int:
     samples = gaps = resets = 0
     stopped = "done"
     t0 = time.monotonic()
-    dev = open_device(args.port, dialect=args.dialect, tap=writer, **options)
+    try:
+        dev = open_device(args.port, dialect=args.dialect, tap=writer, **options)
+    except Exception:  # nothing was read: leave no empty capture behind
+        writer.close()
+        with contextlib.suppress(OSError):
+            os.remove(args.output)
+        raise
     try:
         ident = dev.open()
         dev.start(args.rate)
