@@ -34,6 +34,14 @@ def _events(items, kind):
     return [i for i in items if isinstance(i, Event) and i.kind == kind]
 
 
+def _read_until(dev, n, items, timeout_s=60.0):
+    """Read into ``items`` until it holds ``n`` samples (or the time is up)."""
+    deadline = time.monotonic() + timeout_s
+    while len(_samples(items)) < n and time.monotonic() < deadline:
+        items.extend(dev.read(0.2))
+    return items
+
+
 def _is_subsequence(small, big) -> bool:
     it = iter(big)
     return all(any(x == y for y in it) for x in small)
@@ -155,9 +163,7 @@ def test_overflow_is_flagged_in_st2_exactly_when_the_sensor_overflowed(tmp_path)
     with dev:
         dev.open()
         dev.start(100)
-        items = []
-        while len(_samples(items)) < 400:
-            items.extend(dev.read(0.2))
+        items = _read_until(dev, 400, [])
         dev.stop()
     samples = _samples(items)
     served = list(dev.board.served)[: len(samples)]
@@ -212,10 +218,7 @@ def test_the_firmware_finds_the_mpu_with_ad0_low_or_high(tmp_path, addr):
         ident = dev.open()
         assert (ident.who_am_i, ident.wia) == (0x68, 0x48)
         dev.start(100)
-        items = []
-        deadline = time.monotonic() + 30
-        while len(_samples(items)) < 50 and time.monotonic() < deadline:
-            items.extend(dev.read(0.2))
+        items = _read_until(dev, 50, [], timeout_s=30)
         dev.stop()
     samples = _samples(items)
     assert len(samples) >= 50 and all(s.valid for s in samples)
@@ -239,12 +242,9 @@ def test_the_firmware_self_test_reads_the_coil_and_streaming_goes_on(tmp_path):
     with dev:
         dev.open()
         dev.start(100)
-        items = []
-        while len(_samples(items)) < 100:
-            items.extend(dev.read(0.2))
+        items = _read_until(dev, 100, [])
         result = dev.self_test()
-        while len(_samples(items)) < 250:
-            items.extend(dev.read(0.2))
+        _read_until(dev, 250, items)
         dev.stop()
         items.extend(dev.read(0.3))
     assert result.passed and result.raw == healthy.physics.self_test_raw()
