@@ -59,7 +59,9 @@ def _estimator(t, m, wander_degree: int):
     e, jac = base.jacobian(m, {})
     d = m - base.offset_ut
     u = d / np.linalg.norm(d, axis=1, keepdims=True)
-    other = np.concatenate([jac, si.regressors(m, base.offset_ut), harmonics.regressors(u), wd.regressors(t, u, wander_degree)], axis=1)
+    other = np.concatenate(
+        [jac, si.regressors(m, base.offset_ut), harmonics.regressors(u), wd.regressors(t, u, wander_degree)], axis=1
+    )
     scale = np.sqrt(np.maximum((other * other).sum(axis=0), 1e-300))
     q, r = np.linalg.qr(other / scale)
     q = q[:, np.abs(np.diag(r)) > 1e-10 * np.max(np.abs(np.diag(r)))]

@@ -23,7 +23,8 @@ def add_arguments(p) -> None:
     p.add_argument("--port", required=True, help="device: i2c:1, /dev/ttyACM0, sim://, … (see magcal.devices)")
     p.add_argument("--dialect", default="native", choices=("native", "motioncal", "auto"))
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--self-test", action="store_true", help="also run the AK8975 self-test (i2c:, the magcal firmware, sim://, emu://)")
+    p.add_argument("--self-test", action="store_true",
+                   help="also run the AK8975 self-test (i2c:, the magcal firmware, sim://, emu://)")
 
 
 def _fmt_vec(v) -> str:

@@ -248,7 +248,8 @@ def open_emulated(url: str, dialect: str = "native", **opts):
         raise DeviceError(f"emu:// options faults and measure_us must be integers: {url!r}") from None
     addr_text = q.get("addr", "0x68").lower()
     if addr_text not in ("0x68", "0x69", "104", "105"):
-        raise DeviceError(f"emu:// option addr is the MPU-9150's I2C address, 0x68 (AD0 low) or 0x69 (AD0 high); got {addr_text!r}")
+        raise DeviceError("emu:// option addr is the MPU-9150's I2C address, 0x68 (AD0 low) or 0x69 "
+                          f"(AD0 high); got {addr_text!r}")
     mpu_addr = int(addr_text, 0)
     pace_opt = bool(opts.pop("pace", False))
     pace = q.get("pace", "0") not in ("0", "", "false", "no") or pace_opt
