@@ -1,4 +1,4 @@
-"""Captures (the raw bytes a device sent, with receive times), CSV in and out, and
+"""Captures (the raw bytes a device sent, with receive times), and
 ``load_series``: any recording file → ``Series``.
 
 Capture file format, version 1
@@ -32,18 +32,13 @@ further bytes are only counted. A failed write (disk full, I/O error) stops reco
 have already been handed to the caller — so what the device sent is never lost and the caller
 can keep streaming.
 
-CSV: a header row naming columns; ``mx,my,mz`` (µT) required, ``t`` (s) optional, every other
-numeric column kept as a channel (``temp_c``, ``current_a`` …; a ``valid`` column of 0/1 is the
-validity flag). ``save_csv`` writes ``t,mx,my,mz,temp_c`` then the other channels, with floats
-in shortest round-trip form so that loading the CSV again gives the same numbers bit for bit.
+Tables (magcal's CSV and other people's delimited text) are read by ``magcal.table``;
+``load_series`` tells the kinds of recording apart by their content.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import json
-import math
 import os
 import struct
 import time
@@ -53,13 +48,13 @@ from typing import Callable, Iterator
 import numpy as np
 
 from . import __version__
-from .atomic import write_atomic
 from .devices.transport import WrappedTransport
 from .errors import DeviceError, InputError, MagcalError
 from .protocol import CalibratedSample, Hello, RawSample, Restart
 from .protocol_bulk import Frames, parse_stream
 from .sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
 from .series import Series
+from .table import TableFormat, load_table, looks_like_table
 
 FORMAT = "magcal-capture"
 VERSION = 1
@@ -476,131 +471,11 @@ def _foreign_capture(reader: CaptureReader, dialect: str) -> Series:
     raise InputError(f"{reader.path} line 1: unknown capture dialect {dialect!r}")
 
 
-# -- CSV -----------------------------------------------------------------------------------
-REQUIRED = ("mx", "my", "mz")
-
-
-def _number(text: str) -> float | None:
-    try:
-        v = float(text)
-    except ValueError:
-        return None
-    return v
-
-
-def parse_csv(text: str, name: str = "<csv>") -> Series:
-    """CSV text → Series (see the module docstring). Lines starting with '#' and blank lines
-    are skipped; ``row`` is the 0-based data row counted from the line after the header."""
-    lines = text.splitlines()
-    hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
-    if hdr_i is None:
-        raise InputError(f"{name}: empty file (no header row)")
-    cols = [c.strip() for c in next(csv.reader([lines[hdr_i]]))]
-    missing = [c for c in REQUIRED if c not in cols]
-    if missing:
-        raise InputError(
-            f"{name} line {hdr_i + 1}: header row lacks column(s) {', '.join(missing)} "
-            f"(need mx,my,mz in µT; found {','.join(cols)})"
-        )
-    dup = sorted({c for c in cols if cols.count(c) > 1})
-    if dup:
-        raise InputError(f"{name} line {hdr_i + 1}: duplicate column(s) {', '.join(dup)}")
-    must = set(REQUIRED) | ({"t"} & set(cols))
-    data: dict[str, list] = {c: [] for c in cols}
-    rows: list[int] = []
-    first_line: dict[str, int] = {}
-    text_cols: set[str] = set()
-    for i in range(hdr_i + 1, len(lines)):
-        ln = lines[i]
-        if not ln.strip() or ln.lstrip().startswith("#"):
-            continue
-        cells = next(csv.reader([ln]))
-        if len(cells) != len(cols):
-            raise InputError(f"{name} line {i + 1}: {len(cells)} values, the header has {len(cols)}")
-        for c, cell in zip(cols, cells):
-            cell = cell.strip()
-            if c in text_cols:
-                continue
-            v = _number(cell) if cell else math.nan
-            if v is None or (c in must and not cell):
-                if c in must:
-                    problem = "is empty" if not cell else f"{cell!r} is not a number"
-                    raise InputError(f"{name} line {i + 1}: column {c!r}: {problem}")
-                if not data[c]:  # a text column: not a channel
-                    text_cols.add(c)
-                    continue
-                raise InputError(f"{name} line {i + 1}: column {c!r}: {cell!r} is not a number")
-            if c in must and not math.isfinite(v):
-                raise InputError(f"{name} line {i + 1}: column {c!r}: {cell!r} is not finite")
-            data[c].append(v)
-            first_line.setdefault(c, i + 1)
-        rows.append(i - hdr_i - 1)
-    if not rows:
-        raise InputError(f"{name}: no data rows after the header (line {hdr_i + 1})")
-    n = len(rows)
-    field = np.column_stack([np.array(data[c], np.float64) for c in REQUIRED])
-    t = np.array(data["t"], np.float64) if "t" in cols else np.arange(n, dtype=np.float64)
-    valid = None
-    channels = {}
-    for c in cols:
-        if c in must or c in text_cols or c in ("t",):
-            continue
-        arr = np.array(data[c], np.float64)
-        if len(arr) != n:  # became a text column late: cannot happen (raised above)
-            continue
-        if c == "valid":
-            valid = arr != 0
-            continue
-        channels[c] = arr
-    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=np.array(rows, np.int64))
-
-
-def load_csv(path) -> Series:
-    try:
-        with open(path, "r", encoding="utf-8-sig", newline="") as fh:
-            text = fh.read()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read as text: {getattr(exc, 'strerror', None) or exc}") from exc
-    return parse_csv(text, str(path))
-
-
-def _fmt(v: float) -> str:
-    return "" if v != v else repr(float(v))
-
-
-def save_csv(series: Series, path) -> None:
-    """Write ``t,mx,my,mz,temp_c`` (µT, °C), then the other channels, then ``valid`` when any
-    sample is flagged invalid. Floats in shortest round-trip form (``load_csv`` reads back the
-    same bits). Missing temperature → the column is left out."""
-    names = ["t", "mx", "my", "mz"]
-    cols = [series.t_s, series.field_ut[:, 0], series.field_ut[:, 1], series.field_ut[:, 2]]
-    ch = dict(series.channels)
-    if "temp_c" in ch:
-        names.append("temp_c")
-        cols.append(ch.pop("temp_c"))
-    for k in sorted(ch):
-        names.append(k)
-        cols.append(ch[k])
-    with_valid = not bool(np.all(series.valid))
-    buf = io.StringIO()
-    buf.write(",".join(names + (["valid"] if with_valid else [])) + "\n")
-    lists = [c.tolist() for c in cols]
-    vl = series.valid.tolist()
-    for i in range(len(series)):
-        row = [_fmt(c[i]) for c in lists]
-        if with_valid:
-            row.append("1" if vl[i] else "0")
-        buf.write(",".join(row) + "\n")
-    try:
-        write_atomic(path, buf.getvalue().encode("utf-8"))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
-
-
 # -- any recording -------------------------------------------------------------------------
-def load_series(path) -> Series:
-    """A capture, a CSV with a header row, a MotionCal log, or a raw protocol-v1 byte dump,
-    told apart by content. InputError (naming file, line and problem) for anything else."""
+def load_series(path, table: TableFormat | None = None) -> Series:
+    """A capture, a table (magcal's CSV or other delimited text, read as ``table`` says), a
+    MotionCal log, or a raw protocol-v1 byte dump, told apart by content. InputError (naming
+    file, line and problem) for anything else."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(MAX_HEADER)
@@ -608,12 +483,20 @@ def load_series(path) -> Series:
         raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from exc
     if not head.strip():
         raise InputError(f"{path}: empty file")
+    explicit = table is not None and table.explicit
+
+    def not_a_table(kind: str) -> None:
+        if explicit:
+            raise InputError(f"{path}: is {kind}, not a table; --columns, --unit and --time apply to tables")
+
     if is_capture(head):
+        not_a_table("a magcal capture")
         return load_capture(path)
     first = _first_lines(head)
     if first and "mx" in [c.strip() for c in first[0].split(",")]:
-        return load_csv(path)
+        return load_table(path, table)
     if sum(1 for ln in first if ln.startswith("$") and "*" in ln) > len(first) // 2:
+        not_a_table("a protocol v1 byte dump")
         with open(path, "rb") as fh:
             return _native_series(fh.read(), str(path))
     try:
@@ -622,13 +505,14 @@ def load_series(path) -> Series:
         motioncal = None
     # an Adafruit sketch prints ~30 banner lines (sensor details) before its first Raw: line
     if motioncal is not None and motioncal.looks_like_motioncal(_first_lines(head, 200)):
+        not_a_table("a MotionCal log")
         return motioncal.load_log(path)
-    if "," in (first[0] if first else ""):
-        return load_csv(path)  # names the missing columns
+    if explicit or (first and looks_like_table(first[0])):
+        return load_table(path, table)  # names the missing columns when it cannot find them
     hint = "" if motioncal is not None else "; MotionCal logs need magcal.motioncal"
     raise InputError(
-        f"{path} line 1: not a recording magcal reads (a capture, a CSV with a header row "
-        f"mx,my,mz in µT, a MotionCal Raw:/Uni: log, or protocol v1 lines){hint}"
+        f"{path} line 1: not a recording magcal reads (a capture, a table with mx,my,mz columns "
+        f"or named by --columns, a MotionCal Raw:/Uni: log, or protocol v1 lines){hint}"
     )
 
 

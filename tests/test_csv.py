@@ -6,7 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from magcal.capture import load_csv, load_series, parse_csv, save_csv
+from magcal.capture import load_series
+from magcal.table import load_csv, parse_csv, save_csv
 from magcal.cli import main
 from magcal.errors import InputError
 from magcal.series import Series

@@ -10,7 +10,7 @@ from contextlib import redirect_stdout
 import numpy as np
 import pytest
 
-from magcal.capture import save_csv
+from magcal.table import save_csv
 from magcal.cli import main
 from magcal.diagnose import diagnose
 from magcal.physics import Current, Motion, Physics, Scenario, Temperature

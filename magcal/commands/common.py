@@ -43,6 +43,45 @@ def open_from_settings(settings, **options):
     return open_device(settings.port, dialect=settings.dialect, **kw)
 
 
+def add_table_options(p) -> None:
+    """How to read a recording that is someone else's table (CSV, tab- or space-separated)."""
+    g = p.add_argument_group("reading a table", "for CSV or other delimited text that is not magcal's own")
+    g.add_argument("--columns", metavar="X,Y,Z",
+                   help="the magnetometer columns: header names or 1-based positions (default: mx,my,mz, "
+                   "else mag_x… or magX… style names)")
+    g.add_argument("--unit", metavar="UNIT",
+                   help="unit of those columns: uT, nT, mG, gauss, tesla, or the µT of one count "
+                   "(default: from the column names, else µT)")
+    g.add_argument("--time", metavar="COLUMN", help="the time column, name or 1-based position (default: t, time …)")
+    g.add_argument("--time-unit", choices=("s", "ms", "us"),
+                   help="unit of the time column (default: from its name, else s)")
+    g.add_argument("--delimiter", metavar="C",
+                   help="column separator (default: found from the first line; 'tab' or 'space' for those)")
+
+
+def table_format(args):
+    """The TableFormat the table options ask for (all None when none were given)."""
+    from ..table import TableFormat
+
+    columns = None
+    if args.columns is not None:
+        columns = tuple(c.strip() for c in args.columns.split(","))
+    delimiter = {"tab": "\t", "space": " "}.get(args.delimiter, args.delimiter)
+    return TableFormat(columns=columns, unit=args.unit, time=args.time,
+                       time_unit=args.time_unit, delimiter=delimiter)
+
+
+def field_warning(field_ut: float) -> list[str]:
+    """Warn (on stderr, and as a list for JSON) when a fitted field is no Earth field."""
+    from ..table import plausible_field
+
+    w = plausible_field(field_ut)
+    if w is None:
+        return []
+    print(f"magcal: warning: {w}", file=sys.stderr)
+    return [w]
+
+
 def print_json(obj) -> None:
     json.dump(obj, sys.stdout, indent=2, allow_nan=False, default=_default)
     sys.stdout.write("\n")

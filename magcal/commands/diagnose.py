@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import InputError
+from .common import add_table_options, field_warning, table_format
 
 HELP = "find what a sphere calibration leaves out of a recording, model it, show held-out gain"
 
@@ -20,6 +21,7 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--report", metavar="DIR", help="write the evidence as PNG pictures and an HTML page into DIR")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default 0.01)")
+    add_table_options(p)
 
 
 def format_text(d: dict) -> str:
@@ -52,9 +54,10 @@ def run(args) -> int:
 
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha must be between 0 and 1, got {args.alpha}")
-    series = load_series(args.file)
+    series = load_series(args.file, table_format(args))
     diagnosis = diagnose(series, alpha=args.alpha)
     d = diagnosis.to_dict()
+    d["warnings"] = field_warning(d["calibration"]["field_ut"])
     if args.report:
         from ..diagnose.report import write_report
 

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import os
 
-from ..capture import load_series, save_csv
+from ..capture import load_series
+from ..table import save_csv
 from ..errors import InputError
-from .common import print_json
+from .common import add_table_options, print_json, table_format
 
 HELP = "export a recording as CSV (t, mx, my, mz in µT, temp_c, other channels)"
 
@@ -19,13 +20,14 @@ def add_arguments(p) -> None:
     p.add_argument("--csv", action="store_true", required=True, help="write CSV (the one export format)")
     p.add_argument("-o", "--output", metavar="OUT", help="output file (default FILE.csv)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    add_table_options(p)
 
 
 def run(args) -> int:
     out = args.output or (os.path.splitext(args.file)[0] + ".csv")
     if os.path.exists(out) and os.path.samefile(out, args.file):
         raise InputError(f"{out}: refusing to overwrite the input; give -o OUT")
-    series = load_series(args.file)
+    series = load_series(args.file, table_format(args))
     save_csv(series, out)
     summary = {
         "file": args.file,

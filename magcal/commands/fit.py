@@ -1,10 +1,12 @@
 """``magcal fit FILE --model sphere|ellipsoid|auto [--json]``: fit a calibration to a recording.
 
-FILE is a capture or a CSV (``mx,my,mz`` µT required, ``t`` optional). The JSON object::
+FILE is a capture, a MotionCal log, or a table: magcal's CSV (``mx,my,mz`` µT, ``t`` s) or
+another delimited file read with ``--columns/--unit/--time`` (``magcal.table``). The JSON object::
 
     {"model": ..., "calibration": {"offset_ut": [3], "field_ut": r, "soft_iron": [[3×3]]},
      "uncertainty": {"offset_ut": [3], "field_ut": σ, "soft_iron": [[3×3]], "autocorrelation_factor": f},
-     "rms_ut": ..., "n_used": ..., "outliers": [indices into FILE's samples], ...}
+     "rms_ut": ..., "n_used": ..., "outliers": [indices into FILE's samples],
+     "warnings": [sentences, e.g. a field no Earth field could be: a file in another unit], ...}
 
 where a calibrated sample is ``soft_iron @ (m − offset_ut)``. Exit code 0 on a fit, 1 when the
 data cannot support any model (the reason is printed), 2 when FILE cannot be read.
@@ -13,6 +15,8 @@ data cannot support any model (the reason is printed), 2 when FILE cannot be rea
 from __future__ import annotations
 
 import sys
+
+from .common import add_table_options, field_warning, table_format
 
 HELP = "fit a sphere or ellipsoid calibration to a recording (capture or CSV)"
 
@@ -28,6 +32,7 @@ def add_arguments(p) -> None:
     p.add_argument("--noise-ut", type=float, default=None,
                    help="noise σ per axis in µT for the Cramér–Rao bound (default: from the residuals)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    add_table_options(p)
 
 
 def format_text(d: dict) -> str:
@@ -60,7 +65,7 @@ def run(args) -> int:
 
     if args.noise_ut is not None and not args.noise_ut > 0:
         raise InputError(f"--noise-ut must be positive, got {args.noise_ut}")
-    series = load_series(args.file)
+    series = load_series(args.file, table_format(args))
     if len(series) == 0:
         raise InputError(f"{args.file}: no samples")
     result = fit(
@@ -74,6 +79,7 @@ def run(args) -> int:
         print(f"magcal fit: {result.reason}: {result.message}", file=sys.stderr)
         return 1
     d = result.to_dict()
+    d["warnings"] = field_warning(d["calibration"]["field_ut"])
     if args.json:
         from .common import print_json
 

@@ -11,7 +11,7 @@ import json
 
 import numpy as np
 
-from ..capture import save_csv
+from ..table import save_csv
 from ..errors import InputError
 from ..physics import Current, Motion, Physics, Scenario, Temperature
 from .common import add_json_option, print_json

@@ -1,0 +1,148 @@
+"""Other people's tables: the column names, units, layouts and separators found in the wild,
+and what a user sees when a file cannot be read as asked."""
+
+import json
+
+import numpy as np
+import pytest
+
+from magcal.capture import load_series
+from magcal.cli import main
+from magcal.errors import InputError
+from magcal.table import TableFormat, parse_table, plausible_field
+
+
+def sphere_ut(n=600, offset=(12.0, -30.0, 7.0), field=48.0, seed=3):
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return np.asarray(offset) + field * u + rng.normal(scale=0.2, size=(n, 3))
+
+
+@pytest.mark.parametrize(
+    "header, scale",
+    [
+        ("mag_x,mag_y,mag_z", 1.0),
+        ("MagX,MagY,MagZ", 1.0),
+        ("mag_x_ut,mag_y_ut,mag_z_ut", 1.0),
+        ("mx_gauss,my_gauss,mz_gauss", 100.0),
+        ("Mag_X [mG],Mag_Y [mG],Mag_Z [mG]", 0.1),
+        ("magnetometer.x (nT),magnetometer.y (nT),magnetometer.z (nT)", 1e-3),
+    ],
+)
+def test_common_column_names_and_their_units_are_found(header, scale):
+    s = parse_table(f"time,{header},acc_x\n0.5,1,2,3,0.1\n1.0,4,5,6,0.2\n", "log.csv")
+    assert np.allclose(s.field_ut, scale * np.array([[1, 2, 3], [4, 5, 6]]))
+    assert s.t_s.tolist() == [0.5, 1.0]
+    assert list(s.channels) == ["acc_x"]
+
+
+def test_bare_xyz_is_not_taken_for_a_magnetometer():
+    with pytest.raises(InputError, match="--columns"):
+        parse_table("x,y,z\n1,2,3\n", "acc.csv")
+
+
+def test_two_magnetometer_triples_must_be_chosen_between():
+    text = "mag_x,mag_y,mag_z,compass_x,compass_y,compass_z\n1,2,3,4,5,6\n"
+    with pytest.raises(InputError, match="more than one magnetometer triple"):
+        parse_table(text, "two.csv")
+    s = parse_table(text, "two.csv", TableFormat(columns=("compass_x", "compass_y", "compass_z")))
+    assert s.field_ut.tolist() == [[4, 5, 6]]
+    assert sorted(s.channels) == ["mag_x", "mag_y", "mag_z"]
+
+
+def test_a_headerless_logger_dump_read_by_position():
+    # the layout of a board printing gyro, accel, mag (gauss), time (ms), … with a nan column
+    rows = ["0.01, 0.02, 0.03, 0.1, 0.2, 9.8, 0.25, -0.125, 0.5, 1000.0, nan",
+            "0.01, 0.02, 0.03, 0.1, 0.2, 9.8, 0.26, -0.125, 0.5, 1020.0, 0.3"]
+    text = "\n".join(rows) + "\n"
+    with pytest.raises(InputError, match=r"first line is numbers, not a header.*--columns"):
+        parse_table(text, "putty.log")
+    fmt = TableFormat(columns=("7", "8", "9"), unit="gauss", time="10", time_unit="ms")
+    s = parse_table(text, "putty.log", fmt)
+    assert np.allclose(s.field_ut, [[25.0, -12.5, 50.0], [26.0, -12.5, 50.0]])
+    assert np.allclose(s.t_s, [1.0, 1.02])
+    assert s.row.tolist() == [0, 1]  # no header: the first line is data row 0
+    assert np.isnan(s.channels["col11"][0]) and s.channels["col11"][1] == 0.3
+    assert "col7" not in s.channels and "col10" not in s.channels
+
+
+@pytest.mark.parametrize("sep", [" ", "  ", "\t", ";"])
+def test_three_bare_columns_are_x_y_z_whatever_the_separator(sep):
+    # Magneto's input: three numbers per line, no header
+    s = parse_table(sep.join(["1.5", "-2", "3e1"]) + "\n" + sep.join(["4", "5", "6"]) + "\n", "m.txt")
+    assert s.field_ut.tolist() == [[1.5, -2.0, 30.0], [4.0, 5.0, 6.0]]
+
+
+@pytest.mark.parametrize(
+    "fmt, message",
+    [
+        (dict(columns=("mag_x", "mag_y")), "three columns"),
+        (dict(columns=("mag_x", "mag_y", "mag_w")), "no magnetometer column 'mag_w'"),
+        (dict(columns=("1", "2", "9")), "column 9 does not exist"),
+        (dict(unit="furlongs"), "unknown field unit 'furlongs'"),
+        (dict(unit="-0.3"), "positive"),
+        (dict(time="clock"), "no time column 'clock'"),
+        (dict(columns=("1", "2", "3"), time="3"), "different columns"),
+        (dict(delimiter="::"), "one character"),
+    ],
+)
+def test_asking_for_what_the_table_does_not_have_names_the_problem(fmt, message):
+    with pytest.raises(InputError, match=message):
+        parse_table("mag_x,mag_y,mag_z,t\n1,2,3,0\n", "rec.csv", TableFormat(**fmt))
+
+
+def test_known_channels_are_taken_in_any_case():
+    s = parse_table("t,mx,my,mz,Temp_C,current_A\n0,1,2,3,20,1.5\n", "r.csv")
+    assert s.channels["temp_c"].tolist() == [20.0] and s.channels["current_a"].tolist() == [1.5]
+
+
+def test_plausible_field_names_the_unit_that_would_fit():
+    assert plausible_field(48.0) is None
+    assert "gauss" in plausible_field(0.48) and "48.0 µT" in plausible_field(0.48)
+    assert "mG" in plausible_field(480.0)
+    assert "nT" in plausible_field(48000.0)
+    assert "raw counts" in plausible_field(1730.0)
+
+
+def test_fit_warns_when_the_file_is_not_in_microtesla_and_reads_it_when_told(tmp_path, capsys):
+    m_gauss = sphere_ut() / 100.0
+    p = tmp_path / "gauss.csv"
+    p.write_text("mag_x,mag_y,mag_z\n" + "\n".join(",".join(f"{v:.7f}" for v in r) for r in m_gauss) + "\n")
+    assert main(["fit", str(p), "--model", "sphere", "--json"]) == 0
+    out, err = capsys.readouterr()
+    d = json.loads(out)
+    assert d["calibration"]["field_ut"] == pytest.approx(0.48, rel=0.01)
+    assert len(d["warnings"]) == 1 and "--unit gauss" in d["warnings"][0]
+    assert "--unit gauss" in err
+    assert main(["fit", str(p), "--model", "sphere", "--json", "--unit", "gauss"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["calibration"]["field_ut"] == pytest.approx(48.0, rel=0.01)
+    assert d["calibration"]["offset_ut"] == pytest.approx([12.0, -30.0, 7.0], abs=0.1)
+    assert d["warnings"] == []
+
+
+def test_diagnose_and_export_take_the_same_table_options(tmp_path, capsys):
+    m = sphere_ut(n=1200)
+    p = tmp_path / "log.txt"
+    p.write_text("\n".join(f"{i * 20} {r[0] / 100:.7f} {r[1] / 100:.7f} {r[2] / 100:.7f} 21.5"
+                           for i, r in enumerate(m)) + "\n")
+    opts = ["--columns", "2,3,4", "--unit", "gauss", "--time", "1", "--time-unit", "ms"]
+    assert main(["diagnose", str(p), "--json", *opts]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["n_samples"] == 1200 and d["warnings"] == []
+    assert d["calibration"]["field_ut"] == pytest.approx(48.0, rel=0.01)
+    out = tmp_path / "log.csv"
+    assert main(["export", str(p), "--csv", "-o", str(out), "--json", *opts]) == 0
+    back = load_series(out)
+    assert np.allclose(back.field_ut, m, atol=1e-5)
+    assert back.t_s[1] == pytest.approx(0.02)
+    assert back.channels["col5"][0] == 21.5
+
+
+def test_table_options_on_a_capture_are_refused(tmp_path, capsys):
+    cap = tmp_path / "run.cap"
+    assert main(["record", "--port", "sim://?seed=1", "-o", str(cap), "--count", "20"]) == 0
+    capsys.readouterr()
+    assert main(["fit", str(cap), "--unit", "gauss"]) == 2
+    assert "not a table" in capsys.readouterr().err
