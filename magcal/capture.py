@@ -493,7 +493,7 @@ def load_series(path, table: TableFormat | None = None) -> Series:
         not_a_table("a magcal capture")
         return load_capture(path)
     first = _first_lines(head)
-    if first and "mx" in [c.strip() for c in first[0].split(",")]:
+    if any("mx" in [c.strip() for c in ln.split(",")] for ln in first[:5]):
         return load_table(path, table)
     if sum(1 for ln in first if ln.startswith("$") and "*" in ln) > len(first) // 2:
         not_a_table("a protocol v1 byte dump")
@@ -507,7 +507,7 @@ def load_series(path, table: TableFormat | None = None) -> Series:
     if motioncal is not None and motioncal.looks_like_motioncal(_first_lines(head, 200)):
         not_a_table("a MotionCal log")
         return motioncal.load_log(path)
-    if explicit or (first and looks_like_table(first[0])):
+    if explicit or looks_like_table(first):
         return load_table(path, table)  # names the missing columns when it cannot find them
     hint = "" if motioncal is not None else "; MotionCal logs need magcal.motioncal"
     raise InputError(

@@ -9,10 +9,12 @@ the other channels, floats in shortest round-trip form, so loading it again give
 Other people's tables are read with a ``TableFormat``:
 
 * the delimiter is found from the first data line (comma, tab, semicolon, else white space);
-* a first line that is all numbers is data, not a header; its columns are named ``col1`` …;
+* lines before the table that have fewer columns (``Fs,50.00``) are a preamble and skipped;
+* a first line that is all numbers is data, not a header; its columns are named ``col1`` …
+  (so is a column whose header cell is empty);
 * the magnetometer columns: ``columns`` (three header names or 1-based positions), else
   ``mx,my,mz``, else one unambiguous triple of common names — ``mag_x``, ``magX``, ``m_x``,
-  ``mag.x``, ``magnetometer_x``, ``compass_x`` … (case-insensitive), possibly with a unit suffix
+  ``mag.x``, ``magnetometer_x``, ``compass_x``, ``imu_mx`` … (case-insensitive), possibly with a unit suffix
   (``mag_x_ut``, ``mx_gauss``, ``mag_x [mG]``). Bare ``x,y,z`` are not taken (they could be an
   accelerometer);
 * the unit: ``unit`` (a name, or the µT of one unit of the file), else the suffix of the column
@@ -52,10 +54,10 @@ UNITS_UT = {
     "t": 1e6, "tesla": 1e6,
 }
 TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
-_TIME_NAMES = {"t": "s", "t_s": "s", "time": "s", "time_s": "s", "timestamp": "s",
+_TIME_NAMES = {"t": "s", "t_s": "s", "time": "s", "time_s": "s", "timestamp": "s", "unix_time": "s",
                "t_ms": "ms", "time_ms": "ms", "timestamp_ms": "ms", "t_us": "us", "time_us": "us"}
 _MAG_NAME = re.compile(
-    r"^(?P<stem>m|mag|magn|magnet|magnetometer|compass|b|h)[ _.\-]?(?P<axis>[xyz])"
+    r"^(?P<prefix>[a-z0-9]+[ _.\-])??(?P<stem>m|mag|magn|magnet|magnetometer|compass|b|h)[ _.\-]?(?P<axis>[xyz])"
     r"(?:[ _.\-]*[\[(]?(?P<unit>[a-zµμ]+)[\])]?)?$",
     re.IGNORECASE,
 )
@@ -164,11 +166,11 @@ def _find_mag(cols: list[str], fmt: TableFormat, name: str, line_no: int) -> tup
     for i, c in enumerate(cols):
         m = _MAG_NAME.match(c.strip())
         if m and (m["unit"] is None or m["unit"].lower() in UNITS_UT):
-            key = (m["stem"].lower(), (m["unit"] or "").lower())
+            key = ((m["prefix"] or "").lower(), m["stem"].lower(), (m["unit"] or "").lower())
             triples.setdefault(key, {})[m["axis"].lower()] = i
     whole = {k: v for k, v in triples.items() if len(v) == 3}
     if len(whole) == 1:
-        (stem, unit), axes = next(iter(whole.items()))
+        (_, _, unit), axes = next(iter(whole.items()))
         return [axes["x"], axes["y"], axes["z"]], (UNITS_UT[unit] if unit else None)
     if len(whole) > 1:
         names = "; ".join(",".join(cols[i] for i in (v["x"], v["y"], v["z"])) for v in whole.values())
@@ -189,9 +191,31 @@ def _find_mag(cols: list[str], fmt: TableFormat, name: str, line_no: int) -> tup
     )
 
 
-def looks_like_table(line: str) -> bool:
-    """Does this first line split into at least three columns?"""
-    return len(_split(line, _sniff(line))) >= 3
+def _width(line: str, delimiter: str | None) -> int:
+    return len(_split(line, delimiter))
+
+
+def header_index(lines: list[str], delimiter: str | None = None, look: int = 20) -> int | None:
+    """Index of the table's first line (its header, or its first data row) in ``lines``: the
+    first non-comment line that has at least three columns and as many as the line after it.
+    Lines before it are a preamble (``Fs,50.00``, ``Initialization time,60`` …) and are skipped.
+    Falls back to the first non-comment line; None for an empty text."""
+    idx = [i for i, ln in enumerate(lines[: 4 * look]) if ln.strip() and not ln.lstrip().startswith("#")][:look]
+    if not idx:
+        rest = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
+        return rest
+    for a, b in zip(idx, idx[1:]):
+        d = delimiter if delimiter is not None else _sniff(lines[b])
+        wa = _width(lines[a], d)
+        if wa >= 3 and wa == _width(lines[b], d):
+            return a
+    return idx[0]
+
+
+def looks_like_table(lines: list[str]) -> bool:
+    """Do these first lines hold a table of at least three columns?"""
+    i = header_index(lines)
+    return i is not None and _width(lines[i], _sniff(lines[i])) >= 3
 
 
 def _find_time(cols: list[str], fmt: TableFormat, name: str) -> tuple[int | None, float]:
@@ -208,7 +232,7 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
     """Delimited text → Series (see the module docstring)."""
     fmt = fmt or TableFormat()
     lines = text.splitlines()
-    first = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
+    first = header_index(lines, fmt.delimiter)
     if first is None:
         raise InputError(f"{name}: empty file (no header row)")
     delimiter = fmt.delimiter if fmt.delimiter is not None else _sniff(lines[first])
@@ -217,7 +241,7 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
     cells = _split(lines[first], delimiter)
     has_header = any(_number(c) is None for c in cells)
     if has_header:
-        cols = cells
+        cols = [c if c else f"col{k + 1}" for k, c in enumerate(cells)]  # unnamed columns
         hdr_i = first
     else:
         cols = [f"col{k + 1}" for k in range(len(cells))]

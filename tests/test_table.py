@@ -146,3 +146,20 @@ def test_table_options_on_a_capture_are_refused(tmp_path, capsys):
     capsys.readouterr()
     assert main(["fit", str(cap), "--unit", "gauss"]) == 2
     assert "not a table" in capsys.readouterr().err
+
+
+def test_a_preamble_before_the_header_is_skipped():
+    # a logger that writes its sample rate and settings before the column names
+    s = parse_table("Fs,50.00\nInitialization time,60\nmx,my,mz\n6202,682,4812\n6177,682,4827\n", "q.csv")
+    assert s.field_ut.tolist() == [[6202, 682, 4812], [6177, 682, 4827]]
+    assert s.row.tolist() == [0, 1]
+
+
+def test_prefixed_names_and_unnamed_columns():
+    text = "unix_time,imu_mx,imu_my,imu_mz,imu_T,,\n1,55,1,-153,12.1,2,90\n2,64,-2,-155,11.9,3,91\n"
+    s = parse_table(text, "board.csv")
+    assert s.field_ut.tolist() == [[55, 1, -153], [64, -2, -155]]
+    assert sorted(s.channels) == ["col6", "col7", "imu_T"] and s.t_s.tolist() == [1.0, 2.0]
+    both = "imu_mx,imu_my,imu_mz,pni_mx,pni_my,pni_mz\n1,2,3,4,5,6\n"
+    with pytest.raises(InputError, match="imu_mx,imu_my,imu_mz; pni_mx,pni_my,pni_mz"):
+        parse_table(both, "board.csv")
