@@ -9,7 +9,8 @@ the other channels, floats in shortest round-trip form, so loading it again give
 Other people's tables are read with a ``TableFormat``:
 
 * the delimiter is found from the first data line (comma, tab, semicolon, else white space);
-* lines before the table that have fewer columns (``Fs,50.00``) are a preamble and skipped;
+* lines before the table that have fewer columns (``Fs,50.00``) are a preamble and skipped; a
+  row of units under the header (``s,uT,uT,uT``) gives the units and is not data;
 * a first line that is all numbers is data, not a header; its columns are named ``col1`` …
   (so is a column whose header cell is empty);
 * the magnetometer columns: ``columns`` (three header names or 1-based positions), else
@@ -228,6 +229,19 @@ def _find_time(cols: list[str], fmt: TableFormat, name: str) -> tuple[int | None
     return None, 1.0
 
 
+def _units_row(lines: list[str], hdr_i: int, delimiter: str | None, ncol: int):
+    """(index, cells) of a row of units right under the header (``s,uT,uT,uT``), or None."""
+    for i in range(hdr_i + 1, min(len(lines), hdr_i + 20)):
+        ln = lines[i]
+        if not ln.strip() or ln.lstrip().startswith("#"):
+            continue
+        cells = _split(ln, delimiter)
+        if len(cells) == ncol and all(c and _number(c) is None for c in cells):
+            return i, cells
+        return None
+    return None
+
+
 def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None) -> Series:
     """Delimited text → Series (see the module docstring)."""
     fmt = fmt or TableFormat()
@@ -254,6 +268,15 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
             raise InputError(f"{name} line {hdr_i + 1}: duplicate column(s) {', '.join(dup)}")
     if len(set(mag)) != 3 or (t_col is not None and t_col in mag):
         raise InputError(f"{name}: the magnetometer and time columns must be different columns")
+    units_row = _units_row(lines, hdr_i, delimiter, len(cols)) if has_header else None
+    if units_row is not None:
+        hdr_i, unit_cells = units_row
+        said = {unit_cells[k].strip("[]() ").lower() for k in mag}
+        if named_unit is None and len(said) == 1 and next(iter(said)) in UNITS_UT:
+            named_unit = UNITS_UT[next(iter(said))]
+        t_unit = unit_cells[t_col].strip("[]() ").lower() if t_col is not None else ""
+        if fmt.time_unit is None and t_unit in TIME_UNITS_S:
+            t_scale = TIME_UNITS_S[t_unit]
     scale = unit_scale(fmt.unit) if fmt.unit is not None else (named_unit or 1.0)
     must = set(mag) | ({t_col} if t_col is not None else set())
     ncol = len(cols)

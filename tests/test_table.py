@@ -163,3 +163,10 @@ def test_prefixed_names_and_unnamed_columns():
     both = "imu_mx,imu_my,imu_mz,pni_mx,pni_my,pni_mz\n1,2,3,4,5,6\n"
     with pytest.raises(InputError, match="imu_mx,imu_my,imu_mz; pni_mx,pni_my,pni_mz"):
         parse_table(both, "board.csv")
+
+
+def test_a_row_of_units_under_the_header_gives_the_units():
+    s = parse_table("time,Bx,By,Bz,temp\nms,mG,mG,mG,degC\n0,100,200,300,21\n20,110,210,310,21\n", "u.csv")
+    assert np.allclose(s.field_ut, [[10, 20, 30], [11, 21, 31]])
+    assert np.allclose(s.t_s, [0.0, 0.02])
+    assert s.row.tolist() == [0, 1] and s.channels["temp"].tolist() == [21, 21]
