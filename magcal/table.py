@@ -23,7 +23,11 @@ Other people's tables are read with a ``TableFormat``:
   fit say so (``plausible_field``), the reader cannot know the field;
 * the time column: ``time`` (name or position, with ``time_unit``), else ``t``, ``t_s``,
   ``time``, ``time_s``, ``timestamp`` (s), ``t_ms``, ``time_ms`` (ms), ``t_us``, ``time_us`` (µs);
-  without one, the sample index.
+  without one, the sample index;
+* every other numeric column is a channel (a candidate covariate for diagnosis), except a
+  second magnetometer's (it measures the same field); ``channels`` keeps only the ones named;
+* ``temp`` and ``current`` name the columns diagnosis should take as the die temperature (°C)
+  and the interfering current (A); they are read as ``temp_c`` and ``current_a``.
 
 Every problem is an ``InputError`` naming the file, the line and what is wrong. ``row`` is the
 0-based data row counted from the line after the header (from the first line when there is no
@@ -74,12 +78,16 @@ class TableFormat:
     columns: tuple | None = None  # three header names or 1-based positions (as text)
     unit: str | None = None  # a name in UNITS_UT or the µT of one unit, as text
     time: str | None = None  # header name or 1-based position
+    channels: tuple | None = None  # the columns kept as channels (names or positions); None: all numeric
+    temp: str | None = None  # the die temperature (°C) column, read as temp_c
+    current: str | None = None  # the interfering current (A) column, read as current_a
     time_unit: str | None = None  # s, ms or us; None: from the time column's name, else s
     delimiter: str | None = None  # one character; None: found from the first line
 
     @property
     def explicit(self) -> bool:
-        return any(v is not None for v in (self.columns, self.unit, self.time, self.time_unit, self.delimiter))
+        return any(v is not None for v in (self.columns, self.unit, self.time, self.time_unit, self.delimiter,
+                                           self.channels, self.temp, self.current))
 
     def __post_init__(self):
         if self.columns is not None and len(self.columns) != 3:
@@ -156,6 +164,17 @@ def _position(spec: str, cols: list[str], name: str, what: str) -> int:
     raise InputError(f"{name}: no {what} column {spec!r} (columns: {','.join(cols)})")
 
 
+def _mag_triples(cols: list[str]) -> dict[tuple, dict]:
+    """Every whole x/y/z triple of magnetometer-like names: (prefix, stem, unit) → {axis: position}."""
+    triples: dict[tuple, dict] = {}
+    for i, c in enumerate(cols):
+        m = _MAG_NAME.match(c.strip())
+        if m and (m["unit"] is None or m["unit"].lower() in UNITS_UT):
+            key = ((m["prefix"] or "").lower(), m["stem"].lower(), (m["unit"] or "").lower())
+            triples.setdefault(key, {})[m["axis"].lower()] = i
+    return {k: v for k, v in triples.items() if len(v) == 3}
+
+
 def _find_mag(cols: list[str], fmt: TableFormat, name: str, line_no: int) -> tuple[list[int], float | None]:
     """Positions of x, y, z and the unit their names carry (None: not said)."""
     if fmt.columns is not None:
@@ -163,13 +182,7 @@ def _find_mag(cols: list[str], fmt: TableFormat, name: str, line_no: int) -> tup
         return pos, None
     if all(c in cols for c in NATIVE):
         return [cols.index(c) for c in NATIVE], UNITS_UT["ut"]
-    triples: dict[tuple, dict] = {}
-    for i, c in enumerate(cols):
-        m = _MAG_NAME.match(c.strip())
-        if m and (m["unit"] is None or m["unit"].lower() in UNITS_UT):
-            key = ((m["prefix"] or "").lower(), m["stem"].lower(), (m["unit"] or "").lower())
-            triples.setdefault(key, {})[m["axis"].lower()] = i
-    whole = {k: v for k, v in triples.items() if len(v) == 3}
+    whole = _mag_triples(cols)
     if len(whole) == 1:
         (_, _, unit), axes = next(iter(whole.items()))
         return [axes["x"], axes["y"], axes["z"]], (UNITS_UT[unit] if unit else None)
@@ -279,6 +292,20 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
             t_scale = TIME_UNITS_S[t_unit]
     scale = unit_scale(fmt.unit) if fmt.unit is not None else (named_unit or 1.0)
     must = set(mag) | ({t_col} if t_col is not None else set())
+    # another magnetometer in the same table measures the same field: it is not a covariate
+    other_mags = {i for tri in _mag_triples(cols).values() for i in tri.values()} - set(mag)
+    if all(c in cols for c in NATIVE):
+        other_mags |= {cols.index(c) for c in NATIVE} - set(mag)
+    wanted = None
+    if fmt.channels is not None:
+        wanted = {_position(c, cols, name, "channel") for c in fmt.channels if c.strip()}
+    renamed = {}
+    for spec, as_name in ((fmt.temp, "temp_c"), (fmt.current, "current_a")):
+        if spec is not None:
+            k = _position(spec, cols, name, as_name)
+            if k in must or k in renamed:
+                raise InputError(f"{name}: column {cols[k]!r} cannot be both {as_name} and another column")
+            renamed[k] = as_name
     ncol = len(cols)
     data: list[list[float]] = [[] for _ in range(ncol)]
     text_cols: set[int] = set()
@@ -309,6 +336,9 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
         rows.append(i - hdr_i - 1)
     if not rows:
         raise InputError(f"{name}: no data rows after the header (line {hdr_i + 1})")
+    for k, as_name in renamed.items():
+        if k in text_cols:
+            raise InputError(f"{name}: column {cols[k]!r}, to be read as {as_name}, holds text, not numbers")
     n = len(rows)
     field = scale * np.column_stack([np.array(data[k], np.float64) for k in mag])
     t = t_scale * np.array(data[t_col], np.float64) if t_col is not None else np.arange(n, dtype=np.float64)
@@ -321,7 +351,14 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
         if c == "valid":
             valid = arr != 0
             continue
+        if k in renamed:
+            channels[renamed[k]] = arr
+            continue
+        if (wanted is not None and k not in wanted) or (wanted is None and k in other_mags):
+            continue
         known = c.lower() if c.lower() in KNOWN_CHANNELS and c.lower() not in cols else c
+        if known in renamed.values():
+            continue  # the column given by --temp/--current takes the name
         channels[known] = arr
     return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=np.array(rows, np.int64))
 

@@ -48,7 +48,7 @@ def test_two_magnetometer_triples_must_be_chosen_between():
         parse_table(text, "two.csv")
     s = parse_table(text, "two.csv", TableFormat(columns=("compass_x", "compass_y", "compass_z")))
     assert s.field_ut.tolist() == [[4, 5, 6]]
-    assert sorted(s.channels) == ["mag_x", "mag_y", "mag_z"]
+    assert s.channels == {}  # the other magnetometer measures the same field: not a covariate
 
 
 def test_a_headerless_logger_dump_read_by_position():
@@ -170,3 +170,36 @@ def test_a_row_of_units_under_the_header_gives_the_units():
     assert np.allclose(s.field_ut, [[10, 20, 30], [11, 21, 31]])
     assert np.allclose(s.t_s, [0.0, 0.02])
     assert s.row.tolist() == [0, 1] and s.channels["temp"].tolist() == [21, 21]
+
+
+def test_temperature_and_current_columns_can_be_named_for_diagnosis():
+    text = "t,mag_x,mag_y,mag_z,imu_T,I_motor,temp_c\n0,1,2,3,21.5,0.5,99\n1,1,2,3,21.7,1.5,99\n"
+    s = parse_table(text, "b.csv", TableFormat(temp="imu_T", current="6"))
+    assert s.channels["temp_c"].tolist() == [21.5, 21.7]  # the named column, not the old temp_c
+    assert s.channels["current_a"].tolist() == [0.5, 1.5]
+    assert "imu_T" not in s.channels and "I_motor" not in s.channels
+    with pytest.raises(InputError, match="cannot be both"):
+        parse_table(text, "b.csv", TableFormat(temp="mag_x"))
+    with pytest.raises(InputError, match="holds text"):
+        parse_table("mx,my,mz,label\n1,2,3,warm\n", "b.csv", TableFormat(temp="label"))
+
+
+def test_a_second_magnetometer_is_not_a_covariate_and_channels_can_be_chosen():
+    text = "t,imu_mx,imu_my,imu_mz,mag_x,mag_y,mag_z,temp,enviro_h\n0,1,2,3,4,5,6,20,40\n1,1,2,3,4,5,6,21,41\n"
+    s = parse_table(text, "two.csv", TableFormat(columns=("imu_mx", "imu_my", "imu_mz")))
+    assert sorted(s.channels) == ["enviro_h", "temp"]
+    s = parse_table(text, "two.csv", TableFormat(columns=("mag_x", "mag_y", "mag_z"), channels=("enviro_h",)))
+    assert s.field_ut.tolist()[0] == [4, 5, 6] and list(s.channels) == ["enviro_h"]
+    s = parse_table(text, "two.csv", TableFormat(columns=("mag_x", "mag_y", "mag_z"), channels=()))
+    assert s.channels == {}
+    with pytest.raises(InputError, match="no channel column 'humidity'"):
+        parse_table(text, "two.csv", TableFormat(columns=("2", "3", "4"), channels=("humidity",)))
+
+
+def test_diagnose_suggests_choosing_channels_in_a_wide_log():
+    from magcal.commands.diagnose import many_channels_hint
+
+    quiet = {"findings": [{"effect": "outliers"}]}
+    assert "--channels" in many_channels_hint(20, quiet)
+    assert many_channels_hint(3, quiet) is None
+    assert many_channels_hint(20, {"findings": [{"effect": "temperature_drift"}]}) is None

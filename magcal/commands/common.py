@@ -55,6 +55,11 @@ def add_table_options(p) -> None:
     g.add_argument("--time", metavar="COLUMN", help="the time column, name or 1-based position (default: t, time …)")
     g.add_argument("--time-unit", choices=("s", "ms", "us"),
                    help="unit of the time column (default: from its name, else s)")
+    g.add_argument("--channels", metavar="A,B,…",
+                   help="keep only these columns as channels (candidate covariates); '' for none "
+                   "(default: every other numeric column but a second magnetometer's)")
+    g.add_argument("--temp", metavar="COLUMN", help="the die temperature column in °C (read as temp_c)")
+    g.add_argument("--current", metavar="COLUMN", help="the interfering current column in A (read as current_a)")
     g.add_argument("--delimiter", metavar="C",
                    help="column separator (default: found from the first line; 'tab' or 'space' for those)")
 
@@ -67,8 +72,9 @@ def table_format(args):
     if args.columns is not None:
         columns = tuple(c.strip() for c in args.columns.split(","))
     delimiter = {"tab": "\t", "space": " "}.get(args.delimiter, args.delimiter)
-    return TableFormat(columns=columns, unit=args.unit, time=args.time,
-                       time_unit=args.time_unit, delimiter=delimiter)
+    channels = None if args.channels is None else tuple(c.strip() for c in args.channels.split(",") if c.strip())
+    return TableFormat(columns=columns, unit=args.unit, time=args.time, time_unit=args.time_unit,
+                       delimiter=delimiter, channels=channels, temp=args.temp, current=args.current)
 
 
 def field_warning(field_ut: float) -> list[str]:

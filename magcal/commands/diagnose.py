@@ -48,6 +48,19 @@ def format_text(d: dict) -> str:
     return "\n".join(lines)
 
 
+MANY_CHANNELS = 8
+
+
+def many_channels_hint(n_channels: int, d: dict) -> str | None:
+    """A wide log makes every column a candidate, and the family-wise test stricter for each."""
+    channel_findings = [f for f in d["findings"] if f["effect"] not in ("soft_iron", "outliers")]
+    if n_channels < MANY_CHANNELS or channel_findings:
+        return None
+    return (f"all {n_channels} other numeric columns were candidate covariates, and the family-wise "
+            "test gets stricter with each; name the plausible ones with --channels (and the die "
+            "temperature with --temp) for a sharper test")
+
+
 def run(args) -> int:
     from ..capture import load_series
     from ..diagnose import diagnose
@@ -68,6 +81,9 @@ def run(args) -> int:
         print_json(d)
     else:
         print(format_text(d))
+        hint = many_channels_hint(len(series.channels), d)
+        if hint:
+            print(f"note        {hint}")
         if args.report:
             print(f"report      {args.report}/index.html")
     sys.stdout.flush()
