@@ -3,7 +3,8 @@
 ``t_s`` (n,) seconds, ``field_ut`` (n, 3) ASA-adjusted µT in the sensor frame, ``channels``
 maps an auxiliary channel name (``temp_c``, ``current_a`` …) to an (n,) array, ``seq`` the
 device sequence numbers when known, ``valid`` False for samples the device flagged (HOFL, DERR,
-rails, all-zero). ``row`` maps each sample back to its 0-based data row in the source file.
+rails, all-zero). ``row`` maps each sample back to its 0-based data row in the source file;
+``source`` says how a table was read (which columns, which units), when it was one.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ class Series:
     valid: np.ndarray | None = None
     seq: np.ndarray | None = None
     row: np.ndarray | None = None
+    source: str | None = None  # how a table was read (columns, units), for the user to check
 
     def __post_init__(self):
         f = np.asarray(self.field_ut, dtype=np.float64).reshape(-1, 3)
@@ -59,6 +61,7 @@ class Series:
             valid=self.valid[idx],
             seq=None if self.seq is None else self.seq[idx],
             row=self.row[idx],
+            source=self.source,
         )
 
     def only_valid(self) -> "Series":

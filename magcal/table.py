@@ -58,6 +58,7 @@ UNITS_UT = {
     "g": 100.0, "gauss": 100.0, "ga": 100.0,
     "t": 1e6, "tesla": 1e6,
 }
+_UNIT_SHOWN = {1.0: "µT", 1e-3: "nT", 0.1: "mG", 100.0: "gauss", 1e6: "T"}
 TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
 _TIME_NAMES = {"t": "s", "t_s": "s", "time": "s", "time_s": "s", "timestamp": "s", "unix_time": "s",
                "t_ms": "ms", "time_ms": "ms", "timestamp_ms": "ms", "t_us": "us", "time_us": "us"}
@@ -360,7 +361,17 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
         if known in renamed.values():
             continue  # the column given by --temp/--current takes the name
         channels[known] = arr
-    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=np.array(rows, np.int64))
+    unit_name = _UNIT_SHOWN.get(scale)
+    source = (f"field from {','.join(cols[k] for k in mag)} in "
+              + (f"{unit_name}" if unit_name else f"units of {scale:g} µT")
+              + (" (assumed: no unit given)" if fmt.unit is None and named_unit is None else "")
+              + (f"; time from {cols[t_col]} ({_unit_of_scale(t_scale)})" if t_col is not None else "; no time column: sample index")
+              + (f"; channels {', '.join(channels)}" if channels else "; no channels"))
+    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=np.array(rows, np.int64), source=source)
+
+
+def _unit_of_scale(t_scale: float) -> str:
+    return next((k for k, v in TIME_UNITS_S.items() if v == t_scale), f"{t_scale:g} s")
 
 
 def parse_csv(text: str, name: str = "<csv>") -> Series:

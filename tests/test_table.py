@@ -114,12 +114,14 @@ def test_fit_warns_when_the_file_is_not_in_microtesla_and_reads_it_when_told(tmp
     d = json.loads(out)
     assert d["calibration"]["field_ut"] == pytest.approx(0.48, rel=0.01)
     assert len(d["warnings"]) == 1 and "--unit gauss" in d["warnings"][0]
+    assert d["input"] == "field from mag_x,mag_y,mag_z in µT (assumed: no unit given); no time column: sample index; no channels"
     assert "--unit gauss" in err
     assert main(["fit", str(p), "--model", "sphere", "--json", "--unit", "gauss"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert d["calibration"]["field_ut"] == pytest.approx(48.0, rel=0.01)
     assert d["calibration"]["offset_ut"] == pytest.approx([12.0, -30.0, 7.0], abs=0.1)
     assert d["warnings"] == []
+    assert d["input"].startswith("field from mag_x,mag_y,mag_z in gauss;")
 
 
 def test_diagnose_and_export_take_the_same_table_options(tmp_path, capsys):

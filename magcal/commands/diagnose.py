@@ -27,7 +27,8 @@ def add_arguments(p) -> None:
 def format_text(d: dict) -> str:
     """The human-readable summary of a diagnosis dict (pure)."""
     b, f = d["baseline"], d["final"]
-    lines = [
+    lines = [f"input       {d['input']}"] if d.get("input") else []
+    lines += [
         f"samples     {d['n_samples']}",
         f"baseline    {b['model']:<28} rms {b['rms_ut']:.3f} µT   held-out {b['heldout_rms_ut']:.3f} µT",
     ]
@@ -71,6 +72,8 @@ def run(args) -> int:
     diagnosis = diagnose(series, alpha=args.alpha)
     d = diagnosis.to_dict()
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
+    if series.source:
+        d["input"] = series.source
     if args.report:
         from ..diagnose.report import write_report
 

@@ -38,7 +38,8 @@ def add_arguments(p) -> None:
 def format_text(d: dict) -> str:
     """Human-readable summary of a fit's ``to_dict()`` (pure)."""
     c, u = d["calibration"], d["uncertainty"]
-    lines = [
+    lines = [f"input       {d['input']}"] if d.get("input") else []
+    lines += [
         f"model       {d['model']}",
         "offset_ut   " + " ".join(f"{v:9.3f}" for v in c["offset_ut"])
         + "   ± " + " ".join(f"{v:.3f}" for v in u["offset_ut"])
@@ -80,6 +81,8 @@ def run(args) -> int:
         return 1
     d = result.to_dict()
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
+    if series.source:
+        d["input"] = series.source
     if args.json:
         from .common import print_json
 
