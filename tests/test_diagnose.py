@@ -185,6 +185,7 @@ def test_report_writes_pictures_and_a_page(tmp_path):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10000
     page = (out / "index.html").read_text()
     assert "temperature_drift" in page and all(n in page for n in ("sphere.png", "heldout.png"))
+    assert "Read as: field from mx,my,mz in µT; time from t (s); channels temp_c" in page
 
 
 def test_unreadable_or_too_short_input_is_a_clear_error(tmp_path, capsys):

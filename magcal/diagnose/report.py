@@ -209,6 +209,8 @@ def _html(diagnosis, names: dict, title: str) -> str:
     limits = "".join(f"<li><b>{esc(x['effect'])}</b> — {esc(x['summary'])}</li>" for x in d.get("limits", []))
     if limits:
         limits = f"<h2>Limits: what this recording could not test or pin down</h2><ul>{limits}</ul>"
+    src = diagnosis.series.source
+    source = f" Read as: {esc(src)}." if src else ""
     b, fi = d["baseline"], d["final"]
     imgs = "".join(
         f'<figure><img src="{esc(v)}" alt="{esc(k)}" style="max-width:100%"></figure>' for k, v in names.items()
@@ -218,7 +220,7 @@ def _html(diagnosis, names: dict, title: str) -> str:
 <style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto}} td,th{{padding:2px 12px;text-align:right}}</style>
 </head><body>
 <h1>What the calibration left out — {esc(title)}</h1>
-<p>{d['n_samples']} samples; white-noise level {d['noise_ut']:.3f} µT per axis.</p>
+<p>{d['n_samples']} samples; white-noise level {d['noise_ut']:.3f} µT per axis.{source}</p>
 <h2>Findings</h2><ul>{rows}</ul>
 {limits}
 <h2>Fit, in-sample and on held-out contiguous blocks</h2>
