@@ -21,6 +21,7 @@ COMMANDS = (
     "diagnose",
     "record",
     "export",
+    "write",
     "show",
     "stream",
     "run",

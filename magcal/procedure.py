@@ -128,48 +128,76 @@ def calibrate(
     return write_and_verify(device, session, out)
 
 
-def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
-    """Write, compare the echo, read back, compare again. On a mismatch the calibration that
-    was stored before is put back (best effort) so a bad one is not left on the device."""
-    cal = device.prepare(session.calibration)
+@dataclass
+class Stored:
+    """What writing one calibration to a device came to."""
+
+    sent: Calibration  # as the device holds it (``device.prepare``)
+    written: bool = False  # acknowledged and echoed back equal
+    verified: bool = False  # and read back equal
+    stored: Calibration | None = None  # what the device read back
+    restored: bool | None = None  # after a mismatch: was the previous calibration put back?
+    failure: str | None = None  # write_failed, verify_mismatch, verify_failed
+    message: str = ""
+
+
+def store_verified(device: Device, cal: Calibration) -> Stored:
+    """Write, compare the echo, read back, compare again — on any opened device that can store.
+    On a mismatch the calibration that was stored before is put back (best effort) so a bad one
+    is not left on the device. Device errors become failures here, never exceptions."""
+    sent = device.prepare(cal)
+    out = Stored(sent=sent)
     try:
         previous = device.read_calibration()
     except DeviceError:
         previous = None
-    session.begin_write()
     try:
-        echoed = device.write_calibration(cal)
+        echoed = device.write_calibration(sent)
     except DeviceError as exc:  # refused, no reply, port lost
-        session.fail("write_failed", str(exc))
+        out.failure, out.message = "write_failed", str(exc)
         return out
-    if not device.matches(cal, echoed):
-        session.fail("verify_mismatch", "the device echoed a different calibration than the one sent")
-        _restore(device, previous, out)
+    if not device.matches(sent, echoed):
+        out.failure, out.message = "verify_mismatch", "the device echoed a different calibration than the one sent"
+        out.restored = _restore(device, previous)
         return out
     out.written = True
-    session.stored()
     try:
         readback = device.read_calibration()
     except DeviceError as exc:
-        session.fail("verify_failed", f"could not read the calibration back: {exc}")
+        out.failure, out.message = "verify_failed", f"could not read the calibration back: {exc}"
         return out
     out.stored = readback
-    ok = device.matches(cal, readback)
-    out.verified = ok
-    session.verified(ok, "the calibration read back from the device differs from the one sent")
-    if not ok:
+    out.verified = device.matches(sent, readback)
+    if not out.verified:
+        out.failure = "verify_mismatch"
+        out.message = "the calibration read back from the device differs from the one sent"
         out.written = False
-        _restore(device, previous, out)
-    out.link = device.stats()
+        out.restored = _restore(device, previous)
     return out
 
 
-def _restore(device: Device, previous: Calibration | None, out: Outcome) -> None:
+def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
+    """``store_verified`` for a session's result, with the session taken through writing →
+    verifying → done (or failed with the reason)."""
+    session.begin_write()
+    r = store_verified(device, session.calibration)
+    out.written, out.verified, out.stored, out.restored = r.written, r.verified, r.stored, r.restored
     out.link = device.stats()
+    if r.failure == "write_failed" or (r.failure == "verify_mismatch" and r.stored is None):
+        session.fail(r.failure, r.message)  # refused, or the echo already differed
+    else:
+        session.stored()
+        if r.failure == "verify_failed":
+            session.fail(r.failure, r.message)
+        else:
+            session.verified(r.verified, r.message)
+    return out
+
+
+def _restore(device: Device, previous: Calibration | None) -> bool:
     if previous is None:
-        out.restored = False
-        return
+        return False
     try:
-        out.restored = device.matches(previous, device.write_calibration(previous))
+        return device.matches(previous, device.write_calibration(previous))
     except DeviceError:
-        out.restored = False
+        return False

@@ -1,0 +1,117 @@
+"""``magcal write``: a calibration found offline (fit, diagnose) put on a device and proved there."""
+
+import json
+
+import numpy as np
+import pytest
+
+from magcal.cli import main
+from magcal.commands.write import calibration_from_json
+from magcal.errors import InputError
+from magcal.physics import Temperature
+from magcal.table import save_csv
+
+from test_diagnose import _sim
+
+
+def run_cli(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_a_fit_from_a_recording_is_written_and_read_back(tmp_path, capsys):
+    rec = tmp_path / "rec.cap"
+    assert run_cli(capsys, "record", "--port", "sim://?seed=4", "-o", str(rec), "--count", "1500")[0] == 0
+    code, out, _ = run_cli(capsys, "fit", str(rec), "--json")
+    assert code == 0
+    fit_json = tmp_path / "fit.json"
+    fit_json.write_text(out)
+    port = f"sim://?seed=4&eeprom={tmp_path}/e.bin"
+    code, out, _ = run_cli(capsys, "write", str(fit_json), "--port", port, "--json")
+    r = json.loads(out)
+    assert code == 0 and r["written"] and r["verified"] and r["failure"] is None
+    assert r["sent"]["offset_ut"] == pytest.approx(json.loads(fit_json.read_text())["calibration"]["offset_ut"], abs=1e-3)
+    code, out, _ = run_cli(capsys, "show", "--port", port, "--json")
+    assert code == 0 and json.loads(out)["calibration"] == r["stored"]
+
+
+def test_a_diagnosed_temperature_term_is_written_and_a_time_drift_is_named_and_left_out(tmp_path, capsys):
+    run = _sim(77, temperature=Temperature(swing_c=20.0, period_s=60.0), temp_coef_ut_per_c=(0.1, -0.05, 0.06))
+    path = tmp_path / "rec.csv"
+    save_csv(run.series, path)
+    code, out, _ = run_cli(capsys, "diagnose", str(path), "--json")
+    d = json.loads(out)
+    assert "temperature_drift" in {f["effect"] for f in d["findings"]}
+    d["calibration"].setdefault("coef_ut_per_unit", {})["t_s"] = [0.001, 0.0, 0.0]  # as if a drift was found too
+    src = tmp_path / "diag.json"
+    src.write_text(json.dumps(d))
+    code, out, _ = run_cli(capsys, "write", str(src), "--port", f"sim://?eeprom={tmp_path}/e.bin")
+    assert code == 0 and "VERIFIED" in out
+    assert "left out the t_s term (a drift in time belongs to the recording" in out
+    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?eeprom={tmp_path}/e.bin", "--json")
+    stored = json.loads(out)["calibration"]
+    assert set(stored["coef_ut_per_unit"]) == {"temp_c"}
+    assert stored["coef_ut_per_unit"]["temp_c"] == pytest.approx(d["calibration"]["coef_ut_per_unit"]["temp_c"], abs=1e-3)
+
+
+def test_a_write_the_device_garbles_is_not_reported_and_the_old_one_is_put_back(tmp_path, capsys):
+    eeprom = f"{tmp_path}/e.bin"
+    good = tmp_path / "good.json"
+    good.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0}))
+    assert run_cli(capsys, "write", str(good), "--port", f"sim://?eeprom={eeprom}")[0] == 0
+    new = tmp_path / "new.json"
+    new.write_text(json.dumps({"offset_ut": [10, 20, 30], "field_ut": 50.0}))
+    code, out, _ = run_cli(capsys, "write", str(new), "--port", f"sim://?eeprom={eeprom}&fault=corrupt_write", "--json")
+    r = json.loads(out)
+    assert code == 4 and not r["written"] and not r["verified"] and r["restored_previous"] is True
+    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?eeprom={eeprom}", "--json")
+    assert json.loads(out)["calibration"]["offset_ut"] == [1.0, 2.0, 3.0]
+
+
+def test_a_non_symmetric_matrix_keeps_every_field_magnitude():
+    rng = np.random.default_rng(1)
+    a = np.array([[0.96, 0.0, 0.0], [0.055, 0.995, 0.0], [0.005, 0.037, 1.04]])  # lower triangular
+    cal, notes = calibration_from_json({"offset_ut": [0, 0, 0], "field_ut": 50.0, "soft_iron": a.tolist()})
+    m = rng.normal(size=(200, 3)) * 40
+    assert np.allclose(np.linalg.norm(m @ cal.soft_iron.T, axis=1), np.linalg.norm(m @ a.T, axis=1))
+    assert any("polar factor" in n for n in notes)
+
+
+def test_a_current_term_is_referred_to_zero_amps():
+    cal, notes = calibration_from_json({"calibration": {
+        "offset_ut": [1.0, 2.0, 3.0], "field_ut": 50.0,
+        "coef_ut_per_unit": {"current_a": [0.5, 0.0, -1.0]}, "reference": {"current_a": 2.0}}})
+    # m − o − k(I − 2) = m − (o − 2k) − kI
+    assert cal.offset_ut.tolist() == [0.0, 2.0, 5.0] and cal.reference == {}
+    assert any("0 A" in n for n in notes)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("not json", "not JSON"),
+        ("[1, 2, 3]", "not a calibration"),
+        ('{"calibration": null, "status": "failed"}', "empty"),
+        ('{"offset_ut": [1, 2, 3]}', "lacks field_ut"),
+        ('{"offset_ut": [1, 2], "field_ut": 50}', "offset_ut needs 3 numbers"),
+        ('{"offset_ut": [1, 2, 3], "field_ut": -5}', "positive"),
+        ('{"offset_ut": [1, 2, 3], "field_ut": 50, "soft_iron": [[1,0,0],[0,-1,0],[0,0,1]]}', "positive definite"),
+    ],
+)
+def test_bad_input_names_the_problem_and_touches_no_device(tmp_path, capsys, text, message):
+    src = tmp_path / "cal.json"
+    src.write_text(text)
+    eeprom = tmp_path / "e.bin"
+    code, _, err = run_cli(capsys, "write", str(src), "--port", f"sim://?eeprom={eeprom}")
+    assert code == 2 and message in err
+    assert not eeprom.exists()
+
+
+def test_a_recording_cannot_be_written_to(tmp_path, capsys):
+    rec = tmp_path / "rec.cap"
+    assert run_cli(capsys, "record", "--port", "sim://?seed=4", "-o", str(rec), "--count", "50")[0] == 0
+    src = tmp_path / "cal.json"
+    src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0}))
+    code, _, err = run_cli(capsys, "write", str(src), "--port", f"replay://{rec}")
+    assert code == 2 and "read-only" in err
