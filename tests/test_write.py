@@ -115,3 +115,23 @@ def test_a_recording_cannot_be_written_to(tmp_path, capsys):
     src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0}))
     code, _, err = run_cli(capsys, "write", str(src), "--port", f"replay://{rec}")
     assert code == 2 and "read-only" in err
+
+
+def test_the_real_firmware_stores_a_diagnosed_temperature_term(tmp_path, capsys):
+    from firmware_support import require_firmware
+
+    require_firmware()
+    src = tmp_path / "cal.json"
+    cal = {"offset_ut": [23.5, -41.2, 12.8], "field_ut": 48.0, "soft_iron": [[1.01, 0.002, 0], [0.002, 0.99, 0], [0, 0, 1]],
+           "coef_ut_per_unit": {"temp_c": [0.1, -0.05, 0.02]}, "reference": {"temp_c": 25.0}}
+    src.write_text(json.dumps({"calibration": cal}))
+    port = f"emu://?eeprom={tmp_path}/e.bin"
+    code, out, _ = run_cli(capsys, "write", str(src), "--port", port, "--json")
+    r = json.loads(out)
+    assert code == 0 and r["verified"]
+    # a new session on the same EEPROM: the sketch kept it
+    code, out, _ = run_cli(capsys, "show", "--port", port, "--json")
+    stored = json.loads(out)["calibration"]
+    assert stored["offset_ut"] == pytest.approx(cal["offset_ut"], abs=1e-3)
+    assert stored["coef_ut_per_unit"]["temp_c"] == pytest.approx([0.1, -0.05, 0.02], abs=1e-3)
+    assert stored["reference"]["temp_c"] == 25.0
