@@ -205,3 +205,27 @@ def test_diagnose_suggests_choosing_channels_in_a_wide_log():
     assert "--channels" in many_channels_hint(20, quiet)
     assert many_channels_hint(3, quiet) is None
     assert many_channels_hint(20, {"findings": [{"effect": "temperature_drift"}]}) is None
+
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_cells = st.sampled_from(["mx", "my", "mz", "mag_x", "mag_y", "mag_z", "t", "time_ms", "temp_c", "1", "-2.5",
+                          "nan", "", "abc", "uT", "gauss", "1e400", "0x10", " ", '"3,4"', "#", "valid"])
+_lines = st.lists(st.lists(_cells, min_size=1, max_size=6).map(lambda cs: st_join(cs)), min_size=0, max_size=8)
+
+
+def st_join(cells):
+    return cells[0] if len(cells) == 1 else ("," if len(cells) % 2 else "\t").join(cells)
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(_lines, st.sampled_from([None, ("1", "2", "3"), ("mag_x", "my", "3")]), st.sampled_from([None, "gauss", "0.3"]))
+def test_any_text_is_read_or_refused_with_a_named_problem(lines, columns, unit):
+    text = "\n".join(lines) + "\n"
+    try:
+        s = parse_table(text, "fuzz.csv", TableFormat(columns=columns, unit=unit))
+    except InputError as exc:
+        assert "fuzz.csv" in str(exc) or "--columns" in str(exc) or "unit" in str(exc)
+        return
+    assert s.field_ut.shape == (len(s), 3) and np.all(np.isfinite(s.field_ut))
