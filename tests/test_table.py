@@ -229,3 +229,4 @@ def test_any_text_is_read_or_refused_with_a_named_problem(lines, columns, unit):
         assert "fuzz.csv" in str(exc) or "--columns" in str(exc) or "unit" in str(exc)
         return
     assert s.field_ut.shape == (len(s), 3) and np.all(np.isfinite(s.field_ut))
+

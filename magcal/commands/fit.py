@@ -1,6 +1,8 @@
 """``magcal fit FILE --model sphere|ellipsoid|auto [--json]``: fit a calibration to a recording.
 
-FILE is a capture, a MotionCal log, or a table: magcal's CSV (``mx,my,mz`` µT, ``t`` s) or
+Several FILEs are fitted each and compared in turn (``magcal.fit.compare``: did the hard iron
+move between sessions?); the JSON is then ``{"fits": [...each with "file"...], "comparisons":
+[...]}``. FILE is a capture, a MotionCal log, or a table: magcal's CSV (``mx,my,mz`` µT, ``t`` s) or
 another delimited file read with ``--columns/--unit/--time`` (``magcal.table``). The JSON object::
 
     {"model": ..., "calibration": {"offset_ut": [3], "field_ut": r, "soft_iron": [[3×3]]},
@@ -22,7 +24,9 @@ HELP = "fit a sphere or ellipsoid calibration to a recording (capture or CSV)"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("file", metavar="FILE", help="a capture or a CSV with mx,my,mz (µT) columns")
+    p.add_argument("file", metavar="FILE", nargs="+",
+                   help="a capture, a MotionCal log or a table; several files are fitted each and "
+                   "compared in turn (did the hard iron move between sessions?)")
     p.add_argument("--model", choices=("sphere", "ellipsoid", "auto"), default="auto",
                    help="sphere (hard iron), ellipsoid (+ soft iron, falls back when coverage is thin),"
                    " or auto (the best the coverage supports, by BIC); default auto")
@@ -59,34 +63,72 @@ def format_text(d: dict) -> str:
     return "\n".join(lines)
 
 
-def run(args) -> int:
+def _fit_file(path: str, args) -> tuple[dict, int]:
+    """(the fit as a dict, exit code 0/1) for one file; InputError when it cannot be read."""
     from ..capture import load_series
     from ..errors import InputError
     from ..fit import fit
 
-    if args.noise_ut is not None and not args.noise_ut > 0:
-        raise InputError(f"--noise-ut must be positive, got {args.noise_ut}")
-    series = load_series(args.file, table_format(args))
+    series = load_series(path, table_format(args))
     if len(series) == 0:
-        raise InputError(f"{args.file}: no samples")
+        raise InputError(f"{path}: no samples")
     result = fit(
         series, model=args.model, outliers=not args.no_outliers, noise_ut=args.noise_ut, balance=args.balance
     )
     if not result:
-        if args.json:
-            from .common import print_json
-
-            print_json(result.to_dict())
-        print(f"magcal fit: {result.reason}: {result.message}", file=sys.stderr)
-        return 1
+        print(f"magcal fit: {path}: {result.reason}: {result.message}", file=sys.stderr)
+        return result.to_dict(), 1
     d = result.to_dict()
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
     if series.source:
         d["input"] = series.source
-    if args.json:
-        from .common import print_json
+    return d, 0
 
-        print_json(d)
+
+def format_comparison(a: str, b: str, c: dict) -> str:
+    """One line: did the offset move from session ``a`` to ``b`` (pure)?"""
+    d = ", ".join(f"{v:+.3f}" for v in c["offset_change_ut"])
+    p = "p < 1e-12" if c["p_value"] < 1e-12 else f"p = {c['p_value']:.2g}"
+    verdict = ("the hard iron changed between these sessions: the older calibration is off by that much"
+               if c["offset_moved"] else "the same hard iron within the reported uncertainty")
+    return (f"{b} vs {a}: offset change ({d}) µT, |Δ| {c['offset_change_norm_ut']:.3f} µT, χ²(3) = "
+            f"{c['chi2']:.1f}, {p}: {verdict}; field {c['field_change_ut']:+.3f} µT (z = {c['field_change_z']:+.1f})")
+
+
+def run(args) -> int:
+    from ..errors import InputError
+    from ..fit.compare import compare_fits
+    from .common import print_json
+
+    if args.noise_ut is not None and not args.noise_ut > 0:
+        raise InputError(f"--noise-ut must be positive, got {args.noise_ut}")
+    if len(args.file) == 1:
+        d, code = _fit_file(args.file[0], args)
+        if args.json:
+            print_json(d)
+        elif code == 0:
+            print(format_text(d))
+        return code
+    # several sessions: fit each (a file that cannot be read is reported and the rest go on),
+    # then compare each good fit with the previous good one
+    fits, worst = [], 0
+    for path in args.file:
+        try:
+            d, code = _fit_file(path, args)
+        except InputError as exc:
+            print(f"magcal fit: {exc}", file=sys.stderr)
+            d, code = {"error": str(exc)}, 2
+        worst = max(worst, code)
+        fits.append({"file": path, **d})
+        if not args.json and code == 0:
+            print(f"== {path}\n{format_text(d)}\n")
+    good = [f for f in fits if "calibration" in f and f.get("model")]
+    comparisons = [
+        {"from": a["file"], "to": b["file"], **compare_fits(a, b)} for a, b in zip(good, good[1:])
+    ]
+    if args.json:
+        print_json({"fits": fits, "comparisons": comparisons})
     else:
-        print(format_text(d))
-    return 0
+        for c in comparisons:
+            print(format_comparison(c["from"], c["to"], c))
+    return worst
