@@ -89,7 +89,8 @@ def format_comparison(a: str, b: str, c: dict) -> str:
     """One line: did the offset move from session ``a`` to ``b`` (pure)?"""
     d = ", ".join(f"{v:+.3f}" for v in c["offset_change_ut"])
     p = "p < 1e-12" if c["p_value"] < 1e-12 else f"p = {c['p_value']:.2g}"
-    verdict = ("the hard iron changed between these sessions: the older calibration is off by that much"
+    verdict = (f"more than the two fits' uncertainty allows: the hard iron changed between these sessions, "
+               f"and the older calibration is off by about {c['offset_change_norm_ut']:.2f} µT"
                if c["offset_moved"] else "the same hard iron within the reported uncertainty")
     return (f"{b} vs {a}: offset change ({d}) µT, |Δ| {c['offset_change_norm_ut']:.3f} µT, χ²(3) = "
             f"{c['chi2']:.1f}, {p}: {verdict}; field {c['field_change_ut']:+.3f} µT (z = {c['field_change_z']:+.1f})")
