@@ -1,9 +1,13 @@
 """``magcal diagnose FILE [--json] [--report DIR]``: find the physics a sphere calibration left
 out, model it, and show the improvement on held-out data.
 
-FILE is a capture or a CSV (``t`` s, ``mx,my,mz`` µT, optional ``temp_c``, ``current_a`` and any
-other numeric column as a candidate covariate). Exit code 0 when the recording was diagnosed
-(whatever was found), 2 when it could not be read or analysed.
+FILE is a capture, a MotionCal log or a table: magcal's CSV (``t`` s, ``mx,my,mz`` µT, optional
+``temp_c``, ``current_a`` and any other numeric column as a candidate covariate) or another
+delimited file read with the table options (``--columns``, ``--unit``, ``--time``, ``--channels``,
+``--temp``, ``--current``; ``magcal.table``). Besides the diagnosis, the JSON carries
+``warnings`` (e.g. a fitted field no Earth field could be) and, for a table, ``input`` (how it
+was read). Exit code 0 when the recording was diagnosed (whatever was found), 2 when it could
+not be read or analysed.
 """
 
 from __future__ import annotations
