@@ -307,6 +307,40 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
             if k in must or k in renamed:
                 raise InputError(f"{name}: column {cols[k]!r} cannot be both {as_name} and another column")
             renamed[k] = as_name
+    data, text_cols, rows = _read_rows(lines, hdr_i, delimiter, cols, must, has_header, name)
+    for k, as_name in renamed.items():
+        if k in text_cols:
+            raise InputError(f"{name}: column {cols[k]!r}, to be read as {as_name}, holds text, not numbers")
+    n = len(rows)
+    field = scale * np.column_stack([np.array(data[k], np.float64) for k in mag])
+    t = t_scale * np.array(data[t_col], np.float64) if t_col is not None else np.arange(n, dtype=np.float64)
+    valid = None
+    channels = {}
+    for k, c in enumerate(cols):
+        if k in must or k in text_cols:
+            continue
+        arr = np.array(data[k], np.float64)
+        if c == "valid":
+            valid = arr != 0
+            continue
+        if k in renamed:
+            channels[renamed[k]] = arr
+            continue
+        if (wanted is not None and k not in wanted) or (wanted is None and k in other_mags):
+            continue
+        known = c.lower() if c.lower() in KNOWN_CHANNELS and c.lower() not in cols else c
+        if known in renamed.values():
+            continue  # the column given by --temp/--current takes the name
+        channels[known] = arr
+    source = _describe([cols[k] for k in mag], scale, fmt.unit is None and named_unit is None,
+                       None if t_col is None else (cols[t_col], t_scale), list(channels))
+    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=np.array(rows, np.int64), source=source)
+
+
+def _read_rows(lines, hdr_i, delimiter, cols, must, has_header, name):
+    """The data rows after ``hdr_i``: (values per column, text columns, 0-based data row of each
+    sample). A column whose first value is text is a text column (not a channel); a required
+    column (``must``) must hold a finite number on every row."""
     ncol = len(cols)
     data: list[list[float]] = [[] for _ in range(ncol)]
     text_cols: set[int] = set()
@@ -337,41 +371,19 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
         rows.append(i - hdr_i - 1)
     if not rows:
         raise InputError(f"{name}: no data rows after the header (line {hdr_i + 1})")
-    for k, as_name in renamed.items():
-        if k in text_cols:
-            raise InputError(f"{name}: column {cols[k]!r}, to be read as {as_name}, holds text, not numbers")
-    n = len(rows)
-    field = scale * np.column_stack([np.array(data[k], np.float64) for k in mag])
-    t = t_scale * np.array(data[t_col], np.float64) if t_col is not None else np.arange(n, dtype=np.float64)
-    valid = None
-    channels = {}
-    for k, c in enumerate(cols):
-        if k in must or k in text_cols:
-            continue
-        arr = np.array(data[k], np.float64)
-        if c == "valid":
-            valid = arr != 0
-            continue
-        if k in renamed:
-            channels[renamed[k]] = arr
-            continue
-        if (wanted is not None and k not in wanted) or (wanted is None and k in other_mags):
-            continue
-        known = c.lower() if c.lower() in KNOWN_CHANNELS and c.lower() not in cols else c
-        if known in renamed.values():
-            continue  # the column given by --temp/--current takes the name
-        channels[known] = arr
-    unit_name = _UNIT_SHOWN.get(scale)
-    source = (f"field from {','.join(cols[k] for k in mag)} in "
-              + (f"{unit_name}" if unit_name else f"units of {scale:g} µT")
-              + (" (assumed: no unit given)" if fmt.unit is None and named_unit is None else "")
-              + (f"; time from {cols[t_col]} ({_unit_of_scale(t_scale)})" if t_col is not None else "; no time column: sample index")
-              + (f"; channels {', '.join(channels)}" if channels else "; no channels"))
-    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=np.array(rows, np.int64), source=source)
+    return data, text_cols, rows
 
 
-def _unit_of_scale(t_scale: float) -> str:
-    return next((k for k, v in TIME_UNITS_S.items() if v == t_scale), f"{t_scale:g} s")
+def _describe(mag_names, scale, assumed, time_col, channels) -> str:
+    """How a table was read, in one line for the user to check."""
+    unit = _UNIT_SHOWN.get(scale) or f"units of {scale:g} µT"
+    if time_col is None:
+        when = "no time column: sample index"
+    else:
+        t_unit = next((k for k, v in TIME_UNITS_S.items() if v == time_col[1]), f"{time_col[1]:g} s")
+        when = f"time from {time_col[0]} ({t_unit})"
+    return (f"field from {','.join(mag_names)} in {unit}" + (" (assumed: no unit given)" if assumed else "")
+            + f"; {when}; " + (f"channels {', '.join(channels)}" if channels else "no channels"))
 
 
 def parse_csv(text: str, name: str = "<csv>") -> Series:

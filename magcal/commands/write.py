@@ -65,10 +65,10 @@ def calibration_from_json(obj, name: str = "<json>") -> tuple[Calibration, list[
     if not np.all(np.isfinite(w)):
         raise InputError(f"{name}: soft_iron holds a non-finite number")
     if np.max(np.abs(w - w.T)) > 1e-9 * max(1.0, np.max(np.abs(w))):
-        u, s, vt = np.linalg.svd(w)
         if np.linalg.det(w) <= 0:
             raise InputError(f"{name}: soft_iron has a non-positive determinant: it mirrors the field")
-        w = vt.T @ np.diag(s) @ vt  # √(WᵀW): same |W m| for every m
+        _, sv, vt = np.linalg.svd(w)
+        w = vt.T @ np.diag(sv) @ vt  # √(WᵀW): same |W m| for every m
         notes.append("soft_iron was not symmetric: wrote its symmetric polar factor √(AᵀA) (same field "
                      "magnitudes; the rotation left out only turns the frame)")
     for k in sorted(coefs):
