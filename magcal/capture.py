@@ -492,6 +492,10 @@ def load_series(path, table: TableFormat | None = None) -> Series:
     if is_capture(head):
         not_a_table("a magcal capture")
         return load_capture(path)
+    if head.startswith(b"MATLAB"):
+        raise InputError(f"{path}: a MATLAB .mat file, which magcal does not read; save the magnetometer "
+                         "columns as text (writematrix or csvwrite) and give that file")
+
     first = _first_lines(head)
     if any("mx" in [c.strip() for c in ln.split(",")] for ln in first[:5]):
         return load_table(path, table)
@@ -507,6 +511,9 @@ def load_series(path, table: TableFormat | None = None) -> Series:
     if motioncal is not None and motioncal.looks_like_motioncal(_first_lines(head, 200)):
         not_a_table("a MotionCal log")
         return motioncal.load_log(path)
+    if b"\0" in head[:4096] and not explicit:  # (a serial dump with NULs from a reset was taken above)
+        raise InputError(f"{path}: a binary file, not a recording magcal reads (a capture, a table, a "
+                         "MotionCal log or protocol v1 lines)")
     if explicit or looks_like_table(first):
         return load_table(path, table)  # names the missing columns when it cannot find them
     hint = "" if motioncal is not None else "; MotionCal logs need magcal.motioncal"

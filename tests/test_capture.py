@@ -210,3 +210,16 @@ def test_record_refused_before_reading_leaves_no_empty_capture(tmp_path, capsys)
     rc = main(["record", "--port", "sim://", "--dialect", "motioncal", "-o", str(out), "--count", "5"])
     assert rc == 2 and "needs a serial port" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_raw_serial_dump_with_reset_noise_is_read_like_its_capture(tmp_path):
+    # `cat /dev/ttyACM0 > dump.txt` across a board reset: NUL and 0xFF bytes before the lines
+    from magcal.capture import CaptureReader, load_series
+    from magcal.cli import main
+
+    cap = tmp_path / "run.cap"
+    assert main(["record", "--port", "sim://?seed=6", "-o", str(cap), "--count", "200"]) == 0
+    dump = tmp_path / "dump.txt"
+    dump.write_bytes(b"\x00\x00\xff\x00" + CaptureReader(cap).data())
+    a, b = load_series(cap), load_series(dump)
+    assert len(b) == len(a) >= 200 and (b.field_ut == a.field_ut).all()

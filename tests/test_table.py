@@ -230,3 +230,14 @@ def test_any_text_is_read_or_refused_with_a_named_problem(lines, columns, unit):
         return
     assert s.field_ut.shape == (len(s), 3) and np.all(np.isfinite(s.field_ut))
 
+
+
+def test_matlab_and_other_binary_files_are_named_as_such(tmp_path):
+    mat = tmp_path / "log.mat"
+    mat.write_bytes(b"MATLAB 5.0 MAT-file, Platform: PCWIN64" + bytes(range(256)))
+    with pytest.raises(InputError, match="MATLAB .mat file.*writematrix"):
+        load_series(mat)
+    blob = tmp_path / "log.bin"
+    blob.write_bytes(b"\x7fELF\x02\x01\x01\x00" + bytes(200))
+    with pytest.raises(InputError, match="a binary file"):
+        load_series(blob)
