@@ -13,6 +13,8 @@ Run: python bench/real_data.py  → prints the table and writes bench/results/re
      error structure of each recording, how much the held-out spread moves with which time
      blocks of the fit half are used, and whether blocked cross-validation inside the fit half
      predicts the held-out ranking of two sample selections (see bench/README.md).
+     python bench/real_data.py --splits → only: magcal against a MotionCal-like 650-point buffer
+     with the split at 30 … 70 % of each recording (≈ 30 s).
      python bench/real_data.py --uncertainty → only: does the reported offset σ cover the change
      of the offset between the two halves (fit separately)? z = Δ / √(σ₁² + σ₂²) with the
      reported σ and with σ ÷ autocorrelation factor (the independent-noise figure).
@@ -225,6 +227,27 @@ def blocked_cv(m, fn, folds=4):
     return float(np.mean(s))
 
 
+def split_comparison(data, fractions=(0.3, 0.4, 0.5, 0.6, 0.7)) -> None:
+    """magcal's fit against a MotionCal-like 650-point buffer (``closest_pair_buffer``) when the
+    fit/held-out split sits elsewhere than half way: is a difference a property of the
+    recording, or of where the split happens to fall?"""
+    print("| recording | " + " | ".join(f"split {f:.0%}: magcal / buffer" for f in fractions) + " | magcal ≤ buffer |")
+    print("|---|" + "---|" * (len(fractions) + 1))
+    ratios, wins_all = [], 0
+    for name, (m, _) in data.items():
+        cells, wins = [], 0
+        for f in fractions:
+            k = int(len(m) * f)
+            a = spread_pct(m[k:], *_cal(m[:k]))
+            b = spread_pct(m[k:], *_buffered(m[:k]))
+            cells.append(f"{a:.3f} / {b:.3f}")
+            wins += a <= b
+            ratios.append(a / b)
+        wins_all += wins
+        print(f"| {name} | " + " | ".join(cells) + f" | {wins} of {len(fractions)} |", flush=True)
+    print(f"\nmagcal ≤ buffer on {wins_all} of {len(ratios)} (recording, split) pairs; mean ratio {np.mean(ratios):.3f}")
+
+
 def study(data) -> None:
     print("\n## Error structure (ellipsoid on the whole file; µT, floor in %)\n")
     print("| recording | field | rms | white | after direction deg 4 | 40 block means | same after direction | floor % |")
@@ -270,6 +293,9 @@ def uncertainty_check(recordings) -> None:
 def main() -> None:
     if "--uncertainty" in sys.argv[1:]:
         uncertainty_check(load_all())
+        return
+    if "--splits" in sys.argv[1:]:
+        split_comparison(load_all())
         return
     rows = [evaluate(name, m, pub) for name, (m, pub) in load_all().items()]
     md = table(rows)
