@@ -258,25 +258,32 @@ def _stated_floor(t, h, series, kind):
     chan = "temp_c" if kind == "temp" else "t_s"
     for lim in d.to_dict()["limits"]:
         if chan in lim.get("slow_term_floor_ut_per_unit", {}):
-            return lim["slow_term_floor_ut_per_unit"][chan]
+            lo_hi = lim.get("slow_term_floor_range_ut_per_unit", {}).get(chan, (None, None))
+            return (lim["slow_term_floor_ut_per_unit"][chan], *lo_hi)
     return None
 
 
 def _floor_summary(slow, rows):
     """Injected temperature and drift cases split by the floor the plain recording states: does
     the detector find what it says it could, and stay silent on what it says it could not?"""
-    above = [(lab, rows[lab]) for lab, f, tr in slow if f is not None and np.linalg.norm(next(iter(tr.values()))) >= f]
-    below = [(lab, rows[lab]) for lab, f, tr in slow if f is not None and np.linalg.norm(next(iter(tr.values()))) < f]
-    none = [lab for lab, f, _ in slow if f is None]
+    def size(tr):
+        return np.linalg.norm(next(iter(tr.values())))
+
+    def pick(test):
+        return [(lab, rows[lab]) for lab, f, tr in slow if f is not None and test(size(tr), *f)]
 
     def found(rs):
         return sum(1 for _, r in rs if set(r["expected"]) <= set(r["found"]))
 
-    well = [(lab, rows[lab]) for lab, f, tr in slow if f is not None and np.linalg.norm(next(iter(tr.values()))) >= 2 * f]
-
+    above, below = pick(lambda k, f, lo, hi: k >= f), pick(lambda k, f, lo, hi: k < f)
+    well = pick(lambda k, f, lo, hi: k >= 2 * f)
+    over_hi = pick(lambda k, f, lo, hi: hi is not None and k >= hi)
+    under_lo = pick(lambda k, f, lo, hi: lo is not None and k < lo)
+    none = [lab for lab, f, _ in slow if f is None]
     print(f"injected temperature / drift against the floor diagnose states on the plain recording (same channels): "
           f"above it {found(above)} of {len(above)} found ({found(well)} of {len(well)} at twice it or more), "
-          f"below it {found(below)} of {len(below)} found"
+          f"below it {found(below)} of {len(below)} found; above the upper end of its range by direction "
+          f"{found(over_hi)} of {len(over_hi)}, below the lower end {found(under_lo)} of {len(under_lo)}"
           + (f"; {len(none)} with no floor stated (no wander limit)" if none else ""))
 
 

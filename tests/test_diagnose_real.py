@@ -76,6 +76,9 @@ def test_the_wander_limit_names_how_large_a_slow_term_would_have_had_to_be(tilt_
     floors = w["slow_term_floor_ut_per_unit"]
     assert set(floors) == {"temp_c", "t_s"}  # the intermittent current is judged by its own test, not the gate
     assert f"{floors['temp_c']:.2g} µT/°C of temp_c" in w["summary"]
+    # by its direction: the motion pins some directions of an offset better than others
+    lo, hi = w["slow_term_floor_range_ut_per_unit"]["temp_c"]
+    assert lo < floors["temp_c"] < hi and f"({lo:.2g}–{hi:.2g} by its direction)" in w["summary"]
     for direction in ([1.0, 0.0, 0.0], [0.6, 0.64, -0.48]):
         k = floors["temp_c"] * np.array(direction)
         small = diagnose(Series(t_s=t, field_ut=h + np.outer(temp - temp.mean(), 0.5 * k), channels=chans))

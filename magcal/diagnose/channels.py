@@ -247,13 +247,42 @@ def slow_term_floor(x: np.ndarray, wander_rms_ut: float, ratio: float, n_blocks:
     judged by the rich-wander test, not the gate) or does not vary; the sample index stands for
     time. A term uᵀk·x has block offsets k·x̄_b, and over directions of k its energy per sample
     is |k|²/3 · Σ_b n_b (x̄_b − x̄)² / n (|u| = 1)."""
+    slow = _slow_blocks(x, n_blocks)
+    if slow is None:
+        return None
+    _, nb, dev = slow
+    between = float(np.sum(nb * dev**2) / nb.sum())
+    return float(np.sqrt(ratio * 3.0 / between) * wander_rms_ut)
+
+
+def slow_term_floor_range(x: np.ndarray, u: np.ndarray, wander_rms_ut: float, ratio: float,
+                          n_blocks: int = 20) -> tuple[float, float] | None:
+    """``slow_term_floor`` along the direction of k the motion pins best and the one it pins
+    worst: a block's offset along k̂ is seen through its directions u (Gram matrix G_b = Σ uuᵀ),
+    so the term's block-offset energy is k̂ᵀ M k̂ |k|² with M = Σ_b (x̄_b − x̄)² G_b / n, and the
+    floor along k̂ is √(ratio / k̂ᵀMk̂) · wander. The mean over directions is ``slow_term_floor``."""
+    slow = _slow_blocks(x, n_blocks)
+    if slow is None:
+        return None
+    blocks, nb, dev = slow
+    u = np.asarray(u, np.float64)
+    m = sum(d**2 * (u[b].T @ u[b]) for b, d in zip(blocks, dev)) / nb.sum()
+    lam = np.linalg.eigvalsh(m)
+    if lam[-1] <= 0:
+        return None
+    hi = float(np.sqrt(ratio / lam[0]) * wander_rms_ut) if lam[0] > 0 else float("inf")
+    return float(np.sqrt(ratio / lam[-1]) * wander_rms_ut), hi
+
+
+def _slow_blocks(x: np.ndarray, n_blocks: int):
+    """(blocks, samples per block, block mean − overall mean) of a channel that varies slowly
+    (a degree-SLOW_DEGREE curve in time carries SLOW_SHARE of its variance), else None."""
     from .inference import contiguous_blocks
 
     x = np.asarray(x, np.float64)
     total = float(np.var(x))
     if total <= 0 or len(x) < 4 * n_blocks:
         return None
-    # slow: a smooth curve in time (Legendre, degree SLOW_DEGREE over the recording) carries most of it
     vand = legendre.legvander(np.linspace(-1.0, 1.0, len(x)), SLOW_DEGREE)
     smooth = vand @ np.linalg.lstsq(vand, x, rcond=None)[0]
     if np.var(smooth) < SLOW_SHARE * total:
@@ -261,10 +290,10 @@ def slow_term_floor(x: np.ndarray, wander_rms_ut: float, ratio: float, n_blocks:
     blocks = contiguous_blocks(len(x), n_blocks)
     nb = np.array([b.stop - b.start for b in blocks], np.float64)
     means = np.array([x[b].mean() for b in blocks])
-    between = float(np.sum(nb * (means - np.sum(nb * means) / nb.sum()) ** 2) / nb.sum())
-    if between <= 0:
+    dev = means - np.sum(nb * means) / nb.sum()
+    if not np.any(dev):
         return None
-    return float(np.sqrt(ratio * 3.0 / between) * wander_rms_ut)
+    return blocks, nb, dev
 
 
 def offset_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> tuple[float, float]:

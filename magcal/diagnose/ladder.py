@@ -426,14 +426,17 @@ def _wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, flo
     else:
         tail = "; a temperature (none is logged) or drift effect that varies this slowly could not be told apart from it"
     # how large a slow term of each channel not in the model would have had to be
-    floors = {}
+    floors, ranges = {}, {}
     for c in untested:
         f = ch.slow_term_floor(chans[c], rms, WANDER_RATIO, WANDER_BLOCKS) if c in chans else None
         if f is not None:
             floors[c] = f
+            ranges[c] = ch.slow_term_floor_range(chans[c], u, rms, WANDER_RATIO, WANDER_BLOCKS)
     if floors:
         tail += " (to be reported, a slowly varying term would have needed about " + ", ".join(
-            f"{v:.2g} µT/{ch.unit_of(c)} of {'drift in time' if c == ch.TIME else c}" for c, v in floors.items()
+            f"{v:.2g} µT/{ch.unit_of(c)} of {'drift in time' if c == ch.TIME else c}"
+            + (f" ({ranges[c][0]:.2g}–{ranges[c][1]:.2g} by its direction)" if ranges.get(c) else "")
+            for c, v in floors.items()
         ) + ")"
     p_text = "p < 1e-12" if p < 1e-12 else f"p = {p:.1g}"
     return (
@@ -444,6 +447,7 @@ def _wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, flo
             "p_value": p,
             "blocks": WANDER_BLOCKS,
             "slow_term_floor_ut_per_unit": floors,
+            "slow_term_floor_range_ut_per_unit": {c: list(r) for c, r in ranges.items() if r},
             "summary": (
                 f"The offset wanders slowly by about {rms:.2f} µT RMS between {WANDER_BLOCKS} stretches of the recording, "
                 f"more than the noise allows ({p_text}) and explained by no logged channel (environment, sensor drift, an "
