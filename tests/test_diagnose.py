@@ -332,3 +332,21 @@ def test_a_channel_the_motion_cannot_test_is_named_under_limits():
     assert "covariate:tilt_log" not in d.effects
     (lim,) = [x for x in d.to_dict()["limits"] if x["effect"] == "covariate:tilt_log"]
     assert lim["channel"] == "tilt_log" and "could not be tested" in lim["summary"]
+
+
+
+def test_the_floor_by_direction_says_when_a_direction_is_never_pinned():
+    from magcal.diagnose.channels import slow_term_floor, slow_term_floor_range
+    from magcal.diagnose.ladder import _by_direction
+
+    t = np.linspace(0.0, 1.0, 2000)
+    temp = 20.0 + 10.0 * np.sin(2 * np.pi * t)
+    turn = 2 * np.pi * 5 * t
+    tilted = np.c_[np.cos(turn) * 0.8, np.sin(turn) * 0.8, np.full_like(t, 0.6)]  # level turns, dip 37°
+    lo, hi = slow_term_floor_range(temp, tilted, 0.3, 4.0)
+    assert lo < slow_term_floor(temp, 0.3, 4.0) < hi  # the vertical is pinned least
+    flat = np.c_[np.cos(turn), np.sin(turn), np.zeros_like(t)]  # never any vertical component
+    lo, hi = slow_term_floor_range(temp, flat, 0.3, 4.0)
+    assert lo > 0 and hi is None
+    assert _by_direction((lo, hi)).endswith("or more by its direction; along some, not at all)")
+    assert json.dumps([lo, hi], allow_nan=False)  # no infinity in the JSON

@@ -256,7 +256,7 @@ def slow_term_floor(x: np.ndarray, wander_rms_ut: float, ratio: float, n_blocks:
 
 
 def slow_term_floor_range(x: np.ndarray, u: np.ndarray, wander_rms_ut: float, ratio: float,
-                          n_blocks: int = 20) -> tuple[float, float] | None:
+                          n_blocks: int = 20) -> tuple[float, float | None] | None:
     """``slow_term_floor`` along the direction of k the motion pins best and the one it pins
     worst: a block's offset along k̂ is seen through its directions u (Gram matrix G_b = Σ uuᵀ),
     so the term's block-offset energy is k̂ᵀ M k̂ |k|² with M = Σ_b (x̄_b − x̄)² G_b / n, and the
@@ -270,7 +270,8 @@ def slow_term_floor_range(x: np.ndarray, u: np.ndarray, wander_rms_ut: float, ra
     lam = np.linalg.eigvalsh(m)
     if lam[-1] <= 0:
         return None
-    hi = float(np.sqrt(ratio / lam[0]) * wander_rms_ut) if lam[0] > 0 else float("inf")
+    # None: along some direction the motion never pins the term, however large
+    hi = float(np.sqrt(ratio / lam[0]) * wander_rms_ut) if lam[0] > 1e-9 * lam[-1] else None
     return float(np.sqrt(ratio / lam[-1]) * wander_rms_ut), hi
 
 

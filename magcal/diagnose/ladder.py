@@ -405,6 +405,13 @@ def _untested_channels(tests: dict, by_effect: dict) -> tuple:
 WANDER_BLOCKS = 20
 
 
+def _by_direction(r) -> str:
+    if not r:
+        return ""
+    lo, hi = r
+    return f" ({lo:.2g}–{hi:.2g} by its direction)" if hi is not None else f" ({lo:.2g} or more by its direction; along some, not at all)"
+
+
 def _wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, floor_ut: float, untested: list) -> tuple:
     """Real recordings wander: the offset moves slowly in a way no logged channel explains.
     That is not a calibration term (it cannot be predicted for the next session), but it bounds
@@ -435,7 +442,7 @@ def _wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, flo
     if floors:
         tail += " (to be reported, a slowly varying term would have needed about " + ", ".join(
             f"{v:.2g} µT/{ch.unit_of(c)} of {'drift in time' if c == ch.TIME else c}"
-            + (f" ({ranges[c][0]:.2g}–{ranges[c][1]:.2g} by its direction)" if ranges.get(c) else "")
+            + _by_direction(ranges.get(c))
             for c, v in floors.items()
         ) + ")"
     p_text = "p < 1e-12" if p < 1e-12 else f"p = {p:.1g}"
