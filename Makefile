@@ -35,7 +35,7 @@ toolchain:
 	fi
 
 demo: $(STAMP) toolchain
-	@$(BIN)/python -m magcal.demo
+	@$(BIN)/python -m magcal.cli.demo
 
 test: $(STAMP) toolchain
 	$(BIN)/python -m pytest -q

@@ -21,9 +21,9 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
+from magcal.core.sample import Sample  # noqa: E402
 from magcal.devices import open_device  # noqa: E402
 from magcal.fit import SphereAccumulator  # noqa: E402
-from magcal.sample import Sample  # noqa: E402
 
 
 def stream(dev, seconds: float, poll_s: float = 0.0) -> tuple[int, float, float]:

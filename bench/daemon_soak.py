@@ -26,8 +26,9 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from magcal import config, physics  # noqa: E402
-from magcal.daemon import Daemon  # noqa: E402
+from magcal.app import config
+from magcal.app.daemon import Daemon  # noqa: E402
+from magcal.sim import physics  # noqa: E402
 
 RATE_HZ = 100
 
@@ -95,7 +96,7 @@ def main() -> None:
 def _serve_board(fd: int, seed: int) -> None:
     """Child process: a real-time simulated board on the pty master ``fd``."""
     from magcal.devices.simboard import SimBoard, serve_fd
-    from magcal.physics import demo_scenario
+    from magcal.sim.physics import demo_scenario
 
     board = SimBoard(demo_scenario(seed), rate_hz=RATE_HZ, speed=1.0)
     board.timeout = 0.01

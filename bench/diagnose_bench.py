@@ -6,7 +6,7 @@ errors, glitch F1, timing and the 1 M-sample run.
 Cases are drawn afresh from the seed (every parameter random within its stated range), so a
 new ``--first-seed`` gives cases the detector has never seen.
 
-Simulated (magcal.physics.Scenario, AK8975-like, 5000 samples at 50 Hz, hard iron ±40 µT,
+Simulated (magcal.sim.physics.Scenario, AK8975-like, 5000 samples at 50 Hz, hard iron ±40 µT,
 noise 0.3–0.6 µT, quantised):
   clean controls — sphere motion; with temperature and current columns but no effect; partial
   coverage (tilt ±25–45°); higher noise (0.8–1.2 µT);
@@ -42,10 +42,10 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
+from magcal.core.series import Series  # noqa: E402
 from magcal.diagnose import diagnose  # noqa: E402
 from magcal.diagnose.model import Spec, fit_model  # noqa: E402
-from magcal.physics import Current, Motion, Physics, Scenario, Temperature  # noqa: E402
-from magcal.series import Series  # noqa: E402
+from magcal.sim.physics import Current, Motion, Physics, Scenario, Temperature  # noqa: E402
 
 N = 5000
 RATE = 50.0
@@ -293,7 +293,7 @@ def big_run(n: int) -> dict:
 import resource, time, json, sys, warnings
 sys.path.insert(0, {str(HERE.parent)!r})
 warnings.filterwarnings('ignore')
-from magcal.physics import Scenario, Physics, Temperature, Current
+from magcal.sim.physics import Scenario, Physics, Temperature, Current
 from magcal.diagnose import diagnose
 sc = Scenario(physics=Physics(hard_iron_ut=(20,-30,10), temp_coef_ut_per_c=(0.06,0.04,-0.05), glitch_rate=0.002),
               temperature=Temperature(swing_c=20, period_s=15000), current=Current(level_a=2), seed=5)

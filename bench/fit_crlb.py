@@ -20,10 +20,10 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
+from magcal.core.sample import UT_PER_COUNT, asa_gain  # noqa: E402
 from magcal.fit import SphereAccumulator, fit  # noqa: E402
 from magcal.fit.uncertainty import crlb_offset  # noqa: E402
-from magcal.physics import Motion, Physics, Scenario  # noqa: E402
-from magcal.sample import UT_PER_COUNT, asa_gain  # noqa: E402
+from magcal.sim.physics import Motion, Physics, Scenario  # noqa: E402
 
 NOISE_UT = 0.4
 N = 1500

@@ -34,8 +34,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
+from magcal.core.series import Series  # noqa: E402
 from magcal.diagnose import diagnose  # noqa: E402
-from magcal.series import Series  # noqa: E402
 
 ROOT = Path(os.environ.get("MAGCAL_REAL_DATA", HERE.parent.parent / "shared" / "data" / "real"))
 

@@ -24,13 +24,19 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from magcal.capture import CaptureReader, CaptureWriter, load_series, make_header, series_from_frames  # noqa: E402
+from magcal.app.load import load_series  # noqa: E402
 from magcal.devices import open_device  # noqa: E402
 from magcal.devices.replay import collect_samples  # noqa: E402
 from magcal.fit import SphereAccumulator  # noqa: E402
-from magcal.physics import demo_scenario  # noqa: E402
-from magcal.protocol import encode_line  # noqa: E402
-from magcal.protocol_bulk import parse_stream  # noqa: E402
+from magcal.recordings.capture import (
+    CaptureReader,
+    CaptureWriter,
+    make_header,
+    series_from_frames,
+)  # noqa: E402
+from magcal.sim.physics import demo_scenario  # noqa: E402
+from magcal.wire.bulk import parse_stream  # noqa: E402
+from magcal.wire.protocol import encode_line  # noqa: E402
 
 RATE_HZ = 100
 CHUNK_S = 0.05

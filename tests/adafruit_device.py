@@ -5,7 +5,7 @@
 ``Uni:`` line, a ``Cal1:`` line at loop 50 and a ``Cal2:`` line at loop 100 of every 100, and a
 receiver for the 68-byte packet (signature 117, 84; CRC-16 over all 68 bytes must be 0) that
 stores the floats and prints ``Wrote calibration``. The field comes from
-``magcal.physics.Scenario`` — the one simulator — so tests know the truth.
+``magcal.sim.physics.Scenario`` — the one simulator — so tests know the truth.
 
 Faults: ``noise`` (probability per line of garbage bytes ahead of it, or a garbage line),
 ``torn`` (probability that a line loses its tail and its ending), ``ending`` (``"\\r"``,
@@ -28,8 +28,8 @@ import tty
 
 import numpy as np
 
-from magcal import motioncal as mc
-from magcal.physics import Motion, Physics, Scenario
+from magcal.sim.physics import Motion, Physics, Scenario
+from magcal.wire import motioncal as mc
 
 GRAVITY_MS2 = 9.8  # what the Adafruit sketch divides by for Raw: accel counts
 

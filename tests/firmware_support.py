@@ -13,8 +13,7 @@ import time
 import pytest
 
 from magcal.devices.emulator import ELF, FIRMWARE_DIR, HARNESS, ensure_built, toolchain_problem
-from magcal.protocol import Framer, encode_command
-
+from magcal.wire.protocol import Framer, encode_command
 
 _built = False
 

@@ -4,10 +4,11 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from magcal.fit import FitFailure, SphereAccumulator, SphereFit
-from magcal.physics import Motion, Physics, Scenario
+from magcal.sim.physics import Motion, Physics, Scenario
 
 
 def sphere_points(n, centre, radius, noise=0.0, seed=0):

@@ -1,69 +1,176 @@
-"""The rings of the architecture, checked from the imports (see README, Architecture)."""
+"""The rings of the architecture, read off the tree and checked from the imports.
+
+Every module of ``magcal`` belongs to a ring by its folder (see README, Architecture). A module
+may import only the rings listed for its own; the lower rings may not touch files, clocks,
+ports, threads, signals or plots; a module in no ring fails the test, so a new top-level module
+has to be placed before it can land.
+"""
+
+from __future__ import annotations
 
 import ast
 import os
+import sys
 
 ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "magcal")
 
-VALUES = {"sample", "series", "calibration", "errors", "selftest"}
-PURE = {"protocol", "coverage", "session", "physics", "motioncal", "monitor"}
-PURE_PACKAGES = {"fit", "diagnose"}
-EFFECTS = {"serial", "smbus2", "socket", "signal", "subprocess", "threading", "select", "fcntl"}
+# ring → the rings its modules may import (their own included)
+ALLOWED = {
+    "core": {"core"},
+    "wire": {"core", "wire"},
+    "fit": {"core", "fit"},
+    "sim": {"core", "sim"},
+    "logic": {"core", "fit", "logic"},
+    "diagnose": {"core", "fit", "sim", "diagnose"},
+    "recordings": {"core", "wire", "recordings"},
+    "devices": {"core", "wire", "sim", "recordings", "devices"},
+    "app": {"core", "wire", "fit", "sim", "logic", "diagnose", "recordings", "devices", "app"},
+    "cli": {"core", "wire", "fit", "sim", "logic", "diagnose", "recordings", "devices", "app", "cli"},
+}
+PURE = {"core", "wire", "fit", "sim", "logic", "diagnose"}
+FILES = {"os", "pathlib", "shutil", "tempfile", "io", "glob"}
+CLOCK = {"time", "datetime"}
+PORTS = {"serial", "smbus2", "socket", "select", "fcntl", "termios", "pty", "ctypes", "subprocess", "threading"}
+PROCESS = {"signal", "logging", "sys"}
+PLOTS = {"matplotlib"}
+# what each ring may use of the outside world, beyond pure computation
+EFFECTS_ALLOWED = {
+    **{ring: set() for ring in PURE},
+    "recordings": FILES | CLOCK,
+    "devices": FILES | CLOCK | PORTS | {"signal"},  # signal: a child's exit signal, never a handler
+    "app": FILES | CLOCK | PORTS | PROCESS | PLOTS,
+    "cli": FILES | CLOCK | PORTS | PROCESS | PLOTS,
+}
+EFFECTS = FILES | CLOCK | PORTS | PROCESS | PLOTS
+SIGNAL_HANDLERS = {"app.daemon", "cli"}
+TOP_LEVEL = {"": "core", "__main__": "cli"}  # magcal/__init__.py holds only the version
 
 
 def modules():
     for dirpath, _, files in os.walk(ROOT):
-        for f in files:
+        for f in sorted(files):
             if f.endswith(".py"):
                 path = os.path.join(dirpath, f)
                 rel = os.path.relpath(path, ROOT)[:-3].replace(os.sep, ".")
-                yield rel.replace(".__init__", ""), path
+                name = rel[: -len("__init__")].rstrip(".") if rel.endswith("__init__") else rel
+                yield name, path
 
 
-def imports_of(path):
+def ring_of(name: str) -> str | None:
+    if name in TOP_LEVEL:
+        return TOP_LEVEL[name]
+    first = name.split(".")[0]
+    return first if first in ALLOWED and "." in name or name in ALLOWED else None
+
+
+def package_of(name: str, path: str) -> str:
+    base = "magcal" + ("." + name if name else "")
+    return base if path.endswith("__init__.py") else base.rsplit(".", 1)[0]
+
+
+def imports_of(name: str, path: str) -> set[str]:
+    """Absolute names of everything a module imports (lazy imports inside functions too)."""
     tree = ast.parse(open(path, encoding="utf-8").read())
+    pkg = package_of(name, path)
     out = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
             if node.level:
-                out.add("magcal." + base if base else "magcal")
-                for a in node.names:
-                    out.add(("magcal." + base + "." if base else "magcal.") + a.name)
+                parts = pkg.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1])
+                mod = f"{base}.{node.module}" if node.module else base
+                out |= {f"{mod}.{a.name}" for a in node.names} | {mod}
             else:
-                out.add(base)
+                out.add(node.module or "")
     return out
 
 
-def top(name):
-    return name.split(".")[0]
+def magcal_ring(imported: str) -> str | None:
+    """The ring of an imported magcal name (``magcal.fit.sphere.fit_sphere`` → ``fit``)."""
+    parts = imported.split(".")[1:]
+    if not parts or parts[0] in ("__version__",):
+        return "core"
+    return parts[0] if parts[0] in ALLOWED else None
 
 
-def test_values_import_only_numpy_and_each_other():
+def calls_open(path: str) -> bool:
+    tree = ast.parse(open(path, encoding="utf-8").read())
+    return any(isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id == "open" for n in ast.walk(tree))
+
+
+def test_every_module_has_a_ring():
+    unplaced = [name for name, _ in modules() if ring_of(name) is None]
+    assert not unplaced, f"modules in no ring (put them in a ring's folder): {unplaced}"
+
+
+def test_a_module_in_no_ring_is_refused():
+    """The placement rule itself: a new top-level module or folder is not silently accepted."""
+    assert ring_of("helpers") is None
+    assert ring_of("utils.things") is None
+    assert ring_of("fit.sphere") == "fit" and ring_of("app.daemon") == "app"
+
+
+def test_rings_import_only_the_rings_below_them():
+    bad = []
     for name, path in modules():
-        if name in VALUES:
-            for imp in imports_of(path):
-                assert top(imp) in {"numpy", "magcal", "__future__", "dataclasses", "typing"} , (name, imp)
-                if imp.startswith("magcal."):
-                    assert imp.split(".")[1] in VALUES, (name, imp)
+        ring = ring_of(name)
+        if ring is None:
+            continue  # reported by test_every_module_has_a_ring
+        for imp in imports_of(name, path):
+            if imp == "magcal" or imp.startswith("magcal."):
+                target = magcal_ring(imp)
+                if target is None or target not in ALLOWED[ring]:
+                    bad.append(f"{name} ({ring}) imports {imp}")
+    assert not bad, "\n".join(sorted(bad))
 
 
-def test_pure_logic_touches_no_ports_threads_or_signals():
+def test_lower_rings_touch_no_files_clocks_ports_signals_or_plots():
+    bad = []
     for name, path in modules():
-        if name in PURE or name.split(".")[0] in PURE_PACKAGES:
-            bad = {i for i in imports_of(path) if top(i) in EFFECTS}
-            assert not bad, f"{name} imports {bad}"
-            assert not any(i.startswith("magcal.devices") or i.startswith("magcal.daemon") for i in imports_of(path)
-                           if name != "session" or not i.startswith("magcal.devices.base")), name
+        ring = ring_of(name)
+        if ring is None:
+            continue  # reported by test_every_module_has_a_ring
+        used = {i.split(".")[0] for i in imports_of(name, path)} & EFFECTS
+        if used - EFFECTS_ALLOWED[ring]:
+            bad.append(f"{name} ({ring}) imports {sorted(used - EFFECTS_ALLOWED[ring])}")
+        if ring in PURE and calls_open(path):
+            bad.append(f"{name} ({ring}) calls open()")
+    assert not bad, "\n".join(sorted(bad))
 
 
-def test_io_never_imports_fits_or_the_session():
+def test_no_import_cycles():
+    graph = {}
+    names = {("magcal." + n if n else "magcal") for n, _ in modules()}
     for name, path in modules():
-        if name.startswith("devices") or name == "capture":
-            bad = {i for i in imports_of(path) if i.startswith(("magcal.fit", "magcal.session", "magcal.diagnose"))}
-            assert not bad, f"{name} imports {bad}"
+        full = "magcal." + name if name else "magcal"
+        deps = set()
+        for imp in imports_of(name, path):
+            while imp and imp not in names:
+                imp = imp.rpartition(".")[0]
+            if imp and imp != full and not full.startswith(imp + "."):  # a package's own __init__ is no cycle
+                deps.add(imp)
+        graph[full] = deps
+    sys.setrecursionlimit(10_000)
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(node):
+        state[node] = 1
+        stack.append(node)
+        for dep in graph.get(node, ()):
+            if state.get(dep) == 1:
+                cycle = stack[stack.index(dep):] + [dep]
+                raise AssertionError("import cycle: " + " → ".join(cycle))
+            if dep not in state:
+                visit(dep)
+        stack.pop()
+        state[node] = 2
+
+    for node in graph:
+        if node not in state:
+            visit(node)
 
 
 def test_only_the_daemon_and_cli_install_signal_handlers():
@@ -71,4 +178,4 @@ def test_only_the_daemon_and_cli_install_signal_handlers():
         tree = ast.parse(open(path, encoding="utf-8").read())
         for node in ast.walk(tree):
             if isinstance(node, ast.Attribute) and node.attr == "signal" and getattr(node.value, "id", "") == "signal":
-                assert name in {"daemon", "cli"} or name.startswith("commands."), name
+                assert name in SIGNAL_HANDLERS or name.startswith("cli."), name

@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from magcal import config
+from magcal.app import config
+from magcal.app.procedure import calibrate
 from magcal.cli import main
 from magcal.devices import open_device
-from magcal.physics import demo_scenario
-from magcal.procedure import calibrate
+from magcal.sim.physics import demo_scenario
 
 
 def run_cli(capsys, *argv):

@@ -8,19 +8,19 @@ import os
 import numpy as np
 import pytest
 
-from magcal.capture import (
+from magcal.app.load import load_series
+from magcal.core.errors import InputError
+from magcal.core.series import Series
+from magcal.devices.link import ProtocolDevice
+from magcal.devices.replay import BytesTransport, collect_samples
+from magcal.recordings.capture import (
     CaptureReader,
     CaptureWriteError,
     CaptureWriter,
-    load_series,
     make_header,
     roll_keep_one,
 )
-from magcal.devices.link import ProtocolDevice
-from magcal.devices.replay import BytesTransport, collect_samples
-from magcal.errors import InputError
-from magcal.protocol import encode_line
-from magcal.series import Series
+from magcal.wire.protocol import encode_line
 
 
 def stream_bytes(n=400, start=1):
@@ -214,8 +214,9 @@ def test_record_refused_before_reading_leaves_no_empty_capture(tmp_path, capsys)
 
 def test_a_raw_serial_dump_with_reset_noise_is_read_like_its_capture(tmp_path):
     # `cat /dev/ttyACM0 > dump.txt` across a board reset: NUL and 0xFF bytes before the lines
-    from magcal.capture import CaptureReader, load_series
+    from magcal.app.load import load_series
     from magcal.cli import main
+    from magcal.recordings.capture import CaptureReader
 
     cap = tmp_path / "run.cap"
     assert main(["record", "--port", "sim://?seed=6", "-o", str(cap), "--count", "200"]) == 0

@@ -2,8 +2,8 @@ import os
 
 import pytest
 
-from magcal import config
-from magcal.errors import ConfigError
+from magcal.app import config
+from magcal.core.errors import ConfigError
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

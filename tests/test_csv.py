@@ -6,11 +6,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from magcal.capture import load_series
-from magcal.table import load_csv, parse_csv, save_csv
+from magcal.app.load import load_series
 from magcal.cli import main
-from magcal.errors import InputError
-from magcal.series import Series
+from magcal.core.errors import InputError
+from magcal.core.series import Series
+from magcal.recordings.table import load_csv, parse_csv, save_csv
 
 
 def write(tmp_path, text, name="in.csv"):

@@ -9,12 +9,12 @@ import json
 import numpy as np
 import pytest
 
-from magcal import config
-from magcal.daemon import Daemon
+from magcal.app import config
+from magcal.app.daemon import Daemon
 from magcal.devices import open_device
 from magcal.devices.simboard import _BOARDS, forget_boards
-from magcal.protocol import record_from_calibration
-from magcal.state import StateStore
+from magcal.recordings.state import StateStore
+from magcal.wire.protocol import record_from_calibration
 
 _names = itertools.count()
 
@@ -163,7 +163,7 @@ def test_a_calibration_failing_a_gate_is_never_written(tmp_path):
 def test_full_disk_for_captures_keeps_streaming(tmp_path, monkeypatch):
     import errno
 
-    from magcal import capture
+    from magcal.recordings import capture
 
     t = Tracked("seed=9")
     real_append = capture.CaptureWriter.append
@@ -244,10 +244,10 @@ def test_reload_rejects_an_invalid_config_and_keeps_the_old(tmp_path):
 
 def _record_capture(path, seconds=12.0, seed=13):
     """A capture of a sim board streaming at 100 Hz, chunks stamped with the board's time."""
-    from magcal.capture import CaptureWriter, make_header
     from magcal.devices.simboard import SimBoard
-    from magcal.physics import demo_scenario
-    from magcal.protocol import encode_command
+    from magcal.recordings.capture import CaptureWriter, make_header
+    from magcal.sim.physics import demo_scenario
+    from magcal.wire.protocol import encode_command
 
     board = SimBoard(demo_scenario(seed), rate_hz=100)
     w = CaptureWriter(path, make_header("sim://", 115200))
@@ -303,7 +303,7 @@ def test_a_restarted_daemon_resumes_a_replay_where_it_stopped(tmp_path):
 def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
     import threading
 
-    from magcal.errors import StateError
+    from magcal.core.errors import StateError
 
     first = Daemon(make_settings("sim://?seed=16&speed=5"), state_dir=tmp_path)
     th = threading.Thread(target=first.run)

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from magcal.devices.simboard import SimBoard
-from magcal.protocol import MAX_LINE, Framer, RawSample, encode_command, encode_line
+from magcal.wire.protocol import MAX_LINE, Framer, RawSample, encode_command, encode_line
 
 FAST = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SPECIAL = [b"$", b"\n", b"\r\n", b"$$", b"*", b"$S,1*", b"9" * 130, b"\x00", b"$A,1,2,G*00\n"]

@@ -11,10 +11,10 @@ import time
 
 import pytest
 
-from magcal import config
-from magcal.session import Session
-from magcal.monitor import DriftMonitor
-from magcal.state import StateStore
+from magcal.app import config
+from magcal.logic.monitor import DriftMonitor
+from magcal.logic.session import Session
+from magcal.recordings.state import StateStore
 
 ITERATIONS = 50
 
@@ -28,7 +28,7 @@ def _mtime(path) -> int:
 
 def _child(state_dir: str, seed: int) -> None:
     # runs in a forked child: the imports are already done, so a start costs milliseconds
-    from magcal.daemon import Daemon
+    from magcal.app.daemon import Daemon
     from magcal.devices import open_device
 
     port = f"sim://?eeprom={state_dir}/eeprom.bin"  # one device; each boot moves through other directions

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from magcal.daemon import query_socket
+from magcal.app.daemon import query_socket
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -10,11 +10,11 @@ from contextlib import redirect_stdout
 import numpy as np
 import pytest
 
-from magcal.table import save_csv
 from magcal.cli import main
+from magcal.core.series import Series
 from magcal.diagnose import diagnose
-from magcal.physics import Current, Motion, Physics, Scenario, Temperature
-from magcal.series import Series
+from magcal.recordings.table import save_csv
+from magcal.sim.physics import Current, Motion, Physics, Scenario, Temperature
 
 N = 5000
 HARD = (21.0, -33.0, 8.0)

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from magcal.core.series import Series
 from magcal.diagnose import diagnose
 from magcal.diagnose.model import Spec, fit_model
-from magcal.physics import Current, Scenario
-from magcal.series import Series
+from magcal.sim.physics import Current, Scenario
 
 DATA = Path(__file__).parent / "data" / "hmc5883l_sunsided_tilt_sphere_counts.csv"
 UT_PER_COUNT = 100.0 / 1090.0  # HMC5883L at ±1.3 G: 1090 LSB/G

@@ -11,20 +11,12 @@ import errno
 import numpy as np
 import pytest
 
-from magcal.devices.base import Event
+from magcal.core.errors import PortUnavailable
+from magcal.core.events import Event
+from magcal.core.sample import UT_PER_COUNT, Sample, asa_gain
 from magcal.devices.fakebus import FakeBus, FakeClock
-from magcal.devices.i2c import (
-    AK_ADDR,
-    REG_ASAX,
-    REG_CNTL,
-    REG_HXL,
-    REG_ST1,
-    MODE_SINGLE,
-    open_i2c,
-)
-from magcal.errors import PortUnavailable
-from magcal.physics import Motion, Physics, Scenario, demo_scenario
-from magcal.sample import Sample, UT_PER_COUNT, asa_gain
+from magcal.devices.i2c import AK_ADDR, MODE_SINGLE, REG_ASAX, REG_CNTL, REG_HXL, REG_ST1, open_i2c
+from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
 
 
 def opened(bus: FakeBus, url: str = "i2c:1", **kw):
@@ -217,8 +209,8 @@ def test_the_model_library_builds_with_a_plain_compiler_when_make_is_absent(tmp_
 
 
 def test_no_c_compiler_is_a_clear_error(tmp_path, monkeypatch):
+    from magcal.core.errors import DeviceError
     from magcal.devices import fakebus
-    from magcal.errors import DeviceError
 
     monkeypatch.setattr(fakebus.shutil, "which", lambda name: None)
     monkeypatch.delenv("CC", raising=False)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from magcal.core.errors import DeviceError
 from magcal.devices import emulator, open_device
-from magcal.errors import DeviceError
-from magcal.physics import demo_scenario
+from magcal.sim.physics import demo_scenario
 
 
 def test_a_missing_build_without_toolchain_is_a_clear_device_error(tmp_path, monkeypatch):

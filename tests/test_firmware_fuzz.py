@@ -14,10 +14,17 @@ import random
 import time
 
 import pytest
-
-from magcal.protocol import Ack, ErrorReply, Hello, ParseError, RecordReply, encode_command, parse_command
-
 from firmware_support import RawBoard, require_firmware
+
+from magcal.wire.protocol import (
+    Ack,
+    ErrorReply,
+    Hello,
+    ParseError,
+    RecordReply,
+    encode_command,
+    parse_command,
+)
 
 LINES = 250
 REPLY_TIMEOUT_S = 5.0

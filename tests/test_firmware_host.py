@@ -11,14 +11,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from firmware_support import require_firmware
-from magcal.calibration import Calibration
+
 from magcal.cli import main as cli_main
+from magcal.core.calibration import Calibration
+from magcal.core.sample import Sample, counts_to_ut, temp_raw_to_c
 from magcal.devices import Event, open_device
-from magcal.physics import HOFL_SUM_UT, Motion, demo_scenario
-from magcal.protocol import record_from_calibration
-from magcal.sample import Sample, counts_to_ut, temp_raw_to_c
+from magcal.sim.physics import HOFL_SUM_UT, Motion, demo_scenario
+from magcal.wire.protocol import record_from_calibration
 
 
 @pytest.fixture(autouse=True)
@@ -187,7 +187,7 @@ def test_a_magnetometer_that_never_finishes_is_logged_and_the_board_stays_respon
 
 
 def test_through_the_host_client_bad_commands_are_refused_and_streaming_goes_on(tmp_path):
-    from magcal.errors import DeviceError
+    from magcal.core.errors import DeviceError
 
     dev = open_device(f"emu://?seed=3&eeprom={tmp_path / 'ee.bin'}")
     with dev:
@@ -227,7 +227,7 @@ def test_the_firmware_finds_the_mpu_with_ad0_low_or_high(tmp_path, addr):
 
 
 def test_an_emulated_board_at_an_impossible_address_is_refused_plainly():
-    from magcal.errors import DeviceError
+    from magcal.core.errors import DeviceError
 
     with pytest.raises(DeviceError, match="0x68 .AD0 low. or 0x69"):
         open_device("emu://?addr=0x70")

@@ -8,7 +8,7 @@ import errno
 import pytest
 
 from magcal.devices.fakebus import FakeBus, FakeClock
-from magcal.physics import demo_scenario
+from magcal.sim.physics import demo_scenario
 
 MPU, AK = 0x68, 0x0C
 PWR_MGMT_1, USER_CTRL, INT_PIN_CFG, TEMP_OUT_H, WHO_AM_I = 0x6B, 0x6A, 0x37, 0x41, 0x75

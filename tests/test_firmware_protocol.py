@@ -11,8 +11,9 @@ import time
 
 import numpy as np
 import pytest
+from firmware_support import RawBoard, make_size_output, require_firmware
 
-from magcal.protocol import (
+from magcal.wire.protocol import (
     Ack,
     ErrorReply,
     Hello,
@@ -22,8 +23,6 @@ from magcal.protocol import (
     encode_command,
     record_crc,
 )
-
-from firmware_support import RawBoard, make_size_output, require_firmware
 
 
 @pytest.fixture(autouse=True)
@@ -204,8 +203,8 @@ def test_corrupt_eeprom_is_reported_and_never_applied(tmp_path, flip):
 
 def test_calibrated_output_applies_the_stored_record(tmp_path):
     """U lines = W (m − o − t (T − tref)) as the host computes it, from the stored record."""
-    from magcal.protocol import CalibratedSample, calibration_from_record
-    from magcal.sample import counts_to_ut, temp_raw_to_c
+    from magcal.core.sample import counts_to_ut, temp_raw_to_c
+    from magcal.wire.protocol import CalibratedSample, calibration_from_record
 
     vals = (1, 10000, -20000, 30000, 50000, 1020000, 980000, 1005000, 12000, -8000, 5000,
             150, -300, 220, 2500, 0, 0, 0)
@@ -285,7 +284,7 @@ def test_the_deepest_paths_leave_stack_headroom_in_2k_of_ram(tmp_path):
         b.wait_for(lambda i: isinstance(i, ErrorReply) and i.code == "LONG", 5, "LONG")
         for cmd in ("N", "F"):
             tag = b.send(cmd, 50)
-            from magcal.protocol import FitReply
+            from magcal.wire.protocol import FitReply
 
             b.wait_for(lambda i: isinstance(i, FitReply) and i.tag == tag, 10, f"{cmd} result")
         _reply(b, b.send("Z"))

@@ -12,12 +12,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from firmware_support import require_firmware
+
+from magcal.core.sample import ST2_DERR, ST2_HOFL
 from magcal.devices import open_device
-from magcal.physics import Motion, demo_scenario
-from magcal.protocol import FitReply
-from magcal.sample import ST2_DERR, ST2_HOFL
+from magcal.sim.physics import Motion, demo_scenario
+from magcal.wire.protocol import FitReply
 
 N = 800
 OFFSET_UT = (260.0, -215.0, 180.0)  # ≈ 720, −600, 520 counts of hard iron

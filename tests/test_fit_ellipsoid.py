@@ -2,12 +2,13 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from magcal.calibration import Calibration
+from magcal.core.calibration import Calibration
 from magcal.fit import FitFailure, algebraic_quadric, fit, fit_ellipsoid, quadric_to_correction
 from magcal.fit.ellipsoid import correct_with_note
-from magcal.physics import Motion, Physics, Scenario
+from magcal.sim.physics import Motion, Physics, Scenario
 
 DISTORTION = ((1.08, 0.03, -0.02), (0.03, 0.94, 0.025), (-0.02, 0.025, 1.01))
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from magcal.fit import fit, grubbs, grubbs_critical
-from magcal.physics import Motion, Physics, Scenario
+from magcal.sim.physics import Motion, Physics, Scenario
 
 
 def test_critical_values_reproduce_the_published_tables():

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from magcal.cli import main
+from magcal.core.series import Series
 from magcal.fit import FitFailure, fit
-from magcal.physics import Motion, Physics, Scenario, demo_scenario
-from magcal.series import Series
+from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
 
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
 

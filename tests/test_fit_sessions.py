@@ -7,6 +7,7 @@ import pytest
 
 from magcal.cli import main
 
+
 def test_several_sessions_are_fitted_and_a_moved_hard_iron_is_named(tmp_path, capsys):
     paths = []
     for seed, offset in ((1, "20,-30,10"), (2, "20,-30,10"), (3, "21.5,-30,10")):

@@ -5,8 +5,8 @@ bulk parser used for replays gives exactly the same answer."""
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from magcal.protocol import MAX_LINE, Framer, Gap, Hello, RawSample, Restart, crc8, encode_line
-from magcal.protocol_bulk import parse_stream
+from magcal.wire.bulk import parse_stream
+from magcal.wire.protocol import MAX_LINE, Framer, Gap, Hello, RawSample, Restart, crc8, encode_line
 
 SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

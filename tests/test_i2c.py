@@ -7,9 +7,11 @@ import re
 import numpy as np
 import pytest
 
-from magcal.calibration import Calibration
+from magcal.core.calibration import Calibration
+from magcal.core.errors import ConfigError, DeviceError, IdentityError, NoReply, PortUnavailable
+from magcal.core.events import Event
+from magcal.core.sample import Sample
 from magcal.devices import open_device
-from magcal.devices.base import Event
 from magcal.devices.fakebus import FakeBus
 from magcal.devices.i2c import (
     AK_ADDR,
@@ -22,9 +24,7 @@ from magcal.devices.i2c import (
     open_i2c,
     parse_url,
 )
-from magcal.errors import ConfigError, DeviceError, IdentityError, NoReply, PortUnavailable
-from magcal.physics import demo_scenario
-from magcal.sample import Sample
+from magcal.sim.physics import demo_scenario
 
 
 def opened(bus, url="i2c:1", **kw):

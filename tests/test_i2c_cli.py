@@ -18,7 +18,7 @@ import smbus2
 
 from magcal.cli import main
 from magcal.devices.fakebus import FakeBus
-from magcal.physics import demo_scenario
+from magcal.sim.physics import demo_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -163,7 +163,7 @@ def test_show_self_test_on_a_backend_without_one_is_a_clear_error(capsys, tmp_pa
 
 
 def test_show_self_test_on_the_simulated_board_reads_its_physics(capsys):
-    from magcal.physics import demo_scenario
+    from magcal.sim.physics import demo_scenario
 
     rc = main(["show", "--port", "sim://", "--self-test", "--json"])
     d = json.loads(capsys.readouterr().out)

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from magcal.calibration import Calibration
+from magcal.core.calibration import Calibration
+from magcal.core.errors import DeviceError, NoReply
+from magcal.core.events import Event
+from magcal.core.sample import Sample
 from magcal.devices import open_device
-from magcal.devices.base import Event
-from magcal.errors import DeviceError, NoReply
-from magcal.sample import Sample
 
 
 def collect(dev, n):

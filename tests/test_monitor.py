@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from magcal import fit as fits
-from magcal.monitor import DriftMonitor
-from magcal.physics import Motion, demo_scenario
+from magcal.logic.monitor import DriftMonitor
+from magcal.sim.physics import Motion, demo_scenario
 
 
 @pytest.fixture(scope="module")

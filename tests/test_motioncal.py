@@ -9,10 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from magcal import motioncal as mc
-from magcal.calibration import Calibration
-from magcal.errors import InputError
-from magcal.physics import Motion, Physics, Scenario
+from magcal.app.load import load_motioncal_log
+from magcal.core.calibration import Calibration
+from magcal.core.errors import InputError
+from magcal.sim.physics import Motion, Physics, Scenario
+from magcal.wire import motioncal as mc
 
 
 def random_cal(rng, field_ut=None) -> Calibration:
@@ -285,12 +286,12 @@ def test_load_log_reads_raw_lines_with_mixed_endings_and_junk(tmp_path):
         parts.append(b"Raw:0,0,8192,0,0,0,%d,%d,%d" % tuple(c) + ending)
     path = tmp_path / "motioncal.log"
     path.write_bytes(b"".join(parts))
-    s = mc.load_log(path)
+    s = load_motioncal_log(path)
     assert len(s) == len(m)
     assert np.allclose(s.field_ut, np.round(m * 10) / 10, atol=1e-9)
     assert np.array_equal(s.t_s, np.arange(len(m)))  # no time in the convention: index
     assert list(s.row) == expect_rows
-    s50 = mc.load_log(path, rate_hz=50)
+    s50 = load_motioncal_log(path, rate_hz=50)
     assert s50.t_s[-1] == pytest.approx((len(m) - 1) / 50)
 
 
@@ -298,9 +299,9 @@ def test_load_log_without_readings_names_the_file(tmp_path):
     p = tmp_path / "notes.txt"
     p.write_text("time,x,y,z\n1,2,3,4\n")
     with pytest.raises(InputError, match="notes.txt.*no Raw"):
-        mc.load_log(p)
+        load_motioncal_log(p)
     with pytest.raises(InputError, match="cannot read"):
-        mc.load_log(tmp_path / "missing.log")
+        load_motioncal_log(tmp_path / "missing.log")
 
 
 def test_serial_monitor_timestamps_ahead_of_lines_are_tolerated():

@@ -7,12 +7,12 @@ import struct
 
 import numpy as np
 import pytest
-
 from adafruit_device import AdafruitBoard
-from magcal import motioncal as mc
-from magcal.capture import load_series
+
+from magcal.app.load import load_series
 from magcal.cli import main
 from magcal.fit import fit
+from magcal.wire import motioncal as mc
 
 
 def run_json(argv, capsys) -> tuple[int, dict]:
@@ -141,9 +141,9 @@ def test_fit_and_diagnose_read_a_motioncal_log(tmp_path, capsys, command):
 def test_a_recorded_motioncal_session_replays_as_it_was_live(capsys, tmp_path, dialect):
     """``record`` keeps a MotionCal sketch's bytes; ``replay://`` and ``fit FILE`` then read the
     same readings, timed by when their bytes arrived, and a replay refuses to store."""
+    from magcal.core.errors import DeviceError
     from magcal.devices import open_device
     from magcal.devices.replay import collect_samples
-    from magcal.errors import DeviceError
 
     cap = tmp_path / "mc.cap"
     with AdafruitBoard(noise=0.02, torn=0.02, lines_per_s=400, seed=5) as board:

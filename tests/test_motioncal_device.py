@@ -6,13 +6,13 @@ import time
 
 import numpy as np
 import pytest
-
 from adafruit_device import AdafruitBoard
-from magcal import motioncal as mc
-from magcal.calibration import Calibration
+
+from magcal.core.calibration import Calibration
+from magcal.core.errors import NoReply, WriteRejected
 from magcal.devices import open_device
 from magcal.devices.motioncal import MotionCalDevice
-from magcal.errors import NoReply, WriteRejected
+from magcal.wire import motioncal as mc
 
 FAST = dict(echo_timeout_s=1.0, tries=2, open_timeout_s=3.0)
 
@@ -235,7 +235,7 @@ def test_compare_tolerance_accepts_a_printed_echo_only():
 
 
 def test_unplugged_board_is_port_unavailable():
-    from magcal.errors import PortUnavailable
+    from magcal.core.errors import PortUnavailable
 
     board = AdafruitBoard().start()
     with open_device(board.port, dialect="motioncal", **FAST) as dev:

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from magcal.calibration import Calibration
-from magcal.protocol import (
+from magcal.core.calibration import Calibration
+from magcal.wire.protocol import (
     Ack,
     Framer,
     Gap,

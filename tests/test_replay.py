@@ -6,13 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from magcal.capture import CaptureReader, CaptureWriter, load_series, make_header
+from magcal.app.load import load_series
 from magcal.cli import main
+from magcal.core.errors import DeviceError
+from magcal.core.sample import Sample
+from magcal.core.series import Series
 from magcal.devices import open_device
 from magcal.devices.replay import BytesTransport, collect_samples, parse_replay_url
-from magcal.errors import DeviceError
-from magcal.sample import Sample
-from magcal.series import Series
+from magcal.recordings.capture import CaptureReader, CaptureWriter, make_header
 
 
 def record_live(path, url="sim://?seed=5", n=2500, faults=True):

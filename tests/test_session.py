@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from magcal.config import Gates
-from magcal.devices.base import Event
-from magcal.physics import Motion, Scenario, demo_scenario
-from magcal.sample import Sample
-from magcal.session import Session, Status
+from magcal.core.events import Event
+from magcal.core.sample import Sample
+from magcal.logic.gates import Gates
+from magcal.logic.session import Session, Status
+from magcal.sim.physics import Motion, Scenario, demo_scenario
 
 
 def samples_from(scenario, n, rate=50.0):

@@ -8,11 +8,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from magcal.errors import StateError
-from magcal.session import Session
-from magcal.physics import demo_scenario
-from magcal.sample import Sample
-from magcal.state import StateStore, decode_state, encode_state
+from magcal.core.errors import StateError
+from magcal.core.sample import Sample
+from magcal.logic.session import Session
+from magcal.recordings.state import StateStore, decode_state, encode_state
+from magcal.sim.physics import demo_scenario
 
 json_values = st.recursive(
     st.none() | st.booleans() | st.integers(-2**53, 2**53) | st.floats(allow_nan=False, allow_infinity=False)

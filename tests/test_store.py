@@ -13,12 +13,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import magcal.store as store_mod
-from magcal.atomic import write_atomic
-from magcal.calibration import Calibration
-from magcal.devices.base import Identity
-from magcal.errors import StateError, WriteRejected
-from magcal.store import CalibrationStore, CorruptCalibrationFile, default_dir, device_key
+import magcal.recordings.store as store_mod
+from magcal.core.calibration import Calibration
+from magcal.core.errors import StateError, WriteRejected
+from magcal.core.events import Identity
+from magcal.recordings.atomic import write_atomic
+from magcal.recordings.store import CalibrationStore, CorruptCalibrationFile, default_dir, device_key
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -118,10 +118,10 @@ def test_a_write_interrupted_in_process_leaves_the_old_file_valid(tmp_path, monk
 
 _CRASH = r"""
 import os, sys
-import magcal.atomic as atomic
-from magcal.calibration import Calibration
-from magcal.devices.base import Identity
-from magcal.store import CalibrationStore
+import magcal.recordings.atomic as atomic
+from magcal.core.calibration import Calibration
+from magcal.core.events import Identity
+from magcal.recordings.store import CalibrationStore
 
 real_write = os.write
 def die_at_fsync(fd):

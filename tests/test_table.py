@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from magcal.capture import load_series
+from magcal.app.load import load_series
 from magcal.cli import main
-from magcal.errors import InputError
-from magcal.table import TableFormat, parse_table, plausible_field
+from magcal.core.errors import InputError
+from magcal.recordings.table import TableFormat, parse_table, plausible_field
 
 
 def sphere_ut(n=600, offset=(12.0, -30.0, 7.0), field=48.0, seed=3):
@@ -199,7 +199,7 @@ def test_a_second_magnetometer_is_not_a_covariate_and_channels_can_be_chosen():
 
 
 def test_diagnose_suggests_choosing_channels_in_a_wide_log():
-    from magcal.commands.diagnose import many_channels_hint
+    from magcal.cli.diagnose import many_channels_hint
 
     quiet = {"findings": [{"effect": "outliers"}]}
     assert "--channels" in many_channels_hint(20, quiet)

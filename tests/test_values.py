@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from magcal.calibration import Calibration
-from magcal.coverage import SampleSet, cell_index, coverage
-from magcal.physics import Current, Physics, Scenario, Temperature, demo_scenario
+from magcal.core.calibration import Calibration
+from magcal.fit.coverage import SampleSet, cell_index, coverage
+from magcal.sim.physics import Current, Physics, Scenario, Temperature, demo_scenario
 
 
 def test_correct_inverts_distort_with_channel_terms():

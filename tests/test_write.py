@@ -4,14 +4,13 @@ import json
 
 import numpy as np
 import pytest
+from test_diagnose import _sim
 
 from magcal.cli import main
-from magcal.commands.write import calibration_from_json
-from magcal.errors import InputError
-from magcal.physics import Temperature
-from magcal.table import save_csv
-
-from test_diagnose import _sim
+from magcal.cli.write import calibration_from_json
+from magcal.core.errors import InputError
+from magcal.recordings.table import save_csv
+from magcal.sim.physics import Temperature
 
 
 def run_cli(capsys, *argv):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import importlib
 
-from ..errors import DeviceError
+from ..core.errors import DeviceError
 from .base import Device, Event, Identity, Item
 
 # scheme → "module:factory"; each factory is called as factory(url, **options) → Device

@@ -21,56 +21,11 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections import Counter
-from dataclasses import dataclass, field
-from typing import Iterable, Union
+from typing import Iterable
 
-from ..calibration import Calibration
-from ..errors import DeviceError
-from ..sample import Sample
-
-
-@dataclass(frozen=True)
-class Identity:
-    """Who answered: protocol and firmware versions, chip IDs, the ASA bytes, the rate."""
-
-    transport: str
-    proto: int = 1
-    firmware: str = ""
-    who_am_i: int | None = None
-    wia: int | None = None
-    asa: tuple[int, int, int] = (128, 128, 128)
-    rate_hz: int = 0
-    extra: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        d = {
-            "transport": self.transport,
-            "proto": self.proto,
-            "firmware": self.firmware,
-            "who_am_i": None if self.who_am_i is None else f"0x{self.who_am_i:02X}",
-            "wia": None if self.wia is None else f"0x{self.wia:02X}",
-            "asa": list(self.asa),
-            "rate_hz": self.rate_hz,
-        }
-        d.update(self.extra)
-        return d
-
-
-@dataclass(frozen=True)
-class Event:
-    """Something that happened on the link other than a sample.
-
-    kind: ``reset`` (device restarted; ``detail`` says how it was seen), ``gap`` (``count``
-    lines lost before ``seq``), ``rejected`` (a sample flagged invalid by the device), ``log``.
-    """
-
-    kind: str
-    seq: int | None = None
-    count: int = 0
-    detail: str = ""
-
-
-Item = Union[Sample, Event]
+from ..core.calibration import Calibration
+from ..core.errors import DeviceError
+from ..core.events import Event, Identity, Item
 
 
 class Device(ABC):

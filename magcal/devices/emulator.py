@@ -30,8 +30,8 @@ from dataclasses import replace
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
-from ..errors import DeviceError, PortUnavailable
-from ..physics import Scenario, demo_scenario
+from ..core.errors import DeviceError, PortUnavailable
+from ..sim.physics import Scenario, demo_scenario
 
 REPO = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = REPO / "firmware"

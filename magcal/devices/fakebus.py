@@ -30,9 +30,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import DeviceError
-from ..physics import Scenario, demo_scenario
-from ..sample import ST2_HOFL
+from ..core.errors import DeviceError
+from ..core.sample import ST2_HOFL
+from ..sim.physics import Scenario, demo_scenario
 
 EMULATOR_DIR = Path(__file__).resolve().parents[2] / "firmware" / "emulator"
 LIB_NAME = "libmpu9150model.so"

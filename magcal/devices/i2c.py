@@ -13,7 +13,7 @@ What the host does (register facts: docs in ``hardware.md``, AK8975 datasheet MS
    deadline, then ONE burst read of HXL..ST2 (7 bytes; reading ST2 ends the measurement) and
    the MPU's ``TEMP_OUT``. DERR/HOFL/rail/all-zero readings are rejected: counted in
    ``counters`` and reported as ``Event("rejected")``.
-3. Calibration lives in the host-side store (``magcal.store``): the AK8975 has no offset
+3. Calibration lives in the host-side store (``magcal.recordings.store``): the AK8975 has no offset
    registers.
 
 Time comes from an injectable ``clock`` (seconds, monotonic) and ``sleep`` pair; a simulated
@@ -30,18 +30,10 @@ from dataclasses import dataclass
 from typing import Callable, Iterable
 from urllib.parse import parse_qsl
 
-from ..calibration import Calibration
-from ..errors import ConfigError, DeviceError, IdentityError, NoReply, PortUnavailable
-from ..sample import (
-    COUNT_MAX,
-    COUNT_MIN,
-    ST2_DERR,
-    ST2_HOFL,
-    Sample,
-    counts_to_ut,
-    temp_raw_to_c,
-)
-from ..selftest import SELF_TEST_WINDOW, SelfTestResult  # noqa: F401 (SELF_TEST_WINDOW: re-exported)
+from ..core.calibration import Calibration
+from ..core.errors import ConfigError, DeviceError, IdentityError, NoReply, PortUnavailable
+from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, Sample, counts_to_ut, temp_raw_to_c
+from ..core.selftest import SELF_TEST_WINDOW, SelfTestResult  # noqa: F401 (SELF_TEST_WINDOW: re-exported)
 from .base import Device, Event, Identity, Item
 
 # -- registers ---------------------------------------------------------------------------------
@@ -442,7 +434,7 @@ class I2CDevice(Device):
 
     # -- calibration: the host-side store -----------------------------------------------------------
     def _store(self):
-        from ..store import CalibrationStore
+        from ..recordings.store import CalibrationStore
 
         return CalibrationStore(self._store_dir)
 

@@ -18,9 +18,11 @@ from collections import deque
 from dataclasses import replace
 from typing import Callable, Iterable
 
-from ..calibration import Calibration
-from ..errors import DeviceError, IdentityError, NoReply, PortUnavailable, WriteRejected
-from ..protocol import (
+from ..core.calibration import Calibration
+from ..core.errors import DeviceError, IdentityError, NoReply, PortUnavailable, WriteRejected
+from ..core.sample import Sample, counts_to_ut, temp_raw_to_c
+from ..core.selftest import SelfTestResult
+from ..wire.protocol import (
     PROTO_VERSION,
     Ack,
     CalibratedSample,
@@ -39,9 +41,8 @@ from ..protocol import (
     record_crc,
     record_from_calibration,
 )
-from ..sample import Sample, counts_to_ut, temp_raw_to_c
-from ..selftest import SelfTestResult
 from .base import Device, Event, Identity, Item
+from .transport import tapped
 
 WHO_AM_I_MPU9150 = 0x68
 WIA_AK8975 = 0x48
@@ -65,9 +66,8 @@ class ProtocolDevice(Device):
         tap: Callable | None = None,
     ):
         super().__init__(url)
-        # ``tap(transport) -> transport``: a wrapper that sees every byte read (e.g. a capture
-        # writer, ``magcal.capture.CaptureWriter.tap``); it must keep the transport's surface.
-        self.transport = tap(transport) if tap is not None else transport
+        # ``tap``: a capture writer that records every byte read (``transport.tapped``)
+        self.transport = tapped(transport, tap)
         self.transport_name = transport_name
         self.passive = passive
         self.can_store = not passive
@@ -394,7 +394,7 @@ def open_serial(url: str, dialect: str = "native", baud: int = 115200, **options
         raise PortUnavailable(f"cannot open {url}: {exc}") from exc
     tap = options.pop("tap", None)
     if tap is not None:  # a capture records from the first byte, the detection's included
-        port = tap(port)
+        port = tapped(port, tap)
     if dialect == "auto":
         from .autodetect import detect_dialect
 

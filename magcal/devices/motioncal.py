@@ -3,7 +3,7 @@
 The board streams ``Raw:``/``Uni:`` lines on its own (there are no commands, so ``start`` and
 ``stop`` only mark the session); ``write_calibration`` sends the 68-byte packet and waits for
 the ``Cal1:``/``Cal2:`` echo, which it checks at the echo's printed precision. The pure rules
-live in ``magcal.motioncal``; this module only moves bytes and watches the clock.
+live in ``magcal.wire.motioncal``; this module only moves bytes and watches the clock.
 
 Samples: ``field_ut`` from the magnetometer (Uni: µT while the device sends them, else Raw:
 counts × 0.1), ``raw`` None, ``seq`` counted here (the convention has none), ``t_s`` the host's
@@ -13,7 +13,7 @@ Options (``open_device(url, dialect="motioncal", **opts)``): ``baud`` (115200),
 ``open_timeout_s`` (3: how long ``open`` waits for the first reading; 0 skips the check),
 ``echo_timeout_s`` (6: per attempt; the Adafruit sketch prints Cal1/Cal2 only every ~100
 loops), ``tries`` (3), ``accel_offset``/``gyro_offset`` (sent in the packet; by default the
-device's own, from its last Cal1 echo, else zeros), ``tap`` (``tap(port) -> port``, e.g. a
+device's own, from its last Cal1 echo, else zeros), ``tap`` (a capture writer that records every byte read, e.g. a
 capture writer that records every byte read).
 
 A recorded session (``replay://`` of a capture in this dialect) is the same device on an
@@ -27,11 +27,12 @@ import time
 from collections import deque
 from typing import Iterable
 
-from .. import motioncal as mc
-from ..calibration import Calibration
-from ..errors import DeviceError, NoReply, PortUnavailable, WriteRejected
-from ..sample import Sample
+from ..core.calibration import Calibration
+from ..core.errors import DeviceError, NoReply, PortUnavailable, WriteRejected
+from ..core.sample import Sample
+from ..wire import motioncal as mc
 from .base import Device, Identity, Item
+from .transport import tapped
 
 _QUEUE_MAX = 100_000
 # More than a port can hold buffered between the device and us (Linux: a 4 KB line-discipline
@@ -68,7 +69,7 @@ class MotionCalDevice(Device):
         self.tries = int(tries)
         self.accel_offset = accel_offset
         self.gyro_offset = gyro_offset
-        self._tap = tap  # tap(transport) -> transport: sees every byte read (a capture writer)
+        self._tap = tap  # a capture writer: sees every byte read (transport.tapped)
         self._transport = transport  # an open pyserial-like object (a replay), instead of the url
         self.passive = bool(passive)  # a recording: nothing is ever written
         self.can_store = not self.passive
@@ -145,7 +146,7 @@ class MotionCalDevice(Device):
             except (serial.SerialException, OSError, ValueError) as exc:
                 raise PortUnavailable(f"{self.url}: cannot open: {exc}") from exc
         if self._tap is not None:
-            self._ser = self._tap(self._ser)
+            self._ser = tapped(self._ser, self._tap)
         self._t0 = time.monotonic()
         self._t0_data = self._data_clock()
         if self.open_timeout_s > 0:

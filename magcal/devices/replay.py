@@ -20,7 +20,7 @@ import time
 from typing import Callable, Iterable
 from urllib.parse import parse_qs
 
-from ..errors import DeviceError, InputError
+from ..core.errors import DeviceError, InputError
 from .link import ProtocolDevice
 from .transport import WrappedTransport
 
@@ -139,7 +139,7 @@ class FaultyTransport(WrappedTransport):
 
     def _boot_hello(self) -> bytes:
         """The recording's first hello, as a freshly booted board sends it (seq 0)."""
-        from ..protocol import Hello, classify_line, encode_line
+        from ..wire.protocol import Hello, classify_line, encode_line
 
         data = b"".join(c for _, c in self.inner._chunks[:50])
         start = data.find(b"$H,")
@@ -232,7 +232,7 @@ def replay_faults(url: str) -> list:
 def open_replay(url: str, dialect: str = "native", **options):
     """The capture's own convention decides how it is read: protocol v1 through
     ``ProtocolDevice``, a MotionCal-dialect capture through ``MotionCalDevice`` (passive)."""
-    from ..capture import CaptureReader, recorded_dialect
+    from ..recordings.capture import CaptureReader, recorded_dialect
 
     path, pace = parse_replay_url(url)
     faults = replay_faults(url)
@@ -241,7 +241,7 @@ def open_replay(url: str, dialect: str = "native", **options):
         try:
             transport.reopen()
         except OSError as exc:
-            from ..errors import PortUnavailable
+            from ..core.errors import PortUnavailable
 
             raise PortUnavailable(f"cannot open {url}: {exc}") from None
         options.pop("baud", None)
@@ -277,7 +277,7 @@ def open_replay(url: str, dialect: str = "native", **options):
 
 def collect_samples(dev) -> list:
     """Open a passive device and read it to the end: the samples, in order (events dropped)."""
-    from ..sample import Sample
+    from ..core.sample import Sample
 
     out = []
     dev.open()

@@ -2,7 +2,7 @@
 
 It is a *transport*: the host's real protocol client (``ProtocolDevice``) talks to it exactly as
 it talks to a serial port, so every layer above runs unchanged. Its sensor readings come from
-the one physics simulator (``magcal.physics``); its EEPROM persists to a file when given one.
+the one physics simulator (``magcal.sim.physics``); its EEPROM persists to a file when given one.
 
 URL options (query string): ``seed=N`` (physics seed), ``rate=HZ`` (initial rate, default 100),
 ``speed=X`` (0 = as fast as the host reads, 1 = real time, N = N× real time; default 0),
@@ -30,18 +30,19 @@ from __future__ import annotations
 
 import os
 import struct
-from collections import Counter
 import threading
 import time
+from collections import Counter
 from dataclasses import replace
 from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from ..atomic import write_atomic
-from ..errors import DeviceError
-from ..physics import Motion, Scenario, demo_scenario
-from ..protocol import (
+from ..core.errors import DeviceError
+from ..core.sample import counts_to_ut, temp_raw_to_c
+from ..recordings.atomic import write_atomic
+from ..sim.physics import Motion, Scenario, demo_scenario
+from ..wire.protocol import (
     MAX_LINE,
     RECORD_FIELDS,
     RECORD_VERSION,
@@ -51,7 +52,6 @@ from ..protocol import (
     parse_command,
     record_crc,
 )
-from ..sample import counts_to_ut, temp_raw_to_c
 from .link import ProtocolDevice
 
 FIRMWARE = "0.1.0"
@@ -558,7 +558,7 @@ def open_sim(url: str, dialect: str = "native", scenario: Scenario | None = None
         try:
             board.replug()
         except OSError as exc:
-            from ..errors import PortUnavailable
+            from ..core.errors import PortUnavailable
 
             raise PortUnavailable(f"cannot open {url}: {exc}") from None
     else:

@@ -7,6 +7,11 @@ it changes (a capture tap records what ``read`` returns, a fault injector fails 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..recordings.capture import CaptureWriter
+
 
 class WrappedTransport:
     def __init__(self, inner):
@@ -32,3 +37,41 @@ class WrappedTransport:
 
     def close(self) -> None:
         self.inner.close()
+
+
+class TapTransport(WrappedTransport):
+    """A pyserial-like transport that records every byte read from the one it wraps."""
+
+    def __init__(self, inner, writer: "CaptureWriter"):
+        super().__init__(inner)
+        self.writer = writer
+
+    def read(self, n: int = 1) -> bytes:
+        err = self.writer.take_error()
+        if err is not None:
+            raise err  # nothing was read in this call, so nothing is lost
+        data = self.inner.read(n)
+        if data:
+            self.writer.append(data)
+        return data
+
+    @property
+    def in_waiting(self) -> int:
+        if self.writer._pending_error is not None:
+            return 0  # let the caller finish with what it has; the next read reports
+        return self.inner.in_waiting
+
+    def close(self) -> None:
+        try:
+            self.inner.close()
+        finally:
+            self.writer.flush()
+
+    def __getattr__(self, name):  # reset_input_buffer, dtr, … of the wrapped transport
+        return getattr(self.inner, name)
+
+
+def tapped(transport, capture):
+    """``transport`` with every byte read also appended to ``capture`` (a
+    ``magcal.recordings.capture.CaptureWriter``); the transport itself when ``capture`` is None."""
+    return transport if capture is None else TapTransport(transport, capture)

@@ -30,8 +30,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import stats
 
-from ..errors import InputError
-from ..series import Series
+from ..core.errors import InputError
+from ..core.series import Series
 from . import channels as ch
 from . import glitches as gl
 from . import harmonics

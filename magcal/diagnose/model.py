@@ -21,7 +21,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..calibration import Calibration
+from ..core.calibration import Calibration
 from ..fit.accumulator import SphereAccumulator
 from ..fit.failure import FitFailure
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..calibration import Calibration
+from ..core.calibration import Calibration
 from .failure import FitFailure
 
 DEFAULT_MIN_SAMPLES = 10

@@ -30,9 +30,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..calibration import Calibration
-from ..series import Series
-from . import geometric, outliers as _outliers, uncertainty
+from ..core.calibration import Calibration
+from ..core.series import Series
+from . import geometric, uncertainty
+from . import outliers as _outliers
 from .ellipsoid import algebraic_start
 from .failure import FitFailure
 from .result import MODEL_NAMES, FitResult

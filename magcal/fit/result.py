@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..calibration import Calibration
+from ..core.calibration import Calibration
 
 MODEL_NAMES = {"sphere": "sphere", "diagonal": "ellipsoid_diagonal", "full": "ellipsoid"}
 

@@ -4,7 +4,7 @@ A hand-held recording lingers: the board rests in a few poses and sweeps quickly
 rest, so most samples sit in a few directions. Plain least squares then fits those directions
 best and lets the ellipsoid drift where samples are sparse — which is where the next recording
 will disagree. ``direction_weights`` cuts the sphere of calibrated directions into coarse
-equal-area cells (``magcal.coverage``: 4 bands × 8 sectors = 32 cells of 4π/32 sr) and gives each
+equal-area cells (``magcal.fit.coverage``: 4 bands × 8 sectors = 32 cells of 4π/32 sr) and gives each
 occupied cell the same total weight, shared equally by its samples. The cells are coarse so
 that each still holds many samples (noise still averages within a cell), and a cell's count is
 floored at ``min_share`` of an even split so that a handful of stray samples in an otherwise
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..coverage import cell_index
+from .coverage import cell_index
 
 BANDS = 4
 SECTORS = 8

@@ -1,0 +1,127 @@
+"""Any recording file → ``Series``: a magcal capture, a table (magcal's CSV or anyone's
+delimited text), a MotionCal log, or a raw protocol-v1 byte dump, told apart by content.
+
+Recorded bytes are decoded by the same client that reads a live port (a passive device on the
+recorded bytes), so a recording yields the samples the live run saw.
+"""
+
+from __future__ import annotations
+
+from ..core.errors import DeviceError, InputError
+from ..core.series import Series
+from ..recordings.capture import MAX_HEADER, CaptureReader, is_capture, recorded_dialect, series_from_frames
+from ..recordings.table import TableFormat, load_table, looks_like_table
+from ..wire import motioncal
+from ..wire.bulk import parse_stream
+from ..wire.protocol import CalibratedSample, RawSample
+
+
+def load_capture(path) -> Series:
+    reader = CaptureReader(path)
+    dialect = recorded_dialect(reader)
+    if dialect != "native":
+        return _foreign_capture(reader, dialect)
+    return _native_series(reader.data(), str(path))
+
+
+def _native_series(data: bytes, name: str) -> Series:
+    frames = parse_stream(data)
+    if any(isinstance(m, (RawSample, CalibratedSample)) for _, m in frames.others):
+        # a number too large for the fast arrays: take the live client's path instead
+        return _series_via_device(data, name)
+    return series_from_frames(frames)
+
+
+def _series_via_device(data: bytes, name: str) -> Series:
+    from ..devices.link import ProtocolDevice
+    from ..devices.replay import BytesTransport, collect_samples
+
+    dev = ProtocolDevice(name, BytesTransport([(0.0, data)]), transport_name="replay", passive=True)
+    return Series.from_samples(collect_samples(dev))
+
+
+def _foreign_capture(reader: CaptureReader, dialect: str) -> Series:
+    if dialect == "motioncal":
+        # read as it was live (the same device on the recorded bytes): each reading timed by
+        # when its bytes arrived
+        from ..devices.motioncal import MotionCalDevice
+        from ..devices.replay import BytesTransport, collect_samples
+
+        dev = MotionCalDevice(str(reader.path), transport=BytesTransport(reader), passive=True)
+        try:
+            return Series.from_samples(collect_samples(dev))
+        except DeviceError as exc:
+            raise InputError(str(exc)) from None
+    raise InputError(f"{reader.path} line 1: unknown capture dialect {dialect!r}")
+
+
+# -- any recording -------------------------------------------------------------------------
+def load_series(path, table: TableFormat | None = None) -> Series:
+    """A capture, a table (magcal's CSV or other delimited text, read as ``table`` says), a
+    MotionCal log, or a raw protocol-v1 byte dump, told apart by content. InputError (naming
+    file, line and problem) for anything else."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(MAX_HEADER)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    if not head.strip():
+        raise InputError(f"{path}: empty file")
+    explicit = table is not None and table.explicit
+
+    def not_a_table(kind: str) -> None:
+        if explicit:
+            raise InputError(f"{path}: is {kind}, not a table; --columns, --unit and --time apply to tables")
+
+    if is_capture(head):
+        not_a_table("a magcal capture")
+        return load_capture(path)
+    if head.startswith(b"MATLAB"):
+        raise InputError(f"{path}: a MATLAB .mat file, which magcal does not read; save the magnetometer "
+                         "columns as text (writematrix or csvwrite) and give that file")
+
+    first = _first_lines(head)
+    if any("mx" in [c.strip() for c in ln.split(",")] for ln in first[:5]):
+        return load_table(path, table)
+    if sum(1 for ln in first if ln.startswith("$") and "*" in ln) > len(first) // 2:
+        not_a_table("a protocol v1 byte dump")
+        with open(path, "rb") as fh:
+            return _native_series(fh.read(), str(path))
+    # an Adafruit sketch prints ~30 banner lines (sensor details) before its first Raw: line
+    if motioncal is not None and motioncal.looks_like_motioncal(_first_lines(head, 200)):
+        not_a_table("a MotionCal log")
+        return load_motioncal_log(path)
+    if b"\0" in head[:4096] and not explicit:  # (a serial dump with NULs from a reset was taken above)
+        raise InputError(f"{path}: a binary file, not a recording magcal reads (a capture, a table, a "
+                         "MotionCal log or protocol v1 lines)")
+    if explicit or looks_like_table(first):
+        return load_table(path, table)  # names the missing columns when it cannot find them
+    hint = "" if motioncal is not None else "; MotionCal logs need magcal.motioncal"
+    raise InputError(
+        f"{path} line 1: not a recording magcal reads (a capture, a table with mx,my,mz columns "
+        f"or named by --columns, a MotionCal Raw:/Uni: log, or protocol v1 lines){hint}"
+    )
+
+
+def _first_lines(head: bytes, k: int = 20) -> list[str]:
+    text = head.decode("utf-8", "replace").lstrip("\ufeff")
+    out = []
+    for ln in text.splitlines():
+        s = ln.strip()
+        if s and not s.startswith("#"):
+            out.append(s)
+        if len(out) >= k:
+            break
+    return out
+
+
+def load_motioncal_log(path, rate_hz: float | None = None) -> Series:
+    """Read a saved MotionCal-style log file (``Raw:``/``Uni:`` lines among anything else).
+    See ``parse_log`` for the time axis. InputError when the file cannot be read or holds no
+    readings."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    return motioncal.parse_log(data, rate_hz=rate_hz, source=str(path))

@@ -1,0 +1,90 @@
+"""``magcal show --port URL [--json]``: print the calibration the device (or its host-side
+store) holds. Works for every backend through the generic Device API: serial boards answer
+from EEPROM, ``i2c:`` devices from the host-side store. Exit code 0 when a calibration is
+stored, 1 when none is, 2 on errors (a torn or edited store file is an error, never applied).
+
+``--self-test`` also runs the AK8975 self-test on backends that can (``i2c:``, the magcal firmware
+over serial, ``sim://``, ``emu://``) and prints each
+axis against the datasheet window; exit code 3 when it fails."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..core.errors import DeviceError
+from ..devices import open_device
+
+HELP = "print the calibration stored for a device"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--port", required=True, help="device: i2c:1, /dev/ttyACM0, sim://, … (see magcal.devices)")
+    p.add_argument("--dialect", default="native", choices=("native", "motioncal", "auto"))
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--self-test", action="store_true",
+                   help="also run the AK8975 self-test (i2c:, the magcal firmware, sim://, emu://)")
+
+
+def _fmt_vec(v) -> str:
+    return " ".join(f"{x:10.4f}" for x in v)
+
+
+def format_text(identity: dict, cal, where: str | None) -> str:
+    """The human-readable report (pure)."""
+    ident = "  ".join(
+        f"{k} {identity[k]}" for k in ("transport", "bus", "address", "firmware", "who_am_i", "wia") if identity.get(k)
+    )
+    lines = [f"device      {ident}  asa {' '.join(str(a) for a in identity.get('asa', []))}"]
+    if where:
+        lines.append(f"stored in   {where}")
+    if cal is None:
+        lines.append("calibration none stored (run `magcal calibrate` first)")
+        return "\n".join(lines)
+    lines.append(f"offset_ut   {_fmt_vec(cal.offset_ut)}")
+    lines.append(f"field_ut    {cal.field_ut:10.4f}")
+    w = np.asarray(cal.soft_iron)
+    for i, row in enumerate(w):
+        lines.append(f"{'soft_iron' if i == 0 else '':<11} {_fmt_vec(row)}")
+    for name, coef in cal.coef_ut_per_unit.items():
+        ref = cal.reference.get(name)
+        ref_txt = f"  (reference {ref:g})" if ref is not None else ""
+        lines.append(f"coef {name:<6} {_fmt_vec(coef)}  µT per unit{ref_txt}")
+    return "\n".join(lines)
+
+
+def format_self_test(result) -> str:
+    lines = [f"self-test   {'PASS' if result.passed else 'FAIL'} (ASA-adjusted counts; window from the AK8975 datasheet)"]
+    for name, raw, adj, (lo, hi), ok in zip("xyz", result.raw, result.adjusted, result.window, result.axis_passed):
+        lines.append(f"  {name}  raw {raw:6d}  adjusted {adj:8.1f}  window [{lo}, {hi}]  {'ok' if ok else 'OUT'}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    dev = open_device(args.port, dialect=args.dialect)
+    result = None
+    with dev:
+        identity = dev.open()
+        if args.self_test:
+            if not callable(getattr(dev, "self_test", None)) or getattr(dev, "passive", False):
+                raise DeviceError(f"{args.port}: this backend cannot run the AK8975 self-test "
+                                  "(i2c:, the magcal firmware over serial, sim:// and emu:// can)")
+            result = dev.self_test()
+        cal = dev.read_calibration()
+        where = getattr(dev, "store_path", None)
+    where = None if where is None else str(where)
+    if args.json:
+        out = {"device": identity.to_dict(), "calibration": None if cal is None else cal.to_dict()}
+        if where:
+            out["stored_in"] = where
+        if result is not None:
+            out["self_test"] = result.to_dict()
+        print(json.dumps(out, indent=2))
+    else:
+        print(format_text(identity.to_dict(), cal, where))
+        if result is not None:
+            print(format_self_test(result))
+    if result is not None and not result.passed:
+        return 3
+    return 0 if cal is not None else 1

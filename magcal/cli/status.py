@@ -1,0 +1,92 @@
+"""``magcal status [--state-dir DIR] [--json]``: what a daemon is doing (or last did).
+
+Asks the running daemon over its local UNIX socket; when nobody answers, reads the state file
+(the newest valid one) and says how old it is. Exit 0 with a report; 1 when the daemon is not
+running (the report is still printed from the state file); 2 when there is no state at all."""
+
+from __future__ import annotations
+
+import os
+import time
+
+from ..app.daemon import query_socket
+from ..core.errors import StateError
+from ..recordings.state import StateStore
+from .common import add_config_option, add_json_option, load_settings, print_json
+
+HELP = "report a daemon's live state: samples, coverage, last calibration, faults"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--state-dir", metavar="DIR", help="the daemon's state directory (default from config)")
+    add_config_option(p)
+    add_json_option(p)
+
+
+def _pid_alive(pid) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except (OSError, TypeError, ValueError):
+        return False
+    return True
+
+
+def gather(state_dir) -> tuple[dict, str]:
+    """(status, source) — source is ``socket`` or ``state file``. StateError when there is none."""
+    live = query_socket(state_dir)
+    if live is not None:
+        return live, "socket"
+    store = StateStore(state_dir)
+    data = store.load()
+    if data is None:
+        raise StateError(f"no daemon state in {store.directory} (is `magcal run` using this --state-dir?)")
+    status = dict(data.get("status") or {})
+    status["saved_utc"] = data.get("saved_utc")
+    status["age_s"] = round(time.time() - float(data.get("saved_utc") or 0), 1)
+    status["generation"] = data.get("generation")
+    if status.get("running") and not _pid_alive(status.get("pid")):
+        status["running"] = False
+        status["note"] = "the daemon is not running (it stopped without writing a final state)"
+    return status, "state file"
+
+
+def run(args) -> int:
+    state_dir = args.state_dir or load_settings(args).daemon.state_dir
+    status, source = gather(os.path.expanduser(state_dir))
+    status["source"] = source
+    if args.json:
+        print_json(status)
+    else:
+        _print_text(status)
+    return 0 if status.get("running") else 1
+
+
+def _print_text(s: dict) -> None:
+    state = "running" if s.get("running") else "not running"
+    age = f", state saved {s['age_s']:.0f} s ago" if s.get("age_s") is not None else ""
+    print(f"daemon     {state} (from the {s['source']}{age}), pid {s.get('pid')}, port {s.get('port')}")
+    print(f"link       {'connected' if s.get('connected') else 'disconnected'}, epoch {s.get('epoch')}, "
+          f"last seq {s.get('last_seq')}")
+    print(f"samples    {s.get('samples')} collected ({s.get('samples_in')} received), "
+          f"coverage {100 * (s.get('coverage') or 0):.0f}%")
+    cal = s.get("calibration")
+    if cal:
+        o = cal["offset_ut"]
+        print(f"stored     offset [{o[0]:.2f}, {o[1]:.2f}, {o[2]:.2f}] µT, field {cal['field_ut']:.2f} µT")
+    else:
+        print("stored     no calibration on the device")
+    last = s.get("last_calibration")
+    if last:
+        when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(last["written_utc"]))
+        print(f"written    {when}, verified by read-back, rms {last['rms_ut']:.3f} µT "
+              f"({s.get('recalibrations')} recalibration(s) by this daemon)")
+    mon = s.get("monitor")
+    if mon:
+        last_v = mon.get("last") or {}
+        p = last_v.get("p_value")
+        print(f"monitor    {mon['phase']}, {mon['windows']} windows, {mon['alarms']} alarm(s)"
+              + (f", last p = {p:.3g}" if p is not None else ""))
+    faults = s.get("faults") or {}
+    print("faults     " + (", ".join(f"{k} {v}" for k, v in faults.items()) or "none"))
+    if s.get("note"):
+        print(f"note       {s['note']}")

@@ -1,0 +1,240 @@
+"""The calibration session: a state machine with no I/O.
+
+    COLLECTING ──ready()──▶ SOLVING ──fit ok, gates pass──▶ WRITING ──stored──▶ VERIFYING ──▶ DONE
+         │                     │                               │                    │
+         └────── fail(reason) ─┴───────────────────────────────┴────────────────────┴──▶ FAILED
+
+Every change of state goes through ``_set_status``, which refuses transitions the diagram does
+not have. Lifecycle (``status``) and failure reasons (``failure``) are separate: a FAILED
+session says *why* in ``failure`` (a short code) and ``failure_message`` (a sentence).
+
+The session takes samples and link events, keeps the streaming sphere accumulator (every valid
+sample, O(1)) for the live estimate, and a bounded direction-balanced ``SampleSet`` for the
+final maximum-likelihood fit. Gates are data (``GateResult``), evaluated on the live estimate
+while collecting and on the final fit before anything is written.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from enum import Enum
+
+import numpy as np
+
+from .. import fit as fits
+from ..core.calibration import Calibration
+from ..core.events import Event
+from ..core.sample import Sample
+from ..fit import SphereAccumulator
+from ..fit.coverage import SampleSet
+from .gates import GateResult, Gates, model_gates
+
+ESTIMATE_EVERY = 50  # samples between live re-solves (cheap: a 4×4 solve)
+RECENTRE_UT = 2.0  # re-bin the kept samples when the centre estimate moves this much
+
+
+class Status(str, Enum):
+    COLLECTING = "collecting"
+    SOLVING = "solving"
+    WRITING = "writing"
+    VERIFYING = "verifying"
+    DONE = "done"
+    FAILED = "failed"
+
+
+_ALLOWED = {
+    Status.COLLECTING: {Status.SOLVING, Status.FAILED},
+    Status.SOLVING: {Status.WRITING, Status.DONE, Status.COLLECTING, Status.FAILED},
+    Status.WRITING: {Status.VERIFYING, Status.FAILED},
+    Status.VERIFYING: {Status.DONE, Status.FAILED},
+    Status.DONE: set(),
+    Status.FAILED: set(),
+}
+
+
+class Session:
+    def __init__(self, gates: Gates | None = None, model: str = "auto"):
+        self.gates_cfg = gates or Gates()
+        self.model = model
+        self.status = Status.COLLECTING
+        self.failure: str | None = None
+        self.failure_message = ""
+        self.counters: Counter = Counter()
+        self.accumulator = SphereAccumulator()
+        self.kept = SampleSet()
+        self.estimate = None  # SphereFit | FitFailure | None
+        self.result = None  # the final FitResult once solved
+        self.final_gates: list[GateResult] = []  # the gates as judged on the final fit
+        self.history: list[tuple[str, str]] = []
+        self._since_estimate = 0
+        self._ready = False  # every gate passed at the last check: later samples are not taken
+        self._last_seq: int | None = None
+
+    # -- the one choke point -------------------------------------------------------------------
+    def _set_status(self, new: Status, reason: str | None = None, message: str = "") -> None:
+        if new not in _ALLOWED[self.status]:
+            raise RuntimeError(f"session cannot go from {self.status.value} to {new.value}")
+        self.history.append((self.status.value, new.value))
+        self.status = new
+        if new is Status.FAILED:
+            self.failure = reason or "failed"
+            self.failure_message = message
+
+    def fail(self, reason: str, message: str) -> None:
+        if self.status not in (Status.DONE, Status.FAILED):
+            self._set_status(Status.FAILED, reason, message)
+
+    # -- collecting ----------------------------------------------------------------------------
+    def add(self, item) -> None:
+        if self.status is not Status.COLLECTING:
+            self.counters["ignored_after_collecting"] += 1
+            return
+        if isinstance(item, Event):
+            self.counters[f"event_{item.kind}"] += 1
+            if item.kind == "gap":
+                self.counters["lost_samples"] += item.count
+            return
+        if not isinstance(item, Sample):
+            return
+        if self._ready:  # the data are complete; what comes later does not change the result
+            self.counters["after_ready"] += 1
+            return
+        self.counters["samples_in"] += 1
+        if not item.valid:
+            self.counters["rejected_flagged"] += 1
+            return
+        if item.aux.get("calibrated"):
+            self.counters["rejected_calibrated"] += 1
+            return
+        m = np.asarray(item.field_ut, dtype=np.float64)
+        if not np.all(np.isfinite(m)):
+            self.counters["rejected_nonfinite"] += 1
+            return
+        self.accumulator.add(m)
+        aux = {"t_s": item.t_s}
+        if item.temp_c is not None:
+            aux["temp_c"] = item.temp_c
+        self.kept.offer(m, aux)
+        self._since_estimate += 1
+        if self._since_estimate >= ESTIMATE_EVERY:
+            self.update_estimate()
+            # Judged at fixed sample counts, not whenever the caller looks, so the samples a
+            # calibration uses do not depend on how reads happened to be chunked: a replay of
+            # a capture calibrates from exactly the samples the live run used.
+            self._ready = all(r.passed for r in self.live_gates())
+
+    def add_many(self, items) -> None:
+        for item in items:
+            self.add(item)
+
+    def update_estimate(self):
+        self._since_estimate = 0
+        est = self.accumulator.solve()
+        self.estimate = est
+        if est and np.linalg.norm(est.offset_ut - self.kept.centre_ut) > RECENTRE_UT:
+            self.kept.recentre(est.offset_ut)
+        return est
+
+    # -- gates -----------------------------------------------------------------------------------
+    def live_gates(self) -> list[GateResult]:
+        g = self.gates_cfg
+        est = self.estimate
+        out = [
+            GateResult("min_samples", len(self.kept) >= g.min_samples, float(len(self.kept)), g.min_samples,
+                       f"{len(self.kept)} of {g.min_samples} well-spread samples"),
+            GateResult("min_coverage", self.kept.coverage() >= g.min_coverage, self.kept.coverage(), g.min_coverage,
+                       f"{100 * self.kept.coverage():.0f}% of directions covered, {100 * g.min_coverage:.0f}% needed"),
+        ]
+        if not est:
+            why = getattr(est, "message", "no estimate yet")
+            out.append(GateResult("solvable", False, None, None, why))
+            return out
+        out.append(GateResult("max_condition", est.condition <= g.max_condition, float(est.condition), g.max_condition,
+                              f"normal-matrix condition {est.condition:.0f} (≤ {g.max_condition:.0f})"))
+        out += model_gates(self.gates_cfg, est.offset_ut, est.field_ut, est.rms_ut, est.offset_sigma_ut)
+        return out
+
+    def ready(self) -> bool:
+        return self.status is Status.COLLECTING and self._ready
+
+    def failing_gates(self) -> list[GateResult]:
+        return [r for r in self.live_gates() if not r.passed]
+
+    def progress(self) -> dict:
+        est = self.estimate
+        return {
+            "status": self.status.value,
+            "samples": int(self.counters["samples_in"]),
+            "kept": len(self.kept),
+            "coverage": self.kept.coverage(),
+            "offset_ut": [float(v) for v in est.offset_ut] if est else None,
+            "field_ut": float(est.field_ut) if est else None,
+        }
+
+    # -- solving ---------------------------------------------------------------------------------
+    def solve(self):
+        """Final fit on the kept samples; on success the session moves to WRITING's doorstep.
+
+        Returns the FitResult, or the failure (and the session is FAILED)."""
+        self._set_status(Status.SOLVING)
+        self.update_estimate()
+        result = fits.fit(self.kept.field_ut, model=self.model, outliers=True)
+        if not result:
+            self.fail("fit_failed", f"the fit failed: {getattr(result, 'message', result)}")
+            return result
+        unc = result.uncertainty
+        self.final_gates = model_gates(self.gates_cfg, 
+            result.calibration.offset_ut, result.calibration.field_ut, result.rms_ut, np.asarray(unc["offset_ut"])
+        )
+        failing = [r for r in self.final_gates if not r.passed]
+        self.result = result
+        if failing:
+            self.fail("gate:" + failing[0].name, "final fit fails gate: " + "; ".join(r.message for r in failing))
+            return result
+        return result
+
+    def begin_write(self) -> None:
+        self._set_status(Status.WRITING)
+
+    def stored(self) -> None:
+        self._set_status(Status.VERIFYING)
+
+    def verified(self, ok: bool, message: str = "") -> None:
+        if ok:
+            self._set_status(Status.DONE)
+        else:
+            self.fail("verify_mismatch", message or "the calibration read back differs from the one sent")
+
+    def finish_without_write(self) -> None:
+        self._set_status(Status.DONE)
+
+    @property
+    def calibration(self) -> Calibration | None:
+        return self.result.calibration if self.result else None
+
+    # -- persistence (the daemon resumes a collecting session after a restart) -------------------
+    def to_state(self) -> dict:
+        """JSON-able state of a COLLECTING session (later stages are not resumed: they are
+        re-run from the collected samples). The live estimate is recomputed on load."""
+        if self.status is not Status.COLLECTING:
+            raise RuntimeError(f"only a collecting session is saved, not one that is {self.status.value}")
+        return {
+            "model": self.model,
+            "counters": {k: int(v) for k, v in self.counters.items()},
+            "accumulator": self.accumulator.to_state(),
+            "kept": self.kept.to_state(),
+        }
+
+    @classmethod
+    def from_state(cls, d: dict, gates: Gates | None = None) -> "Session":
+        """Rebuild a collecting session; ValueError when ``d`` is malformed."""
+        try:
+            s = cls(gates, d["model"])
+            s.counters = Counter({str(k): int(v) for k, v in d["counters"].items()})
+            s.accumulator = SphereAccumulator.from_state(d["accumulator"])
+            s.kept = SampleSet.from_state(d["kept"])
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"session state is malformed: {exc!r}") from None
+        if s.accumulator.n:
+            s.update_estimate()
+        return s

@@ -1,0 +1,391 @@
+"""Captures (the raw bytes a device sent, with receive times), and
+``load_series``: any recording file → ``Series``.
+
+Capture file format, version 1
+------------------------------
+One header line of UTF-8 JSON, then binary chunks until the end of the file::
+
+    {"format": "magcal-capture", "version": 1, "port": "...", "baud": 115200,
+     "start_utc": "2026-11-22T05:00:00.000000+00:00", "tool": "magcal 0.1.0",
+     "dialect": "native"}\\n
+    chunk*
+
+    chunk = b"K" | t_rx (float64 LE, seconds since the start of the recording)
+                 | n (uint32 LE) | n bytes exactly as read from the port
+
+The header names where the bytes came from; nothing in it is needed to parse them. A chunk is
+appended whole with one ``write`` and the file is flushed often (``flush_interval_s``), so a
+capture is readable after a crash mid-write: a truncated last chunk is ignored and reported
+(``CaptureReader.truncated_bytes``), never fatal. A bad chunk marker in the middle ends the
+readable part the same way (reported, with its offset).
+
+Replaying a capture feeds the same bytes through the same parser as the live link, so it
+reproduces the same samples; ``load_series`` uses the bulk parser (``magcal.wire.bulk``),
+which gives the same result as the incremental one (tests hold the two together).
+
+Writing: ``CaptureWriter`` appends chunks; ``writer.tap(transport)`` (or ``writer(transport)``)
+wraps a pyserial-like transport so that every byte read is also recorded. ``max_bytes`` bounds
+the file: when the next chunk would cross it, ``on_full(writer)`` may return a path to continue
+in (``roll_keep_one`` keeps one previous file), otherwise recording stops (``writer.full``) and
+further bytes are only counted. A failed write (disk full, I/O error) stops recording and raises
+``CaptureWriteError`` once, from the *next* read of the tap, after the bytes of the failed chunk
+have already been handed to the caller — so what the device sent is never lost and the caller
+can keep streaming.
+
+Tables (magcal's CSV and other people's delimited text) are read by ``magcal.recordings.table``;
+``load_series`` tells the kinds of recording apart by their content.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import time
+from datetime import datetime, timezone
+from typing import Callable, Iterator
+
+import numpy as np
+
+from .. import __version__
+from ..core.errors import InputError, MagcalError
+from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
+from ..core.series import Series
+from ..wire.bulk import Frames
+from ..wire.dialect import dialect_of
+from ..wire.protocol import Hello, Restart
+
+FORMAT = "magcal-capture"
+VERSION = 1
+CHUNK_MARK = b"K"
+_CHUNK_HEAD = struct.Struct("<dI")
+CHUNK_OVERHEAD = 1 + _CHUNK_HEAD.size  # 13 bytes per chunk
+MAX_HEADER = 64 * 1024
+
+
+class CaptureWriteError(MagcalError):
+    """Recording stopped because the capture file could not be written (disk full, I/O error).
+    The bytes of the failed chunk were delivered to the caller; the file holds everything
+    before them."""
+
+
+def make_header(port: str, baud: int | None = None, dialect: str = "native", start_utc: datetime | None = None) -> dict:
+    start = start_utc or datetime.now(timezone.utc)
+    if str(port).startswith("replay://") and dialect == "native":
+        dialect = "auto"  # a replay speaks its own capture's convention: read back from the bytes
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "port": str(port),
+        "baud": None if baud is None else int(baud),
+        "start_utc": start.isoformat(timespec="microseconds"),
+        "tool": f"magcal {__version__}",
+        "dialect": dialect,
+    }
+
+
+def _header_line(header: dict) -> bytes:
+    h = {"format": FORMAT, "version": VERSION, **header}
+    return (json.dumps(h, ensure_ascii=True, sort_keys=False) + "\n").encode("ascii")
+
+
+def roll_keep_one(writer: "CaptureWriter") -> str:
+    """An ``on_full`` policy: the full file becomes ``PATH.1`` (replacing an older one) and
+    recording continues in a fresh ``PATH``."""
+    os.replace(writer.path, writer.path + ".1")
+    return writer.path
+
+
+class CaptureWriter:
+    """Append-only capture file. See the module docstring for the format and failure rules."""
+
+    def __init__(
+        self,
+        path,
+        header: dict,
+        max_bytes: int | None = None,
+        on_full: Callable[["CaptureWriter"], str | None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        flush_interval_s: float = 0.2,
+    ):
+        self.path = os.fspath(path)
+        self.header = dict(header)
+        self.max_bytes = max_bytes
+        self.on_full = on_full
+        self.flush_interval_s = flush_interval_s
+        self._clock = clock
+        self._t0 = clock()
+        self._last_flush = self._t0
+        self.chunks = 0  # chunks written (all files)
+        self.bytes_recorded = 0  # payload bytes written (all files)
+        self.dropped_bytes = 0  # payload bytes not written (full or failed)
+        self.rolls = 0
+        self.full = False
+        self.error: CaptureWriteError | None = None
+        self._pending_error: CaptureWriteError | None = None
+        self._fh = None
+        self._size = 0
+        self._open_file(self.path)
+
+    # -- file handling -----------------------------------------------------------------------
+    def _open_file(self, path: str) -> None:
+        line = _header_line(self.header)
+        if self.max_bytes is not None and len(line) + CHUNK_OVERHEAD + 1 > self.max_bytes:
+            raise ValueError(f"max_bytes={self.max_bytes} cannot hold even the capture header")
+        try:
+            fh = open(path, "wb")
+            fh.write(line)
+            fh.flush()
+        except OSError as exc:
+            raise CaptureWriteError(f"cannot start capture {path}: {exc.strerror or exc}") from exc
+        self._fh = fh
+        self._size = len(line)
+        self.path = path
+
+    def _fail(self, exc: OSError, n: int) -> None:
+        good = self._size
+        try:  # best effort: leave no half chunk behind
+            self._fh.flush()
+        except OSError:
+            pass
+        try:
+            self._fh.truncate(good)
+            self._fh.close()
+        except OSError:
+            pass
+        self._fh = None
+        what = "disk full" if getattr(exc, "errno", None) == 28 else (exc.strerror or str(exc))
+        self.error = CaptureWriteError(
+            f"capture {self.path}: {what}; recording stopped after {self.bytes_recorded} bytes "
+            f"(the device's data is still delivered)"
+        )
+        self._pending_error = self.error
+        self.dropped_bytes += n
+
+    @property
+    def recording(self) -> bool:
+        return self._fh is not None and not self.full
+
+    def append(self, data: bytes, t_rx_s: float | None = None) -> bool:
+        """Record one chunk; True when written. Never raises for a full or failed file (see
+        ``error``/``full``); the tap turns a failure into one CaptureWriteError."""
+        data = bytes(data)
+        if not data:
+            return True
+        if not self.recording:
+            self.dropped_bytes += len(data)
+            return False
+        now = self._clock()
+        t = (now - self._t0) if t_rx_s is None else float(t_rx_s)
+        blob = CHUNK_MARK + _CHUNK_HEAD.pack(t, len(data)) + data
+        if self.max_bytes is not None and self._size + len(blob) > self.max_bytes:
+            if not self._roll():
+                self.full = True
+                self.dropped_bytes += len(data)
+                return False
+            if self._size + len(blob) > self.max_bytes:  # one chunk bigger than a whole file
+                self.dropped_bytes += len(data)
+                return False
+        try:
+            self._fh.write(blob)
+            if now - self._last_flush >= self.flush_interval_s:
+                self._fh.flush()
+                self._last_flush = now
+        except OSError as exc:
+            self._fail(exc, len(data))
+            return False
+        self._size += len(blob)
+        self.chunks += 1
+        self.bytes_recorded += len(data)
+        return True
+
+    def _roll(self) -> bool:
+        if self.on_full is None:
+            return False
+        self._fh.close()
+        self._fh = None
+        new_path = self.on_full(self)
+        if not new_path:
+            return False
+        self._open_file(os.fspath(new_path))
+        self.rolls += 1
+        return True
+
+    def take_error(self) -> CaptureWriteError | None:
+        """The failure not yet reported, if any (reported once)."""
+        e, self._pending_error = self._pending_error, None
+        return e
+
+    def flush(self) -> None:
+        if self._fh is not None:
+            try:
+                self._fh.flush()
+            except OSError as exc:
+                self._fail(exc, 0)
+            self._last_flush = self._clock()
+
+    def close(self) -> None:
+        if self._fh is not None:
+            try:
+                self._fh.flush()
+                self._fh.close()
+            except OSError as exc:
+                self._fail(exc, 0)
+            self._fh = None
+
+    def stats(self) -> dict:
+        return {
+            "path": self.path,
+            "chunks": self.chunks,
+            "bytes": self.bytes_recorded,
+            "dropped_bytes": self.dropped_bytes,
+            "rolls": self.rolls,
+            "full": self.full,
+            "error": None if self.error is None else str(self.error),
+        }
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def open_capture_tap(path, settings, max_bytes: int | None = None, on_full=None) -> CaptureWriter:
+    """A writer whose header names ``settings.port``/``baud``/``dialect``; pass it as the
+    device's ``tap`` option."""
+    header = make_header(
+        getattr(settings, "port", "?"), getattr(settings, "baud", None), getattr(settings, "dialect", "native")
+    )
+    return CaptureWriter(path, header, max_bytes=max_bytes, on_full=on_full)
+
+
+# -- reading -------------------------------------------------------------------------------
+def is_capture(head: bytes) -> bool:
+    """True when ``head`` (the first bytes of a file) starts a magcal capture."""
+    line = head.split(b"\n", 1)[0]
+    if not line.startswith(b"{"):
+        return False
+    try:
+        return json.loads(line.decode("utf-8")).get("format") == FORMAT
+    except (ValueError, AttributeError):
+        return False
+
+
+class CaptureReader:
+    """A capture file: ``header`` (dict), iteration yields ``(t_rx_s, bytes)`` per chunk;
+    ``truncated_bytes`` > 0 when the file ends inside a chunk (a crash mid-write) and
+    ``problem`` says where."""
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        try:
+            with open(self.path, "rb") as fh:
+                blob = fh.read()
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
+        self._parse(blob)
+
+    @classmethod
+    def from_bytes(cls, blob: bytes, name: str = "<capture>") -> "CaptureReader":
+        self = cls.__new__(cls)
+        self.path = name
+        self._parse(bytes(blob))
+        return self
+
+    def _parse(self, blob: bytes) -> None:
+        nl = blob.find(b"\n", 0, MAX_HEADER)
+        if nl < 0 or not is_capture(blob[: nl + 1]):
+            raise InputError(f"{self.path} line 1: not a magcal capture (no capture header)")
+        self.header = json.loads(blob[:nl].decode("utf-8"))
+        if self.header.get("version") != VERSION:
+            raise InputError(f"{self.path} line 1: capture version {self.header.get('version')!r} is not {VERSION}")
+        self.problem = ""
+        times: list[float] = []
+        spans: list[tuple[int, int]] = []
+        i, n = nl + 1, len(blob)
+        while i < n:
+            if blob[i : i + 1] != CHUNK_MARK:
+                self.problem = f"bad chunk marker at byte {i}"
+                break
+            if i + CHUNK_OVERHEAD > n:
+                self.problem = f"truncated chunk header at byte {i}"
+                break
+            t, size = _CHUNK_HEAD.unpack_from(blob, i + 1)
+            start = i + CHUNK_OVERHEAD
+            if start + size > n:
+                self.problem = f"truncated chunk at byte {i} ({n - start} of {size} bytes)"
+                break
+            times.append(t)
+            spans.append((start, start + size))
+            i = start + size
+        self.truncated_bytes = n - i
+        self._blob = blob
+        self._spans = spans
+        self.t_rx_s = np.array(times, np.float64)
+
+    def __len__(self) -> int:
+        return len(self._spans)
+
+    def __iter__(self) -> Iterator[tuple[float, bytes]]:
+        for t, (a, b) in zip(self.t_rx_s.tolist(), self._spans):
+            yield t, self._blob[a:b]
+
+    def data(self) -> bytes:
+        """All recorded bytes, concatenated."""
+        return b"".join(self._blob[a:b] for a, b in self._spans)
+
+
+# -- samples from frames, exactly as the live client builds them ---------------------------
+def series_from_frames(frames: Frames) -> Series:
+    """The Series a passive ``ProtocolDevice`` reading the same bytes would collect:
+    field from the latest hello's ASA (unity before any hello), device time unwrapped per
+    reset epoch, validity by ``Sample.valid``'s rules. Bit-identical (tests hold it)."""
+    n = len(frames)
+    pos = frames.pos
+    hellos = [(p, m) for p, m in frames.others if isinstance(m, Hello)]
+    h_pos = np.array([p for p, _ in hellos], np.int64)
+    gains = np.array([[1.0, 1.0, 1.0]] + [[asa_gain(a) for a in m.asa] for _, m in hellos], np.float64)
+    which = np.searchsorted(h_pos, pos)  # 0: before any hello
+    raw_kind = frames.kind == ord("S")
+    vals = frames.values
+    field = np.empty((n, 3), np.float64)
+    # counts_to_ut: raw * (0.3 * gains), element by element
+    field[raw_kind] = vals[raw_kind].astype(np.float64) * (UT_PER_COUNT * gains[which[raw_kind]])
+    field[~raw_kind] = vals[~raw_kind].astype(np.float64) / 1000.0
+    # time: t_k = t_{k-1} + Δ, with Δ = ms/1000 at the start of an epoch (after a reset)
+    r_pos = np.array([p for p, e in frames.events if isinstance(e, Restart)], np.int64)
+    epoch = np.searchsorted(r_pos, pos, side="right")
+    inc = np.empty(n, np.float64)
+    if n:
+        first = np.ones(n, bool)
+        first[1:] = epoch[1:] != epoch[:-1]
+        step = np.empty(n, np.int64)
+        step[1:] = (frames.ms[1:] - frames.ms[:-1]) % (1 << 32)
+        step[0] = 0
+        inc[first] = frames.ms[first] / 1000.0
+        inc[~first] = step[~first] / 1000.0
+    t = np.cumsum(inc)
+    temp_c = frames.temp / 340.0 + 36.53
+    st2_bad = (frames.st2 & (ST2_DERR | ST2_HOFL)) != 0
+    rails = np.any((vals <= COUNT_MIN) | (vals >= COUNT_MAX), axis=1)
+    zero = np.all(vals == 0, axis=1)
+    valid = ~st2_bad & np.where(raw_kind, ~rails & ~zero, True)
+    channels = {"temp_c": temp_c} if n else {}
+    if n and not raw_kind.all():
+        channels["calibrated"] = np.where(raw_kind, np.nan, 1.0)
+    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, seq=frames.seq.copy())
+
+
+def recorded_dialect(reader: "CaptureReader") -> str:
+    """The convention a capture was recorded in. A capture taken with ``--dialect auto`` names
+    no convention in its header: its first bytes tell (protocol v1 when they cannot)."""
+    dialect = reader.header.get("dialect") or "native"
+    if dialect == "auto":
+        head = b""
+        for _, chunk in reader:
+            head += chunk
+            if len(head) >= 4096:
+                break
+        dialect = dialect_of(head) or "native"
+    return dialect

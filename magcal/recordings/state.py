@@ -1,0 +1,134 @@
+"""The daemon's state file: versioned JSON with a checksum, replaced atomically.
+
+On disk (one JSON object, UTF-8)::
+
+    {"format": "magcal-state", "version": 1, "sha256": "<hex of the canonical payload>",
+     "payload": {...}}
+
+The checksum covers the payload serialised canonically (sorted keys, no spaces), so a file cut
+short, edited by hand or mixed from two writes is refused with ``StateError`` rather than read
+as valid. ``StateStore.save`` keeps the previous good file as ``state.prev.json`` before it
+replaces ``state.json`` (both through ``magcal.recordings.atomic.write_atomic``: write, fsync, rename,
+fsync the directory); ``StateStore.load`` falls back to the previous file when the current one
+is invalid, and says so.
+
+Nothing here knows what the payload means: the daemon decides that (see ``magcal.app.daemon``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+
+from ..core.errors import StateError
+from .atomic import write_atomic
+
+FORMAT = "magcal-state"
+VERSION = 1
+CURRENT = "state.json"
+PREVIOUS = "state.prev.json"
+
+
+def _canonical(payload: dict) -> bytes:
+    try:
+        return json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    except (TypeError, ValueError) as exc:
+        raise StateError(f"state payload is not JSON-serialisable: {exc}") from None
+
+
+def encode_state(payload: dict) -> bytes:
+    """The bytes of a state file holding ``payload`` (a JSON-able dict)."""
+    if not isinstance(payload, dict):
+        raise StateError(f"state payload must be a dict, not {type(payload).__name__}")
+    body = _canonical(payload)
+    digest = hashlib.sha256(body).hexdigest()
+    head = json.dumps({"format": FORMAT, "version": VERSION, "sha256": digest}, separators=(",", ":"))
+    # '{"format":…,"sha256":"…","payload":<canonical body>}\n' — the body appears verbatim.
+    return head[:-1].encode("utf-8") + b',"payload":' + body + b"}\n"
+
+
+def decode_state(data: bytes, name: str = "state file") -> dict:
+    """The payload of a state file; ``StateError`` naming the defect when it is not valid."""
+    if not data:
+        raise StateError(f"{name} is empty")
+    try:
+        doc = json.loads(data.decode("utf-8"), parse_constant=_refuse_constant)
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise StateError(f"{name} is not valid JSON (torn or corrupted): {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise StateError(f"{name} is not a magcal state file (format must be {FORMAT!r})")
+    if doc.get("version") != VERSION:
+        raise StateError(f"{name} has state version {doc.get('version')!r}; this magcal reads version {VERSION}")
+    payload = doc.get("payload")
+    if not isinstance(payload, dict):
+        raise StateError(f"{name} has no payload object")
+    digest = hashlib.sha256(_canonical(payload)).hexdigest()
+    if doc.get("sha256") != digest:
+        raise StateError(f"{name} fails its checksum (the payload was altered or mixed)")
+    return payload
+
+
+def _refuse_constant(token: str):
+    raise ValueError(f"non-finite number {token} in state file")
+
+
+class StateStore:
+    """``state.json`` and ``state.prev.json`` in one directory."""
+
+    def __init__(self, directory):
+        self.directory = Path(directory).expanduser()
+        self.current = self.directory / CURRENT
+        self.previous = self.directory / PREVIOUS
+        self.last_load_note = ""  # what load() had to do (fell back, found nothing …)
+
+    def save(self, payload: dict) -> None:
+        """Keep the current good file as the previous one, then replace the current one.
+        Raises ``OSError`` when the directory cannot be written (the old files stay)."""
+        data = encode_state(payload)
+        try:
+            old = self.current.read_bytes()
+        except FileNotFoundError:
+            old = None
+        if old is not None:
+            try:
+                decode_state(old)
+            except StateError:
+                old = None  # never promote a bad file to "previous good"
+        if old is not None:
+            write_atomic(self.previous, old)
+        write_atomic(self.current, data)
+
+    def load(self) -> dict | None:
+        """The newest valid payload; None when there is no state at all.
+
+        Falls back to the previous file when the current one is torn or invalid; raises
+        ``StateError`` (naming both defects) when state exists but neither file is valid."""
+        errors = []
+        for path in (self.current, self.previous):
+            try:
+                data = path.read_bytes()
+            except FileNotFoundError:
+                continue
+            try:
+                payload = decode_state(data, path.name)
+            except StateError as exc:
+                errors.append(str(exc))
+                continue
+            self.last_load_note = (
+                f"loaded {path.name}" + (f" after refusing {self.current.name}: {errors[0]}" if errors else "")
+            )
+            return payload
+        if errors:
+            raise StateError("no valid state: " + "; ".join(errors))
+        self.last_load_note = "no state yet"
+        return None
+
+
+def finite_or_none(x) -> float | None:
+    """A float for JSON, or None when it is not finite (state files refuse NaN/inf)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None

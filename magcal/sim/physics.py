@@ -1,0 +1,321 @@
+"""The one physics simulator of an MPU-9150's magnetometer (AK8975) being waved around.
+
+Everything that simulates the sensor — the ``sim://`` board, the emulated Arduino's TWI bus,
+the fake I2C bus, the tests and the benchmarks — draws its numbers from here.
+
+Model, per measurement k at time t (sensor frame, µT)::
+
+    h(t)  = R(t)ᵀ h_world                        Earth field seen by the body
+    m_k   = A h(t) + b + β (T(t) − T_ref) + κ I(t) + d·t + g_k + n_k
+    raw_k = clamp(round(m_k / (0.3 · gain)))      gain = (ASA + 128)/256 per axis
+    st2_k = HOFL when Σ|m_k| ≥ 2400 µT
+
+A is the soft-iron/scale distortion (``distortion``), b hard iron, β temperature coefficient,
+κ current coefficient, d slow drift, g_k glitches (rare jumps), n_k white noise.
+
+Determinism: every quantity is a function of (seed, t) or (seed, k) only, so a stream can be
+sampled at any time (the emulator asks at its own simulated times) and reproduced exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+
+import numpy as np
+
+from ..core.calibration import Calibration
+from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_HOFL, UT_PER_COUNT, asa_gain, temp_c_to_raw
+from ..core.series import Series
+
+HOFL_SUM_UT = 2400.0
+_BLOCK = 1024  # noise is drawn in blocks of this many measurements, keyed by (seed, block)
+
+
+@dataclass(frozen=True)
+class Motion:
+    """How the board is moved: ``sphere`` (hand-waving over all directions), ``tilt`` (level
+    within ±max_tilt_deg, yaw free), ``yaw`` (flat turns), ``still``."""
+
+    kind: str = "sphere"
+    max_tilt_deg: float = 30.0
+    period_s: float = 25.0
+
+    def __post_init__(self):
+        if self.kind not in ("sphere", "tilt", "yaw", "still"):
+            raise ValueError(f"unknown motion kind {self.kind!r} (sphere, tilt, yaw, still)")
+
+
+@dataclass(frozen=True)
+class Temperature:
+    """Die temperature: ``base_c`` plus a non-monotone swing of ``swing_c`` peak-to-peak
+    (a warm-up and a slower oscillation), so temperature is not a proxy for time."""
+
+    base_c: float = 25.0
+    swing_c: float = 0.0
+    period_s: float = 90.0
+
+
+@dataclass(frozen=True)
+class Current:
+    """An intermittent current channel (motor, heater): ``level_a`` when on, 0 when off, a
+    duty cycle ``duty`` over on/off segments of random length around ``segment_s``."""
+
+    level_a: float = 0.0
+    duty: float = 0.4
+    segment_s: float = 4.0
+
+
+@dataclass(frozen=True)
+class Physics:
+    field_ut: float = 50.0
+    dip_deg: float = 60.0
+    hard_iron_ut: tuple = (0.0, 0.0, 0.0)
+    distortion: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    noise_ut: float = 0.4
+    asa: tuple = (176, 178, 166)
+    quantize: bool = True
+    temp_coef_ut_per_c: tuple = (0.0, 0.0, 0.0)
+    temp_ref_c: float = 25.0
+    current_coef_ut_per_a: tuple = (0.0, 0.0, 0.0)
+    drift_ut_per_s: tuple = (0.0, 0.0, 0.0)
+    glitch_rate: float = 0.0
+    glitch_ut: tuple = (4.0, 15.0)
+    # what the AK8975's internal self-test coil reads, in ASA-adjusted counts (the datasheet's
+    # pass window is X, Y in [-100, 100], Z in [-1000, -300]; a dead coil reads about 0)
+    self_test_counts: tuple = (12, -18, -640)
+
+    def self_test_raw(self) -> tuple[int, int, int]:
+        """The data registers in self-test mode: the adjusted reading undone by this chip's
+        ASA (sensitivity adjustment: adjusted = raw · (ASA + 128) / 256), truncated as the
+        register holds it."""
+        return tuple(int(max(-4096, min(4095, int(c * 256 / (a + 128))))) for c, a in zip(self.self_test_counts, self.asa))
+
+    def truth(self) -> Calibration:
+        """The calibration that exactly inverts this physics (at T_ref, I = 0, t = 0)."""
+        a = np.asarray(self.distortion, dtype=np.float64)
+        coef = {}
+        if np.any(self.temp_coef_ut_per_c):
+            coef["temp_c"] = self.temp_coef_ut_per_c
+        if np.any(self.current_coef_ut_per_a):
+            coef["current_a"] = self.current_coef_ut_per_a
+        if np.any(self.drift_ut_per_s):
+            coef["t_s"] = self.drift_ut_per_s
+        ref = {"temp_c": self.temp_ref_c} if "temp_c" in coef else {}
+        return Calibration(
+            offset_ut=self.hard_iron_ut,
+            field_ut=self.field_ut,
+            soft_iron=np.linalg.inv(a),
+            coef_ut_per_unit=coef,
+            reference=ref,
+        )
+
+
+def _rot(axis: int, ang: np.ndarray) -> np.ndarray:
+    c, s = np.cos(ang), np.sin(ang)
+    n = len(ang)
+    r = np.zeros((n, 3, 3))
+    i, j = [(1, 2), (0, 2), (0, 1)][axis]
+    r[:, axis, axis] = 1.0
+    r[:, i, i] = c
+    r[:, j, j] = c
+    sign = -1.0 if axis == 1 else 1.0
+    r[:, i, j] = -s * sign
+    r[:, j, i] = s * sign
+    return r
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Physics + motion + environment + seed: a reproducible stream of measurements."""
+
+    physics: Physics = field(default_factory=Physics)
+    motion: Motion = field(default_factory=Motion)
+    temperature: Temperature = field(default_factory=Temperature)
+    current: Current = field(default_factory=Current)
+    seed: int = 0
+
+    # -- deterministic functions of time --------------------------------------------------
+    @property
+    def _phases(self) -> np.ndarray:
+        return _phases(self.seed)
+
+    def orientation(self, t_s) -> np.ndarray:
+        """Body-to-world rotations R(t), (n, 3, 3): smooth, hand-waving-like."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        p = self._phases
+        base = self.motion.period_s
+        w = 2 * np.pi / (base * p[0:4])  # four incommensurate rates
+        wobble = 0.15 * np.sin(w[3] * 3.1 * t + p[8])
+        yaw = w[0] * t + p[4] + wobble
+        kind = self.motion.kind
+        if kind == "sphere":
+            pitch = np.arcsin(np.clip(0.98 * np.sin(w[1] * t + p[5]) + 0.02 * np.sin(w[3] * t), -1, 1))
+            roll = np.pi * np.sin(w[2] * t + p[6])
+        elif kind == "tilt":
+            m = np.deg2rad(self.motion.max_tilt_deg)
+            pitch = m * np.sin(w[1] * t + p[5])
+            roll = m * np.sin(w[2] * t + p[6])
+        elif kind == "yaw":
+            pitch = np.deg2rad(2.0) * np.sin(w[1] * t + p[5])
+            roll = np.deg2rad(2.0) * np.sin(w[2] * t + p[6])
+        else:  # still
+            yaw = np.full_like(t, p[4])
+            pitch = np.full_like(t, 0.3 * (p[5] - np.pi))
+            roll = np.full_like(t, 0.3 * (p[6] - np.pi))
+        return _rot(2, yaw) @ _rot(1, pitch) @ _rot(0, roll)
+
+    def earth_body_ut(self, t_s) -> np.ndarray:
+        """The Earth field as the body sees it, (n, 3) µT."""
+        dip = np.deg2rad(self.physics.dip_deg)
+        hw = self.physics.field_ut * np.array([np.cos(dip), 0.0, np.sin(dip)])
+        r = self.orientation(t_s)
+        return np.einsum("nji,j->ni", r, hw)
+
+    def temp_c(self, t_s) -> np.ndarray:
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        tp = self.temperature
+        if tp.swing_c == 0:
+            return np.full_like(t, tp.base_c)
+        p = self._phases
+        warm = 1.0 - np.exp(-t / (0.4 * tp.period_s))
+        osc = np.sin(2 * np.pi * t / tp.period_s + p[7])
+        shape = 0.55 * warm + 0.45 * osc  # in about [-0.45, 1]: non-monotone
+        return tp.base_c + tp.swing_c * (shape - 0.275) / 1.45 * 1.0
+
+    def current_a(self, t_s) -> np.ndarray:
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        cur = self.current
+        if cur.level_a == 0:
+            return np.zeros_like(t)
+        seg = np.floor(t / cur.segment_s).astype(np.int64)
+        on = _hash_uniform(self.seed + 7919, seg) < cur.duty
+        ramp = np.clip((t - seg * cur.segment_s) / 0.2, 0, 1)  # 0.2 s spin-up
+        return np.where(on, cur.level_a * ramp, 0.0)
+
+    # -- per-measurement randomness -------------------------------------------------------
+    def _noise_glitch(self, k: np.ndarray):
+        k = np.asarray(k, dtype=np.int64)
+        blocks = np.unique(k // _BLOCK)
+        noise = np.empty((len(k), 3))
+        glitch = np.zeros((len(k), 3))
+        for b in blocks:
+            nb, gb = _block(self.seed, int(b), self.physics.glitch_rate, tuple(self.physics.glitch_ut))
+            sel = (k // _BLOCK) == b
+            noise[sel] = nb[k[sel] % _BLOCK]
+            glitch[sel] = gb[k[sel] % _BLOCK]
+        return noise, glitch
+
+    # -- measurements ------------------------------------------------------------------------
+    def field_ut(self, t_s, k) -> tuple[np.ndarray, np.ndarray]:
+        """True sensor-frame field before quantisation, (n, 3) µT, and the glitch vectors."""
+        ph = self.physics
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        h = self.earth_body_ut(t)
+        a = np.asarray(ph.distortion, dtype=np.float64)
+        m = h @ a.T + np.asarray(ph.hard_iron_ut, dtype=np.float64)
+        m = m + np.outer(self.temp_c(t) - ph.temp_ref_c, ph.temp_coef_ut_per_c)
+        m = m + np.outer(self.current_a(t), ph.current_coef_ut_per_a)
+        m = m + np.outer(t, ph.drift_ut_per_s)
+        noise, glitch = self._noise_glitch(k)
+        return m + glitch + ph.noise_ut * noise, glitch
+
+    def measure(self, t_s, k) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the chip reports: raw counts (n, 3) int, ST2 (n,), TEMP_OUT raw (n,)."""
+        m, _ = self.field_ut(t_s, k)
+        return self.to_counts(m) + (np.array([temp_c_to_raw(x) for x in self.temp_c(t_s)]),)
+
+    def to_counts(self, m_ut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ph = self.physics
+        lsb = UT_PER_COUNT * np.array([asa_gain(a) for a in ph.asa])
+        x = m_ut / lsb
+        raw = np.round(x) if ph.quantize else x
+        hofl = np.abs(m_ut).sum(axis=1) >= HOFL_SUM_UT
+        raw = np.clip(raw, COUNT_MIN, COUNT_MAX)
+        st2 = np.where(hofl, ST2_HOFL, 0).astype(np.int64)
+        return (raw.astype(np.int64) if ph.quantize else raw), st2
+
+    def simulate(self, n: int, rate_hz: float = 50.0, t0_s: float = 0.0) -> "SimRun":
+        """n measurements at ``rate_hz``: the recording and the truth behind it."""
+        k = np.arange(n)
+        t = t0_s + k / float(rate_hz)
+        m, glitch = self.field_ut(t, k)
+        raw, st2 = self.to_counts(m)
+        lsb = UT_PER_COUNT * np.array([asa_gain(a) for a in self.physics.asa])
+        measured = raw * lsb
+        channels = {}
+        if self.temperature.swing_c or np.any(self.physics.temp_coef_ut_per_c):
+            channels["temp_c"] = self.temp_c(t)
+        if self.current.level_a:
+            channels["current_a"] = self.current_a(t)
+        valid = st2 == 0
+        series = Series(t_s=t, field_ut=measured, channels=channels, valid=valid, seq=k % 65536)
+        return SimRun(
+            series=series,
+            raw=raw,
+            st2=st2,
+            earth_ut=self.earth_body_ut(t),
+            glitch_idx=np.flatnonzero(np.any(glitch != 0, axis=1)),
+            truth=self.physics.truth(),
+        )
+
+    def with_physics(self, **changes) -> "Scenario":
+        return replace(self, physics=replace(self.physics, **changes))
+
+
+@dataclass(frozen=True)
+class SimRun:
+    series: Series
+    raw: np.ndarray
+    st2: np.ndarray
+    earth_ut: np.ndarray
+    glitch_idx: np.ndarray
+    truth: Calibration
+
+
+@lru_cache(maxsize=64)
+def _phases(seed: int) -> np.ndarray:
+    rng = np.random.default_rng([int(seed), 0x9150])
+    periods = rng.uniform(0.7, 1.3, size=4) * np.array([1.0, 1.47, 0.83, 2.3])
+    phases = rng.uniform(0, 2 * np.pi, size=5)
+    return np.concatenate([periods, phases])
+
+
+@lru_cache(maxsize=256)
+def _block(seed: int, block: int, glitch_rate: float, glitch_ut: tuple):
+    rng = np.random.default_rng([int(seed), 0xA8975, block])
+    noise = rng.standard_normal((_BLOCK, 3))
+    glitch = np.zeros((_BLOCK, 3))
+    if glitch_rate > 0:
+        hit = rng.random(_BLOCK) < glitch_rate
+        d = rng.standard_normal((_BLOCK, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        mag = rng.uniform(glitch_ut[0], glitch_ut[1], _BLOCK)
+        glitch[hit] = d[hit] * mag[hit, None]
+    noise.setflags(write=False)
+    glitch.setflags(write=False)
+    return noise, glitch
+
+
+def _hash_uniform(seed: int, idx: np.ndarray) -> np.ndarray:
+    """A deterministic uniform(0,1) per integer index (splitmix64)."""
+    with np.errstate(over="ignore"):
+        x = np.asarray(idx, dtype=np.uint64) + np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15)
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        x = x ^ (x >> np.uint64(31))
+    return (x >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+
+
+def demo_scenario(seed: int = 1) -> Scenario:
+    """The embedded default: a board with realistic hard iron and a little soft iron."""
+    return Scenario(
+        physics=Physics(
+            hard_iron_ut=(23.5, -41.2, 12.8),
+            distortion=((1.012, 0.004, -0.003), (0.004, 0.991, 0.002), (-0.003, 0.002, 1.004)),
+            noise_ut=0.4,
+        ),
+        motion=Motion("sphere", period_s=20.0),
+        temperature=Temperature(base_c=27.0, swing_c=1.5),
+        seed=seed,
+    )
