@@ -9,7 +9,7 @@ Two figures, each CPU time (``time.process_time``) over wall time of the measuri
    between reads (what a daemon needs: nothing is lost, the port buffers). The simulated board (``SimBoard``, real-time pace) runs in a child process
    behind a pseudo-terminal and the host opens the pty as a serial port, exactly as it opens
    ``/dev/ttyACM0``; only the host's CPU is counted. Target (issue 2): < 2 % of one core.
-2. **host + in-process board** — ``sim://?speed=1&rate=100`` in the same process, so the
+2. **host + in-process board** — ``sim://?pace=1&rate=100`` in the same process, so the
    simulator's physics (and its 5 ms polling) is included: an upper bound, not the host's cost.
 """
 
@@ -52,7 +52,7 @@ def board_process(master_fd: int) -> None:
     """Child: the simulated board, real time, speaking over the pty master."""
     from magcal.devices.simboard import SimBoard, serve_fd
 
-    board = SimBoard(rate_hz=100, speed=1.0)
+    board = SimBoard(rate_hz=100, pace=1.0)
     board.timeout = 0.02
     serve_fd(board, master_fd)
 
@@ -86,7 +86,7 @@ def main() -> None:
             os.waitpid(pid, 0)
             os.close(slave)
     print("  target < 2 % of one core")
-    n, wall, cpu = stream(open_device("sim://?speed=1&rate=100"), seconds)
+    n, wall, cpu = stream(open_device("sim://?pace=1&rate=100"), seconds)
     report("host + in-process sim:// board (upper bound)", n, wall, cpu)
 
 

@@ -76,11 +76,11 @@ def main() -> None:
         d.run()
         wall, cpu = time.perf_counter() - t0, cpu_s() - c0
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        print(f"simulated {d.samples:,} samples = {d.samples / RATE_HZ / 3600:.2f} h at {RATE_HZ} Hz "
-              f"in {wall:.1f} s wall ({d.samples / RATE_HZ / wall:.0f}× real time)")
-        print(f"CPU {cpu:.1f} s per simulated {d.samples / RATE_HZ / 3600:.2f} h  →  "
-              f"{100 * cpu / (d.samples / RATE_HZ):.2f} % of one core at real time")
-        print(f"RSS at start {rss0:.1f} MiB, peak {peak:.1f} MiB; state saves {d.generation}")
+        print(f"simulated {d.intake.samples:,} samples = {d.intake.samples / RATE_HZ / 3600:.2f} h at {RATE_HZ} Hz "
+              f"in {wall:.1f} s wall ({d.intake.samples / RATE_HZ / wall:.0f}× real time)")
+        print(f"CPU {cpu:.1f} s per simulated {d.intake.samples / RATE_HZ / 3600:.2f} h  →  "
+              f"{100 * cpu / (d.intake.samples / RATE_HZ):.2f} % of one core at real time")
+        print(f"RSS at start {rss0:.1f} MiB, peak {peak:.1f} MiB; state saves {d.keeper.generation}")
         print(f"{'sim min':>8} {'wall s':>8} {'cpu s':>8} {'RSS MiB':>8}")
         for n, w, c, r in marks:
             print(f"{n / RATE_HZ / 60:8.0f} {w:8.1f} {c:8.1f} {r:8.1f}")
@@ -88,8 +88,8 @@ def main() -> None:
             later = [r for *_, r in marks[len(marks) // 4:]]
             print(f"RSS drift over the last three quarters: {max(later) - min(later):+.2f} MiB")
         print("faults:", dict(d.faults))
-        print("recalibrations:", d.recalibrations, " capture:", d.capture.stats() if d.capture else None)
-        for e in d.decisions:
+        print("recalibrations:", d.writer.count, " capture:", d.capture.stats())
+        for e in d.journal.entries:
             print(f"  at sample {e.get('at_sample', 0):>7}: {e['what']}")
 
 
@@ -98,7 +98,7 @@ def _serve_board(fd: int, seed: int) -> None:
     from magcal.devices.simboard import SimBoard, serve_fd
     from magcal.sim.physics import demo_scenario
 
-    board = SimBoard(demo_scenario(seed), rate_hz=RATE_HZ, speed=1.0)
+    board = SimBoard(demo_scenario(seed), rate_hz=RATE_HZ, pace=1.0)
     board.timeout = 0.01
     serve_fd(board, fd)
 
@@ -128,9 +128,9 @@ def realtime(seconds: float, seed: int) -> None:
         os.kill(pid, 15)
         os.waitpid(pid, 0)
         os.close(slave)
-    print(f"real time over a pty: {d.samples} samples in {wall:.1f} s ({d.samples / wall:.1f} Hz), "
-          f"daemon CPU {cpu:.2f} s = {100 * cpu / wall:.2f} % of one core; state saves {d.generation}, "
-          f"recalibrations {d.recalibrations}, RSS {rss_mib():.1f} MiB")
+    print(f"real time over a pty: {d.intake.samples} samples in {wall:.1f} s ({d.intake.samples / wall:.1f} Hz), "
+          f"daemon CPU {cpu:.2f} s = {100 * cpu / wall:.2f} % of one core; state saves {d.keeper.generation}, "
+          f"recalibrations {d.writer.count}, RSS {rss_mib():.1f} MiB")
 
 
 if __name__ == "__main__":

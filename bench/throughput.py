@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 from magcal.app.load import load_series  # noqa: E402
 from magcal.devices import open_device  # noqa: E402
-from magcal.devices.replay import collect_samples  # noqa: E402
+from magcal.devices.base import read_to_end  # noqa: E402
 from magcal.fit import SphereAccumulator  # noqa: E402
 from magcal.recordings.capture import (
     CaptureReader,
@@ -100,7 +100,7 @@ def main() -> None:
         k = min(n, 5 * 60 * RATE_HZ)
         part = os.path.join(d, "part.cap")
         make_capture(part, k)
-        dt, samples = best_of(1, lambda: collect_samples(open_device(f"replay://{part}")))
+        dt, samples = best_of(1, lambda: read_to_end(open_device(f"replay://{part}")))
         print(f"incremental ProtocolDevice replay: {len(samples) / dt:8,.0f} lines/s  ({k:,} lines)")
 
         m = s.field_ut

@@ -97,18 +97,16 @@ def test_a_write_that_is_not_acknowledged_or_echoed_wrong_is_never_reported_writ
 def test_a_device_that_never_answers_gives_a_clear_error_and_exit_2(capsys, monkeypatch):
     import magcal.devices.link as link
 
-    monkeypatch.setattr(link.ProtocolDevice, "__init__", _mute_init(link.ProtocolDevice.__init__))
-    code, out, err = run_cli(capsys, "calibrate", "--port", "sim://", "--json")
+    monkeypatch.setattr(link.ProtocolDevice, "__init__", _quick_init(link.ProtocolDevice.__init__))
+    code, out, err = run_cli(capsys, "calibrate", "--port", "sim://?fault=mute", "--json")
     assert code == 2
     assert "did not identify" in err and "Traceback" not in err
 
 
-def _mute_init(orig):
-    def init(self, url, transport, **kw):
+def _quick_init(orig):
+    def init(self, url, connect, **kw):
         kw["boot_timeout_s"] = 0.5
-        orig(self, url, transport, **kw)
-        transport.faults["mute"] = True
-        transport._out.clear()
+        orig(self, url, connect, **kw)
 
     return init
 

@@ -11,8 +11,9 @@ import pytest
 from magcal.app.load import load_series
 from magcal.core.errors import InputError
 from magcal.core.series import Series
+from magcal.devices.base import read_to_end
 from magcal.devices.link import ProtocolDevice
-from magcal.devices.replay import BytesTransport, collect_samples
+from magcal.devices.replay import BytesTransport
 from magcal.recordings.capture import (
     CaptureReader,
     CaptureWriteError,
@@ -83,8 +84,8 @@ def test_a_capture_cut_anywhere_in_its_last_chunk_keeps_every_whole_chunk(tmp_pa
 def test_tap_records_exactly_what_the_client_read(tmp_path):
     data = stream_bytes(300)
     w = CaptureWriter(tmp_path / "t.cap", make_header("x"), clock=Clock())
-    dev = ProtocolDevice("x", BytesTransport([(0.0, c) for c in chunks_of(data, 77)]), passive=True, tap=w)
-    samples = collect_samples(dev)
+    dev = ProtocolDevice.over("x", BytesTransport([(0.0, c) for c in chunks_of(data, 77)]), passive=True, tap=w)
+    samples = read_to_end(dev)
     w.close()
     assert len(samples) == 300
     assert CaptureReader(w.path).data() == data
@@ -111,11 +112,11 @@ class FailingFile:
 def test_disk_full_raises_once_and_loses_nothing_the_device_sent(tmp_path):
     data = stream_bytes(500)
     reference = Series.from_samples(
-        collect_samples(ProtocolDevice("r", BytesTransport([(0.0, data)]), passive=True))
+        read_to_end(ProtocolDevice.over("r", BytesTransport([(0.0, data)]), passive=True))
     )
     w = CaptureWriter(tmp_path / "full.cap", make_header("x"), clock=Clock())
     w._fh = FailingFile(w._fh, 2000)
-    dev = ProtocolDevice("x", BytesTransport([(0.0, c) for c in chunks_of(data, 64)]), passive=True, tap=w)
+    dev = ProtocolDevice.over("x", BytesTransport([(0.0, c) for c in chunks_of(data, 64)]), passive=True, tap=w)
     dev.open()
     got, errors = [], []
     while True:
@@ -199,7 +200,7 @@ def test_numbers_beyond_int64_take_the_live_clients_path(tmp_path):
     with CaptureWriter(p, make_header("x"), clock=Clock()) as w:
         w.append(data)
     s = load_series(p)
-    ref = Series.from_samples(collect_samples(ProtocolDevice("r", BytesTransport([(0.0, data)]), passive=True)))
+    ref = Series.from_samples(read_to_end(ProtocolDevice.over("r", BytesTransport([(0.0, data)]), passive=True)))
     assert len(s) == 52 and np.array_equal(s.t_s, ref.t_s) and np.array_equal(s.field_ut, ref.field_ut)
 
 

@@ -4,26 +4,17 @@ what the simulated board emitted), and a calibration that failed a gate or was n
 read-back is never reported (and the previous one is put back)."""
 
 import itertools
-import json
 
 import numpy as np
 import pytest
 
 from magcal.app import config
-from magcal.app.daemon import Daemon
-from magcal.devices import open_device
-from magcal.devices.simboard import _BOARDS, forget_boards
+from magcal.app.daemon import Daemon, Decision, Stop
+from magcal.devices import open_device, parse_port
+from magcal.devices.base import read_to_end
+from magcal.devices.simboard import SimBoard
 from magcal.recordings.state import StateStore
 from magcal.wire.protocol import record_from_calibration
-
-_names = itertools.count()
-
-
-@pytest.fixture(autouse=True)
-def _fresh_boards():
-    forget_boards()
-    yield
-    forget_boards()
 
 
 def make_settings(port, **daemon):
@@ -34,12 +25,12 @@ def make_settings(port, **daemon):
 
 
 class Tracked:
-    """A named sim board whose every emitted sample line is logged, and the daemon's view."""
+    """A sim board whose every emitted sample line is logged, and the daemon's view. Every
+    daemon run here connects to this one board (as one would replug one real board)."""
 
     def __init__(self, query):
-        self.url = f"sim://?board=t{next(_names)}&{query}"
-        open_device(self.url)  # creates the board; the daemon's opens reconnect to it
-        self.board = _BOARDS[self.url.split("board=")[1].split("&")[0]]
+        self.url = f"sim://?{query}"
+        self.board = SimBoard.from_port(parse_port(self.url))
         self.emitted = []
         emit = self.board._emit
 
@@ -51,13 +42,16 @@ class Tracked:
         self.board._emit = logging_emit
         self.collected = []
 
+    def options(self, **more):
+        return {"board": self.board, **more}
+
     def on_sample(self, epoch, s):
         self.collected.append((epoch, s.seq, s.raw))
 
     def run(self, tmp_path, samples, **daemon):
         settings = make_settings(self.url, **daemon)
         d = Daemon(settings, state_dir=tmp_path / "state", on_sample=self.on_sample, max_samples=samples,
-                   device_options={"reply_timeout_s": 0.25})
+                   device_options=self.options(reply_timeout_s=0.25))
         assert d.run() == 0
         return d
 
@@ -77,8 +71,8 @@ def test_unplugged_twice_reconnects_and_loses_nothing(tmp_path):
     d = t.run(tmp_path, 1000)
     assert d.faults["port_lost"] == 2
     assert d.faults["connect_failed"] >= 1  # the port was still gone at the first retry
-    assert d.epoch == 3
-    assert d.samples >= 1000
+    assert d.intake.epoch == 3
+    assert d.intake.samples >= 1000
     t.assert_exactly_once()
 
 
@@ -86,7 +80,7 @@ def test_stall_is_detected_and_the_link_reopened(tmp_path):
     t = Tracked("seed=4&fault=stall@2+0.6")
     d = t.run(tmp_path, 500)
     assert d.faults["stalls"] == 1
-    assert d.epoch >= 2
+    assert d.intake.epoch >= 2
     t.assert_exactly_once()
 
 
@@ -94,18 +88,18 @@ def test_reset_mid_line_restarts_the_stream(tmp_path):
     t = Tracked("seed=5&fault=reset@2")
     d = t.run(tmp_path, 600)
     assert d.faults["device_resets"] == 1
-    assert d.epoch == 2
-    assert d.samples >= 600  # streaming was started again after the reset
+    assert d.intake.epoch == 2
+    assert d.intake.samples >= 600  # streaming was started again after the reset
     t.assert_exactly_once()
 
 
 def test_garbage_bursts_are_counted_and_lose_no_sample(tmp_path):
     t = Tracked("seed=6&fault=garbage@1=400&fault=garbage@2.5=2000&fault=garbage@4=50")
     d = t.run(tmp_path, 600)
-    assert d.samples >= 600
+    assert d.intake.samples >= 600
     t.assert_exactly_once()
     # the framer counted the noise (the device object is closed; its counters went to the log)
-    assert any(e["what"] == "connected" for e in d.decisions)
+    assert Decision.CONNECTED in d.journal.decisions()
 
 
 def _stored_record(board):
@@ -124,28 +118,26 @@ def _calibrated_then(tmp_path, faults, samples=12500):
 
 def test_new_hard_iron_is_detected_and_recalibrated(tmp_path):
     t, d = _calibrated_then(tmp_path, "")
-    assert d.recalibrations == 2  # the first one on a blank board, then after the payload
+    assert d.writer.count == 2  # the first one on a blank board, then after the payload
     assert d.faults["drift_alarms"] >= 1
-    np.testing.assert_allclose(d.calibration.offset_ut, [30.5, -38.2, 14.8], atol=0.6)
+    np.testing.assert_allclose(d.drift.calibration.offset_ut, [30.5, -38.2, 14.8], atol=0.6)
     status, values = _stored_record(t.board)
-    assert status == "OK" and values == record_from_calibration(d.calibration)
-    assert d.last_calibration["verified"] is True
-    whats = [e["what"] for e in d.decisions]
-    assert "calibration no longer fits the data" in whats
+    assert status == "OK" and values == record_from_calibration(d.drift.calibration)
+    assert d.writer.last["verified"] is True
+    assert Decision.DRIFTED in d.journal.decisions()
 
 
 @pytest.mark.parametrize("fault", ["mute", "no_write_ack", "corrupt_write"])
 def test_a_write_that_is_not_verified_is_never_reported(tmp_path, fault):
     t, d = _calibrated_then(tmp_path, f"&fault={fault}@50")
-    first = d.decisions  # the first calibration succeeded before the fault
-    assert d.recalibrations == 1
+    assert d.writer.count == 1  # the first calibration succeeded before the fault
     assert d.faults["drift_alarms"] >= 1
-    assert any(e["what"] == "calibration NOT written" for e in first)
+    assert Decision.NOT_WRITTEN in d.journal.decisions()
     # what the daemon reports is the calibration it verified, and the device still holds it
     status, values = _stored_record(t.board)
-    assert status == "OK" and values == record_from_calibration(d.calibration)
-    assert np.linalg.norm(d.calibration.offset_ut - np.array([23.5, -41.2, 12.8])) < 1.0
-    assert d.last_calibration["calibration"] == d.calibration.to_dict()
+    assert status == "OK" and values == record_from_calibration(d.drift.calibration)
+    assert np.linalg.norm(d.drift.calibration.offset_ut - np.array([23.5, -41.2, 12.8])) < 1.0
+    assert d.writer.last["calibration"] == d.drift.calibration.to_dict()
 
 
 def test_a_calibration_failing_a_gate_is_never_written(tmp_path):
@@ -153,9 +145,9 @@ def test_a_calibration_failing_a_gate_is_never_written(tmp_path):
     settings = config.load(None, {"port": t.url, "gates": {"max_rms_ut": 0.05},
                                   "daemon": {"recalibrate": True, "socket": False, "monitor_window": 200}},
                            environ={})
-    d = Daemon(settings, state_dir=tmp_path, on_sample=t.on_sample, max_samples=4000)
+    d = Daemon(settings, state_dir=tmp_path, on_sample=t.on_sample, max_samples=4000, device_options=t.options())
     d.run()
-    assert d.recalibrations == 0 and d.last_calibration is None and d.calibration is None
+    assert d.writer.count == 0 and d.writer.last is None and d.drift.calibration is None
     assert _stored_record(t.board)[0] == "BLANK"
     t.assert_exactly_once()
 
@@ -178,8 +170,8 @@ def test_full_disk_for_captures_keeps_streaming(tmp_path, monkeypatch):
 
     monkeypatch.setattr(capture.CaptureWriter, "append", append)
     d = t.run(tmp_path, 1500, capture_max_bytes=1 << 20)
-    assert d.faults["capture_failed"] == 1, (calls, d.faults, list(d.decisions))
-    assert d.samples >= 1500
+    assert d.faults["capture_failed"] == 1, (calls, d.faults, list(d.journal.entries))
+    assert d.intake.samples >= 1500
     t.assert_exactly_once()
     assert "disk full" in d.capture.stats()["error"]
 
@@ -197,13 +189,14 @@ def test_restart_resumes_the_accumulated_state(tmp_path):
     t = Tracked("seed=11")
     a = t.run(tmp_path, 800)
     saved = StateStore(tmp_path / "state").load()
-    assert saved["resume"]["samples"] == a.samples
-    b = t.run(tmp_path, a.samples + 500)
-    assert b.samples >= a.samples + 500
-    assert b.session.accumulator.n == b.session.counters["samples_in"]  # nothing counted twice
-    assert b.session.counters["samples_in"] == b.samples  # the session spans both runs
-    assert any(e["what"] == "resumed" for e in b.decisions)
-    assert b.generation > a.generation
+    assert saved["resume"]["samples"] == a.intake.samples
+    b = t.run(tmp_path, a.intake.samples + 500)
+    assert b.intake.samples >= a.intake.samples + 500
+    session = b.recalibrator.session
+    assert session.accumulator.n == session.counters["samples_in"]  # nothing counted twice
+    assert session.counters["samples_in"] == b.intake.samples  # the session spans both runs
+    assert Decision.RESUMED in b.journal.decisions()
+    assert b.keeper.generation > a.keeper.generation
 
 
 def test_state_of_another_port_is_not_mixed_in(tmp_path):
@@ -211,9 +204,9 @@ def test_state_of_another_port_is_not_mixed_in(tmp_path):
     a = t.run(tmp_path, 700)
     other = Daemon(make_settings("sim://?seed=15"), state_dir=tmp_path / "state")
     other.resume()
-    assert other.session.accumulator.n == 0 and other.monitor is None
-    assert other.samples == a.samples  # the counters go on
-    assert any("another port" in e["what"] for e in other.decisions)
+    assert other.recalibrator.session.accumulator.n == 0 and other.drift.monitor is None
+    assert other.intake.samples == a.intake.samples  # the counters go on
+    assert Decision.STATE_OTHER_PORT in other.journal.decisions()
 
 
 def test_torn_state_file_falls_back_to_the_previous_one(tmp_path):
@@ -222,10 +215,11 @@ def test_torn_state_file_falls_back_to_the_previous_one(tmp_path):
     store = StateStore(tmp_path / "state")
     blob = store.current.read_bytes()
     store.current.write_bytes(blob[: len(blob) // 3])
-    b = Daemon(make_settings(t.url), state_dir=tmp_path / "state", max_samples=a.samples + 100)
+    b = Daemon(make_settings(t.url), state_dir=tmp_path / "state", max_samples=a.intake.samples + 100)
     b.resume()
-    assert 0 < b.samples <= a.samples
-    assert "refusing state.json" in json.dumps(list(b.decisions))
+    assert 0 < b.intake.samples <= a.intake.samples
+    assert b.keeper.loaded_from == "state.prev.json"  # state.json was refused
+    assert [e["source"] for e in b.journal.find(Decision.RESUMED)][-1] == "state.prev.json"
 
 
 def test_reload_rejects_an_invalid_config_and_keeps_the_old(tmp_path):
@@ -258,19 +252,17 @@ def _record_capture(path, seconds=12.0, seed=13):
 
 
 def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
-    from magcal.devices.replay import collect_samples
-
     cap = tmp_path / "run.cap"
     _record_capture(cap)
-    clean = [(s.seq, s.raw) for s in collect_samples(open_device(f"replay://{cap}")) if s.valid]
+    clean = [(s.seq, s.raw) for s in read_to_end(open_device(f"replay://{cap}")) if s.valid]
     url = (f"replay://{cap}?fault=unplug@3+0.4&fault=stall@5+0.5&fault=garbage@7=500"
            f"&fault=reset@8&fault=unplug@10+0.4")
     got = []
     d = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)))
     assert d.run() == 0
-    assert d.exit_reason == "the recording ended"
+    assert d.stopped_by is Stop.SOURCE_ENDED
     assert got == clean
-    assert d.faults["port_lost"] == 2, (d.faults, list(d.decisions))
+    assert d.faults["port_lost"] == 2, (d.faults, list(d.journal.entries))
     assert d.faults["stalls"] == 1
     assert d.faults["device_resets"] == 1
 
@@ -278,11 +270,9 @@ def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
 def test_a_restarted_daemon_resumes_a_replay_where_it_stopped(tmp_path):
     """A replay is read from its start each time it is opened; a daemon restarted on the same
     state must not feed the lines it already took into the resumed session a second time."""
-    from magcal.devices.replay import collect_samples
-
     cap = tmp_path / "run.cap"
     _record_capture(cap)
-    recorded = collect_samples(open_device(f"replay://{cap}"))
+    recorded = read_to_end(open_device(f"replay://{cap}"))
     clean = [(s.seq, s.raw) for s in recorded if s.valid]
     url = f"replay://{cap}"
     got = []
@@ -293,11 +283,11 @@ def test_a_restarted_daemon_resumes_a_replay_where_it_stopped(tmp_path):
     assert 0 < taken < len(clean)
     second = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)))
     assert second.run() == 0
-    assert second.exit_reason == "the recording ended"
+    assert second.stopped_by is Stop.SOURCE_ENDED
     assert got == clean  # every recorded sample once, in order, across the restart
-    assert second.samples == len(clean)
-    assert second.session.progress()["samples"] == len(recorded)  # the resumed session took each line once
-    assert any(e["what"].startswith("replay resumes") and e.get("skipped_lines") == taken for e in second.decisions)
+    assert second.intake.samples == len(clean)
+    assert second.recalibrator.session.progress()["samples"] == len(recorded)  # the resumed session took each line once
+    assert [e["skipped_lines"] for e in second.journal.find(Decision.REPLAY_SKIPS)] == [taken]
 
 
 def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
@@ -312,7 +302,7 @@ def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
         import time
 
         end = time.monotonic() + 20
-        while first.samples == 0 and time.monotonic() < end:
+        while first.intake.samples == 0 and time.monotonic() < end:
             time.sleep(0.02)
         second = Daemon(make_settings("sim://?seed=16"), state_dir=tmp_path)
         with pytest.raises(StateError, match="another magcal daemon"):
@@ -321,13 +311,11 @@ def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
         first.request_stop()
         th.join(10)
     assert not th.is_alive()
-    assert StateStore(tmp_path).load()["resume"]["samples"] == first.samples  # its state is intact
+    assert StateStore(tmp_path).load()["resume"]["samples"] == first.intake.samples  # its state is intact
 
 
 def test_the_daemon_keeps_a_capture_of_a_motioncal_board_that_replays_to_the_same_readings(tmp_path):
     from adafruit_device import AdafruitBoard
-
-    from magcal.devices.replay import collect_samples
 
     got = []
     with AdafruitBoard(lines_per_s=1000, seed=4) as board:
@@ -338,5 +326,5 @@ def test_the_daemon_keeps_a_capture_of_a_motioncal_board_that_replays_to_the_sam
                    max_samples=500)
         assert d.run() == 0
     cap = tmp_path / "state" / "capture.cap"
-    replayed = [s.field_ut for s in collect_samples(open_device(f"replay://{cap}"))]
+    replayed = [s.field_ut for s in read_to_end(open_device(f"replay://{cap}"))]
     assert len(got) >= 500 and replayed[: len(got)] == got

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from magcal.app.daemon import query_socket
+from magcal.app.daemon import Decision, query_socket
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -66,7 +66,8 @@ def test_signals_and_status(tmp_path):
         _wait_for(lambda: (query_socket(state) or {}).get("faults", {}).get("config_rejected") == 1)
         cfg.write_text("rate_hz: 50\ndaemon:\n  monitor_alpha: 0.02\n  state_every_s: 0.2\n")
         proc.send_signal(signal.SIGHUP)
-        _wait_for(lambda: any(d["what"] == "config reloaded" for d in (query_socket(state) or {}).get("decisions", [])))
+        _wait_for(lambda: any(d["decision"] == Decision.RELOADED.value
+                              for d in (query_socket(state) or {}).get("decisions", [])))
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=30)
     finally:
@@ -74,8 +75,8 @@ def test_signals_and_status(tmp_path):
             proc.kill()
             proc.wait()
     assert proc.returncode == 0, err
-    assert "config reload rejected; keeping the old settings" in err
-    assert "daemon stopped" in err
+    assert Decision.RELOAD_REJECTED.text in err  # the log says it in words
+    assert Decision.STOPPED.text in err
     assert not (state / "status.sock").exists()
     code, out, _ = _status(state, "--json")
     s = json.loads(out)

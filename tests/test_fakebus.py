@@ -15,12 +15,13 @@ from magcal.core.errors import PortUnavailable
 from magcal.core.events import Event
 from magcal.core.sample import UT_PER_COUNT, Sample, asa_gain
 from magcal.devices.fakebus import FakeBus, FakeClock
-from magcal.devices.i2c import AK_ADDR, MODE_SINGLE, REG_ASAX, REG_CNTL, REG_HXL, REG_ST1, open_i2c
+from magcal.devices import open_device
+from magcal.devices.i2c import AK_ADDR, MODE_SINGLE, REG_ASAX, REG_CNTL, REG_HXL, REG_ST1
 from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
 
 
 def opened(bus: FakeBus, url: str = "i2c:1", **kw):
-    dev = open_i2c(url, bus_factory=lambda n: bus, **kw)
+    dev = open_device(url, bus_factory=lambda n: bus, **kw)
     dev.open()
     return dev
 

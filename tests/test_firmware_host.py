@@ -175,7 +175,7 @@ def test_overflow_is_flagged_in_st2_exactly_when_the_sensor_overflowed(tmp_path)
 
 
 def test_a_magnetometer_that_never_finishes_is_logged_and_the_board_stays_responsive(tmp_path):
-    dev = open_device(f"emu://?faults=4&eeprom={tmp_path / 'ee.bin'}")  # MPU_FAULT_STUCK_DRDY
+    dev = open_device(f"emu://?fault=stuck_drdy&eeprom={tmp_path / 'ee.bin'}")
     with dev:
         dev.open()
         dev.start(50)
@@ -227,9 +227,9 @@ def test_the_firmware_finds_the_mpu_with_ad0_low_or_high(tmp_path, addr):
 
 
 def test_an_emulated_board_at_an_impossible_address_is_refused_plainly():
-    from magcal.core.errors import DeviceError
+    from magcal.core.errors import PortError
 
-    with pytest.raises(DeviceError, match="0x68 .AD0 low. or 0x69"):
+    with pytest.raises(PortError, match="0x68 .AD0 low. or 0x69"):
         open_device("emu://?addr=0x70")
 
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from magcal.core.calibration import Calibration
-from magcal.core.errors import ConfigError, DeviceError, IdentityError, NoReply, PortUnavailable
+from magcal.core.errors import DeviceError, IdentityError, NoReply, PortError, PortUnavailable
 from magcal.core.events import Event
 from magcal.core.sample import Sample
-from magcal.devices import open_device
+from magcal.devices import open_device, parse_port
 from magcal.devices.fakebus import FakeBus
 from magcal.devices.i2c import (
     AK_ADDR,
@@ -20,15 +20,14 @@ from magcal.devices.i2c import (
     SELF_TEST_WINDOW,
     DataNotReady,
     MagnetometerMissing,
+    I2CAddress,
     SelfTestResult,
-    open_i2c,
-    parse_url,
 )
 from magcal.sim.physics import demo_scenario
 
 
 def opened(bus, url="i2c:1", **kw):
-    dev = open_i2c(url, bus_factory=lambda n: bus, **kw)
+    dev = open_device(url, bus_factory=lambda n: bus, **kw)
     dev.open()
     return dev
 
@@ -45,7 +44,7 @@ def opened(bus, url="i2c:1", **kw):
     ],
 )
 def test_port_strings_name_bus_and_address(url, bus, path, addr):
-    where = parse_url(url)
+    where = I2CAddress.of(parse_port(url))
     assert (where.bus, where.path, where.address) == (bus, path, addr)
 
 
@@ -60,8 +59,8 @@ def test_port_strings_name_bus_and_address(url, bus, path, addr):
     ],
 )
 def test_bad_port_strings_say_what_is_wrong(url, words):
-    with pytest.raises(ConfigError, match=re.escape(words)):
-        parse_url(url)
+    with pytest.raises(PortError, match=re.escape(words)):
+        parse_port(url)
 
 
 def test_the_registry_routes_i2c_urls_here():
@@ -84,7 +83,7 @@ def test_a_missing_bus_device_file_is_port_unavailable_naming_the_file():
     def no_bus(n):
         raise FileNotFoundError(2, "No such file or directory", f"/dev/i2c-{n}")
 
-    dev = open_i2c("i2c:7", bus_factory=no_bus)
+    dev = open_device("i2c:7", bus_factory=no_bus)
     with pytest.raises(PortUnavailable) as exc:
         dev.open()
     msg = str(exc.value)
@@ -92,7 +91,7 @@ def test_a_missing_bus_device_file_is_port_unavailable_naming_the_file():
 
 
 def test_the_real_smbus2_on_a_bus_that_does_not_exist_gives_the_same_clear_error():
-    dev = open_i2c("i2c:250")  # default factory: smbus2.SMBus(250)
+    dev = open_device("i2c:250")  # default factory: smbus2.SMBus(250)
     with pytest.raises(PortUnavailable, match="/dev/i2c-250 does not exist"):
         dev.open()
 
@@ -102,7 +101,7 @@ def test_permission_denied_says_which_group():
         raise PermissionError(13, "Permission denied")
 
     with pytest.raises(PortUnavailable, match="'i2c' group"):
-        open_i2c("i2c:1", bus_factory=denied).open()
+        open_device("i2c:1", bus_factory=denied).open()
 
 
 def test_wrong_who_am_i_is_an_identity_error_saying_what_was_found():
@@ -170,7 +169,7 @@ def test_samples_are_asa_adjusted_counted_and_paced_by_the_rate():
 
 def test_rate_out_of_range_is_refused():
     dev = opened(FakeBus(demo_scenario(1)))
-    with pytest.raises(ConfigError, match="out of range"):
+    with pytest.raises(PortError, match="out of range"):
         dev.start(150)
 
 

@@ -143,14 +143,14 @@ def test_a_recorded_motioncal_session_replays_as_it_was_live(capsys, tmp_path, d
     same readings, timed by when their bytes arrived, and a replay refuses to store."""
     from magcal.core.errors import DeviceError
     from magcal.devices import open_device
-    from magcal.devices.replay import collect_samples
+    from magcal.devices.base import read_to_end
 
     cap = tmp_path / "mc.cap"
     with AdafruitBoard(noise=0.02, torn=0.02, lines_per_s=400, seed=5) as board:
         rc, rep = run_json(["record", "--port", board.port, "--dialect", dialect, "-o", str(cap),
                             "--count", "600", "--json"], capsys)
     assert rc == 0 and rep["samples"] >= 600
-    replayed = collect_samples(open_device(f"replay://{cap}"))
+    replayed = read_to_end(open_device(f"replay://{cap}"))
     assert len(replayed) >= rep["samples"]  # (the readings the last read still held are in the file too)
     t = np.array([s.t_s for s in replayed])
     assert np.all(np.diff(t) >= 0) and 0.5 < t[-1] - t[0] < 10  # ~600 readings at ~400 lines/s, not indices
@@ -159,7 +159,7 @@ def test_a_recorded_motioncal_session_replays_as_it_was_live(capsys, tmp_path, d
     assert np.array_equal(offline.t_s, t)
     dev = open_device(f"replay://{cap}")
     dev.open()
-    assert dev.identity.transport == "replay" and not dev.can_store
+    assert dev.identity.transport == "replay" and not dev.abilities.store and not dev.abilities.live
     with pytest.raises(DeviceError, match="cannot store"):
         dev.write_calibration(fit(offline.field_ut, model="sphere").calibration)
     dev.close()

@@ -8,11 +8,12 @@ import pytest
 
 from magcal.app.load import load_series
 from magcal.cli import main
-from magcal.core.errors import DeviceError
+from magcal.core.errors import DeviceError, PortError
 from magcal.core.sample import Sample
 from magcal.core.series import Series
-from magcal.devices import open_device
-from magcal.devices.replay import BytesTransport, collect_samples, parse_replay_url
+from magcal.devices import open_device, parse_port
+from magcal.devices.base import read_to_end
+from magcal.devices.replay import BytesTransport
 from magcal.recordings.capture import CaptureReader, CaptureWriter, make_header
 
 
@@ -59,7 +60,7 @@ def recorded(tmp_path_factory):
 
 def test_replay_reproduces_the_live_samples(recorded):
     path, live = recorded
-    replayed = Series.from_samples(collect_samples(open_device(f"replay://{path}")))
+    replayed = Series.from_samples(read_to_end(open_device(f"replay://{path}")))
     n = len(replayed)
     assert n >= len(live)  # the capture may hold a few samples read after the last count
     same_series(live, replayed.take(np.arange(len(live))))
@@ -68,7 +69,7 @@ def test_replay_reproduces_the_live_samples(recorded):
 
 def test_load_series_equals_the_replay_through_the_live_client(recorded):
     path, _ = recorded
-    same_series(load_series(path), Series.from_samples(collect_samples(open_device(f"replay://{path}"))))
+    same_series(load_series(path), Series.from_samples(read_to_end(open_device(f"replay://{path}"))))
 
 
 def test_replay_reports_the_link_defects_it_saw(recorded):
@@ -103,7 +104,7 @@ def test_fit_on_capture_csv_and_replay_is_bit_identical(recorded, tmp_path, caps
     assert from_csv.pop("input").startswith("field from mx,my,mz in µT; time from t (s)")
     assert outputs[0] == outputs[1]
     assert json.loads(outputs[0]) == from_csv
-    replayed = Series.from_samples(collect_samples(open_device(f"replay://{path}")))
+    replayed = Series.from_samples(read_to_end(open_device(f"replay://{path}")))
     via_replay = json.loads(json.dumps(fit(replayed, model="auto").to_dict()))
     assert {**via_replay, "warnings": []} == json.loads(outputs[0])
 
@@ -149,16 +150,18 @@ def test_a_truncated_capture_replays_and_says_so(recorded, tmp_path):
     cut = tmp_path / "cut.cap"
     cut.write_bytes(blob[:-7])
     dev = open_device(f"replay://{cut}")
-    samples = collect_samples(dev)
+    samples = read_to_end(dev)
     assert len(samples) > 1000 and dev.counters["capture_truncated_bytes"] > 0
 
 
 def test_replay_urls_are_checked_with_clear_errors(tmp_path):
-    assert parse_replay_url("replay:///abs/x.cap?pace=1") == ("/abs/x.cap", 1.0)
-    assert parse_replay_url("replay://rel/x.cap") == ("rel/x.cap", 0.0)
-    with pytest.raises(DeviceError, match="pace"):
-        parse_replay_url("replay://x.cap?pace=fast")
-    with pytest.raises(DeviceError, match="speed"):
-        parse_replay_url("replay://x.cap?speed=2")
+    p = parse_port("replay:///abs/x.cap?pace=1")
+    assert (p.target, p.get("pace")) == ("/abs/x.cap", 1.0)
+    p = parse_port("replay://rel/x.cap")
+    assert (p.target, p.get("pace", 0.0)) == ("rel/x.cap", 0.0)
+    with pytest.raises(PortError, match="pace"):
+        parse_port("replay://x.cap?pace=fast")
+    with pytest.raises(PortError, match="speed"):
+        parse_port("replay://x.cap?speed=2")
     with pytest.raises(DeviceError, match="missing.cap"):
         open_device(f"replay://{tmp_path}/missing.cap")

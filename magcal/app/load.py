@@ -33,23 +33,22 @@ def _native_series(data: bytes, name: str) -> Series:
 
 
 def _series_via_device(data: bytes, name: str) -> Series:
-    from ..devices.link import ProtocolDevice
-    from ..devices.replay import BytesTransport, collect_samples
+    from ..devices.base import read_to_end
+    from ..devices.replay import BytesTransport, recorded_device
 
-    dev = ProtocolDevice(name, BytesTransport([(0.0, data)]), transport_name="replay", passive=True)
-    return Series.from_samples(collect_samples(dev))
+    return Series.from_samples(read_to_end(recorded_device(name, BytesTransport([(0.0, data)]))))
 
 
 def _foreign_capture(reader: CaptureReader, dialect: str) -> Series:
     if dialect == "motioncal":
         # read as it was live (the same device on the recorded bytes): each reading timed by
         # when its bytes arrived
-        from ..devices.motioncal import MotionCalDevice
-        from ..devices.replay import BytesTransport, collect_samples
+        from ..devices.base import read_to_end
+        from ..devices.replay import BytesTransport, recorded_device
 
-        dev = MotionCalDevice(str(reader.path), transport=BytesTransport(reader), passive=True)
+        dev = recorded_device(str(reader.path), BytesTransport(reader), "motioncal")
         try:
-            return Series.from_samples(collect_samples(dev))
+            return Series.from_samples(read_to_end(dev))
         except DeviceError as exc:
             raise InputError(str(exc)) from None
     raise InputError(f"{reader.path} line 1: unknown capture dialect {dialect!r}")

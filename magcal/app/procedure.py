@@ -12,12 +12,27 @@ from typing import Callable
 
 from ..core.calibration import Calibration
 from ..core.errors import DeviceError
-from ..core.events import Identity
-from ..devices.base import Device
+from ..core.events import Code, Identity
+from ..devices.base import Device, batches
 from ..logic.session import Session, Status
 from .config import Settings
 
 PROGRESS_EVERY_S = 0.25
+
+
+class Ended(Code):
+    """Why collecting stopped before every gate passed (the session's failure code)."""
+
+    TIMEOUT = "timeout"
+    END_OF_DATA = "end_of_data"
+
+
+class WriteFailure(Code):
+    """Why a calibration is not on the device as sent (the session's failure code)."""
+
+    WRITE_FAILED = "write_failed"  # refused, no reply, port lost
+    VERIFY_MISMATCH = "verify_mismatch"  # the echo or the read-back differs
+    VERIFY_FAILED = "verify_failed"  # written, but it could not be read back
 
 
 @dataclass
@@ -83,13 +98,8 @@ def calibrate(
     deadline = clock() + settings.timeout_s
     last_progress = 0.0
     device.start(settings.rate_hz)
-    ended = ""
-    while True:
-        try:
-            items = device.read(0.1)
-        except EOFError:
-            ended = "the recording ended"
-            break
+    ended: Ended | None = None
+    for items in batches(device, 0.1):
         session.add_many(items)
         now = clock()
         if on_progress and now - last_progress >= PROGRESS_EVERY_S:
@@ -98,23 +108,18 @@ def calibrate(
         if session.ready():
             break
         if now >= deadline:
-            ended = f"timed out after {settings.timeout_s:g} s"
+            ended = Ended.TIMEOUT
             break
-    if not ended:
+    else:
+        ended = Ended.END_OF_DATA
+    if ended is None:
         try:
             device.stop()
         except DeviceError:
             pass  # the samples are in; a missed stop acknowledgement does not spoil them
     out.link = device.stats()
-    if ended:
-        session.update_estimate()
-        failing = session.failing_gates()
-        names = ", ".join(g.name for g in failing) or "none"
-        detail = "; ".join(g.message for g in failing)
-        session.fail(
-            "timeout" if "timed out" in ended else "end_of_data",
-            f"{ended} before every gate passed — failing: {names} ({detail})",
-        )
+    if ended is not None:
+        _give_up(session, ended, settings.timeout_s)
         if on_progress:
             on_progress(session)
         return out
@@ -123,10 +128,19 @@ def calibrate(
         on_progress(session)
     if not result or session.status is Status.FAILED:
         return out
-    if not (write and device.can_store):
+    if not (write and device.abilities.store):
         session.finish_without_write()
         return out
     return write_and_verify(device, session, out)
+
+
+def _give_up(session: Session, ended: Ended, timeout_s: float) -> None:
+    session.update_estimate()
+    failing = session.failing_gates()
+    names = ", ".join(g.name for g in failing) or "none"
+    detail = "; ".join(g.message for g in failing)
+    why = f"timed out after {timeout_s:g} s" if ended is Ended.TIMEOUT else "the recording ended"
+    session.fail(ended, f"{why} before every gate passed — failing: {names} ({detail})")
 
 
 @dataclass
@@ -138,7 +152,7 @@ class Stored:
     verified: bool = False  # and read back equal
     stored: Calibration | None = None  # what the device read back
     restored: bool | None = None  # after a mismatch: was the previous calibration put back?
-    failure: str | None = None  # write_failed, verify_mismatch, verify_failed
+    failure: WriteFailure | None = None
     message: str = ""
 
 
@@ -155,22 +169,23 @@ def store_verified(device: Device, cal: Calibration) -> Stored:
     try:
         echoed = device.write_calibration(sent)
     except DeviceError as exc:  # refused, no reply, port lost
-        out.failure, out.message = "write_failed", str(exc)
+        out.failure, out.message = WriteFailure.WRITE_FAILED, str(exc)
         return out
     if not device.matches(sent, echoed):
-        out.failure, out.message = "verify_mismatch", "the device echoed a different calibration than the one sent"
+        out.failure = WriteFailure.VERIFY_MISMATCH
+        out.message = "the device echoed a different calibration than the one sent"
         out.restored = _restore(device, previous)
         return out
     out.written = True
     try:
         readback = device.read_calibration()
     except DeviceError as exc:
-        out.failure, out.message = "verify_failed", f"could not read the calibration back: {exc}"
+        out.failure, out.message = WriteFailure.VERIFY_FAILED, f"could not read the calibration back: {exc}"
         return out
     out.stored = readback
     out.verified = device.matches(sent, readback)
     if not out.verified:
-        out.failure = "verify_mismatch"
+        out.failure = WriteFailure.VERIFY_MISMATCH
         out.message = "the calibration read back from the device differs from the one sent"
         out.written = False
         out.restored = _restore(device, previous)
@@ -184,11 +199,11 @@ def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
     r = store_verified(device, session.calibration)
     out.written, out.verified, out.stored, out.restored = r.written, r.verified, r.stored, r.restored
     out.link = device.stats()
-    if r.failure == "write_failed" or (r.failure == "verify_mismatch" and r.stored is None):
+    if r.failure is WriteFailure.WRITE_FAILED or (r.failure is WriteFailure.VERIFY_MISMATCH and r.stored is None):
         session.fail(r.failure, r.message)  # refused, or the echo already differed
     else:
         session.stored()
-        if r.failure == "verify_failed":
+        if r.failure is WriteFailure.VERIFY_FAILED:
             session.fail(r.failure, r.message)
         else:
             session.verified(r.verified, r.message)

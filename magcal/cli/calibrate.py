@@ -84,7 +84,7 @@ def run(args) -> int:
     else:
         _print_text(report)
     if s.status.value == "done":
-        if outcome.verified or args.no_write or not device.can_store:
+        if outcome.verified or args.no_write or not device.abilities.store:
             return EXIT_OK
     if s.failure in ("timeout", "end_of_data") or (s.failure or "").startswith("gate:"):
         if not args.json:

@@ -17,6 +17,7 @@ from ..core.errors import InputError
 from ..core.events import Event
 from ..core.sample import Sample
 from ..devices import open_device, scheme_of
+from ..devices.base import batches
 from ..recordings.capture import CaptureWriteError, CaptureWriter, make_header
 from .common import print_json
 
@@ -57,25 +58,18 @@ def run(args) -> int:
     try:
         ident = dev.open()
         dev.start(args.rate)
-        while True:
-            if args.count is not None and samples >= args.count:
-                break
-            if args.seconds is not None and time.monotonic() - t0 >= args.seconds:
-                break
-            try:
-                items = dev.read(0.1)
-            except EOFError:
-                stopped = "end of source"
-                break
-            except CaptureWriteError as exc:
-                stopped = str(exc)
-                break
-            for it in items:
-                if isinstance(it, Sample):
-                    samples += 1
-                elif isinstance(it, Event):
-                    gaps += it.kind == "gap"
-                    resets += it.kind == "reset"
+        stopped = "end of source"
+        try:
+            for items in batches(dev, 0.1):
+                samples += sum(isinstance(it, Sample) for it in items)
+                gaps += sum(isinstance(it, Event) and it.kind == "gap" for it in items)
+                resets += sum(isinstance(it, Event) and it.kind == "reset" for it in items)
+                if (args.count is not None and samples >= args.count) or (
+                        args.seconds is not None and time.monotonic() - t0 >= args.seconds):
+                    stopped = "done"
+                    break
+        except CaptureWriteError as exc:
+            stopped = str(exc)
         try:
             dev.stop()
         except Exception:  # the summary matters more than a polite stop
@@ -96,7 +90,7 @@ def run(args) -> int:
         "stopped": stopped,
         "identity": ident.to_dict() if ident else None,
         "capture": writer.stats(),
-        "link": dict(dev.framer.counters) if hasattr(dev, "framer") else dev.stats(),
+        "link": dev.stats(),
     }
     if args.json:
         print_json(summary)

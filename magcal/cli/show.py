@@ -67,13 +67,12 @@ def run(args) -> int:
     with dev:
         identity = dev.open()
         if args.self_test:
-            if not callable(getattr(dev, "self_test", None)) or getattr(dev, "passive", False):
+            if not dev.abilities.self_test:
                 raise DeviceError(f"{args.port}: this backend cannot run the AK8975 self-test "
                                   "(i2c:, the magcal firmware over serial, sim:// and emu:// can)")
             result = dev.self_test()
         cal = dev.read_calibration()
-        where = getattr(dev, "store_path", None)
-    where = None if where is None else str(where)
+        where = dev.stored_in()
     if args.json:
         out = {"device": identity.to_dict(), "calibration": None if cal is None else cal.to_dict()}
         if where:

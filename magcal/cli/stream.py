@@ -19,6 +19,7 @@ from ..core.errors import DeviceError, NoReply
 from ..core.events import Event
 from ..core.sample import Sample
 from ..devices import open_device
+from ..devices.base import batches
 
 HELP = "print live samples (µT), optionally calibrated with the stored calibration"
 
@@ -93,11 +94,7 @@ def run(args) -> int:
                 print(head + ("   (calibrated)" if cal is not None else "   (µT, uncalibrated)"))
             dev.start(args.rate)
             last = time.monotonic()
-            while args.count == 0 or shown < args.count:
-                try:
-                    items = dev.read(0.1)
-                except EOFError:
-                    break
+            for items in batches(dev, 0.1):
                 for item in items:
                     if isinstance(item, Sample):
                         if not item.valid:
@@ -110,6 +107,8 @@ def run(args) -> int:
                     elif isinstance(item, Event):
                         line = format_event(item, args.json)
                         print(line, file=sys.stdout if args.json else sys.stderr, flush=True)
+                if args.count and shown >= args.count:
+                    break
                 if time.monotonic() - last > args.stall_s:
                     raise NoReply(f"{args.port}: no sample for {args.stall_s:g} s")
             dev.stop()

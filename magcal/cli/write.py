@@ -110,7 +110,7 @@ def run(args) -> int:
     device = open_from_settings(settings)
     with device:
         identity = device.open()
-        if not device.can_store:
+        if not device.abilities.store:
             raise InputError(f"{settings.port}: a read-only source cannot store a calibration")
         try:
             r = store_verified(device, cal)

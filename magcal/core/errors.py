@@ -2,11 +2,14 @@
 
     MagcalError                      base of everything magcal raises on purpose
     ├── ConfigError                  bad config file / environment / option (names the key)
+    │   └── PortError                a port string or device option no backend takes (names it)
     ├── InputError                   a recording or CSV that cannot be read (names file and line)
     ├── DeviceError                  the device or its port
     │   ├── PortUnavailable          the port cannot be opened or vanished (unplug)
     │   ├── IdentityError            WHO_AM_I / WIA / protocol version not what we talk to
     │   ├── NoReply                  a command was not acknowledged in time
+    │   ├── CommandRefused           the device answered a command with an error code
+    │   ├── Unsupported              this device has not the ability asked for (see Abilities)
     │   └── WriteRejected            the device refused or mis-echoed a calibration
     └── StateError                   a persisted state file that is invalid
 
@@ -20,6 +23,11 @@ class MagcalError(Exception):
 
 class ConfigError(MagcalError):
     pass
+
+
+class PortError(ConfigError):
+    """A port string or device option that no backend takes: unknown, malformed or out of
+    range. One type for every backend (``magcal.devices.port`` raises it)."""
 
 
 class InputError(MagcalError):
@@ -39,6 +47,19 @@ class IdentityError(DeviceError):
 
 
 class NoReply(DeviceError):
+    pass
+
+
+class CommandRefused(DeviceError):
+    """The device answered ``command`` with the error ``code`` (``RANGE``, ``UNKNOWN`` …)."""
+
+    def __init__(self, message: str, command: str = "", code: str = ""):
+        super().__init__(message)
+        self.command = command
+        self.code = code
+
+
+class Unsupported(DeviceError):
     pass
 
 

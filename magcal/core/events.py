@@ -1,10 +1,23 @@
 """What a device says besides samples: who answered (``Identity``) and what happened on the
-link (``Event``). ``Item`` is what a device's ``read`` yields: a sample or an event."""
+link (``Event``). ``Item`` is what a device's ``read`` yields: a sample or an event. ``Code``:
+the base of the typed codes decisions are taken on."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Union
+
+
+class Code(str, Enum):
+    """A short code as a typed value: compared, hashed, printed and written to JSON as its
+    text (``"timeout"``), so the reports read the same, while code tests it by identity."""
+
+    def __str__(self) -> str:
+        return self.value
+
+    def __format__(self, spec: str) -> str:
+        return format(self.value, spec)
 
 from .sample import Sample
 

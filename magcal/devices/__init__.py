@@ -1,4 +1,4 @@
-"""Device backends, chosen by a URL-like string. This table is the table of contents.
+"""Device backends, chosen by a port string. This table is the table of contents.
 
 | port string                      | backend                                              |
 |----------------------------------|------------------------------------------------------|
@@ -9,19 +9,25 @@
 | anything else                    | a serial port or pyserial URL (``/dev/ttyACM0``,     |
 |                                  | ``COM3``, ``socket://``, ``rfc2217://``, ``loop://``) |
 
-``dialect="motioncal"`` on a serial port speaks the PJRC/Adafruit ``Raw:`` convention instead.
-Backends are imported lazily, so a missing optional dependency only matters when used.
+``dialect="motioncal"`` on a serial port speaks the PJRC/Adafruit ``Raw:`` convention instead;
+``dialect="auto"`` listens first and picks. The options of every port string are one vocabulary
+with one error (``magcal.devices.port``); keyword options a backend does not take are refused
+the same way. Backends are imported lazily, so a missing optional dependency only matters when
+used.
 """
 
 from __future__ import annotations
 
 import importlib
+import inspect
 
-from ..core.errors import DeviceError
-from .base import Device, Event, Identity, Item
+from ..core.errors import DeviceError, PortError
+from .base import Abilities, Device, Event, Identity, Item
+from .port import Port, parse_port, scheme_of
 
-# scheme → "module:factory"; each factory is called as factory(url, **options) → Device
-_REGISTRY = {
+DIALECTS = ("native", "motioncal", "auto")
+# backend → "module:factory"; each factory is called as factory(port, dialect=…, **options) → Device
+BACKENDS = {
     "sim": "magcal.devices.simboard:open_sim",
     "emu": "magcal.devices.emulator:open_emulated",
     "replay": "magcal.devices.replay:open_replay",
@@ -31,31 +37,33 @@ _REGISTRY = {
 }
 
 
-def scheme_of(url: str) -> str:
-    """The backend a port string selects (see the table above)."""
-    if url.startswith("i2c:"):
-        return "i2c"
-    for scheme in ("sim", "emu", "replay"):
-        if url.startswith(scheme + "://"):
-            return scheme
-    return "serial"
+def backend_of(port: Port, dialect: str) -> str:
+    """Which backend serves ``port`` in ``dialect`` (a replay follows its capture's header)."""
+    if dialect not in DIALECTS:
+        raise PortError(f"unknown dialect {dialect!r} ({', '.join(DIALECTS)})")
+    if dialect == "motioncal" and port.scheme not in ("serial", "replay"):
+        raise PortError(f"--dialect motioncal needs a serial port or a replay://, not {port.url!r}")
+    return "motioncal" if dialect == "motioncal" and port.scheme == "serial" else port.scheme
 
 
 def open_device(url: str, dialect: str = "native", **options) -> Device:
-    """Build (not yet open) the device a port string names."""
-    scheme = scheme_of(url)
-    if dialect == "motioncal" and scheme != "replay":  # a replay follows its capture's header
-        if scheme != "serial":
-            raise DeviceError(f"--dialect motioncal needs a serial port or a replay://, not {url!r}")
-        scheme = "motioncal"
-    elif dialect not in ("native", "auto"):
-        raise DeviceError(f"unknown dialect {dialect!r} (native, motioncal, auto)")
-    module, _, name = _REGISTRY[scheme].partition(":")
+    """Build (not yet open) the device a port string names; ``PortError`` when the string or
+    an option is not one its backend takes."""
+    port = parse_port(url)
+    backend = backend_of(port, dialect)
+    module, _, name = BACKENDS[backend].partition(":")
     try:
         factory = getattr(importlib.import_module(module), name)
     except ImportError as exc:
         raise DeviceError(f"backend for {url!r} is unavailable: {exc}") from exc
-    return factory(url, dialect=dialect, **options)
+    try:
+        inspect.signature(factory).bind(port, dialect=dialect, **options)
+    except TypeError:
+        taken = [p for p in inspect.signature(factory).parameters if p not in ("port", "dialect")]
+        unknown = sorted(set(options) - set(taken))
+        raise PortError(f"{url!r}: the {backend} backend takes no option {', '.join(unknown)} "
+                        f"(it takes: {', '.join(taken)})") from None
+    return factory(port, dialect=dialect, **options)
 
 
-__all__ = ["Device", "Event", "Identity", "Item", "open_device", "scheme_of"]
+__all__ = ["Abilities", "Device", "Event", "Identity", "Item", "Port", "open_device", "parse_port", "scheme_of"]

@@ -1,6 +1,6 @@
 """The one small interface every device backend implements.
 
-A ``Device`` is opened from a URL-like string by ``magcal.devices.open_device`` and then:
+A ``Device`` is built from a port string by ``magcal.devices.open_device`` and then:
 
     ident = dev.open()                 # connect, identify → Identity
     dev.start(rate_hz)                 # start measuring/streaming
@@ -9,37 +9,60 @@ A ``Device`` is opened from a URL-like string by ``magcal.devices.open_device`` 
     dev.stop()
     dev.read_calibration()             # → Calibration | None (None: nothing stored)
     dev.write_calibration(cal)         # store; returns the calibration read back from the store
-    dev.close()
+    dev.close()                        # and open() again later: that is how a link reconnects
 
-Backends implement the underscored hooks; the base class owns counters and the "closed"
-state, and turns a device that cannot store a calibration into a clear error. Backends differ
-only in transport: the v1 serial protocol (serial ports, ``sim://``, ``replay://``, the emulated
-board), the MotionCal dialect, and direct I2C.
+What a device can do beyond reading it declares in ``abilities`` (an ``Abilities`` value):
+callers ask it, never probe for attributes. A device asked for an ability it has not raises
+``Unsupported``.
+
+Backends implement the underscored hooks. ``read`` is the one read loop: it waits, up to its
+timeout, on the one hook ``_receive`` (what arrived within a given wait). The base class owns
+the counters and the "closed" state. ``batches`` is the one loop for reading a device until its
+source ends.
 """
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
 from collections import Counter
-from typing import Iterable
+from dataclasses import dataclass
+from typing import Callable, Iterable, Iterator
 
 from ..core.calibration import Calibration
-from ..core.errors import DeviceError
+from ..core.errors import DeviceError, Unsupported
 from ..core.events import Event, Identity, Item
+from ..core.sample import Sample
+from ..core.selftest import SelfTestResult
+
+
+@dataclass(frozen=True)
+class Abilities:
+    """What a device can do beyond ``open``/``read``/``close``."""
+
+    live: bool = True  # a device at the other end: takes commands, has data in flight (False: a recording)
+    store: bool = True  # takes a calibration to keep: ``write_calibration``
+    self_test: bool = False  # runs the AK8975 self-test: ``self_test()``
+
+
+RECORDING = Abilities(live=False, store=False)
 
 
 class Device(ABC):
     url: str = ""
-    can_store: bool = True  # False for read-only sources (replay, CSV)
+    abilities: Abilities = Abilities()
 
-    def __init__(self, url: str):
+    def __init__(self, url: str, clock: Callable[[], float] = time.monotonic):
         self.url = url
+        self.clock = clock
         self.identity: Identity | None = None
         self.counters: Counter = Counter()
         self._closed = False
 
     # -- public surface --------------------------------------------------------------------
     def open(self) -> Identity:
+        """Connect and identify; after ``close`` it connects again (a replug)."""
+        self._closed = False
         self.identity = self._open()
         return self.identity
 
@@ -53,16 +76,20 @@ class Device(ABC):
         """Whatever arrived within ``timeout_s`` (possibly nothing). Never raises for bad
         input on the link: that becomes counters and events. Raises PortUnavailable when
         the port has gone away, and EOFError at the end of a finite source."""
-        return list(self._read(timeout_s))
+        deadline = self.clock() + max(0.0, timeout_s)
+        while True:
+            items = self._receive(deadline - self.clock())
+            if items or self.clock() >= deadline:
+                return list(items)
 
     def read_calibration(self) -> Calibration | None:
+        """The calibration the device holds (a recording: the last one it showed), or None."""
         return self._read_calibration()
 
     def write_calibration(self, cal: Calibration) -> Calibration:
         """Store ``cal`` and return what the store holds afterwards (read back). The caller
         compares the two; a backend never claims success it has not read back."""
-        if not self.can_store:
-            raise DeviceError(f"{self.url}: this source cannot store a calibration")
+        self._require(self.abilities.store, "store a calibration")
         return self._write_calibration(cal)
 
     def prepare(self, cal: Calibration) -> Calibration:
@@ -72,6 +99,15 @@ class Device(ABC):
     def matches(self, sent: Calibration, stored: Calibration | None) -> bool:
         """Is ``stored`` (an echo or a read-back) the calibration that was sent?"""
         return stored is not None and sent.close_to(stored)
+
+    def stored_in(self) -> str | None:
+        """Where the calibration lives when that is a file on this host (else None: on the device)."""
+        return None
+
+    def self_test(self) -> SelfTestResult:
+        """The AK8975 self-test (``abilities.self_test``)."""
+        self._require(self.abilities.self_test, "run the AK8975 self-test")
+        return self._self_test()
 
     def close(self) -> None:
         if not self._closed:
@@ -87,6 +123,10 @@ class Device(ABC):
     def __exit__(self, *exc):
         self.close()
 
+    def _require(self, ability: bool, what: str) -> None:
+        if not ability:
+            raise Unsupported(f"{self.url}: this source cannot {what}")
+
     # -- backend hooks ---------------------------------------------------------------------
     @abstractmethod
     def _open(self) -> Identity: ...
@@ -98,13 +138,44 @@ class Device(ABC):
     def _stop(self) -> None: ...
 
     @abstractmethod
-    def _read(self, timeout_s: float) -> Iterable[Item]: ...
+    def _receive(self, wait_s: float) -> Iterable[Item]:
+        """What arrives within at most ``wait_s`` seconds (≤ 0: only what is there already);
+        it may return early, with items or without."""
 
-    @abstractmethod
-    def _read_calibration(self) -> Calibration | None: ...
+    def _read_calibration(self) -> Calibration | None:
+        raise DeviceError(f"{self.url}: this backend cannot store a calibration")
 
     def _write_calibration(self, cal: Calibration) -> Calibration:
         raise DeviceError(f"{self.url}: this backend cannot store a calibration")
 
+    def _self_test(self) -> SelfTestResult:
+        raise DeviceError(f"{self.url}: this backend has no self-test")
+
     @abstractmethod
     def _close(self) -> None: ...
+
+
+def batches(device: Device, timeout_s: float = 0.1) -> Iterator[list[Item]]:
+    """The one loop that reads a device: batch after batch (possibly empty) until its source
+    ends (a recording's end). The caller stops when it has enough; device errors propagate."""
+    while True:
+        try:
+            items = device.read(timeout_s)
+        except EOFError:
+            return
+        yield items
+
+
+def read_to_end(device: Device) -> list[Sample]:
+    """Open a finite source and read it to the end: its samples, in order (events dropped)."""
+    out: list[Sample] = []
+    device.open()
+    try:
+        for items in batches(device, 0.05):
+            out.extend(i for i in items if isinstance(i, Sample))
+    finally:
+        device.close()
+    return out
+
+
+__all__ = ["Abilities", "Device", "Event", "Identity", "Item", "RECORDING", "batches", "read_to_end"]

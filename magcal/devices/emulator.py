@@ -6,12 +6,14 @@ it prints ``M <t_us> <k>`` and a thread here answers with ``Scenario.measure(t_s
 physics simulator — so tests know the truth. The host then talks to the board with its real
 serial client (``ProtocolDevice`` over a pyserial port on the pty).
 
-URL options (query string): ``seed=N`` (physics seed, default 1), ``eeprom=PATH`` (EEPROM file,
-kept across restarts; default a temporary file), ``pace=1`` (simulated time follows the wall
-clock), ``offset=x,y,z`` (hard iron µT), ``noise=UT``, ``faults=N`` (register-model fault flags),
-``measure_us=N`` (AK8975 measurement time), ``addr=0x68|0x69`` (the MPU-9150's I2C address: AD0
-low or high). Keyword options: ``scenario=`` (a ``Scenario``,
-overrides the URL's physics), ``asa=(x, y, z)``.
+Options (the port string's, ``magcal.devices.port``): ``seed`` (physics seed, default 1),
+``eeprom`` (EEPROM file, kept across restarts; default a temporary file kept while the device
+lives), ``pace=1`` (simulated time follows the wall clock; 0, the default, runs as fast as it
+can), ``offset``, ``noise``, ``fault`` (the register model's flags by name: ``stuck_drdy`` …),
+``measure_us`` (AK8975 measurement time), ``addr`` (the MPU-9150's I2C address: 0x68, AD0 low,
+or 0x69, AD0 high). Keyword options: ``scenario=`` (a ``Scenario``, overrides the port string's
+physics), ``asa=(x, y, z)``, ``baud``. Closing the device stops the harness; opening it again
+starts it again on the same EEPROM file.
 
 Nothing is built implicitly unless the build is missing: then ``make -C firmware`` and
 ``make -C firmware/emulator`` run once, and a missing toolchain is a clear ``DeviceError``.
@@ -26,12 +28,13 @@ import subprocess
 import tempfile
 import threading
 from collections import deque
-from dataclasses import replace
 from pathlib import Path
-from urllib.parse import parse_qs, urlsplit
 
-from ..core.errors import DeviceError, PortUnavailable
-from ..sim.physics import Scenario, demo_scenario
+from ..core.errors import DeviceError, PortError, PortUnavailable
+from ..sim.physics import Scenario
+from .faults import register_flags
+from .port import Port, scenario_of
+from .transport import WrappedTransport
 
 REPO = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = REPO / "firmware"
@@ -76,31 +79,6 @@ def ensure_built() -> tuple[Path, Path]:
         return ELF, HARNESS
 
 
-def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
-    try:
-        vals = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        vals = ()
-    if len(vals) != n:
-        raise DeviceError(f"emu:// option {what} needs {n} comma-separated numbers, got {text!r}")
-    return vals
-
-
-def scenario_from_query(q: dict[str, str]) -> Scenario:
-    """The physics the URL asks for: ``demo_scenario(seed)`` with optional overrides."""
-    try:
-        seed = int(q.get("seed", "1"))
-    except ValueError:
-        raise DeviceError(f"emu:// option seed must be an integer, got {q['seed']!r}") from None
-    sc = demo_scenario(seed)
-    changes = {}
-    if "offset" in q:
-        changes["hard_iron_ut"] = _floats(q["offset"], 3, "offset")
-    if "noise" in q:
-        changes["noise_ut"] = _floats(q["noise"], 1, "noise")[0]
-    return replace(sc, physics=replace(sc.physics, **changes)) if changes else sc
-
-
 class EmulatedBoard:
     """One run of the harness: the simulated Uno + MPU-9150, its pty and its EEPROM file.
 
@@ -119,10 +97,10 @@ class EmulatedBoard:
         mpu_addr: int = 0x68,
     ):
         self.scenario = scenario
-        self._tmpdir = None
+        self._tmpdir = None  # removed when the board is dropped: its EEPROM lives across restarts
         if eeprom_path is None:
-            self._tmpdir = tempfile.mkdtemp(prefix="magcal-emu-")
-            eeprom_path = os.path.join(self._tmpdir, "eeprom.bin")
+            self._tmpdir = tempfile.TemporaryDirectory(prefix="magcal-emu-")
+            eeprom_path = os.path.join(self._tmpdir.name, "eeprom.bin")
         self.eeprom_path = str(eeprom_path)
         self.pace = pace
         self.faults = int(faults)
@@ -219,49 +197,55 @@ class EmulatedBoard:
         if self._thread is not None:
             self._thread.join(timeout=2)
             self._thread = None
-        if self._tmpdir:
-            shutil.rmtree(self._tmpdir, ignore_errors=True)
-            self._tmpdir = None
 
 
-def open_emulated(url: str, dialect: str = "native", **opts):
+class _HarnessPort(WrappedTransport):
+    """The pty of a running harness: closing it stops the harness (it saves the EEPROM)."""
+
+    def __init__(self, inner, board: EmulatedBoard):
+        super().__init__(inner)
+        self.board = board
+
+    def close(self) -> None:
+        try:
+            self.inner.close()
+        finally:
+            self.board.stop()
+
+
+def _harness_connector(board: EmulatedBoard, baud: int):
+    def connect():
+        import serial  # pyserial
+
+        pty = board.start()
+        try:
+            return _HarnessPort(serial.Serial(pty, baudrate=int(baud), timeout=0.05), board)
+        except (serial.SerialException, OSError) as exc:
+            board.stop()
+            raise PortUnavailable(f"emu://: cannot open the pty {pty}: {exc}") from exc
+
+    return connect
+
+
+def open_emulated(port: Port, dialect: str = "native", *, scenario: Scenario | None = None, asa=None,
+                  baud: int = 115200, tap=None, reply_timeout_s: float = 1.5, boot_timeout_s: float = 3.0):
     """``emu://[?seed=N&eeprom=PATH&pace=1…]`` → the v1 protocol client on the emulated board.
 
     The returned device has ``.board`` (the ``EmulatedBoard``: its ``scenario``, ``reset()``,
-    ``eeprom_path``, ``served``). Closing the device stops the harness."""
-    import serial  # pyserial
-
+    ``eeprom_path``, ``served``). The harness starts when the device is opened."""
     from .link import ProtocolDevice
 
-    if dialect not in ("native", "auto"):
-        raise DeviceError(f"emu:// speaks protocol v1 only, not dialect {dialect!r}")
-    q = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
-    scenario = opts.pop("scenario", None) or scenario_from_query(q)
-    asa = opts.pop("asa", None)
+    if port.get("pace", 0) not in (0, 1):
+        raise PortError(f"{port.url!r}: emu:// paces at 0 (as fast as it runs) or 1 (real time), "
+                        f"not {port.get('pace'):g}")
+    scenario = scenario or scenario_of(port)
     if asa is not None:
         scenario = scenario.with_physics(asa=tuple(int(a) for a in asa))
-    try:
-        faults = int(q.get("faults", opts.pop("faults", 0)))
-        measure_us = q.get("measure_us", opts.pop("measure_us", None))
-        measure_us = int(measure_us) if measure_us is not None else None
-    except ValueError:
-        raise DeviceError(f"emu:// options faults and measure_us must be integers: {url!r}") from None
-    addr_text = q.get("addr", "0x68").lower()
-    if addr_text not in ("0x68", "0x69", "104", "105"):
-        raise DeviceError("emu:// option addr is the MPU-9150's I2C address, 0x68 (AD0 low) or 0x69 "
-                          f"(AD0 high); got {addr_text!r}")
-    mpu_addr = int(addr_text, 0)
-    pace_opt = bool(opts.pop("pace", False))
-    pace = q.get("pace", "0") not in ("0", "", "false", "no") or pace_opt
-    board = EmulatedBoard(scenario, q.get("eeprom") or opts.pop("eeprom", None), pace=pace,
-                          faults=faults, measure_us=measure_us, mpu_addr=mpu_addr)
-    pty = board.start()
-    try:
-        port = serial.Serial(pty, baudrate=int(opts.pop("baud", 115200)), timeout=0.05)
-    except (serial.SerialException, OSError) as exc:
-        board.stop()
-        raise PortUnavailable(f"emu://: cannot open the pty {pty}: {exc}") from exc
-    opts.pop("eeprom", None)
-    dev = ProtocolDevice(url, port, transport_name="emu", on_close=board.stop, **opts)
+    board = EmulatedBoard(scenario, port.get("eeprom"), pace=port.get("pace", 0) == 1,
+                          faults=register_flags(port.faults), measure_us=port.get("measure_us"),
+                          mpu_addr=port.get("addr", 0x68))
+    ensure_built()  # a missing toolchain is named now, not at the first connection
+    dev = ProtocolDevice(port.url, _harness_connector(board, baud), transport_name="emu", tap=tap,
+                         reply_timeout_s=reply_timeout_s, boot_timeout_s=boot_timeout_s)
     dev.board = board
     return dev

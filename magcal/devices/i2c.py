@@ -26,18 +26,17 @@ from __future__ import annotations
 import errno
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Iterable
-from urllib.parse import parse_qsl
 
 from ..core.calibration import Calibration
-from ..core.errors import ConfigError, DeviceError, IdentityError, NoReply, PortUnavailable
+from ..core.errors import DeviceError, IdentityError, NoReply, PortUnavailable
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, Sample, counts_to_ut, temp_raw_to_c
 from ..core.selftest import SELF_TEST_WINDOW, SelfTestResult  # noqa: F401 (SELF_TEST_WINDOW: re-exported)
-from .base import Device, Event, Identity, Item
+from .base import Abilities, Device, Event, Identity, Item
+from .port import MPU_ADDRS, Port, check_rate
 
 # -- registers ---------------------------------------------------------------------------------
-MPU_ADDRS = (0x68, 0x69)
 MPU_WHO_AM_I_VALUE = 0x68
 REG_INT_PIN_CFG = 0x37
 REG_TEMP_OUT_H = 0x41
@@ -71,7 +70,6 @@ DRDY_POLL_S = 0.0005
 DRDY_TIMEOUT_S = 0.050  # five times the worst measurement time any driver assumes
 MAX_CONSECUTIVE_DRDY_MISSES = 3
 MAX_CONSECUTIVE_BUS_ERRORS = 5
-RATE_MIN_HZ, RATE_MAX_HZ = 1, 100
 DEFAULT_RATE_HZ = 50
 
 
@@ -95,49 +93,18 @@ class I2CAddress:
     rate_hz: int
 
 
-def parse_url(url: str) -> I2CAddress:
-    """``i2c:1``, ``i2c:/dev/i2c-1``, ``i2c:1?addr=0x69&rate=50`` → I2CAddress."""
-    if not url.startswith("i2c:"):
-        raise ConfigError(f"{url!r} is not an i2c: port (i2c:1, i2c:/dev/i2c-1, i2c:1?addr=0x69)")
-    rest = url[4:]
-    if rest.startswith("//"):
-        rest = rest[2:]
-    where, _, query = rest.partition("?")
-    if not where:
-        raise ConfigError(f"{url!r}: no bus given (i2c:1 for /dev/i2c-1)")
-    if re.fullmatch(r"\d+", where):
-        bus: int | str = int(where)
-        path = f"/dev/i2c-{bus}"
-    else:
-        path = where
-        m = re.fullmatch(r"/dev/i2c-(\d+)", where)
-        bus = int(m.group(1)) if m else where
-    address, rate = MPU_ADDRS[0], DEFAULT_RATE_HZ
-    for key, value in parse_qsl(query, keep_blank_values=True):
-        if key in ("addr", "address"):
-            try:
-                address = int(value, 0)
-            except ValueError:
-                raise ConfigError(f"{url!r}: addr={value!r} is not a number (0x68 or 0x69)") from None
-            if address not in MPU_ADDRS:
-                raise ConfigError(f"{url!r}: addr=0x{address:02X}; the MPU-9150 is at 0x68 (AD0 low) or 0x69 (AD0 high)")
-        elif key == "rate":
-            rate = _check_rate(value, url)
+    @classmethod
+    def of(cls, port: Port) -> "I2CAddress":
+        """Where an ``i2c:`` port string points: ``i2c:1``, ``i2c:/dev/i2c-1``, ``i2c:1?addr=0x69``."""
+        where = port.target
+        if re.fullmatch(r"\d+", where):
+            bus: int | str = int(where)
+            path = f"/dev/i2c-{bus}"
         else:
-            raise ConfigError(f"{url!r}: unknown option {key!r} (addr, rate)")
-    return I2CAddress(bus=bus, path=path, address=address, rate_hz=rate)
-
-
-def _check_rate(value, where: str) -> int:
-    try:
-        rate = int(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{where}: rate {value!r} is not a whole number of Hz") from None
-    if not RATE_MIN_HZ <= rate <= RATE_MAX_HZ:
-        raise ConfigError(
-            f"{where}: rate {rate} Hz out of range {RATE_MIN_HZ}…{RATE_MAX_HZ} (one AK8975 measurement takes ~8 ms)"
-        )
-    return rate
+            path = where
+            m = re.fullmatch(r"/dev/i2c-(\d+)", where)
+            bus = int(m.group(1)) if m else where
+        return cls(bus=bus, path=path, address=port.get("addr", MPU_ADDRS[0]), rate_hz=port.get("rate", DEFAULT_RATE_HZ))
 
 
 def _default_bus_factory(bus):
@@ -146,6 +113,25 @@ def _default_bus_factory(bus):
     except ImportError:
         raise DeviceError("the i2c: backend needs smbus2 (pip install 'magcal-mpu9150[i2c]')") from None
     return smbus2.SMBus(bus)
+
+
+def open_bus(factory: Callable, where: I2CAddress):
+    """``factory(bus)``, with the operating system's refusals turned into what to do about them."""
+    try:
+        return factory(where.bus)
+    except FileNotFoundError:
+        raise PortUnavailable(
+            f"{where.path} does not exist: I2C bus {where.bus} is not available. "
+            "Enable I2C (Raspberry Pi: raspi-config → Interface Options → I2C, or "
+            "dtparam=i2c_arm=on in config.txt, then reboot) and check the bus number with "
+            "ls /dev/i2c-*"
+        ) from None
+    except PermissionError:
+        raise PortUnavailable(
+            f"{where.path}: permission denied (add your user to the 'i2c' group, then log in again)"
+        ) from None
+    except OSError as exc:
+        raise PortUnavailable(f"{where.path}: cannot open ({exc})") from None
 
 
 def _int16(lo: int, hi: int) -> int:
@@ -157,20 +143,21 @@ def _int16(lo: int, hi: int) -> int:
 class I2CDevice(Device):
     """An MPU-9150 + AK8975 on a Linux I2C bus, measured one single shot at a time."""
 
+    abilities = Abilities(live=True, store=True, self_test=True)
+
     def __init__(
         self,
-        url: str,
+        port: Port,
         bus_factory: Callable | None = None,
         clock: Callable[[], float] | None = None,
         sleep: Callable[[float], None] | None = None,
         store_dir=None,
         drdy_timeout_s: float = DRDY_TIMEOUT_S,
     ):
-        super().__init__(url)
-        self.where = parse_url(url)
+        super().__init__(port.url, clock or time.monotonic)
+        self.where = I2CAddress.of(port)
         self._bus_factory = bus_factory or _default_bus_factory
         self._clock_arg, self._sleep_arg = clock, sleep
-        self.clock: Callable[[], float] = clock or time.monotonic
         self.sleep: Callable[[float], None] = sleep or time.sleep
         self._store_dir = store_dir
         self.drdy_timeout_s = float(drdy_timeout_s)
@@ -184,26 +171,8 @@ class I2CDevice(Device):
         self._bus_errors = 0
 
     # -- bus access -----------------------------------------------------------------------------
-    @property
-    def _mpu(self) -> int:
-        return self.where.address
-
     def _connect(self):
-        try:
-            bus = self._bus_factory(self.where.bus)
-        except FileNotFoundError:
-            raise PortUnavailable(
-                f"{self.where.path} does not exist: I2C bus {self.where.bus} is not available. "
-                "Enable I2C (Raspberry Pi: raspi-config → Interface Options → I2C, or "
-                "dtparam=i2c_arm=on in config.txt, then reboot) and check the bus number with "
-                "ls /dev/i2c-*"
-            ) from None
-        except PermissionError:
-            raise PortUnavailable(
-                f"{self.where.path}: permission denied (add your user to the 'i2c' group, then log in again)"
-            ) from None
-        except OSError as exc:
-            raise PortUnavailable(f"{self.where.path}: cannot open ({exc})") from None
+        bus = open_bus(self._bus_factory, self.where)
         # A simulated bus carries its own simulated time; use it unless the caller chose.
         sim_clock = getattr(bus, "clock", None)
         if self._clock_arg is None and callable(sim_clock):
@@ -238,7 +207,7 @@ class I2CDevice(Device):
             raise
 
     def _bring_up(self) -> Identity:
-        path, mpu = self.where.path, self._mpu
+        path, mpu = self.where.path, self.where.address
         try:
             who = self._rb(mpu, REG_WHO_AM_I)
         except OSError as exc:
@@ -279,23 +248,13 @@ class I2CDevice(Device):
         except OSError as exc:
             raise DeviceError(f"{path} 0x0C: reading the ASA fuse ROM failed ({exc})") from None
         self.asa = (asa[0], asa[1], asa[2])
-        return Identity(
-            transport="i2c",
-            proto=0,  # no wire protocol on this transport
-            firmware="",
-            who_am_i=who,
-            wia=wia,
-            asa=self.asa,
-            rate_hz=self.rate_hz,
-            extra={"bus": path, "address": f"0x{mpu:02X}"},
-        )
+        return Identity(transport="i2c", proto=0, firmware="", who_am_i=who, wia=wia, asa=self.asa,  # proto 0: no wire
+                        rate_hz=self.rate_hz, extra={"bus": path, "address": f"0x{mpu:02X}"})
 
     # -- streaming --------------------------------------------------------------------------------
     def set_rate(self, rate_hz: int) -> int:
-        self.rate_hz = _check_rate(rate_hz, self.url)
+        self.rate_hz = check_rate(rate_hz, self.url)
         if self.identity is not None:
-            from dataclasses import replace
-
             self.identity = replace(self.identity, rate_hz=self.rate_hz)
         return self.rate_hz
 
@@ -309,9 +268,9 @@ class I2CDevice(Device):
     def _stop(self) -> None:
         self._running = False
 
-    def _read(self, timeout_s: float) -> Iterable[Item]:
+    def _receive(self, wait_s: float) -> Iterable[Item]:
         self._require_open()
-        deadline = self.clock() + max(0.0, float(timeout_s))
+        deadline = self.clock() + max(0.0, float(wait_s))
         items: list[Item] = []
         if not self._running:
             self.sleep(max(0.0, deadline - self.clock()))
@@ -319,7 +278,7 @@ class I2CDevice(Device):
         period = 1.0 / self.rate_hz
         while True:
             now = self.clock()
-            if self._next_due >= deadline and not (timeout_s <= 0 and self._next_due <= now):
+            if self._next_due >= deadline and not (wait_s <= 0 and self._next_due <= now):
                 self.sleep(max(0.0, deadline - now))
                 return items
             if self._next_due > now:
@@ -368,9 +327,8 @@ class I2CDevice(Device):
             return Event("rejected", seq=seq, count=1, detail="DRDY timeout")
         self._drdy_misses = 0
         burst = self._block(AK_ADDR, REG_HXL, 7)  # HXL..HZH, ST2 — one read, one measurement
-        raw = (_int16(burst[0], burst[1]), _int16(burst[2], burst[3]), _int16(burst[4], burst[5]))
-        st2 = burst[6]
-        t_hi, t_lo = self._block(self._mpu, REG_TEMP_OUT_H, 2)
+        raw, st2 = _measurement(burst)
+        t_hi, t_lo = self._block(self.where.address, REG_TEMP_OUT_H, 2)
         temp_raw = _int16(t_lo, t_hi)
         reason = _rejection(raw, st2)
         if reason:
@@ -404,7 +362,7 @@ class I2CDevice(Device):
             self.sleep(min(DRDY_POLL_S, deadline - now))
 
     # -- self-test ------------------------------------------------------------------------------
-    def self_test(self) -> SelfTestResult:
+    def _self_test(self) -> SelfTestResult:
         """The AK8975 self-test: an internal field is applied (ASTC.SELF), one measurement in
         self-test mode, compared with the datasheet window. Leaves the chip powered down."""
         self._require_open()
@@ -427,8 +385,8 @@ class I2CDevice(Device):
             if was_running:
                 self._running = True
                 self._next_due = self.clock()
-        raw = (_int16(burst[0], burst[1]), _int16(burst[2], burst[3]), _int16(burst[4], burst[5]))
-        result = SelfTestResult.from_registers(raw, self.asa, burst[6])
+        raw, st2 = _measurement(burst)
+        result = SelfTestResult.from_registers(raw, self.asa, st2)
         self.counters["self_test_pass" if result.passed else "self_test_fail"] += 1
         return result
 
@@ -442,6 +400,9 @@ class I2CDevice(Device):
     def store_path(self):
         """The store file that holds (or will hold) this device's calibration; None before open."""
         return None if self.identity is None else self._store().path_for(self.identity)
+
+    def stored_in(self) -> str | None:
+        return None if self.store_path is None else str(self.store_path)
 
     def _read_calibration(self) -> Calibration | None:
         self._require_open()
@@ -476,6 +437,11 @@ class I2CDevice(Device):
         self._close_bus()
 
 
+def _measurement(burst) -> tuple[tuple[int, int, int], int]:
+    """HXL..HZH, ST2 (one burst) → the raw counts and ST2."""
+    return (_int16(burst[0], burst[1]), _int16(burst[2], burst[3]), _int16(burst[4], burst[5])), burst[6]
+
+
 def _rejection(raw, st2: int) -> str:
     """Why a reading is invalid ('' when it is fine): derr, hofl, rail, zero."""
     if st2 & ST2_DERR:
@@ -490,25 +456,20 @@ def _rejection(raw, st2: int) -> str:
 
 
 def open_i2c(
-    url: str,
+    port: Port,
     dialect: str = "native",
     bus_factory: Callable | None = None,
     clock: Callable[[], float] | None = None,
     sleep: Callable[[float], None] | None = None,
     store_dir=None,
-    **opts,
+    drdy_timeout_s: float = DRDY_TIMEOUT_S,
+    rate_hz: int | None = None,
 ) -> I2CDevice:
     """Build (not yet open) the ``i2c:`` device. ``bus_factory(bus)`` returns an object with
     the smbus2.SMBus methods (default ``smbus2.SMBus``); ``clock``/``sleep`` default to the
-    bus's simulated clock if it has one, else ``time.monotonic``/``time.sleep``; options:
-    ``drdy_timeout_s``, ``rate_hz``."""
-    if dialect not in ("native", "auto"):
-        raise DeviceError(f"{url!r}: the i2c: backend has no {dialect!r} dialect")
-    rate = opts.pop("rate_hz", None)
-    drdy = opts.pop("drdy_timeout_s", DRDY_TIMEOUT_S)
-    if opts:
-        raise ConfigError(f"{url!r}: unknown i2c option(s) {', '.join(sorted(opts))}")
-    dev = I2CDevice(url, bus_factory=bus_factory, clock=clock, sleep=sleep, store_dir=store_dir, drdy_timeout_s=drdy)
-    if rate is not None:
-        dev.rate_hz = _check_rate(rate, url)
+    bus's simulated clock if it has one, else ``time.monotonic``/``time.sleep``."""
+    dev = I2CDevice(port, bus_factory=bus_factory, clock=clock, sleep=sleep, store_dir=store_dir,
+                    drdy_timeout_s=drdy_timeout_s)
+    if rate_hz is not None:
+        dev.rate_hz = check_rate(rate_hz, port.url)
     return dev

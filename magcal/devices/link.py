@@ -4,7 +4,9 @@ A transport is anything shaped like a pyserial port: ``read(n) -> bytes`` (retur
 empty, after ``timeout`` seconds), ``write(data)``, ``in_waiting``, a settable ``timeout``, and
 ``close()``. Serial ports, pyserial URLs (``socket://``, ``loop://`` …), the emulated board's pty,
 the ``sim://`` board and ``replay://`` captures are all transports, so this one class is the
-protocol client for all of them.
+protocol client for all of them. The device is given a *connector* (called with no arguments,
+it returns an open transport): ``open`` calls it, and calls it again after ``close`` — that is
+how a link reconnects to the same board.
 
 Nothing that arrives is dropped: samples that come in while a command waits for its reply are
 queued and returned by the next ``read``.
@@ -19,7 +21,7 @@ from dataclasses import replace
 from typing import Callable, Iterable
 
 from ..core.calibration import Calibration
-from ..core.errors import DeviceError, IdentityError, NoReply, PortUnavailable, WriteRejected
+from ..core.errors import CommandRefused, DeviceError, IdentityError, NoReply, PortUnavailable, WriteRejected
 from ..core.sample import Sample, counts_to_ut, temp_raw_to_c
 from ..core.selftest import SelfTestResult
 from ..wire.protocol import (
@@ -41,23 +43,112 @@ from ..wire.protocol import (
     record_crc,
     record_from_calibration,
 )
-from .base import Device, Event, Identity, Item
-from .transport import tapped
+from .base import RECORDING, Abilities, Device, Event, Identity, Item
+from .port import Port
+from .transport import Connector, SerialPort, tapped
 
 WHO_AM_I_MPU9150 = 0x68
 WIA_AK8975 = 0x48
 
 
+class Inbox:
+    """What arrives on one connection, sorted: samples and link events for ``read`` (in order),
+    replies for the command waiting on them, and the device's clock turned into seconds that
+    keep rising across restarts. ``counters``: the device's (resets and log lines go there)."""
+
+    def __init__(self, counters, fallback_asa: Callable[[], tuple[int, int, int]]):
+        self.framer = Framer()
+        self.pending: deque[Item] = deque()
+        self.replies: deque = deque()
+        self.hello: Hello | None = None
+        self.expect_restart = False  # a reset was asked for: its hello is no fault
+        self._counters = counters
+        self._fallback_asa = fallback_asa
+        self._ms_last: int | None = None
+        self._t_offset_s = 0.0
+        self._t_last_s = 0.0
+
+    def feed(self, data: bytes) -> None:
+        for item in self.framer.feed(data):
+            self._sort(item)
+
+    def take(self) -> list[Item]:
+        out = list(self.pending)
+        self.pending.clear()
+        return out
+
+    def forget_replies(self) -> None:
+        """Replies nobody waits for any more (a command that timed out, a hello already used)."""
+        self.replies.clear()
+
+    def reply(self, pred):
+        """The first reply ``pred`` accepts, taken out of the queue; None when none has come."""
+        for i, r in enumerate(self.replies):
+            if pred(r):
+                del self.replies[i]
+                return r
+        return None
+
+    def _sort(self, item) -> None:
+        if isinstance(item, RawSample):
+            self.pending.append(self._sample(item))
+        elif isinstance(item, CalibratedSample):
+            self.pending.append(Sample(seq=item.seq, t_s=self._time(item.ms),
+                                       field_ut=tuple(v / 1000.0 for v in item.field_nt), st2=item.st2,
+                                       temp_c=temp_raw_to_c(item.temp_raw), aux={"calibrated": 1.0}))
+        elif isinstance(item, Gap):
+            self.pending.append(Event("gap", seq=item.seq, count=item.count))
+        elif isinstance(item, Restart):
+            if self.expect_restart:
+                self.expect_restart = False
+            else:
+                self._counters["device_resets"] += 1
+                self.pending.append(Event("reset", seq=item.seq, detail="unsolicited hello"))
+            self._new_epoch()
+        elif isinstance(item, Hello):
+            self.hello = item
+            if item.seq == 0 and self.expect_restart:
+                self.expect_restart = False
+                self._new_epoch()
+            self.replies.append(item)
+        elif isinstance(item, Log):
+            self._counters["log_lines"] += 1
+        else:  # Ack, ErrorReply, RecordReply, FitReply
+            self.replies.append(item)
+
+    def _new_epoch(self) -> None:
+        self._t_offset_s = self._t_last_s
+        self._ms_last = None
+
+    def _time(self, ms: int) -> float:
+        if self._ms_last is not None:
+            t = self._t_last_s + ((ms - self._ms_last) % (1 << 32)) / 1000.0
+        else:
+            t = self._t_offset_s + ms / 1000.0
+        self._ms_last = ms
+        self._t_last_s = t
+        return t
+
+    def _sample(self, s: RawSample) -> Sample:
+        # the latest hello describes the chip that sent this sample (so a replay does not
+        # depend on how its bytes were chunked); before any hello, the identity or unity gain
+        asa = self.hello.asa if self.hello else self._fallback_asa()
+        field = counts_to_ut(s.raw, asa)
+        return Sample(seq=s.seq, t_s=self._time(s.ms), field_ut=(float(field[0]), float(field[1]), float(field[2])),
+                      raw=s.raw, st2=s.st2, temp_c=temp_raw_to_c(s.temp_raw))
+
+
 class ProtocolDevice(Device):
     """Protocol v1 client. ``passive=True`` only listens (replay): it never writes."""
+
+    abilities = Abilities(live=True, store=True, self_test=True)
 
     def __init__(
         self,
         url: str,
-        transport,
+        connect: Connector,
         *,
         transport_name: str = "serial",
-        on_close: Callable[[], None] | None = None,
         passive: bool = False,
         reply_timeout_s: float = 1.5,
         boot_timeout_s: float = 3.0,
@@ -65,30 +156,35 @@ class ProtocolDevice(Device):
         initial: bytes = b"",
         tap: Callable | None = None,
     ):
-        super().__init__(url)
-        # ``tap``: a capture writer that records every byte read (``transport.tapped``)
-        self.transport = tapped(transport, tap)
+        super().__init__(url, clock)
+        self._connect = connect
+        self._tap = tap  # a capture writer that records every byte read (``transport.tapped``)
+        self.transport = None
         self.transport_name = transport_name
         self.passive = passive
-        self.can_store = not passive
+        if passive:
+            self.abilities = RECORDING
         self.reply_timeout_s = reply_timeout_s
         self.boot_timeout_s = boot_timeout_s
-        self.framer = Framer()
         self.record_status: str | None = None  # last record status seen: OK, BLANK, CORRUPT
         self.last_fit: FitReply | None = None
-        self._on_close = on_close
-        self._clock = clock
         self._tags = itertools.cycle(range(1, 65536))
-        self._pending: deque[Item] = deque()
-        self._replies: deque = deque()
-        self._expect_restart = False
-        self._hello: Hello | None = None
-        self._ms_last: int | None = None
-        self._t_offset_s = 0.0
-        self._t_last_s = 0.0
+        self._initial = initial  # bytes a detection already read from the first connection
+        self._new_link()
+
+    @classmethod
+    def over(cls, url: str, transport, **options) -> "ProtocolDevice":
+        """The client on one already-open transport (a recording in memory, a test's port)."""
+        return cls(url, lambda: transport, **options)
+
+    def _new_link(self) -> None:
+        """Forget what the previous connection said: a new connection starts from nothing."""
+        self.inbox = Inbox(self.counters, lambda: self.identity.asa if self.identity else (128, 128, 128))
         self._eof = False
-        for item in self.framer.feed(initial):
-            self._dispatch(item)
+
+    @property
+    def framer(self) -> Framer:
+        return self.inbox.framer
 
     # -- low level -------------------------------------------------------------------------
     def _pump(self, timeout_s: float) -> bool:
@@ -96,7 +192,7 @@ class ProtocolDevice(Device):
         lost = None
         try:
             self.transport.timeout = max(0.0, timeout_s)
-            waiting = getattr(self.transport, "in_waiting", 0) or 0
+            waiting = self.transport.in_waiting or 0
             data = self.transport.read(max(1, min(waiting, 65536)))
             try:
                 if data and self.transport.in_waiting:
@@ -110,74 +206,10 @@ class ProtocolDevice(Device):
             raise PortUnavailable(f"{self.url}: port lost ({exc})") from exc
         if data:
             self.counters["bytes_in"] += len(data)
-            for item in self.framer.feed(data):
-                self._dispatch(item)
+            self.inbox.feed(data)
         if lost is not None:
             raise PortUnavailable(f"{self.url}: port lost ({lost})") from lost
         return bool(data)
-
-    def _dispatch(self, item) -> None:
-        if isinstance(item, RawSample):
-            self._pending.append(self._sample(item))
-        elif isinstance(item, CalibratedSample):
-            t = self._time(item.ms)
-            self._pending.append(
-                Sample(
-                    seq=item.seq,
-                    t_s=t,
-                    field_ut=tuple(v / 1000.0 for v in item.field_nt),
-                    st2=item.st2,
-                    temp_c=temp_raw_to_c(item.temp_raw),
-                    aux={"calibrated": 1.0},
-                )
-            )
-        elif isinstance(item, Gap):
-            self._pending.append(Event("gap", seq=item.seq, count=item.count))
-        elif isinstance(item, Restart):
-            if self._expect_restart:
-                self._expect_restart = False
-            else:
-                self.counters["device_resets"] += 1
-                self._pending.append(Event("reset", seq=item.seq, detail="unsolicited hello"))
-            self._new_epoch()
-        elif isinstance(item, Hello):
-            self._hello = item
-            if item.seq == 0 and self._expect_restart:
-                self._expect_restart = False
-                self._new_epoch()
-            self._replies.append(item)
-        elif isinstance(item, Log):
-            self.counters["log_lines"] += 1
-        else:  # Ack, ErrorReply, RecordReply, FitReply
-            self._replies.append(item)
-
-    def _new_epoch(self) -> None:
-        self._t_offset_s = self._t_last_s
-        self._ms_last = None
-
-    def _time(self, ms: int) -> float:
-        if self._ms_last is not None:
-            step = (ms - self._ms_last) % (1 << 32)
-            t = self._t_last_s + step / 1000.0
-        else:
-            t = self._t_offset_s + ms / 1000.0
-        self._ms_last = ms
-        self._t_last_s = t
-        return t
-
-    def _sample(self, s: RawSample) -> Sample:
-        # the latest hello describes the chip that sent this sample (so a replay does not
-        # depend on how its bytes were chunked); before any hello, the identity or unity gain
-        asa = self._hello.asa if self._hello else (self.identity.asa if self.identity else (128,) * 3)
-        field = counts_to_ut(s.raw, asa)
-        return Sample(
-            seq=s.seq,
-            t_s=self._time(s.ms),
-            field_ut=(float(field[0]), float(field[1]), float(field[2])),
-            raw=s.raw,
-            st2=s.st2,
-            temp_c=temp_raw_to_c(s.temp_raw),
-        )
 
     def _send(self, cmd: str, *args) -> int:
         if self.passive:
@@ -191,13 +223,12 @@ class ProtocolDevice(Device):
         return tag
 
     def _await(self, pred, what: str, timeout_s: float | None = None):
-        deadline = self._clock() + (self.reply_timeout_s if timeout_s is None else timeout_s)
+        deadline = self.clock() + (self.reply_timeout_s if timeout_s is None else timeout_s)
         while True:
-            for i, r in enumerate(self._replies):
-                if pred(r):
-                    del self._replies[i]
-                    return r
-            left = deadline - self._clock()
+            r = self.inbox.reply(pred)
+            if r is not None:
+                return r
+            left = deadline - self.clock()
             if left <= 0 or self._eof:
                 self.counters["no_reply"] += 1
                 raise NoReply(f"{self.url}: no {what} within {timeout_s or self.reply_timeout_s:.1f} s")
@@ -210,23 +241,27 @@ class ProtocolDevice(Device):
             lambda r: isinstance(r, (Ack, ErrorReply)) and r.tag == tag, f"reply to {cmd}", timeout_s
         )
         if isinstance(r, ErrorReply):
-            raise DeviceError(f"{self.url}: device refused {cmd}: {r.code}")
+            raise CommandRefused(f"{self.url}: device refused {cmd}: {r.code}", cmd, r.code)
         return r
 
     # -- Device hooks ----------------------------------------------------------------------
     def _open(self) -> Identity:
+        self._new_link()
+        self.transport = tapped(self._connect(), self._tap)
+        initial, self._initial = self._initial, b""
+        self.inbox.feed(initial)
         if self.passive:
             return self._identity_passive()
         # A board that was just reset (DTR) sends its boot hello first; otherwise ask.
-        deadline = self._clock() + self.boot_timeout_s
+        deadline = self.clock() + self.boot_timeout_s
         hello = None
-        while hello is None and self._clock() < deadline:
+        while hello is None and self.clock() < deadline:
             try:
                 tag = self._send("I")
                 self._await(lambda r: isinstance(r, Ack) and r.tag == tag, "reply to I", 0.6)
                 hello = self._await(lambda r: isinstance(r, Hello), "hello", 0.6)
             except NoReply:
-                self._replies.clear()
+                self.inbox.forget_replies()
                 continue
         if hello is None:
             seen = ", ".join(f"{k}={v}" for k, v in sorted(self.framer.counters.items())) or "nothing"
@@ -234,7 +269,7 @@ class ProtocolDevice(Device):
                 f"{self.url}: the device did not identify within {self.boot_timeout_s:.0f} s "
                 f"(is it running magcal firmware at this baud rate? link saw: {seen})"
             )
-        self._replies.clear()
+        self.inbox.forget_replies()
         return self._identity_from(hello)
 
     def _identity_from(self, hello: Hello) -> Identity:
@@ -256,15 +291,15 @@ class ProtocolDevice(Device):
 
     def _identity_passive(self) -> Identity:
         # Listen until the recording's hello; samples before it are kept for read().
-        while self._hello is None and not self._eof:
+        while self.inbox.hello is None and not self._eof:
             if not self._pump(0.05) and self._eof:
                 break
-            if len(self._pending) > 1000:
+            if len(self.inbox.pending) > 1000:
                 break
-        self._replies.clear()
-        if self._hello is None:
+        self.inbox.forget_replies()
+        if self.inbox.hello is None:
             return Identity(transport=self.transport_name, firmware="unknown")
-        return self._identity_from(self._hello)
+        return self._identity_from(self.inbox.hello)
 
     def _start(self, rate_hz: int | None) -> None:
         if self.passive:
@@ -279,31 +314,24 @@ class ProtocolDevice(Device):
         if not self.passive:
             self.command("X")
 
-    def _read(self, timeout_s: float) -> Iterable[Item]:
-        if not self._pending:
+    def _receive(self, wait_s: float) -> Iterable[Item]:
+        if not self.inbox.pending:
             if self._eof:
                 raise EOFError(self.url)
-            deadline = self._clock() + timeout_s
-            while not self._pending and not self._eof:
-                left = deadline - self._clock()
-                if left <= 0:
-                    break
-                try:
-                    self._pump(min(left, 0.1))
-                except PortUnavailable:
-                    if not self._pending:
-                        raise
-                    break  # hand over what arrived first; the next read finds the port gone
-        out = list(self._pending)
-        self._pending.clear()
-        return out
+            try:
+                self._pump(min(max(0.0, wait_s), 0.1))
+            except PortUnavailable:
+                if not self.inbox.pending:
+                    raise
+                # hand over what arrived first; the next read finds the port gone
+        return self.inbox.take()
 
     def set_output(self, calibrated: bool) -> None:
         self.command("M", 1 if calibrated else 0)
 
     def reset(self) -> Identity:
         """Ask the board to restart; returns its new identity (not reported as a fault)."""
-        self._expect_restart = True
+        self.inbox.expect_restart = True
         self.command("Z")
         self.framer.reset_sequence()
         hello = self._await(lambda r: isinstance(r, Hello), "hello after reset", self.boot_timeout_s)
@@ -316,7 +344,7 @@ class ProtocolDevice(Device):
             lambda r: isinstance(r, (RecordReply, ErrorReply)) and r.tag == tag, "calibration record"
         )
         if isinstance(r, ErrorReply):
-            raise DeviceError(f"{self.url}: device refused K: {r.code}")
+            raise CommandRefused(f"{self.url}: device refused K: {r.code}", "K", r.code)
         self.record_status = r.status
         return r
 
@@ -350,13 +378,13 @@ class ProtocolDevice(Device):
             raise WriteRejected(f"{self.url}: device reports its stored record as {rec.status} after W")
         return calibration_from_record(rec.values)
 
-    def self_test(self) -> SelfTestResult:
+    def _self_test(self) -> SelfTestResult:
         """The AK8975 self-test on the board (``T``): the coil's raw reading, judged here
         against the datasheet window with the ASA bytes of the board's hello."""
         try:
             ack = self.command("T")
-        except DeviceError as exc:
-            if "UNKNOWN" in str(exc):
+        except CommandRefused as exc:
+            if exc.code == "UNKNOWN":
                 raise DeviceError(f"{self.url}: this firmware has no self-test command (T); flash the current "
                                   "sketch from firmware/") from None
             raise
@@ -375,36 +403,35 @@ class ProtocolDevice(Device):
         self.last_fit = r
         return r
 
+    def stats(self) -> dict:
+        """The framer's counters (lines, defects, gaps) and the client's (bytes, commands …)."""
+        return {**self.framer.counters, **self.counters}
+
     def _close(self) -> None:
-        try:
+        if self.transport is not None:
             self.transport.close()
-        finally:
-            if self._on_close:
-                self._on_close()
 
 
-def open_serial(url: str, dialect: str = "native", baud: int = 115200, **options) -> Device:
+def open_serial(port: Port, dialect: str = "native", *, baud: int = 115200, tap=None,
+                reply_timeout_s: float = 1.5, boot_timeout_s: float = 3.0, open_timeout_s: float = 3.0,
+                echo_timeout_s: float = 6.0, tries: int = 3) -> Device:
     """A serial port or pyserial URL speaking protocol v1 (or, with ``dialect='auto'``, whichever
-    of v1 and the MotionCal convention the first lines show)."""
-    import serial  # pyserial
+    of v1 and the MotionCal convention the first lines show: ``open_timeout_s``,
+    ``echo_timeout_s`` and ``tries`` are that client's options, for when it is the one)."""
+    url = port.url
+    v1 = dict(transport_name="serial", tap=tap, reply_timeout_s=reply_timeout_s, boot_timeout_s=boot_timeout_s)
+    connector = SerialPort(url, baud)
+    if dialect != "auto":
+        return ProtocolDevice(url, connector, **v1)
+    from .autodetect import detect_dialect
 
-    try:
-        port = serial.serial_for_url(url, baudrate=baud, timeout=0.05)
-    except (serial.SerialException, OSError, ValueError) as exc:
-        raise PortUnavailable(f"cannot open {url}: {exc}") from exc
-    tap = options.pop("tap", None)
-    if tap is not None:  # a capture records from the first byte, the detection's included
-        port = tapped(port, tap)
-    if dialect == "auto":
-        from .autodetect import detect_dialect
+    first = connector()
+    # a capture records from the first byte, the detection's included
+    dialect, seen = detect_dialect(tapped(first, tap))
+    if dialect == "motioncal":
+        from .motioncal import MotionCalDevice
 
-        dialect, seen = detect_dialect(port)
-        if dialect == "motioncal":
-            from .motioncal import open_motioncal
-
-            port.close()
-            if tap is not None:
-                options["tap"] = tap
-            return open_motioncal(url, dialect="motioncal", baud=baud, **options)
-        return ProtocolDevice(url, port, transport_name="serial", initial=seen, **options)
-    return ProtocolDevice(url, port, transport_name="serial", **options)
+        first.close()
+        return MotionCalDevice(url, baud=baud, tap=tap, open_timeout_s=open_timeout_s,
+                               echo_timeout_s=echo_timeout_s, tries=tries)
+    return ProtocolDevice(url, SerialPort(url, baud, first=first), initial=seen, **v1)

@@ -16,9 +16,9 @@ loops), ``tries`` (3), ``accel_offset``/``gyro_offset`` (sent in the packet; by 
 device's own, from its last Cal1 echo, else zeros), ``tap`` (a capture writer that records every byte read, e.g. a
 capture writer that records every byte read).
 
-A recorded session (``replay://`` of a capture in this dialect) is the same device on an
-already-open read-only ``transport`` with ``passive=True``: it never writes, and a sample's
-``t_s`` is the recorded receive time of its bytes (the transport's ``t_rx_s``), as it was live.
+A recorded session (``replay://`` of a capture in this dialect) is the same device on the
+recording's connector with ``passive=True``: it never writes, and a sample's ``t_s`` is the
+recorded receive time of its bytes (``data_clock``), as it was live.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ from ..core.calibration import Calibration
 from ..core.errors import DeviceError, NoReply, PortUnavailable, WriteRejected
 from ..core.sample import Sample
 from ..wire import motioncal as mc
-from .base import Device, Identity, Item
-from .transport import tapped
+from .base import RECORDING, Abilities, Device, Identity, Item
+from .transport import Connector, SerialPort, tapped
 
 _QUEUE_MAX = 100_000
 # More than a port can hold buffered between the device and us (Linux: a 4 KB line-discipline
@@ -46,6 +46,7 @@ class MotionCalDevice(Device):
 
     #: keyword arguments for ``Calibration.close_to`` when comparing a write with its echo
     compare_tolerance = mc.compare_tolerance()
+    abilities = Abilities(live=True, store=True)
 
     def __init__(
         self,
@@ -57,8 +58,9 @@ class MotionCalDevice(Device):
         accel_offset=None,
         gyro_offset=None,
         tap=None,
-        transport=None,
+        connect: Connector | None = None,
         passive: bool = False,
+        data_clock=time.monotonic,
     ):
         super().__init__(url)
         if tries < 1 or echo_timeout_s <= 0:
@@ -70,11 +72,12 @@ class MotionCalDevice(Device):
         self.accel_offset = accel_offset
         self.gyro_offset = gyro_offset
         self._tap = tap  # a capture writer: sees every byte read (transport.tapped)
-        self._transport = transport  # an open pyserial-like object (a replay), instead of the url
+        self._connect = connect or SerialPort(url, self.baud)
         self.passive = bool(passive)  # a recording: nothing is ever written
-        self.can_store = not self.passive
+        if self.passive:
+            self.abilities = RECORDING
         # a sample's time: the host's clock live, the recorded receive time on a replay
-        self._data_clock = (lambda: transport.t_rx_s) if hasattr(transport, "t_rx_s") else time.monotonic
+        self._data_clock = data_clock
         self._t0_data = 0.0
         self._ser = None
         self._splitter = mc.LineSplitter()
@@ -134,19 +137,8 @@ class MotionCalDevice(Device):
 
     # -- Device hooks ----------------------------------------------------------------------
     def _open(self) -> Identity:
-        if self._transport is not None:
-            self._ser = self._transport
-        else:
-            try:
-                import serial
-            except ImportError as exc:  # pragma: no cover - pyserial is a dependency
-                raise DeviceError("pyserial is needed for serial ports") from exc
-            try:
-                self._ser = serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05)
-            except (serial.SerialException, OSError, ValueError) as exc:
-                raise PortUnavailable(f"{self.url}: cannot open: {exc}") from exc
-        if self._tap is not None:
-            self._ser = tapped(self._ser, self._tap)
+        self._ser = tapped(self._connect(), self._tap)
+        self._splitter = mc.LineSplitter()  # a new connection: no half line carried over
         self._t0 = time.monotonic()
         self._t0_data = self._data_clock()
         if self.open_timeout_s > 0:
@@ -183,13 +175,9 @@ class MotionCalDevice(Device):
     def _stop(self) -> None:
         pass
 
-    def _read(self, timeout_s: float) -> Iterable[Item]:
-        deadline = time.monotonic() + max(0.0, timeout_s)
-        while not self._queue:
-            left = deadline - time.monotonic()
-            if left <= 0:
-                break
-            self._pull(min(left, 0.05))
+    def _receive(self, wait_s: float) -> Iterable[Item]:
+        if not self._queue:
+            self._pull(min(max(0.0, wait_s), 0.05))
         out = list(self._queue)
         self._queue.clear()
         return out
@@ -301,10 +289,9 @@ class MotionCalDevice(Device):
         while time.monotonic() < deadline:
             for line in self._pull(min(0.05, max(0.0, deadline - time.monotonic()))):
                 if isinstance(line, mc.OtherLine):
-                    low = line.text.lower()
-                    if "couldn't save calibration" in low:
+                    if line.note is mc.StoreNote.NOT_SAVED:
                         self._echo_stats[1] += 1
-                    stored = stored or "wrote calibration" in low or "couldn't save calibration" in low
+                    stored = stored or line.note is not None
                     continue
                 if not isinstance(line, mc.CalLine):
                     continue
@@ -342,8 +329,8 @@ class MotionCalDevice(Device):
             self._ser = None
 
 
-def open_motioncal(url: str, dialect: str = "motioncal", baud: int = 115200, **opts) -> Device:
-    """The registry's factory: a (not yet opened) MotionCalDevice on ``url``."""
-    if dialect not in ("motioncal", "auto"):
-        raise DeviceError(f"open_motioncal speaks the motioncal dialect, not {dialect!r}")
-    return MotionCalDevice(url, baud=baud, **opts)
+def open_motioncal(port, dialect: str = "motioncal", *, baud: int = 115200, tap=None, open_timeout_s: float = 3.0,
+                   echo_timeout_s: float = 6.0, tries: int = 3, accel_offset=None, gyro_offset=None) -> Device:
+    """A (not yet opened) MotionCalDevice on a serial port (``port``: a parsed port string)."""
+    return MotionCalDevice(port.url, baud=baud, tap=tap, open_timeout_s=open_timeout_s, echo_timeout_s=echo_timeout_s,
+                           tries=tries, accel_offset=accel_offset, gyro_offset=gyro_offset)

@@ -7,21 +7,24 @@ time), ``pace=N`` N times faster. The end of the recording → ``read`` raises `
 A capture cut short by a crash replays up to its last whole chunk; the device's counters say
 how many bytes were cut (``capture_truncated_bytes``).
 
-Fault injection (for the daemon's tests): ``fault=KIND@T[+D][=N]``, repeatable, at recorded
-time T s, always between two recorded lines — ``unplug`` (reads fail for D wall seconds; opening
-the same URL again resumes where the replay was, after the recording's hello re-sent with seq 0
-as a replugged board would send it), ``stall`` (no bytes for D s), ``garbage`` (N random bytes),
-``reset`` (a torn line, then that hello). Same syntax as ``sim://``.
+Opening the device again after a close resumes where the replay was, as a replugged board goes
+on streaming. Fault injection (for the daemon's tests): ``fault=KIND@T[+D][=N]``, repeatable, at
+recorded time T s, always between two recorded lines — the link faults of
+``magcal.devices.faults``: ``unplug`` (reads fail for D wall seconds; a reconnect then gets the
+recording's hello re-sent with seq 0, as a replugged board would send it), ``stall`` (no bytes
+for D s), ``garbage`` (N random bytes), ``reset`` (a torn line, then that hello).
 """
 
 from __future__ import annotations
 
 import time
 from typing import Callable, Iterable
-from urllib.parse import parse_qs
 
-from ..core.errors import DeviceError, InputError
+from ..core.errors import DeviceError, InputError, PortError, PortUnavailable
+from ..wire.protocol import Hello, classify_line, encode_line
+from .faults import FaultKind, LinkFaults
 from .link import ProtocolDevice
+from .port import Port
 from .transport import WrappedTransport
 
 
@@ -87,6 +90,22 @@ class BytesTransport:
         i = self._i - 1 if self._off == 0 and self._i > 0 else self._i
         return self._chunks[min(i, len(self._chunks) - 1)][0]
 
+    @property
+    def t_first_s(self) -> float:
+        """The recorded receive time of the first chunk."""
+        return self._t0_rec
+
+    @property
+    def t_next_s(self) -> float:
+        """The recorded receive time of the next chunk to serve (the last one's at the end)."""
+        if not self._chunks:
+            return 0.0
+        return self._chunks[min(self._i, len(self._chunks) - 1)][0]
+
+    def wait(self, seconds: float) -> None:
+        """Sleep on this recording's clock (a stalled link waits without serving)."""
+        self._sleep(max(0.0, seconds))
+
     def write(self, data: bytes) -> int:
         raise OSError("a replay cannot take commands")
 
@@ -96,51 +115,41 @@ class BytesTransport:
     def close(self) -> None:
         self._closed = True
 
-
-def parse_replay_url(url: str) -> tuple[str, float]:
-    """``replay://FILE[?pace=X]`` → (path, pace). ``replay:///abs/path`` and
-    ``replay://relative/path`` both work."""
-    rest = url[len("replay://") :] if url.startswith("replay://") else url
-    path, _, query = rest.partition("?")
-    if not path:
-        raise DeviceError(f"{url!r}: replay:// needs a file, e.g. replay://session.cap")
-    q = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
-    unknown = set(q) - {"pace", "fault"}
-    if unknown:
-        raise DeviceError(f"replay:// does not know option(s) {sorted(unknown)}; known: ['fault', 'pace']")
-    try:
-        pace = float(q.get("pace", 0) or 0)
-    except ValueError:
-        raise DeviceError(f"replay:// pace must be a number, got {q['pace']!r}") from None
-    if pace < 0:
-        raise DeviceError("replay:// pace must be ≥ 0 (0 = as fast as read, 1 = recorded pace)")
-    return path, pace
+    def reopen(self) -> None:
+        self._closed = False
 
 
-REPLAY_FAULTS = ("unplug", "stall", "garbage", "reset")
-_FAULTY: dict = {}  # url → FaultyTransport, so a reopened faulty replay resumes in place
+def resuming(transport, url: str):
+    """The connector of a recording: the first connection starts it, each later one resumes it
+    where the last one stopped (a replugged board goes on streaming)."""
+
+    def connect():
+        try:
+            transport.reopen()
+        except OSError as exc:
+            raise PortUnavailable(f"cannot open {url}: {exc}") from None
+        return transport
+
+    return connect
 
 
-class FaultyTransport(WrappedTransport):
-    """A ``BytesTransport`` with faults fired at recorded times (see the module docstring)."""
+TORN_SAMPLE = b"$S,9,12345,1,2,3,0,0*00\n"  # what a reset cuts: the start of some sample line
+
+
+class FaultyReplay(WrappedTransport):
+    """A ``BytesTransport`` with link faults fired at recorded times, always between two recorded
+    lines (``magcal.devices.faults``; see the module docstring)."""
 
     def __init__(self, inner: BytesTransport, faults, clock: Callable[[], float] = time.monotonic):
-        import random
-
         super().__init__(inner)
-        self.faults = sorted(faults)
-        self._clock = clock
-        self._rng = random.Random(0xFA17)
+        self.link = LinkFaults(faults, clock)
         self._extra = b""  # injected bytes served before the recording continues
-        self._until = {"unplug": 0.0, "stall": 0.0}
         self._closed = False
         self._at_line_end = True  # faults fire between recorded lines, never inside one
         self._hello = self._boot_hello()
 
     def _boot_hello(self) -> bytes:
         """The recording's first hello, as a freshly booted board sends it (seq 0)."""
-        from ..wire.protocol import Hello, classify_line, encode_line
-
         data = b"".join(c for _, c in self.inner._chunks[:50])
         start = data.find(b"$H,")
         end = data.find(b"\n", start)
@@ -152,48 +161,34 @@ class FaultyTransport(WrappedTransport):
         return encode_line("H", (0, h.proto, h.firmware, f"{h.who_am_i:02X}", f"{h.wia:02X}", *h.asa, h.rate_hz))
 
     def _now_s(self) -> float:
-        i = min(self.inner._i, len(self.inner._chunks) - 1)
-        return self.inner._chunks[i][0] - self.inner._t0_rec if self.inner._chunks else 0.0
-
-    def _due(self) -> bool:
-        return bool(self.faults) and self.faults[0][0] <= self._now_s() + 1e-9
+        return self.inner.t_next_s - self.inner.t_first_s
 
     def _fire(self) -> None:
-        while self._due():
-            _, kind, duration, value = self.faults.pop(0)
-            if kind in ("unplug", "stall"):
-                self._until[kind] = self._clock() + (0.5 if duration is None else duration)
-            elif kind == "garbage":
-                self._extra += bytes(self._rng.randrange(256) for _ in range(200 if value is None else int(value)))
-            elif kind == "reset":
-                self._extra += b"$S,9,12345,1,2"[: self._rng.randrange(3, 14)] + self._hello
-
-    def check_present(self) -> None:
-        if self._clock() < self._until["unplug"]:
-            raise OSError("replay unplugged (device not present)")
+        for fault in self.link.due(self._now_s()):
+            if fault.kind in (FaultKind.UNPLUG, FaultKind.STALL):
+                self.link.interrupt(fault)
+            elif fault.kind is FaultKind.GARBAGE:
+                self._extra += self.link.noise(fault.value)
+            elif fault.kind is FaultKind.RESET:
+                self._extra += self.link.torn(TORN_SAMPLE) + self._hello
+        self.link.settle(drained=True)  # a fault fires only once the lines before it were served
 
     @property
     def in_waiting(self) -> int:
-        if self._clock() < max(self._until.values()):
+        self.link.settle(drained=True)
+        if self.link.stalled or self.link.unplugged:
             return 0
         return len(self._extra) or self.inner.in_waiting
 
     def read(self, n: int = 1) -> bytes:
         if self._closed:
             raise OSError("replay closed")
-        if self._due() and not self._at_line_end:  # finish the line being served first
-            out = b""
-            while not out.endswith(b"\n"):
-                b = self.inner.read(1)
-                if not b:
-                    break
-                out += b
-            self._at_line_end = out.endswith(b"\n")
-            return out
+        if self.link.next_s() <= self._now_s() + 1e-9 and not self._at_line_end:
+            return self._finish_line()
         self._fire()
-        self.check_present()
-        if self._clock() < self._until["stall"]:
-            self.inner._sleep(min(self.inner.timeout or 0.0, self._until["stall"] - self._clock()))
+        self.link.check_present("replay")
+        if self.link.stalled:
+            self.inner.wait(min(self.inner.timeout or 0.0, self.link.quiet_s()))
             return b""
         if self._extra:
             out, self._extra = self._extra[: max(1, n)], self._extra[max(1, n) :]
@@ -203,6 +198,17 @@ class FaultyTransport(WrappedTransport):
             self._at_line_end = out.endswith(b"\n")
         return out
 
+    def _finish_line(self) -> bytes:
+        """The rest of the line being served, so that a due fault lands between two lines."""
+        out = b""
+        while not out.endswith(b"\n"):
+            b = self.inner.read(1)
+            if not b:
+                break
+            out += b
+        self._at_line_end = out.endswith(b"\n")
+        return out
+
     def reset_input_buffer(self) -> None:
         pass
 
@@ -210,84 +216,49 @@ class FaultyTransport(WrappedTransport):
         self._closed = True
 
     def reopen(self) -> None:
-        self.check_present()
+        self.link.settle(drained=True)
+        self.link.check_present("replay")
         if self._closed:
             self._extra += self._hello  # a replugged board boots and says hello first
         self._closed = False
 
 
-def replay_faults(url: str) -> list:
-    """The ``fault=`` options of a replay URL as (t_s, kind, duration_s, value), sorted."""
-    from .simboard import parse_fault
-
-    query = url.partition("?")[2]
-    specs = [f for v in parse_qs(query, keep_blank_values=True).get("fault", []) for f in v.split(";") if f]
-    faults = [parse_fault(f) for f in specs]
-    for f in faults:
-        if f[1] not in REPLAY_FAULTS:
-            raise DeviceError(f"replay:// cannot inject {f[1]!r}; it can: {', '.join(REPLAY_FAULTS)}")
-    return sorted(faults)
-
-
-def open_replay(url: str, dialect: str = "native", **options):
+def open_replay(port: Port, dialect: str = "native", *, tap=None, baud: int | None = None,
+                reply_timeout_s: float = 1.5, open_timeout_s: float = 3.0):
     """The capture's own convention decides how it is read: protocol v1 through
-    ``ProtocolDevice``, a MotionCal-dialect capture through ``MotionCalDevice`` (passive)."""
+    ``ProtocolDevice``, a MotionCal-dialect capture through ``MotionCalDevice`` (passive).
+    ``baud`` is taken and ignored (a recording has no baud rate); ``reply_timeout_s`` and
+    ``open_timeout_s``: options of the client that reads it."""
     from ..recordings.capture import CaptureReader, recorded_dialect
 
-    path, pace = parse_replay_url(url)
-    faults = replay_faults(url)
-    if faults and url in _FAULTY:
-        transport = _FAULTY[url]
-        try:
-            transport.reopen()
-        except OSError as exc:
-            from ..core.errors import PortUnavailable
-
-            raise PortUnavailable(f"cannot open {url}: {exc}") from None
-        options.pop("baud", None)
-        options.pop("sleep", None)
-        return ProtocolDevice(url, transport, transport_name="replay", passive=True, **options)
     try:
-        reader = CaptureReader(path)
+        reader = CaptureReader(port.target)
     except InputError as exc:
-        raise DeviceError(f"cannot replay {url!r}: {exc}") from exc
+        raise DeviceError(f"cannot replay {port.url!r}: {exc}") from exc
     recorded = recorded_dialect(reader)
     if dialect == "motioncal" and recorded != "motioncal":
-        raise DeviceError(f"{url}: this capture was recorded in the {recorded!r} dialect, not motioncal")
-    transport = BytesTransport(reader, pace=pace, **{k: options.pop(k) for k in ("sleep",) if k in options})
-    if recorded == "motioncal":
-        if faults:
-            raise DeviceError(f"{url}: fault injection replays protocol v1 captures only")
-        from .motioncal import MotionCalDevice
-
-        options.pop("baud", None)
-        dev = MotionCalDevice(url, transport=transport, passive=True,
-                              **{k: v for k, v in options.items() if k in ("open_timeout_s", "tap")})
-        dev.capture_header = reader.header
-        return dev
-    if faults:
-        transport = _FAULTY[url] = FaultyTransport(transport, faults)
-    options.pop("baud", None)
-    dev = ProtocolDevice(url, transport, transport_name="replay", passive=True, **options)
-    dev.capture_header = reader.header
+        raise DeviceError(f"{port.url}: this capture was recorded in the {recorded!r} dialect, not motioncal")
+    transport = BytesTransport(reader, pace=port.get("pace", 0.0))
+    if port.faults:
+        if recorded == "motioncal":
+            raise PortError(f"{port.url}: fault injection replays protocol v1 captures only")
+        transport = FaultyReplay(transport, port.faults)
+    dev = recorded_device(port.url, transport, recorded, tap=tap, reply_timeout_s=reply_timeout_s,
+                          open_timeout_s=open_timeout_s)
     if reader.truncated_bytes:
         dev.counters["capture_truncated_bytes"] = reader.truncated_bytes
     return dev
 
 
-def collect_samples(dev) -> list:
-    """Open a passive device and read it to the end: the samples, in order (events dropped)."""
-    from ..core.sample import Sample
+def recorded_device(url: str, transport, dialect: str = "native", *, tap=None, reply_timeout_s: float = 1.5,
+                    open_timeout_s: float = 3.0):
+    """The client that reads a recording (``BytesTransport``, possibly faulty) as it was read
+    live, listening only: ``ProtocolDevice`` for protocol v1, ``MotionCalDevice`` for the
+    MotionCal convention, each reading timed by when its bytes arrived."""
+    if dialect == "motioncal":
+        from .motioncal import MotionCalDevice
 
-    out = []
-    dev.open()
-    try:
-        while True:
-            try:
-                items = dev.read(0.05)
-            except EOFError:
-                break
-            out.extend(i for i in items if isinstance(i, Sample))
-    finally:
-        dev.close()
-    return out
+        return MotionCalDevice(url, connect=resuming(transport, url), passive=True, tap=tap,
+                               data_clock=lambda: transport.t_rx_s, open_timeout_s=open_timeout_s)
+    return ProtocolDevice(url, resuming(transport, url), transport_name="replay", passive=True,
+                          tap=tap, reply_timeout_s=reply_timeout_s)

@@ -1,16 +1,44 @@
-"""A transport that wraps another: the shared plumbing of taps and fault injectors.
+"""Transports and connectors: the byte plumbing under the devices that speak over a port.
 
 A transport is pyserial-shaped (``read``, ``write``, ``in_waiting``, a settable ``timeout``,
-``close``). ``WrappedTransport`` forwards all of it to ``inner``; a subclass overrides only what
-it changes (a capture tap records what ``read`` returns, a fault injector fails or delays it).
+``close``). A *connector* is what a device calls to get one, once per connection: called again
+after a close, it connects again (``SerialPort`` opens the port anew; a simulated board is
+plugged back in). ``WrappedTransport`` forwards everything to ``inner``; a subclass overrides
+only what it changes (a capture tap records what ``read`` returns).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
+
+from ..core.errors import PortUnavailable
 
 if TYPE_CHECKING:
     from ..recordings.capture import CaptureWriter
+
+Connector = Callable[[], object]  # () → an open transport; PortUnavailable when it cannot
+
+
+class SerialPort:
+    """The connector of a serial port or pyserial URL (``/dev/ttyACM0``, ``socket://…``):
+    each call opens it. ``first``: a port already opened (by a dialect detection) for the
+    first call."""
+
+    def __init__(self, url: str, baud: int = 115200, first=None):
+        self.url = url
+        self.baud = int(baud)
+        self._first = first
+
+    def __call__(self):
+        if self._first is not None:
+            port, self._first = self._first, None
+            return port
+        import serial  # pyserial
+
+        try:
+            return serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise PortUnavailable(f"cannot open {self.url}: {exc}") from exc
 
 
 class WrappedTransport:
@@ -57,7 +85,7 @@ class TapTransport(WrappedTransport):
 
     @property
     def in_waiting(self) -> int:
-        if self.writer._pending_error is not None:
+        if self.writer.failing:
             return 0  # let the caller finish with what it has; the next read reports
         return self.inner.in_waiting
 

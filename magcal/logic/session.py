@@ -80,6 +80,10 @@ class Session:
             self.failure = reason or "failed"
             self.failure_message = message
 
+    def retune(self, gates: Gates, model: str) -> None:
+        """New gates and model judge the samples collected so far (a settings reload)."""
+        self.gates_cfg, self.model = gates, model
+
     def fail(self, reason: str, message: str) -> None:
         if self.status not in (Status.DONE, Status.FAILED):
             self._set_status(Status.FAILED, reason, message)

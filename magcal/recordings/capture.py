@@ -211,6 +211,11 @@ class CaptureWriter:
         self.rolls += 1
         return True
 
+    @property
+    def failing(self) -> bool:
+        """A failure is waiting to be reported (``take_error``)."""
+        return self._pending_error is not None
+
     def take_error(self) -> CaptureWriteError | None:
         """The failure not yet reported, if any (reported once)."""
         e, self._pending_error = self._pending_error, None

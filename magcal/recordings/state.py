@@ -82,6 +82,7 @@ class StateStore:
         self.current = self.directory / CURRENT
         self.previous = self.directory / PREVIOUS
         self.last_load_note = ""  # what load() had to do (fell back, found nothing …)
+        self.loaded_from: str | None = None  # the file the last load() read (None: none was valid)
 
     def save(self, payload: dict) -> None:
         """Keep the current good file as the previous one, then replace the current one.
@@ -106,6 +107,7 @@ class StateStore:
         Falls back to the previous file when the current one is torn or invalid; raises
         ``StateError`` (naming both defects) when state exists but neither file is valid."""
         errors = []
+        self.loaded_from = None
         for path in (self.current, self.previous):
             try:
                 data = path.read_bytes()
@@ -119,6 +121,7 @@ class StateStore:
             self.last_load_note = (
                 f"loaded {path.name}" + (f" after refusing {self.current.name}: {errors[0]}" if errors else "")
             )
+            self.loaded_from = path.name
             return payload
         if errors:
             raise StateError("no valid state: " + "; ".join(errors))

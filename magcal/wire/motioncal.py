@@ -41,6 +41,7 @@ import re
 import struct
 from collections import Counter
 from dataclasses import dataclass
+from enum import Enum
 from typing import Iterable, Sequence, Union
 
 import numpy as np
@@ -99,13 +100,27 @@ class CalLine:
     decimals: tuple[int, ...]
 
 
+class StoreNote(Enum):
+    """What a sketch says about the packet it was sent (Adafruit: "Wrote calibration",
+    "Couldn't save calibration")."""
+
+    WROTE = "wrote calibration"
+    NOT_SAVED = "couldn't save calibration"
+
+
 @dataclass(frozen=True)
 class OtherLine:
     """Anything else: banners, ``Wrote calibration``, torn or noisy lines. ``reason`` says why
-    a line that started with a known tag was not accepted ("" for plain text)."""
+    a line that started with a known tag was not accepted ("" for plain text); ``note`` is the
+    sketch's word on a packet, when the line is one."""
 
     text: str
     reason: str = ""
+
+    @property
+    def note(self) -> StoreNote | None:
+        low = self.text.lower()
+        return next((n for n in StoreNote if n.value in low), None)
 
 
 Line = Union[RawLine, UniLine, CalLine, OtherLine]

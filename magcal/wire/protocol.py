@@ -155,6 +155,10 @@ class ParseError(ValueError):
     pass
 
 
+class UnknownMessage(ParseError):
+    """A well-framed line of a type this host does not know (a newer firmware's)."""
+
+
 def _int(tok: bytes) -> int:
     # int() accepts '_' and surrounding spaces; the protocol does not.
     if not tok or not (tok.isdigit() or (tok[:1] in (b"-", b"+") and tok[1:].isdigit())):
@@ -220,7 +224,7 @@ def parse_payload(payload: bytes) -> Message:
         return FitReply(seq, v[0], v[1], v[2:5], v[5], v[6])
     if kind == b"L":
         return Log(seq, b",".join(f).decode("ascii", "replace"))
-    raise ParseError(f"unknown message type {kind!r}")
+    raise UnknownMessage(f"unknown message type {kind!r}")
 
 
 def _printable(b: bytes) -> bool:
@@ -248,8 +252,10 @@ def classify_line(line: bytes) -> Message | str:
         return "bad_checksums"
     try:
         return parse_payload(payload)
-    except (ParseError, UnicodeDecodeError) as exc:
-        return "unknown_types" if "unknown message type" in str(exc) else "bad_syntax"
+    except UnknownMessage:
+        return "unknown_types"
+    except (ParseError, UnicodeDecodeError):
+        return "bad_syntax"
 
 
 class SequenceTracker:

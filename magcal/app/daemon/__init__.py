@@ -1,0 +1,371 @@
+"""``magcal run``: the long-running service that keeps one device calibrated.
+
+The only loop in magcal with side effects, and a small one: each turn it reads the device and
+hands what came to its collaborators, each a small object of its own module, testable alone:
+
+    supervisor.LinkSupervisor   connect (open, identify, read the stored calibration, start),
+                                back-off, stall, reset, drain — owns the device
+    intake.Intake               each sample line once, in order, counted (epochs, duplicates,
+                                a resumed replay's lines skipped)
+    drift.DriftWatcher          the calibration held and the monitor that tests it still fits
+    recalibrator.Recalibrator   when to write: collect, gates, solve (a decider)
+    recalibrator.CalibrationWriter   write, verify by read-back, remember what was verified
+    persistence.StateKeeper     the state file a restart resumes from; the state-dir lock
+    control.ControlSocket       ``status.sock``: the live status for ``magcal status``
+    recorder.RollingCapture     the bounded capture of every byte read
+    journal.Journal             every decision, typed (``Decision``), logged once
+
+    ┌──────────── connect ◀─── back-off ◀──────────────────────────────────────────────────┐
+    │                                                                                      │
+    └▶ read ─▶ intake ─▶ session (collect) ─▶ drift watcher ─▶ (deciders: solve, gates,    │
+          │                                                   writer: write, read back)   │
+          └─ port lost / stalled / replay ended ─────────────────────────────────────────┘
+
+Faults it survives: the port vanishing (USB unplug: ``PortUnavailable``) or going silent
+(``daemon.stall_s``), device resets (streaming is restarted), garbage and torn lines (the
+framer counts them), a device that stops acknowledging (a write fails, streaming goes on), a
+write echoed wrongly (not verified ⇒ not reported; the previous calibration is put back), a
+full disk for captures or state (counted, logged, the data keeps flowing).
+
+State survives a crash: every ``daemon.state_every_s`` the accumulated session, the monitor and
+the counters are written (``persistence``); a restart resumes from them (on a ``replay://``
+source, after the lines the saved session already holds). SIGTERM/SIGINT stop cleanly (state
+written); SIGHUP reloads the config file, keeping the old settings when the new ones are
+invalid. ``status.sock`` in the state directory answers ``magcal status``; there is no network
+listener.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from collections import Counter
+from enum import Enum
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ...core.errors import ConfigError
+from ...core.events import Event
+from ...core.sample import Sample
+from ...devices import open_device as _open_device
+from ...devices.base import Device
+from ...devices.port import scheme_of
+from ...logic.session import Session
+from .. import config
+from .control import ControlSocket, query_socket
+from .drift import DriftWatcher
+from .intake import Intake, Take
+from .journal import Decision, Journal
+from .persistence import STATE_KIND, Saved, StateDirLock, StateKeeper
+from .recalibrator import CalibrationWriter, Recalibrator
+from .recorder import RollingCapture
+from .supervisor import LinkSupervisor
+
+READ_S = 0.1  # one read's wait
+BATCH_S = 0.1  # a read that brought only a trickle waits out this much, so lines are taken in
+BATCH_MIN = 16  # batches rather than one wake-up per line (100 Hz ⇒ ~10 wake-ups a second;
+# measured with bench/daemon_soak.py --realtime 40: 1.7 % of one core at 0.1 s, 2.3 % at 0.05 s)
+
+
+class Stop(Enum):
+    """Why the loop ended."""
+
+    REQUESTED = "requested"  # request_stop(), SIGTERM, SIGINT
+    SOURCE_ENDED = "the recording ended"
+    ENOUGH_SAMPLES = "collected the samples asked for"
+
+
+class Daemon:
+    """One device, kept calibrated. ``run()`` blocks until ``request_stop()`` (or SIGTERM)."""
+
+    def __init__(
+        self,
+        settings: config.Settings,
+        *,
+        state_dir: str | os.PathLike | None = None,
+        config_path: str | None = None,
+        overrides: dict | None = None,
+        open_device: Callable[..., Device] = _open_device,
+        clock: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = time.time,
+        sleep: Callable[[float], None] = time.sleep,
+        on_sample: Callable[[int, Sample], None] | None = None,
+        max_samples: int | None = None,
+        device_options: dict | None = None,
+    ):
+        self.settings = settings
+        self.config_path = config_path
+        self.overrides = dict(overrides or {})
+        self.state_dir = Path(state_dir or settings.daemon.state_dir).expanduser()
+        self._clock, self._wall, self._sleep = clock, wall, sleep
+        self.on_sample = on_sample
+        self.max_samples = max_samples
+        self.faults: Counter = Counter()
+        self.intake = Intake()
+        self.journal = Journal(wall, position=lambda: self.intake.samples)
+        self.capture = RollingCapture(self.state_dir, self.journal, self.faults)
+        self.link = LinkSupervisor(settings, self.journal, self.faults, open_device=open_device,
+                                   options=device_options, tap=lambda: self.capture.writer,
+                                   on_capture_error=self.capture.failed, clock=clock)
+        self.drift = DriftWatcher(settings.daemon, self.journal, self.faults)
+        # the deciders: each may hand a solved session to the writer. The recalibrator writes
+        # after the calibration held stopped fitting; a decider that keeps the device
+        # calibrated all along (a tracker) goes beside it, in ``_decide``.
+        self.recalibrator = Recalibrator(settings, self.journal, self.faults)
+        self.writer = CalibrationWriter(self.journal, self.faults, wall)
+        self.keeper = StateKeeper(self.state_dir, self.journal, self.faults, clock)
+        self.control = ControlSocket(self.state_dir, self.journal)
+        self.started_wall = wall()
+        self.stopped_by: Stop | None = None
+        self._stop = threading.Event()
+        self._reload = threading.Event()
+
+    def request_stop(self) -> None:
+        self._stop.set()
+
+    def request_reload(self) -> None:
+        self._reload.set()
+
+    # -- the loop -----------------------------------------------------------------------------------
+    def run(self) -> int:
+        with StateDirLock(self.state_dir):
+            self._install_signals()
+            self.resume()
+            if self.settings.daemon.socket:
+                self.control.open()
+            self.capture.open(self.settings)
+            self.journal.record(Decision.STARTED, port=self.settings.port, state_dir=str(self.state_dir),
+                                pid=os.getpid())
+            try:
+                self._loop()
+            finally:
+                self._shut_down()
+        return 0
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            if self._reload.is_set():
+                self._reload.clear()
+                self.reload()
+            if not self.link.connected and not self._connect():
+                if self.keeper.due(self._clock()):
+                    self.save()  # the status file shows the outage too
+                self._wait(self.link.backoff_s())
+                continue
+            self.step()
+
+    def _shut_down(self) -> None:
+        self.link.drain(self.handle)
+        self.link.close()
+        self.journal.record(Decision.STOPPED, reason=(self.stopped_by or Stop.REQUESTED).value)
+        self.save(final=True)
+        self.capture.close()
+        self.control.close()
+
+    def step(self) -> None:
+        """One read and everything it leads to."""
+        t_read = self._clock()
+        items = self.link.read(READ_S)
+        if self.link.ended:
+            self.journal.record(Decision.SOURCE_ENDED, port=self.settings.port)
+            self._finish(Stop.SOURCE_ENDED)
+            return
+        if items:
+            self.handle(items)
+        now = self._clock()
+        if not self.link.connected or self.link.stalled(now):
+            return
+        self._decide()
+        self.control.serve(self.status)
+        if self.keeper.due(now):
+            self.save()
+        if self.max_samples is not None and self.intake.samples >= self.max_samples:
+            self._finish(Stop.ENOUGH_SAMPLES)
+        if 0 < len(items) < BATCH_MIN and not self._stop.is_set():
+            rest = BATCH_S - (self._clock() - t_read)
+            if rest > 0:
+                self._sleep(rest)
+
+    def _finish(self, why: Stop) -> None:
+        self.stopped_by = why
+        self._stop.set()
+
+    def _wait(self, seconds: float) -> None:
+        end = self._clock() + seconds
+        while not self._stop.is_set():
+            left = end - self._clock()
+            if left <= 0:
+                break
+            self.control.serve(self.status)
+            if self._reload.is_set():
+                break
+            self._sleep(min(0.05, left))
+
+    def _connect(self) -> bool:
+        conn = self.link.connect()
+        if conn is None:
+            return False
+        self.intake.new_epoch()
+        stored = conn.stored if conn.knows_record else self.drift.calibration  # a replay: keep what the state knew
+        self.journal.record(Decision.CONNECTED, port=self.settings.port, firmware=conn.identity.firmware or None,
+                            epoch=self.intake.epoch, stored_calibration="yes" if stored else "none")
+        self.drift.adopt(stored, self.link.matches)
+        return True
+
+    # -- data -----------------------------------------------------------------------------------------
+    def handle(self, items) -> None:
+        fields, temps, heard = [], [], False
+        for item in self.intake.admit(items, replay=scheme_of(self.settings.port) == "replay"):
+            if isinstance(item, Event):
+                self._event(item)
+                self.recalibrator.take(item)
+            elif isinstance(item, Sample):
+                heard = True
+                take = self.intake.take(item)
+                if take is Take.DUPLICATE:
+                    self.faults["duplicate_lines"] += 1
+                    continue
+                self.recalibrator.take(item, collected=take is Take.GOOD)
+                if take is Take.GOOD:
+                    fields.append(item.field_ut)
+                    temps.append(np.nan if item.temp_c is None else item.temp_c)
+                    if self.on_sample is not None:
+                        self.on_sample(self.intake.epoch, item)
+        if heard:
+            self.link.heard()
+        if fields and self.drift.add(fields, temps):
+            self.recalibrator.drifted(self._may_write())  # what was collected belongs to the old field
+
+    def _event(self, ev: Event) -> None:
+        if ev.kind == "gap":
+            self.faults["gaps"] += 1
+            self.faults["lost_lines"] += ev.count
+        elif ev.kind == "reset":
+            self.faults["device_resets"] += 1
+            self.intake.new_epoch()
+            self.journal.record(Decision.DEVICE_RESET, epoch=self.intake.epoch)
+            self.link.restart_stream()
+
+    # -- writing a calibration ------------------------------------------------------------------------
+    def _may_write(self) -> bool:
+        s, dev = self.settings, self.link.device
+        return bool(s.daemon.recalibrate and s.write and dev is not None and dev.abilities.store)
+
+    def _decide(self) -> None:
+        """Ask the deciders whether to write a calibration now, and write what they solved."""
+        session = self.recalibrator.poll(self._may_write(), self.drift.wants_calibration)
+        if session is None:
+            return
+        stored = self.writer.write(self.link.device, session)
+        if stored is None:
+            self.writer.recheck(self.link.device, self.drift.calibration)
+            return
+        self.drift.watch(stored, Decision.NEW_CALIBRATION)
+        self.save()
+
+    # -- config reload ----------------------------------------------------------------------------------
+    def reload(self) -> None:
+        try:
+            new = config.load(self.config_path, self.overrides)
+        except ConfigError as exc:
+            self.faults["config_rejected"] += 1
+            self.journal.record(Decision.RELOAD_REJECTED, error=str(exc))
+            return
+        old, self.settings = self.settings, new
+        self.journal.record(Decision.RELOADED, config=self.config_path)
+        self.link.retarget(new)
+        same_port = old.port == new.port
+        self.recalibrator.use(new, keep_samples=same_port)  # another device: nothing collected is its
+        if not same_port:
+            self.drift.forget()
+        self.drift.retune(new.daemon)
+
+    # -- state ------------------------------------------------------------------------------------------
+    def status(self) -> dict:
+        return {
+            "running": not self._stop.is_set(),
+            "pid": os.getpid(),
+            "port": self.settings.port,
+            **self.link.status(),
+            "uptime_s": round(self._wall() - self.started_wall, 3),
+            **self.intake.status(),
+            **self.recalibrator.status(),
+            **self.drift.status(),
+            **self.writer.status(),
+            "faults": dict(sorted(self.faults.items())),
+            "link": self.link.stats(),
+            "capture": self.capture.stats(),
+            "decisions": self.journal.recent(10),
+        }
+
+    def payload(self, generation: int, final: bool = False) -> dict:
+        status = self.status()
+        if final:
+            status["running"] = False
+        return {
+            "kind": STATE_KIND,
+            "generation": generation,
+            "saved_utc": round(self._wall(), 3),
+            "status": status,
+            "resume": {
+                "port": self.settings.port,
+                **self.intake.to_state(),
+                "faults": dict(self.faults),
+                **self.drift.to_state(),
+                **self.writer.status(),
+                **self.recalibrator.to_state(),
+                "decisions": list(self.journal.entries),
+            },
+        }
+
+    def save(self, final: bool = False) -> bool:
+        return self.keeper.save(lambda generation: self.payload(generation, final), self.settings.daemon.state_every_s)
+
+    def resume(self) -> None:
+        data = self.keeper.load()
+        if data is None:
+            return
+        try:
+            saved = Saved.parse(data, self.settings.gates)
+        except (KeyError, TypeError, ValueError) as exc:
+            self.faults["state_refused"] += 1
+            self.journal.record(Decision.STATE_UNUSABLE, error=str(exc))
+            return
+        if saved.port != self.settings.port:
+            # another device's samples and calibration must not be mixed into this one's
+            self.journal.record(Decision.STATE_OTHER_PORT, state_port=saved.port, port=self.settings.port)
+            saved = saved.counters_only(Session(self.settings.gates, self.settings.model))
+        self._restore(saved)
+        self.journal.record(Decision.RESUMED, generation=saved.generation, samples=saved.samples,
+                            source=self.keeper.loaded_from, note=self.keeper.load_note)
+        if saved.replay_lines and scheme_of(self.settings.port) == "replay":
+            # a replay is read from its start again: the lines the saved session already holds
+            # are skipped, not counted twice
+            self.intake.skip_replayed(saved.replay_lines)
+            self.journal.record(Decision.REPLAY_SKIPS, skipped_lines=saved.replay_lines)
+
+    def _restore(self, saved: Saved) -> None:
+        self.recalibrator.restore(saved.session)
+        self.drift.restore(saved.calibration, saved.monitor)
+        self.intake.restore(saved.samples, saved.samples_in, saved.epoch)
+        self.writer.restore(saved.last_calibration, saved.recalibrations)
+        self.keeper.restore(saved.generation)
+        self.faults.clear()
+        self.faults.update(saved.faults)
+        self.journal.restore(saved.decisions)
+
+    # -- signals -----------------------------------------------------------------------------------------
+    def _install_signals(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+        signal.signal(signal.SIGTERM, lambda *_: self.request_stop())
+        signal.signal(signal.SIGINT, lambda *_: self.request_stop())
+        if hasattr(signal, "SIGHUP"):
+            signal.signal(signal.SIGHUP, lambda *_: self.request_reload())
+
+
+__all__ = ["Daemon", "Decision", "Stop", "query_socket"]
