@@ -15,10 +15,10 @@ from magcal.devices.port import VOCABULARY
 
 
 @pytest.mark.parametrize("url, words", [
-    ("sim://?sede=3", "unknown option 'sede' for sim"),
-    ("emu://?rate=50", "unknown option 'rate' for emu"),
-    ("replay://x.cap?seed=1", "unknown option 'seed' for replay"),
-    ("i2c:1?speed=3", "unknown option 'speed' for i2c"),
+    ("sim://?sede=3", r"unknown option 'sede' \(sim:// takes: seed, rate"),
+    ("emu://?rate=50", r"unknown option 'rate' \(emu:// takes"),
+    ("replay://x.cap?seed=1", r"unknown option 'seed' \(replay:// takes: pace, fault\)"),
+    ("i2c:1?speed=3", r"unknown option 'speed' \(i2c: takes: addr, rate\)"),
     ("sim://?seed=-1", "seed"),
     ("sim://?rate=0", "out of range"),
     ("i2c:1?rate=500", "out of range"),

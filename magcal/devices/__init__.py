@@ -59,10 +59,9 @@ def open_device(url: str, dialect: str = "native", **options) -> Device:
     try:
         inspect.signature(factory).bind(port, dialect=dialect, **options)
     except TypeError:
-        taken = [p for p in inspect.signature(factory).parameters if p not in ("port", "dialect")]
-        unknown = sorted(set(options) - set(taken))
-        raise PortError(f"{url!r}: the {backend} backend takes no option {', '.join(unknown)} "
-                        f"(it takes: {', '.join(taken)})") from None
+        taken = set(inspect.signature(factory).parameters)
+        unknown = ", ".join(sorted(set(options) - taken))
+        raise PortError(f"{url!r}: the {backend} backend takes no option {unknown}") from None
     return factory(port, dialect=dialect, **options)
 
 

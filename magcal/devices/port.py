@@ -220,7 +220,8 @@ def _parse_query(url: str, scheme: Scheme, query: str) -> tuple[dict, tuple[Faul
         name = aliases.get(given, given)
         if name not in scheme.options:
             known = ", ".join(scheme.options) or "none"
-            raise PortError(f"{url!r}: unknown option {given!r} for {scheme.name}: (it takes: {known})")
+            prefix = "i2c:" if scheme.name == "i2c" else f"{scheme.name}://"
+            raise PortError(f"{url!r}: unknown option {given!r} ({prefix} takes: {known})")
         if name == "fault":
             where = f"{url!r}: "
             faults += [parse_fault(f, scheme.faults, where) for v in values for f in v.split(";") if f]

@@ -75,6 +75,7 @@ class Stop(Enum):
     """Why the loop ended."""
 
     REQUESTED = "requested"  # request_stop(), SIGTERM, SIGINT
+    FAILED = "an error it cannot go on from"  # e.g. a port string no backend takes
     SOURCE_ENDED = "the recording ended"
     ENOUGH_SAMPLES = "collected the samples asked for"
 
@@ -142,6 +143,9 @@ class Daemon:
                                 pid=os.getpid())
             try:
                 self._loop()
+            except BaseException:
+                self.stopped_by = self.stopped_by or Stop.FAILED
+                raise
             finally:
                 self._shut_down()
         return 0
