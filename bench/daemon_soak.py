@@ -55,7 +55,7 @@ def main() -> None:
     n_total = int(args.hours * 3600 * RATE_HZ)
     half_s = args.hours * 1800
     with tempfile.TemporaryDirectory() as state_dir:
-        port = f"sim://?seed={args.seed}&fault=hard_iron@{half_s:g}=30.5,-38.2,14.8"
+        port = f"sim://?pace=0&seed={args.seed}&fault=hard_iron@{half_s:g}=30.5,-38.2,14.8"
         settings = config.load(None, {"port": port, "rate_hz": RATE_HZ, "daemon": {
             "recalibrate": True, "capture_max_bytes": 8 << 20, "socket": False,
             # as often as at real time: every 5 s of data (the loop is fast-forwarded ~50×)

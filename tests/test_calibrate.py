@@ -20,7 +20,7 @@ def run_cli(capsys, *argv):
 
 @pytest.mark.parametrize("seed", [1, 7])
 def test_recovers_the_known_offset_within_three_sigma(capsys, tmp_path, seed):
-    code, out, err = run_cli(capsys, "calibrate", "--port", f"sim://?seed={seed}&eeprom={tmp_path}/e.bin", "--json")
+    code, out, err = run_cli(capsys, "calibrate", "--port", f"sim://?pace=0&seed={seed}&eeprom={tmp_path}/e.bin", "--json")
     assert code == 0, err
     r = json.loads(out)
     assert r["written"] is True and r["verified"] is True
@@ -30,17 +30,19 @@ def test_recovers_the_known_offset_within_three_sigma(capsys, tmp_path, seed):
     err_ut = offset - np.array(truth.hard_iron_ut)
     assert np.all(np.abs(err_ut) <= 3 * sigma), f"error {err_ut} µT vs 1σ {sigma}"
     assert abs(r["calibration"]["field_ut"] - truth.field_ut) < 0.5
-    assert set(r) >= {"calibration", "quality", "written", "verified", "device"}
+    assert set(r) >= {"schema", "calibration", "rms_ut", "n_samples", "n_kept", "n_used", "coverage", "gates",
+                      "written", "verified", "device"}
+    assert r["schema"] == "magcal.calibrate/1"
     assert r["device"]["wia"] == "0x48"
-    assert all(g["passed"] for g in r["quality"]["gates"])
+    assert all(g["passed"] for g in r["gates"])
 
 
 def test_the_written_calibration_is_on_the_board(capsys, tmp_path):
     eeprom = tmp_path / "e.bin"
-    code, out, _ = run_cli(capsys, "calibrate", "--port", f"sim://?eeprom={eeprom}", "--json")
+    code, out, _ = run_cli(capsys, "calibrate", "--port", f"sim://?pace=0&eeprom={eeprom}", "--json")
     assert code == 0
     sent = json.loads(out)["calibration"]
-    with open_device(f"sim://?eeprom={eeprom}") as dev:
+    with open_device(f"sim://?pace=0&eeprom={eeprom}") as dev:
         dev.open()
         stored = dev.read_calibration()
     assert np.allclose(stored.offset_ut, sent["offset_ut"], atol=1e-3)
@@ -48,14 +50,14 @@ def test_the_written_calibration_is_on_the_board(capsys, tmp_path):
 
 
 def test_text_output_says_verified(capsys):
-    code, out, _ = run_cli(capsys, "calibrate", "--port", "sim://?seed=2")
+    code, out, _ = run_cli(capsys, "calibrate", "--port", "sim://?pace=0&seed=2")
     assert code == 0
     assert "VERIFIED" in out and "offset" in out
 
 
 def test_no_write_reports_but_leaves_the_board_alone(capsys, tmp_path):
     eeprom = tmp_path / "e.bin"
-    code, out, _ = run_cli(capsys, "calibrate", "--port", f"sim://?eeprom={eeprom}", "--json", "--no-write")
+    code, out, _ = run_cli(capsys, "calibrate", "--port", f"sim://?pace=0&eeprom={eeprom}", "--json", "--no-write")
     r = json.loads(out)
     assert code == 0 and r["written"] is False and r["calibration"]
     assert not eeprom.exists()
@@ -64,7 +66,7 @@ def test_no_write_reports_but_leaves_the_board_alone(capsys, tmp_path):
 def test_timeout_names_the_gate_that_failed(capsys):
     # flat turns only: the direction coverage can never pass
     code, out, _ = run_cli(
-        capsys, "calibrate", "--port", "sim://?motion=yaw&speed=20", "--timeout", "2", "--json"
+        capsys, "calibrate", "--port", "sim://?motion=yaw&pace=20", "--timeout", "2", "--json"
     )
     r = json.loads(out)
     assert code == 3
@@ -75,7 +77,7 @@ def test_timeout_names_the_gate_that_failed(capsys):
 @pytest.mark.parametrize("fault", ["no_write_ack", "corrupt_write"])
 def test_a_write_that_is_not_acknowledged_or_echoed_wrong_is_never_reported_written(tmp_path, fault):
     settings = config.load(environ={})
-    dev = open_device(f"sim://?seed=3&eeprom={tmp_path}/e.bin")
+    dev = open_device(f"sim://?pace=0&seed=3&eeprom={tmp_path}/e.bin")
     dev.reply_timeout_s = 0.5
     dev.open()
     old = dev.prepare(demo_scenario(9).physics.truth())
@@ -94,12 +96,12 @@ def test_a_write_that_is_not_acknowledged_or_echoed_wrong_is_never_reported_writ
     dev.close()
 
 
-def test_a_device_that_never_answers_gives_a_clear_error_and_exit_2(capsys, monkeypatch):
+def test_a_device_that_never_answers_gives_a_clear_error_and_the_device_exit_status(capsys, monkeypatch):
     import magcal.devices.link as link
 
     monkeypatch.setattr(link.ProtocolDevice, "__init__", _quick_init(link.ProtocolDevice.__init__))
-    code, out, err = run_cli(capsys, "calibrate", "--port", "sim://?fault=mute", "--json")
-    assert code == 2
+    code, out, err = run_cli(capsys, "calibrate", "--port", "sim://?pace=0&fault=mute", "--json")
+    assert code == 5
     assert "did not identify" in err and "Traceback" not in err
 
 
@@ -112,8 +114,8 @@ def _quick_init(orig):
 
 
 def test_bad_port_option_is_a_clear_error(capsys):
-    code, _, err = run_cli(capsys, "calibrate", "--port", "sim://?sed=1")
-    assert code == 2 and "sed" in err
+    code, _, err = run_cli(capsys, "calibrate", "--port", "sim://?pace=0&sed=1")
+    assert code == 5 and "sed" in err
 
 
 def test_bad_config_key_is_named(capsys, tmp_path):
@@ -125,12 +127,14 @@ def test_bad_config_key_is_named(capsys, tmp_path):
 
 def test_replaying_the_capture_of_a_calibration_gives_the_same_bits(capsys, tmp_path):
     cap = tmp_path / "live.cap"
-    code, out, _ = run_cli(capsys, "calibrate", "--port", "sim://?seed=6", "--record", str(cap), "--json")
+    code, out, _ = run_cli(capsys, "calibrate", "--port", "sim://?pace=0&seed=6", "--record", str(cap), "--json")
     assert code == 0
     live = json.loads(out)
     code, out, _ = run_cli(capsys, "calibrate", "--port", f"replay://{cap}", "--json")
     replayed = json.loads(out)
-    assert code == 0 and replayed["written"] is False  # a replay cannot store
+    assert code == 4 and replayed["written"] is False  # a replay cannot store: not the verified write 0 means
     assert replayed["calibration"] == live["calibration"]
     assert replayed["uncertainty"] == live["uncertainty"]
-    assert replayed["quality"]["kept"] == live["quality"]["kept"]
+    assert replayed["n_kept"] == live["n_kept"]
+    code, out, _ = run_cli(capsys, "calibrate", "--port", f"replay://{cap}", "--json", "--no-write")
+    assert code == 0 and json.loads(out)["calibration"] == live["calibration"]

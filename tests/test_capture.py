@@ -208,8 +208,8 @@ def test_record_refused_before_reading_leaves_no_empty_capture(tmp_path, capsys)
     from magcal.cli import main
 
     out = tmp_path / "never.cap"
-    rc = main(["record", "--port", "sim://", "--dialect", "motioncal", "-o", str(out), "--count", "5"])
-    assert rc == 2 and "needs a serial port" in capsys.readouterr().err
+    rc = main(["record", "--port", "sim://?pace=0", "--dialect", "motioncal", "-o", str(out), "--count", "5"])
+    assert rc == 5 and "needs a serial port" in capsys.readouterr().err
     assert not out.exists()
 
 
@@ -220,7 +220,7 @@ def test_a_raw_serial_dump_with_reset_noise_is_read_like_its_capture(tmp_path):
     from magcal.recordings.capture import CaptureReader
 
     cap = tmp_path / "run.cap"
-    assert main(["record", "--port", "sim://?seed=6", "-o", str(cap), "--count", "200"]) == 0
+    assert main(["record", "--port", "sim://?pace=0&seed=6", "-o", str(cap), "--count", "200"]) == 0
     dump = tmp_path / "dump.txt"
     dump.write_bytes(b"\x00\x00\xff\x00" + CaptureReader(cap).data())
     a, b = load_series(cap), load_series(dump)

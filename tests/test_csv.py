@@ -100,7 +100,7 @@ def test_export_command_writes_the_documented_columns(tmp_path, capsys):
     header, *rows = out.read_text().splitlines()
     assert header == "t,mx,my,mz,temp_c"
     assert rows == ["0.0,1.0,2.0,3.0,20.0", "1.0,4.0,5.0,6.0,21.0"]
-    assert main(["export", str(src), "--csv", "-o", str(src)]) == 2  # never overwrites its input
+    assert main(["export", str(src), "--csv", "-o", str(src)]) == 6  # never overwrites its input
     assert "refusing" in capsys.readouterr().err
 
 

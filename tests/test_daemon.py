@@ -29,7 +29,7 @@ class Tracked:
     daemon run here connects to this one board (as one would replug one real board)."""
 
     def __init__(self, query):
-        self.url = f"sim://?{query}"
+        self.url = f"sim://?pace=0&{query}"
         self.board = SimBoard.from_port(parse_port(self.url))
         self.emitted = []
         emit = self.board._emit
@@ -202,7 +202,7 @@ def test_restart_resumes_the_accumulated_state(tmp_path):
 def test_state_of_another_port_is_not_mixed_in(tmp_path):
     t = Tracked("seed=14")
     a = t.run(tmp_path, 700)
-    other = Daemon(make_settings("sim://?seed=15"), state_dir=tmp_path / "state")
+    other = Daemon(make_settings("sim://?pace=0&seed=15"), state_dir=tmp_path / "state")
     other.resume()
     assert other.recalibrator.session.accumulator.n == 0 and other.drift.monitor is None
     assert other.intake.samples == a.intake.samples  # the counters go on
@@ -295,7 +295,7 @@ def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
 
     from magcal.core.errors import StateError
 
-    first = Daemon(make_settings("sim://?seed=16&speed=5"), state_dir=tmp_path)
+    first = Daemon(make_settings("sim://?seed=16&pace=5"), state_dir=tmp_path)
     th = threading.Thread(target=first.run)
     th.start()
     try:
@@ -304,7 +304,7 @@ def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
         end = time.monotonic() + 20
         while first.intake.samples == 0 and time.monotonic() < end:
             time.sleep(0.02)
-        second = Daemon(make_settings("sim://?seed=16"), state_dir=tmp_path)
+        second = Daemon(make_settings("sim://?pace=0&seed=16"), state_dir=tmp_path)
         with pytest.raises(StateError, match="another magcal daemon"):
             second.run()
     finally:

@@ -31,7 +31,7 @@ def _child(state_dir: str, seed: int) -> None:
     from magcal.app.daemon import Daemon
     from magcal.devices import open_device
 
-    port = f"sim://?eeprom={state_dir}/eeprom.bin"  # one device; each boot moves through other directions
+    port = f"sim://?pace=0&eeprom={state_dir}/eeprom.bin"  # one device; each boot moves through other directions
     settings = config.load(None, {
         "port": port,
         "rate_hz": 100,

@@ -50,7 +50,7 @@ def test_signals_and_status(tmp_path):
     cfg = tmp_path / "magcal.yaml"
     cfg.write_text("rate_hz: 50\ndaemon:\n  monitor_alpha: 0.01\n  state_every_s: 0.2\n")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "magcal", "run", "--port", "sim://?seed=4&speed=20", "--config", str(cfg),
+        [sys.executable, "-m", "magcal", "run", "--port", "sim://?seed=4&pace=20", "--config", str(cfg),
          "--state-dir", str(state), "--recalibrate"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
     )
@@ -87,5 +87,5 @@ def test_signals_and_status(tmp_path):
 
 
 def test_status_without_state_says_so(tmp_path):
-    code, _, err = _status(tmp_path / "nothing")
-    assert code == 2 and "no daemon state" in err
+    code, out, err = _status(tmp_path / "nothing")
+    assert code == 1 and "no daemon state" in out  # not running, said plainly

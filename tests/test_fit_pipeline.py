@@ -92,7 +92,10 @@ def test_cli_json_matches_the_library(tmp_path):
     write_csv(p, run.series.field_ut)
     code, out = run_cli(["fit", str(p), "--model", "sphere", "--json"])
     assert code == 0
-    d = json.loads(out)
+    doc = json.loads(out)
+    assert doc["schema"] == "magcal.fit/1" and doc["comparisons"] == []
+    (d,) = doc["fits"]
+    assert d["file"] == str(p) and d["n_samples"] == 1000
     lib = fit(run.series.field_ut, model="sphere").to_dict()
     assert d["model"] == "sphere"
     assert np.allclose(d["calibration"]["offset_ut"], lib["calibration"]["offset_ut"], rtol=0, atol=1e-9)
@@ -106,10 +109,10 @@ def test_cli_exit_codes(tmp_path, capsys):
     p = tmp_path / "flat.csv"
     write_csv(p, yaw.series.field_ut)
     code, _ = run_cli(["fit", str(p)])
-    assert code == 1
+    assert code == 3  # the data did not pass
     assert "ill_conditioned" in capsys.readouterr().err
     code, _ = run_cli(["fit", str(tmp_path / "missing.csv")])
-    assert code == 2
+    assert code == 6  # a file that cannot be read
 
 
 def test_uncertainty_on_a_real_recording_covers_the_offset_change_between_its_halves():

@@ -20,7 +20,7 @@ def test_several_sessions_are_fitted_and_a_moved_hard_iron_is_named(tmp_path, ca
     code = main(["fit", paths[0], paths[1], str(bad), paths[2], "--json"])
     out, err = capsys.readouterr()
     d = json.loads(out)
-    assert code == 2 and "bad.csv" in err  # the unreadable file is named, the others are fitted
+    assert code == 6 and "bad.csv" in err  # the unreadable file is named, the others are fitted
     assert [f["file"] for f in d["fits"]] == [paths[0], paths[1], str(bad), paths[2]]
     assert "error" in d["fits"][2] and d["fits"][3]["calibration"]["offset_ut"][0] == pytest.approx(21.5, abs=0.1)
     same, moved = d["comparisons"]

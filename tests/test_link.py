@@ -18,14 +18,14 @@ def collect(dev, n):
 
 
 def test_identify_reports_chip_and_asa():
-    with open_device("sim://?seed=4") as dev:
+    with open_device("sim://?pace=0&seed=4") as dev:
         ident = dev.open()
         assert ident.who_am_i == 0x68 and ident.wia == 0x48
         assert ident.asa == (176, 178, 166) and ident.proto == 1
 
 
 def test_stream_has_consecutive_sequence_numbers_and_asa_adjusted_field():
-    with open_device("sim://?seed=4") as dev:
+    with open_device("sim://?pace=0&seed=4") as dev:
         dev.open()
         dev.start(100)
         items = collect(dev, 2000)
@@ -40,14 +40,14 @@ def test_stream_has_consecutive_sequence_numbers_and_asa_adjusted_field():
 
 
 def test_identity_reports_the_rate_the_device_was_set_to():
-    with open_device("sim://") as dev:
+    with open_device("sim://?pace=0") as dev:
         assert dev.open().rate_hz == 100
         dev.start(25)
         assert dev.identity.rate_hz == 25
 
 
 def test_unsolicited_reset_is_reported_and_no_sample_is_invented():
-    with open_device("sim://?seed=4") as dev:
+    with open_device("sim://?pace=0&seed=4") as dev:
         dev.open()
         dev.start(100)
         before = [i for i in collect(dev, 100) if isinstance(i, Sample)]
@@ -64,7 +64,7 @@ def test_unsolicited_reset_is_reported_and_no_sample_is_invented():
 
 
 def test_requested_reset_is_not_a_fault():
-    with open_device("sim://?seed=4") as dev:
+    with open_device("sim://?pace=0&seed=4") as dev:
         dev.open()
         ident = dev.reset()
         assert ident.wia == 0x48
@@ -75,12 +75,12 @@ def test_requested_reset_is_not_a_fault():
 def test_calibration_survives_a_restart_on_the_same_eeprom_file(tmp_path):
     eeprom = tmp_path / "eeprom.bin"
     cal = Calibration([23.5, -41.2, 12.8], 49.9, soft_iron=[[1.01, 0.001, 0], [0.001, 0.99, 0], [0, 0, 1]])
-    with open_device(f"sim://?eeprom={eeprom}") as dev:
+    with open_device(f"sim://?pace=0&eeprom={eeprom}") as dev:
         dev.open()
         assert dev.read_calibration() is None and dev.record_status == "BLANK"
         echoed = dev.write_calibration(dev.prepare(cal))
         assert dev.matches(dev.prepare(cal), echoed)
-    with open_device(f"sim://?eeprom={eeprom}") as dev:
+    with open_device(f"sim://?pace=0&eeprom={eeprom}") as dev:
         dev.open()
         back = dev.read_calibration()
         assert dev.matches(dev.prepare(cal), back)
@@ -88,13 +88,13 @@ def test_calibration_survives_a_restart_on_the_same_eeprom_file(tmp_path):
 
 def test_corrupt_eeprom_is_reported_never_applied(tmp_path):
     eeprom = tmp_path / "eeprom.bin"
-    with open_device(f"sim://?eeprom={eeprom}") as dev:
+    with open_device(f"sim://?pace=0&eeprom={eeprom}") as dev:
         dev.open()
         dev.write_calibration(Calibration([1, 2, 3], 50))
     blob = bytearray(eeprom.read_bytes())
     blob[5] ^= 0x40
     eeprom.write_bytes(bytes(blob))
-    with open_device(f"sim://?eeprom={eeprom}") as dev:
+    with open_device(f"sim://?pace=0&eeprom={eeprom}") as dev:
         dev.open()
         assert dev.read_calibration() is None
         assert dev.record_status == "CORRUPT"
@@ -103,7 +103,7 @@ def test_corrupt_eeprom_is_reported_never_applied(tmp_path):
 
 
 def test_calibrated_output_applies_the_stored_record():
-    with open_device("sim://?seed=2") as dev:
+    with open_device("sim://?pace=0&seed=2") as dev:
         dev.open()
         truth = dev.board.scenario.physics.truth()
         dev.write_calibration(Calibration(truth.offset_ut, truth.field_ut, truth.soft_iron))
@@ -117,7 +117,7 @@ def test_calibrated_output_applies_the_stored_record():
 
 
 def test_a_mute_device_is_a_clear_no_reply():
-    dev = open_device("sim://")
+    dev = open_device("sim://?pace=0")
     dev.board.faults["mute"] = True
     dev.boot_timeout_s = 0.5
     dev.board._out.clear()
@@ -126,7 +126,7 @@ def test_a_mute_device_is_a_clear_no_reply():
 
 
 def test_refused_write_raises_write_rejected():
-    with open_device("sim://") as dev:
+    with open_device("sim://?pace=0") as dev:
         dev.open()
         with pytest.raises(DeviceError, match="RECCRC"):
             dev.command("W", 1, 0, 0, 0, 50000, 10**6, 10**6, 10**6, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, "0000")
@@ -134,7 +134,7 @@ def test_refused_write_raises_write_rejected():
 
 
 def test_malformed_and_unknown_commands_get_error_replies():
-    with open_device("sim://") as dev:
+    with open_device("sim://?pace=0") as dev:
         dev.open()
         with pytest.raises(DeviceError, match="UNKNOWN"):
             dev.command("Q")

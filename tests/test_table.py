@@ -111,13 +111,13 @@ def test_fit_warns_when_the_file_is_not_in_microtesla_and_reads_it_when_told(tmp
     p.write_text("mag_x,mag_y,mag_z\n" + "\n".join(",".join(f"{v:.7f}" for v in r) for r in m_gauss) + "\n")
     assert main(["fit", str(p), "--model", "sphere", "--json"]) == 0
     out, err = capsys.readouterr()
-    d = json.loads(out)
+    (d,) = json.loads(out)["fits"]
     assert d["calibration"]["field_ut"] == pytest.approx(0.48, rel=0.01)
     assert len(d["warnings"]) == 1 and "--unit gauss" in d["warnings"][0]
     assert d["input"] == "field from mag_x,mag_y,mag_z in µT (assumed: no unit given); no time column: sample index; no channels"
     assert "--unit gauss" in err
     assert main(["fit", str(p), "--model", "sphere", "--json", "--unit", "gauss"]) == 0
-    d = json.loads(capsys.readouterr().out)
+    (d,) = json.loads(capsys.readouterr().out)["fits"]
     assert d["calibration"]["field_ut"] == pytest.approx(48.0, rel=0.01)
     assert d["calibration"]["offset_ut"] == pytest.approx([12.0, -30.0, 7.0], abs=0.1)
     assert d["warnings"] == []
@@ -144,9 +144,9 @@ def test_diagnose_and_export_take_the_same_table_options(tmp_path, capsys):
 
 def test_table_options_on_a_capture_are_refused(tmp_path, capsys):
     cap = tmp_path / "run.cap"
-    assert main(["record", "--port", "sim://?seed=1", "-o", str(cap), "--count", "20"]) == 0
+    assert main(["record", "--port", "sim://?pace=0&seed=1", "-o", str(cap), "--count", "20"]) == 0
     capsys.readouterr()
-    assert main(["fit", str(cap), "--unit", "gauss"]) == 2
+    assert main(["fit", str(cap), "--unit", "gauss"]) == 6
     assert "not a table" in capsys.readouterr().err
 
 

@@ -21,16 +21,17 @@ def run_cli(capsys, *argv):
 
 def test_a_fit_from_a_recording_is_written_and_read_back(tmp_path, capsys):
     rec = tmp_path / "rec.cap"
-    assert run_cli(capsys, "record", "--port", "sim://?seed=4", "-o", str(rec), "--count", "1500")[0] == 0
+    assert run_cli(capsys, "record", "--port", "sim://?pace=0&seed=4", "-o", str(rec), "--count", "1500")[0] == 0
     code, out, _ = run_cli(capsys, "fit", str(rec), "--json")
     assert code == 0
     fit_json = tmp_path / "fit.json"
     fit_json.write_text(out)
-    port = f"sim://?seed=4&eeprom={tmp_path}/e.bin"
+    port = f"sim://?pace=0&seed=4&eeprom={tmp_path}/e.bin"
     code, out, _ = run_cli(capsys, "write", str(fit_json), "--port", port, "--json")
     r = json.loads(out)
     assert code == 0 and r["written"] and r["verified"] and r["failure"] is None
-    assert r["sent"]["offset_ut"] == pytest.approx(json.loads(fit_json.read_text())["calibration"]["offset_ut"], abs=1e-3)
+    (fitted,) = json.loads(fit_json.read_text())["fits"]
+    assert r["sent"]["offset_ut"] == pytest.approx(fitted["calibration"]["offset_ut"], abs=1e-3)
     code, out, _ = run_cli(capsys, "show", "--port", port, "--json")
     assert code == 0 and json.loads(out)["calibration"] == r["stored"]
 
@@ -45,10 +46,10 @@ def test_a_diagnosed_temperature_term_is_written_and_a_time_drift_is_named_and_l
     d["calibration"].setdefault("coef_ut_per_unit", {})["t_s"] = [0.001, 0.0, 0.0]  # as if a drift was found too
     src = tmp_path / "diag.json"
     src.write_text(json.dumps(d))
-    code, out, _ = run_cli(capsys, "write", str(src), "--port", f"sim://?eeprom={tmp_path}/e.bin")
+    code, out, _ = run_cli(capsys, "write", str(src), "--port", f"sim://?pace=0&eeprom={tmp_path}/e.bin")
     assert code == 0 and "VERIFIED" in out
     assert "left out the t_s term (a drift in time belongs to the recording" in out
-    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?eeprom={tmp_path}/e.bin", "--json")
+    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?pace=0&eeprom={tmp_path}/e.bin", "--json")
     stored = json.loads(out)["calibration"]
     assert set(stored["coef_ut_per_unit"]) == {"temp_c"}
     assert stored["coef_ut_per_unit"]["temp_c"] == pytest.approx(d["calibration"]["coef_ut_per_unit"]["temp_c"], abs=1e-3)
@@ -58,13 +59,13 @@ def test_a_write_the_device_garbles_is_not_reported_and_the_old_one_is_put_back(
     eeprom = f"{tmp_path}/e.bin"
     good = tmp_path / "good.json"
     good.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0}))
-    assert run_cli(capsys, "write", str(good), "--port", f"sim://?eeprom={eeprom}")[0] == 0
+    assert run_cli(capsys, "write", str(good), "--port", f"sim://?pace=0&eeprom={eeprom}")[0] == 0
     new = tmp_path / "new.json"
     new.write_text(json.dumps({"offset_ut": [10, 20, 30], "field_ut": 50.0}))
-    code, out, _ = run_cli(capsys, "write", str(new), "--port", f"sim://?eeprom={eeprom}&fault=corrupt_write", "--json")
+    code, out, _ = run_cli(capsys, "write", str(new), "--port", f"sim://?pace=0&eeprom={eeprom}&fault=corrupt_write", "--json")
     r = json.loads(out)
     assert code == 4 and not r["written"] and not r["verified"] and r["restored_previous"] is True
-    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?eeprom={eeprom}", "--json")
+    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?pace=0&eeprom={eeprom}", "--json")
     assert json.loads(out)["calibration"]["offset_ut"] == [1.0, 2.0, 3.0]
 
 
@@ -103,22 +104,22 @@ def test_bad_input_names_the_problem_and_stores_nothing(tmp_path, capsys, text, 
     src = tmp_path / "cal.json"
     src.write_text(text)
     eeprom = tmp_path / "e.bin"
-    code, _, err = run_cli(capsys, "write", str(src), "--port", f"sim://?eeprom={eeprom}")
-    assert code == 2 and message in err
+    code, _, err = run_cli(capsys, "write", str(src), "--port", f"sim://?pace=0&eeprom={eeprom}")
+    assert code == 6 and message in err
     if not eeprom.exists():
         return
     # refused by the device's record format before anything was sent: nothing stored
-    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?eeprom={eeprom}", "--json")
+    code, out, _ = run_cli(capsys, "show", "--port", f"sim://?pace=0&eeprom={eeprom}", "--json")
     assert json.loads(out)["calibration"] is None
 
 
 def test_a_recording_cannot_be_written_to(tmp_path, capsys):
     rec = tmp_path / "rec.cap"
-    assert run_cli(capsys, "record", "--port", "sim://?seed=4", "-o", str(rec), "--count", "50")[0] == 0
+    assert run_cli(capsys, "record", "--port", "sim://?pace=0&seed=4", "-o", str(rec), "--count", "50")[0] == 0
     src = tmp_path / "cal.json"
     src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0}))
     code, _, err = run_cli(capsys, "write", str(src), "--port", f"replay://{rec}")
-    assert code == 2 and "read-only" in err
+    assert code == 4 and "read-only" in err
 
 
 def test_the_real_firmware_stores_a_diagnosed_temperature_term(tmp_path, capsys):

@@ -53,7 +53,7 @@ class DaemonSettings:
 
 @dataclass(frozen=True)
 class Settings:
-    port: str = "sim://"
+    port: str = ""  # no default device: --port, MAGCAL_PORT, this key, or the one plugged in
     dialect: str = "native"  # native | motioncal | auto
     baud: int = 115200
     rate_hz: int = 50

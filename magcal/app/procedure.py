@@ -44,40 +44,68 @@ class Outcome:
     stored: Calibration | None = None  # what the device read back
     restored: bool | None = None  # after a failed verification: was the old calibration put back?
     link: dict = field(default_factory=dict)
+    collect_s: float = 0.0  # time spent collecting samples (on the caller's clock)
 
     @property
     def ok(self) -> bool:
         return self.session.status is Status.DONE
 
     def to_dict(self) -> dict:
+        """One flat shape, with the keys ``fit --json`` uses for the same quantities."""
         s = self.session
-        r = s.result
-        quality = {
-            "samples": int(s.counters["samples_in"]),
-            "kept": len(s.kept),
-            "coverage": round(s.kept.coverage(), 4),
-            "gates": [g.to_dict() for g in (s.final_gates if r else s.live_gates())],
-            "session": dict(s.counters),
-            "link": self.link,
-        }
+        n_in = int(s.counters["samples_in"])
         out = {
             "status": s.status.value,
             "failure": s.failure,
             "message": s.failure_message,
+            "model": None,
             "calibration": None,
-            "quality": quality,
+            "uncertainty": None,
+            "rms_ut": None,
+            "n_samples": n_in,
+            "n_kept": len(s.kept),
+            "n_used": None,
+            "outliers": [],
+            "coverage": round(s.kept.coverage(), 4),
+            "rate_hz": self.identity.rate_hz if self.identity and self.identity.rate_hz else None,
+            "measured_rate_hz": round(n_in / self.collect_s, 2) if self.collect_s > 0 else None,
+            "gates": [g.to_dict() for g in (s.final_gates if s.result else s.live_gates())],
             "written": self.written,
             "verified": self.verified,
             "restored_previous": self.restored,
             "device": self.identity.to_dict() if self.identity else None,
+            "counters": dict(s.counters),
+            "link": self.link,
         }
-        if r:
-            d = r.to_dict()
-            out["calibration"] = d["calibration"]
-            out["model"] = d.get("model")
-            out["uncertainty"] = d.get("uncertainty")
-            quality.update({k: d[k] for k in ("rms_ut", "n_used", "outliers", "reason") if k in d})
+        if s.result:
+            d = s.result.to_dict()
+            out.update({k: d[k] for k in ("model", "calibration", "uncertainty", "rms_ut", "n_used", "outliers",
+                                          "reason") if k in d})
         return out
+
+
+def _collect(device: Device, session: Session, settings: Settings, clock, on_progress) -> Ended | None:
+    """Read until every gate passes (None), or the source ends or the time is up (why, unless
+    every gate passes on what was collected by then)."""
+    deadline = clock() + settings.timeout_s
+    last_progress = 0.0
+    for items in batches(device, 0.1):
+        session.add_many(items)
+        now = clock()
+        if on_progress and now - last_progress >= PROGRESS_EVERY_S:
+            last_progress = now
+            on_progress(session)
+        if session.ready():
+            return None
+        if now >= deadline:
+            return _unless_ready(session, Ended.TIMEOUT)
+    return _unless_ready(session, Ended.END_OF_DATA)
+
+
+def _unless_ready(session: Session, ended: Ended) -> Ended | None:
+    """The gates are judged at fixed sample counts; the last samples may have passed them all."""
+    session.update_estimate()
+    return None if session.counters["samples_in"] and not session.failing_gates() else ended
 
 
 def calibrate(
@@ -94,28 +122,15 @@ def calibrate(
     nothing is reported as written unless the device acknowledged it, and nothing as verified
     unless the read-back matches."""
     session = session or Session(settings.gates, settings.model)
-    out = Outcome(session=session, identity=device.identity)
-    deadline = clock() + settings.timeout_s
-    last_progress = 0.0
     device.start(settings.rate_hz)
-    ended: Ended | None = None
-    for items in batches(device, 0.1):
-        session.add_many(items)
-        now = clock()
-        if on_progress and now - last_progress >= PROGRESS_EVERY_S:
-            last_progress = now
-            on_progress(session)
-        if session.ready():
-            break
-        if now >= deadline:
-            ended = Ended.TIMEOUT
-            break
-    else:
-        ended = Ended.END_OF_DATA
+    out = Outcome(session=session, identity=device.identity)  # after start: with the rate it took
+    t0 = clock()
+    ended = _collect(device, session, settings, clock, on_progress)
+    out.collect_s = clock() - t0
     if ended is None:
         try:
             device.stop()
-        except DeviceError:
+        except (DeviceError, OSError):
             pass  # the samples are in; a missed stop acknowledgement does not spoil them
     out.link = device.stats()
     if ended is not None:
@@ -135,9 +150,8 @@ def calibrate(
 
 
 def _give_up(session: Session, ended: Ended, timeout_s: float) -> None:
-    session.update_estimate()
     failing = session.failing_gates()
-    names = ", ".join(g.name for g in failing) or "none"
+    names = ", ".join(g.name for g in failing)
     detail = "; ".join(g.message for g in failing)
     why = f"timed out after {timeout_s:g} s" if ended is Ended.TIMEOUT else "the recording ended"
     session.fail(ended, f"{why} before every gate passed — failing: {names} ({detail})")

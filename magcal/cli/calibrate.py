@@ -1,58 +1,72 @@
 """``magcal calibrate``: connect, identify, stream, collect, fit, write back, read back, compare.
 
-Exit codes: 0 after a verified write (or, with ``--no-write``, after a fit that passed every
-gate); 3 when a gate was not met in time (the message names it); 4 when the write was refused,
-unacknowledged or read back different; 2 for a device, port or input error.
+On a terminal it shows, live, the map of field directions seen and missing and which side of
+the board to aim along the field next (``magcal.cli.coverage_map``), with the sample rate and
+the time left. Exit status (``magcal.cli.exits``): 0 after a verified write (or, with
+``--no-write``, after a fit that passed every gate); 3 when a gate was not met in time (the
+message names it); 4 when the calibration was not written or not verified (refused, read back
+different, or a read-only source such as ``replay://`` without ``--no-write``); 5 for the
+device or port; 2 for usage (no device named, a bad option).
+
+``--json`` prints ``magcal.calibrate/1``: ``status``, ``failure``, ``message``, ``model``,
+``calibration`` {offset_ut, field_ut, soft_iron}, ``uncertainty``, ``rms_ut``, ``n_samples``
+(received), ``n_kept`` (kept for the fit: at most 8 per direction cell, so no pose outweighs
+another), ``n_used`` (fitted, after outliers), ``outliers``, ``coverage`` (share of the 128
+direction cells), ``rate_hz`` (the rate the device took), ``measured_rate_hz``, ``gates``,
+``written``, ``verified``, ``restored_previous``, ``device``, ``port``, ``counters``, ``link``.
 """
 
 from __future__ import annotations
 
-import time
-
-from ..app.procedure import calibrate
-from ..logic.session import Session
-from .common import (
-    Progress,
-    add_config_option,
-    add_json_option,
-    add_port_options,
-    load_settings,
-    open_from_settings,
-    print_json,
-)
+from .exits import Exit
+from .options import add
 
 HELP = "calibrate a device end to end and write the result back (verified by read-back)"
 
-EXIT_OK, EXIT_GATE, EXIT_WRITE = 0, 3, 4
-
 
 def add_arguments(p) -> None:
-    add_port_options(p)
-    add_config_option(p)
-    add_json_option(p)
+    add(p, "port", "baud", "dialect", "config", "rate", "timeout", "model", "json", "quiet")
     p.add_argument("--no-write", action="store_true", help="fit and report, but do not write to the device")
-    p.add_argument("--timeout", type=float, metavar="S", help="give up after S seconds (default 120)")
-    p.add_argument("--rate", type=int, metavar="HZ", help="measurement rate, 1…100 Hz (default 50)")
-    p.add_argument("--model", choices=("sphere", "ellipsoid", "auto"), help="fit model (default auto)")
-    p.add_argument("--record", metavar="FILE", help="also keep the raw bytes as a capture")
+    p.add_argument("--record", metavar="FILE", help="also keep the raw bytes as a capture (replay://FILE)")
 
 
-def _describe(session: Session) -> str:
+def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
+    """The live display: a status line, the direction map and the next move (pure)."""
+    from .common import duration
+    from .coverage_map import hint, render
+
     p = session.progress()
+    kept = session.kept
     est = ""
     if p["offset_ut"]:
         o = p["offset_ut"]
-        est = f"  offset [{o[0]:7.2f} {o[1]:7.2f} {o[2]:7.2f}] µT  |B| {p['field_ut']:5.1f} µT"
+        est = f"  offset [{o[0]:.1f} {o[1]:.1f} {o[2]:.1f}] µT  |B| {p['field_ut']:.1f} µT"
+    rate = p["samples"] / elapsed if elapsed > 0.5 else 0.0
+    need = session.gates_cfg.min_coverage
+    head = (f"{p['status']}: {p['samples']} samples ({rate:.0f}/s), {100 * p['coverage']:.0f}% of directions "
+            f"(need {100 * need:.0f}%), {len(kept)} kept{est}  — gives up in {duration(max(0, timeout_s - elapsed))}")
     failing = [g.name for g in session.failing_gates()] if p["status"] == "collecting" else []
-    waiting = f"  waiting on: {', '.join(failing)}" if failing else ""
-    return f"{p['status']:<10} {p['samples']:6d} samples  {100 * p['coverage']:3.0f}% covered{est}{waiting}"
+    lines = [head]
+    if p["status"] == "collecting":
+        direction = None
+        if session.last_field_ut is not None:
+            direction = session.last_field_ut - kept.centre_ut
+        counts = kept.cell_counts()
+        lines.append(render(counts, kept.per_cell, kept.bands, kept.sectors, direction, colour))
+        lines.append(f"  ██ full  ▒▒ some  ·· none  ◆ the field now   waiting on: {', '.join(failing) or '—'}")
+        lines.append("  " + hint(counts, kept.bands, kept.sectors, direction))
+    return "\n".join(lines)
 
 
 def run(args) -> int:
-    settings = load_settings(args, timeout_s=args.timeout, rate_hz=args.rate, model=args.model)
-    progress = Progress(quiet=False)
-    options = {}
-    writer = None
+    import time
+
+    from ..app.procedure import calibrate
+    from .common import Progress, device_settings, document, open_from_settings, print_json
+
+    settings = device_settings(args, timeout_s=args.timeout, rate_hz=args.rate, model=args.model)
+    progress = Progress(quiet=args.quiet)
+    options, writer = {}, None
     if args.record:
         from ..recordings.capture import open_capture_tap
 
@@ -61,55 +75,69 @@ def run(args) -> int:
     device = open_from_settings(settings, **options)
     try:
         ident = device.open()
-        progress.done(
-            f"connected: {settings.port} ({ident.transport}, firmware {ident.firmware or '?'}, "
-            f"ASA {'/'.join(str(a) for a in ident.asa)})"
-        )
+        progress.done(f"connected: {settings.port} ({ident.transport}, firmware {ident.firmware or '?'}, "
+                      f"ASA {'/'.join(str(a) for a in ident.asa)})")
+        progress.t0 = time.monotonic()
         outcome = calibrate(
-            device,
-            settings,
-            write=settings.write and not args.no_write,
-            clock=time.monotonic,
-            on_progress=lambda s: progress.show(_describe(s), time.monotonic()),
+            device, settings, write=settings.write and not args.no_write, clock=time.monotonic,
+            on_progress=lambda s: progress.show(_live(s, settings.timeout_s, progress.elapsed(), progress.active)),
         )
     finally:
         device.close()
         if writer is not None:
             writer.close()
-    s = outcome.session
-    progress.done()
-    report = outcome.to_dict()
+    progress.clear()
+    report = document("calibrate", {**outcome.to_dict(), "port": settings.port})
+    code = exit_status(outcome, args.no_write)
     if args.json:
         print_json(report)
     else:
-        _print_text(report)
-    if s.status.value == "done":
-        if outcome.verified or args.no_write or not device.abilities.store:
-            return EXIT_OK
-    if s.failure in ("timeout", "end_of_data") or (s.failure or "").startswith("gate:"):
-        if not args.json:
-            print(f"not calibrated: {s.failure_message}")
-        return EXIT_GATE
-    if not args.json:
-        print(f"not calibrated: {s.failure_message}")
-    return EXIT_WRITE if s.failure else EXIT_GATE
+        print(format_text(report))
+        if code == Exit.WRITE and not device.abilities.store and not report["failure"]:
+            print(f"not written: {settings.port} is a read-only source (add --no-write when that is intended)")
+        elif code != Exit.OK:
+            print(f"not calibrated: {report['message']}")
+    return code
 
 
-def _print_text(r: dict) -> None:
+def exit_status(outcome, no_write: bool) -> Exit:
+    """0 only for a verified write (or a passed fit with --no-write); 3 when the data did not
+    pass; 4 when the calibration did not reach the device as sent."""
+    from ..app.procedure import WriteFailure
+    from ..logic.session import Status
+
+    s = outcome.session
+    if s.status is Status.DONE:
+        return Exit.OK if (outcome.verified or no_write) else Exit.WRITE
+    return Exit.WRITE if s.failure in tuple(WriteFailure) else Exit.GATE
+
+
+def format_text(r: dict) -> str:
+    """The human-readable result (pure)."""
     cal = r["calibration"]
+    lines = []
     if cal:
         o = cal["offset_ut"]
         unc = (r.get("uncertainty") or {}).get("offset_ut") or [float("nan")] * 3
-        print(f"model      {r.get('model')}")
-        print(f"offset     [{o[0]:.3f}, {o[1]:.3f}, {o[2]:.3f}] µT  ± [{unc[0]:.3f}, {unc[1]:.3f}, {unc[2]:.3f}] (1σ)")
-        print(f"field      {cal['field_ut']:.3f} µT")
-        w = cal["soft_iron"]
-        for i, row in enumerate(w):
-            print(("soft iron  " if i == 0 else "           ") + "  ".join(f"{v: .5f}" for v in row))
-        q = r["quality"]
-        print(f"quality    rms {q.get('rms_ut', float('nan')):.3f} µT, {q['kept']} samples kept of {q['samples']}, "
-              f"coverage {100 * q['coverage']:.0f}%")
+        lines.append(f"model      {r.get('model')}")
+        lines.append(f"offset     [{o[0]:.3f}, {o[1]:.3f}, {o[2]:.3f}] µT  ± [{unc[0]:.3f}, {unc[1]:.3f}, "
+                     f"{unc[2]:.3f}] (1σ)")
+        lines.append(f"field      {cal['field_ut']:.3f} µT")
+        for i, row in enumerate(cal["soft_iron"]):
+            lines.append(("soft iron  " if i == 0 else "           ") + "  ".join(f"{v: .5f}" for v in row))
+        n_out = len(r.get("outliers") or [])
+        lines.append(f"rms_ut     {r['rms_ut']:.3f}")
+        lines.append(f"samples    {r['n_samples']} received at {_rate(r)}; {r['n_kept']} kept (at most 8 per "
+                     f"direction cell, so no pose outweighs another), {r['n_used']} fitted after {n_out} "
+                     f"outlier(s); {100 * r['coverage']:.0f}% of directions covered")
     if r["written"]:
-        print("written    yes, and " + ("VERIFIED by read-back" if r["verified"] else "NOT verified"))
+        lines.append("written    yes, and " + ("VERIFIED by read-back" if r["verified"] else "NOT verified"))
     elif cal and r["status"] == "done":
-        print("written    no (--no-write or a read-only source)")
+        lines.append("written    no")
+    return "\n".join(lines)
+
+
+def _rate(r: dict) -> str:
+    asked = f"{r['rate_hz']} Hz" if r.get("rate_hz") else "the device's rate"
+    got = r.get("measured_rate_hz")
+    return asked + (f" ({got:.1f} per second arrived)" if got else "")

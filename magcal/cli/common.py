@@ -5,23 +5,25 @@ from __future__ import annotations
 import json
 import sys
 
-from ..app import config
+from .options import DEVICE_OPTIONS, add, add_table_options, table_format  # noqa: F401 - re-exported
 
 
-def add_port_options(p, default_port: bool = True) -> None:
-    p.add_argument("--port", help="device: serial port or URL (/dev/ttyACM0, COM3, socket://…), "
-                   "sim://, emu://, replay://FILE, i2c:1 (default from config: sim://)")
-    p.add_argument("--baud", type=int, help="serial baud rate (default 115200)")
-    p.add_argument("--dialect", choices=("native", "motioncal", "auto"),
-                   help="wire convention: magcal protocol v1, the MotionCal/Adafruit Raw: lines, or detect")
+def add_port_options(p) -> None:
+    """--port, --baud, --dialect (``magcal.cli.options``)."""
+    add(p, "port", "baud", "dialect")
 
 
 def add_config_option(p) -> None:
-    p.add_argument("--config", metavar="FILE", help="YAML settings (see config/magcal.yaml)")
+    add(p, "config")
 
 
 def add_json_option(p) -> None:
-    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    add(p, "json")
+
+
+def add_device_options(p) -> None:
+    """What every command that talks to a device takes: --port, --baud, --dialect, --config."""
+    add(p, *DEVICE_OPTIONS)
 
 
 def load_settings(args, **extra):
@@ -31,50 +33,25 @@ def load_settings(args, **extra):
         "dialect": getattr(args, "dialect", None),
     }
     overrides.update(extra)
+    from ..app import config
+
     return config.load(getattr(args, "config", None), overrides)
 
 
+def device_settings(args, **extra):
+    """The settings of a device command, with a port (named, the one plugged in, or asked)."""
+    from .ports import with_port
+
+    return with_port(load_settings(args, **extra))
+
+
 def open_from_settings(settings, **options):
-    from ..devices import open_device
+    from ..devices import open_device, scheme_of
 
     kw = dict(options)
-    if settings.baud != 115200:
+    if settings.baud != 115200 and scheme_of(settings.port) == "serial":
         kw["baud"] = settings.baud
     return open_device(settings.port, dialect=settings.dialect, **kw)
-
-
-def add_table_options(p) -> None:
-    """How to read a recording that is someone else's table (CSV, tab- or space-separated)."""
-    g = p.add_argument_group("reading a table", "for CSV or other delimited text that is not magcal's own")
-    g.add_argument("--columns", metavar="X,Y,Z",
-                   help="the magnetometer columns: header names or 1-based positions (default: mx,my,mz, "
-                   "else mag_x… or magX… style names)")
-    g.add_argument("--unit", metavar="UNIT",
-                   help="unit of those columns: uT, nT, mG, gauss, tesla, or the µT of one count "
-                   "(default: from the column names, else µT)")
-    g.add_argument("--time", metavar="COLUMN", help="the time column, name or 1-based position (default: t, time …)")
-    g.add_argument("--time-unit", choices=("s", "ms", "us"),
-                   help="unit of the time column (default: from its name, else s)")
-    g.add_argument("--channels", metavar="A,B,…",
-                   help="keep only these columns as channels (candidate covariates); '' for none "
-                   "(default: every other numeric column but a second magnetometer's)")
-    g.add_argument("--temp", metavar="COLUMN", help="the die temperature column in °C (read as temp_c)")
-    g.add_argument("--current", metavar="COLUMN", help="the interfering current column in A (read as current_a)")
-    g.add_argument("--delimiter", metavar="C",
-                   help="column separator (default: found from the first line; 'tab' or 'space' for those)")
-
-
-def table_format(args):
-    """The TableFormat the table options ask for (all None when none were given)."""
-    from ..recordings.table import TableFormat
-
-    columns = None
-    if args.columns is not None:
-        columns = tuple(c.strip() for c in args.columns.split(","))
-    delimiter = {"tab": "\t", "space": " "}.get(args.delimiter, args.delimiter)
-    channels = None if args.channels is None else tuple(c.strip() for c in args.channels.split(",") if c.strip())
-    return TableFormat(columns=columns, unit=args.unit, time=args.time, time_unit=args.time_unit,
-                       delimiter=delimiter, channels=channels, temp=args.temp, current=args.current)
 
 
 def field_warning(field_ut: float) -> list[str]:
@@ -86,6 +63,32 @@ def field_warning(field_ut: float) -> list[str]:
         return []
     print(f"magcal: warning: {w}", file=sys.stderr)
     return [w]
+
+
+def calibration_lines(c: dict, u: dict | None = None) -> list[str]:
+    """The offset_ut, field_ut and soft_iron rows of a calibration dict, each with ± 1σ when the
+    uncertainty dict ``u`` is given (pure)."""
+
+    def pm(key: str, fmt: str, row: int | None = None) -> str:
+        v = (u or {}).get(key)
+        if v is None:
+            return ""
+        v = v if row is None else v[row]
+        return "   ± " + (" ".join(format(x, fmt) for x in v) if isinstance(v, (list, tuple)) else format(v, fmt))
+
+    widened = (u or {}).get("autocorrelation_factor", 1.0) or 1.0
+    lines = ["offset_ut   " + " ".join(f"{v:9.3f}" for v in c["offset_ut"]) + pm("offset_ut", ".3f")
+             + (f"   (widened ×{widened:.1f}: the residuals are correlated in time)" if widened >= 1.5 else ""),
+             f"field_ut    {c['field_ut']:9.3f}" + pm("field_ut", ".3f")]
+    for i, row in enumerate(c.get("soft_iron") or []):
+        lines.append(("soft_iron   " if i == 0 else "            ") + " ".join(f"{v:9.5f}" for v in row)
+                     + pm("soft_iron", ".5f", i))
+    return lines
+
+
+def document(command: str, body: dict, version: int = 1) -> dict:
+    """The JSON object a command prints: ``schema`` names its shape and version first."""
+    return {"schema": f"magcal.{command}/{version}", **body}
 
 
 def print_json(obj) -> None:
@@ -104,33 +107,73 @@ def _default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+def duration(s: float) -> str:
+    """``42 s``, ``3:07``, ``1:02:03`` (pure)."""
+    s = max(0, int(round(s)))
+    if s < 60:
+        return f"{s} s"
+    h, rem = divmod(s, 3600)
+    return f"{h}:{rem // 60:02d}:{rem % 60:02d}" if h else f"{rem // 60}:{rem % 60:02d}"
+
+
+def rate_eta(done: float, total: float | None, elapsed: float, unit: str) -> str:
+    """``12 345/50 000 samples  4 210/s  ETA 9 s`` — what is done, how fast, how long to go (pure)."""
+    rate = done / elapsed if elapsed > 0 else 0.0
+    text = f"{done:,.0f}" + (f"/{total:,.0f}" if total else "") + f" {unit}"
+    if elapsed >= 0.5:
+        text += f"  {rate:,.0f}/s"
+    if total and rate > 0 and done < total:
+        text += f"  ETA {duration((total - done) / rate)}"
+    return text.replace(",", " ")
+
+
 class Progress:
-    """A one-line live display on a terminal; occasional lines when not a terminal."""
+    """A live display on stderr, redrawn in place (one or several lines). Silent when stderr is
+    not a terminal or with ``quiet``: a log or a pipe gets only the results."""
 
-    def __init__(self, stream=None, quiet: bool = False):
+    def __init__(self, quiet: bool = False, stream=None, clock=None, every_s: float = 0.1):
+        import time
+
         self.stream = stream or sys.stderr
-        self.tty = self.stream.isatty()
-        self.quiet = quiet
-        self._last_line = 0.0
-        self._open = False
+        self.clock = clock or time.monotonic
+        self.active = not quiet and self.stream.isatty()
+        self.every_s = every_s
+        self.t0 = self.clock()
+        self._drawn = 0  # lines on screen
+        self._last = -1e9
 
-    def show(self, text: str, now: float) -> None:
-        if self.quiet:
+    def elapsed(self) -> float:
+        return self.clock() - self.t0
+
+    def show(self, text: str, force: bool = False) -> None:
+        if not self.active:
             return
-        if self.tty:
-            self.stream.write("\r\033[K" + text)
-            self._open = True
-        elif now - self._last_line >= 2.0:
-            self._last_line = now
-            self.stream.write(text + "\n")
+        now = self.clock()
+        if not force and now - self._last < self.every_s:
+            return
+        self._last = now
+        up = f"\033[{self._drawn - 1}A" if self._drawn > 1 else ""
+        self.stream.write("\r" + up + "\033[J" + text)
+        self._drawn = text.count("\n") + 1
         self.stream.flush()
 
+    def count(self, label: str, done: float, total: float | None = None, unit: str = "samples") -> None:
+        """One line: ``label  done/total unit  rate/s  ETA``."""
+        self.show(f"{label}  {rate_eta(done, total, self.elapsed(), unit)}")
+
     def done(self, text: str = "") -> None:
-        if self.quiet:
-            return
-        if self._open:
+        """Leave the last display on screen and go on below it (``text`` printed if given)."""
+        if self._drawn:
             self.stream.write("\n")
-            self._open = False
+            self._drawn = 0
         if text:
             self.stream.write(text + "\n")
         self.stream.flush()
+
+    def clear(self) -> None:
+        """Remove the display."""
+        if self._drawn and self.active:
+            up = f"\033[{self._drawn - 1}A" if self._drawn > 1 else ""
+            self.stream.write("\r" + up + "\033[J")
+            self.stream.flush()
+        self._drawn = 0

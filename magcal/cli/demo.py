@@ -34,7 +34,7 @@ def main(argv=None) -> int:
         print("demo: AVR toolchain found — calibrating the real firmware running under simavr "
               "(emulated MPU-9150 fed by the physics simulator), through the serial backend")
     else:
-        port = f"sim://?seed=1&eeprom={eeprom}"
+        port = f"sim://?seed=1&pace=5&eeprom={eeprom}"
         print("demo: no AVR toolchain — calibrating the pure-Python simulated board (sim://); "
               "install gcc-avr, avr-libc, arduino-core-avr, simavr and libsimavr-dev for the firmware route")
     truth = __import__("magcal.sim.physics", fromlist=["demo_scenario"]).demo_scenario(1).physics

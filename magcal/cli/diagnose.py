@@ -6,25 +6,26 @@ FILE is a capture, a MotionCal log or a table: magcal's CSV (``t`` s, ``mx,my,mz
 delimited file read with the table options (``--columns``, ``--unit``, ``--time``, ``--channels``,
 ``--temp``, ``--current``; ``magcal.recordings.table``). Besides the diagnosis, the JSON carries
 ``warnings`` (e.g. a fitted field no Earth field could be) and, for a table, ``input`` (how it
-was read). Exit code 0 when the recording was diagnosed (whatever was found), 2 when it could
-not be read or analysed.
+was read). ``--json`` prints ``magcal.diagnose/1``. Exit status: 0 when the recording was
+diagnosed (whatever was found), 6 when it could not be read or analysed.
 """
 
 from __future__ import annotations
 
 import sys
 
-from ..core.errors import InputError
-from .common import add_table_options, field_warning, table_format
+from .common import calibration_lines, field_warning
+from .options import add, add_table_options, directory, fraction, table_format
 
 HELP = "find what a sphere calibration leaves out of a recording, model it, show held-out gain"
 
 
 def add_arguments(p) -> None:
     p.add_argument("file", metavar="FILE", help="a capture or a CSV (t, mx, my, mz, optional channels)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--report", metavar="DIR", help="write the evidence as PNG pictures and an HTML page into DIR")
-    p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm level (default 0.01)")
+    add(p, "json", "quiet")
+    p.add_argument("--report", metavar="DIR", type=directory,
+                   help="write the evidence as an HTML page (index.html) with its pictures into DIR")
+    p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level")
     add_table_options(p)
 
 
@@ -48,8 +49,9 @@ def format_text(d: dict) -> str:
     for k in d.get("limits", []):
         lines.append(f"limit       {k['effect']}: {k['summary']}")
     lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT")
-    c = d["calibration"]
-    lines.append("offset_ut   " + " ".join(f"{v:9.3f}" for v in c["offset_ut"]) + f"   field {c['field_ut']:.3f} µT")
+    lines += calibration_lines(d["calibration"])
+    for name, coef in (d["calibration"].get("coef_ut_per_unit") or {}).items():
+        lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + "   µT per unit")
     return "\n".join(lines)
 
 
@@ -70,8 +72,6 @@ def run(args) -> int:
     from ..app.load import load_series
     from ..diagnose import diagnose
 
-    if not 0 < args.alpha < 1:
-        raise InputError(f"--alpha must be between 0 and 1, got {args.alpha}")
     series = load_series(args.file, table_format(args))
     diagnosis = diagnose(series, alpha=args.alpha)
     d = diagnosis.to_dict()
@@ -83,9 +83,9 @@ def run(args) -> int:
 
         write_report(diagnosis, args.report, title=str(args.file))
     if args.json:
-        from .common import print_json
+        from .common import document, print_json
 
-        print_json(d)
+        print_json(document("diagnose", d))
     else:
         print(format_text(d))
         hint = many_channels_hint(len(series.channels), d)

@@ -1,70 +1,67 @@
-"""``magcal fit FILE --model sphere|ellipsoid|auto [--json]``: fit a calibration to a recording.
+"""``magcal fit FILE… --model sphere|ellipsoid|auto [--json]``: fit a calibration to recordings.
 
+FILE is a capture, a MotionCal log, or a table: magcal's CSV (``mx,my,mz`` µT, ``t`` s) or
+another delimited file read with ``--columns/--unit/--time`` (``magcal.recordings.table``).
 Several FILEs are fitted each and compared in turn (``magcal.fit.compare``: did the hard iron
-move between sessions?); the JSON is then ``{"fits": [...each with "file"...], "comparisons":
-[...]}``. FILE is a capture, a MotionCal log, or a table: magcal's CSV (``mx,my,mz`` µT, ``t`` s) or
-another delimited file read with ``--columns/--unit/--time`` (``magcal.recordings.table``). The JSON object::
+move between sessions?). The JSON (``magcal.fit/1``) has the same shape for one file or many::
 
-    {"model": ..., "calibration": {"offset_ut": [3], "field_ut": r, "soft_iron": [[3×3]]},
-     "uncertainty": {"offset_ut": [3], "field_ut": σ, "soft_iron": [[3×3]], "autocorrelation_factor": f},
-     "rms_ut": ..., "n_used": ..., "outliers": [indices into FILE's samples],
-     "warnings": [sentences, e.g. a field no Earth field could be: a file in another unit], ...}
+    {"schema": "magcal.fit/1",
+     "fits": [{"file": ..., "model": ..., "calibration": {"offset_ut": [3], "field_ut": r, "soft_iron": [[3×3]]},
+               "uncertainty": {"offset_ut": [3], "field_ut": σ, "soft_iron": [[3×3]], "autocorrelation_factor": f},
+               "rms_ut": ..., "n_samples": ..., "n_used": ..., "outliers": [indices into FILE's samples],
+               "warnings": [sentences, e.g. a field no Earth field could be: a file in another unit], ...}, ...],
+     "comparisons": [{"from": FILE, "to": FILE, "offset_change_ut": [3], "p_value": ..., ...}, ...]}
 
-where a calibrated sample is ``soft_iron @ (m − offset_ut)``. Exit code 0 on a fit, 1 when the
-data cannot support any model (the reason is printed), 2 when FILE cannot be read.
+where a calibrated sample is ``soft_iron @ (m − offset_ut)``; a file that could not be read
+has ``error`` instead. ``magcal write`` takes this JSON and writes the last fit's calibration.
+Exit status: 0 on a fit of every file, 3 when the data cannot support any model (the reason is
+printed), 6 when a FILE cannot be read.
 """
 
 from __future__ import annotations
 
 import sys
 
-from .common import add_table_options, field_warning, table_format
+from .common import field_warning
+from .exits import Exit
+from .options import add, add_table_options, table_format
 
-HELP = "fit a sphere or ellipsoid calibration to a recording (capture or CSV)"
+HELP = "fit a sphere or ellipsoid calibration to recordings (captures, logs, tables)"
 
 
 def add_arguments(p) -> None:
     p.add_argument("file", metavar="FILE", nargs="+",
                    help="a capture, a MotionCal log or a table; several files are fitted each and "
                    "compared in turn (did the hard iron move between sessions?)")
-    p.add_argument("--model", choices=("sphere", "ellipsoid", "auto"), default="auto",
-                   help="sphere (hard iron), ellipsoid (+ soft iron, falls back when coverage is thin),"
-                   " or auto (the best the coverage supports, by BIC); default auto")
+    add(p, "model", default="auto")
     p.add_argument("--no-outliers", action="store_true", help="keep every sample (no Grubbs removal)")
     p.add_argument("--balance", choices=("auto", "directions", "none"), default="auto",
                    help="weight each direction cell equally (auto: for ellipsoids only)")
-    p.add_argument("--noise-ut", type=float, default=None,
-                   help="noise σ per axis in µT for the Cramér–Rao bound (default: from the residuals)")
-    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    add(p, "noise_ut", help="white-noise σ per axis, µT, for the Cramér–Rao bound (default: from the residuals)")
+    add(p, "json", "quiet")
     add_table_options(p)
 
 
 def format_text(d: dict) -> str:
     """Human-readable summary of a fit's ``to_dict()`` (pure)."""
-    c, u = d["calibration"], d["uncertainty"]
+    from .common import calibration_lines
+
     lines = [f"input       {d['input']}"] if d.get("input") else []
-    lines += [
-        f"model       {d['model']}",
-        "offset_ut   " + " ".join(f"{v:9.3f}" for v in c["offset_ut"])
-        + "   ± " + " ".join(f"{v:.3f}" for v in u["offset_ut"])
-        + (f"   (widened ×{u['autocorrelation_factor']:.1f}: the residuals are correlated in time)"
-           if u.get("autocorrelation_factor", 1.0) >= 1.5 else ""),
-        f"field_ut    {c['field_ut']:9.3f}   ± {u['field_ut']:.3f}",
-    ]
-    for i, row in enumerate(c["soft_iron"]):
-        lines.append(("soft_iron   " if i == 0 else "            ") + " ".join(f"{v:9.5f}" for v in row)
-                     + "   ± " + " ".join(f"{v:.5f}" for v in u["soft_iron"][i]))
+    lines.append(f"model       {d['model']}")
+    lines += calibration_lines(d["calibration"], d["uncertainty"])
+    n_out = len(d["outliers"])
     lines += [
         "crlb_ut     " + " ".join(f"{v:9.3f}" for v in d["crlb_offset_ut"]) + "   (Cramér–Rao bound of the offset)",
         f"rms_ut      {d['rms_ut']:9.3f}",
-        f"samples     {d['n_used']} used, {len(d['outliers'])} removed as outliers",
+        f"samples     {d.get('n_samples', d['n_used'] + n_out)} read, {d['n_used']} fitted"
+        + (f" ({n_out} set aside as outliers by Grubbs' test)" if n_out else " (no outliers)"),
         f"why         {d['reason']}",
     ]
     return "\n".join(lines)
 
 
 def _fit_file(path: str, args) -> tuple[dict, int]:
-    """(the fit as a dict, exit code 0/1) for one file; InputError when it cannot be read."""
+    """(the fit as a dict, exit status OK or GATE) for one file; InputError when it cannot be read."""
     from ..app.load import load_series
     from ..core.errors import InputError
     from ..fit import fit
@@ -77,12 +74,13 @@ def _fit_file(path: str, args) -> tuple[dict, int]:
     )
     if not result:
         print(f"magcal fit: {path}: {result.reason}: {result.message}", file=sys.stderr)
-        return result.to_dict(), 1
+        return result.to_dict(), Exit.GATE
     d = result.to_dict()
+    d["n_samples"] = len(series)
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
     if series.source:
         d["input"] = series.source
-    return d, 0
+    return d, Exit.OK
 
 
 def format_comparison(a: str, b: str, c: dict) -> str:
@@ -96,40 +94,39 @@ def format_comparison(a: str, b: str, c: dict) -> str:
             f"{c['chi2']:.1f}, {p}: {verdict}; field {c['field_change_ut']:+.3f} µT (z = {c['field_change_z']:+.1f})")
 
 
-def run(args) -> int:
+def _fit_each(paths, args) -> tuple[list[dict], int]:
+    """Fit each file (one that cannot be read is named and the rest go on): the fits, the worst
+    exit status."""
     from ..core.errors import InputError
-    from ..fit.compare import compare_fits
-    from .common import print_json
 
-    if args.noise_ut is not None and not args.noise_ut > 0:
-        raise InputError(f"--noise-ut must be positive, got {args.noise_ut}")
-    if len(args.file) == 1:
-        d, code = _fit_file(args.file[0], args)
-        if args.json:
-            print_json(d)
-        elif code == 0:
-            print(format_text(d))
-        return code
-    # several sessions: fit each (a file that cannot be read is reported and the rest go on),
-    # then compare each good fit with the previous good one
-    fits, worst = [], 0
-    for path in args.file:
+    fits, worst = [], Exit.OK
+    for path in paths:
         try:
             d, code = _fit_file(path, args)
         except InputError as exc:
+            if len(paths) == 1:
+                raise
             print(f"magcal fit: {exc}", file=sys.stderr)
-            d, code = {"error": str(exc)}, 2
+            d, code = {"error": str(exc)}, Exit.INPUT
         worst = max(worst, code)
         fits.append({"file": path, **d})
-        if not args.json and code == 0:
-            print(f"== {path}\n{format_text(d)}\n")
+    return fits, worst
+
+
+def run(args) -> int:
+    from ..fit.compare import compare_fits
+    from .common import document, print_json
+
+    fits, worst = _fit_each(args.file, args)
     good = [f for f in fits if "calibration" in f and f.get("model")]
     comparisons = [
         {"from": a["file"], "to": b["file"], **compare_fits(a, b)} for a, b in zip(good, good[1:])
     ]
     if args.json:
-        print_json({"fits": fits, "comparisons": comparisons})
-    else:
-        for c in comparisons:
-            print(format_comparison(c["from"], c["to"], c))
+        print_json(document("fit", {"fits": fits, "comparisons": comparisons}))
+        return worst
+    for f in good:
+        print(f"== {f['file']}\n{format_text(f)}\n" if len(fits) > 1 else format_text(f))
+    for c in comparisons:
+        print(format_comparison(c["from"], c["to"], c))
     return worst

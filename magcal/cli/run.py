@@ -1,33 +1,68 @@
 """``magcal run [--port URL] [--config FILE] [--state-dir DIR]``: the daemon (see magcal.app.daemon).
 
 Runs until SIGTERM or Ctrl-C (exit 0, state written); SIGHUP reloads ``--config``. Logs every
-decision to stderr (one line each; under systemd they land in the journal). ``--samples N``
-stops after N collected samples (for tests and the soak benchmark)."""
+decision to stderr, one line each. At a terminal or in a file each line starts with the time;
+under systemd (``$JOURNAL_STREAM`` names stderr) the journal adds the time itself, so the line
+carries the level as a syslog priority prefix instead (``<4>`` for a warning) and no timestamp.
+``--count N`` stops after N collected samples (for tests and the soak benchmark)."""
 
 from __future__ import annotations
 
 import logging
+import os
 import sys
 
-from ..app.daemon import Daemon
-from .common import add_config_option, add_port_options, load_settings
+from .common import device_settings
+from .options import add, add_alias, positive_int
 
 HELP = "keep a device calibrated: stream, reconnect, monitor drift, recalibrate when allowed"
 
+PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3, logging.CRITICAL: 2}
+
 
 def add_arguments(p) -> None:
-    add_port_options(p)
-    add_config_option(p)
-    p.add_argument("--state-dir", metavar="DIR", help="state file, status socket and captures "
-                   "(default from config: ~/.local/state/magcal)")
-    p.add_argument("--rate", type=int, metavar="HZ", help="measurement rate, 1…100 Hz")
+    add(p, "port", "baud", "dialect", "config", "state_dir", "rate")
     p.add_argument("--recalibrate", action="store_true", default=None,
                    help="collect, refit and write back when the calibration no longer fits (daemon.recalibrate)")
-    p.add_argument("--samples", type=int, metavar="N", help="stop after N collected samples")
-    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    add(p, "count", help="stop after N collected samples (default: run until stopped)")
+    add_alias(p, "--samples", dest="count", type=positive_int)
+    p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+                   help="the least important decisions logged")
+
+
+def to_journal(stream=None, environ=None) -> bool:
+    """True when ``stream`` (stderr) is connected to the systemd journal (``$JOURNAL_STREAM``
+    holds its device and inode)."""
+    stream = stream or sys.stderr
+    environ = os.environ if environ is None else environ
+    dev_ino = environ.get("JOURNAL_STREAM", "")
+    try:
+        st = os.fstat(stream.fileno())
+        dev, ino = (int(x) for x in dev_ino.split(":"))
+    except (ValueError, OSError, AttributeError):
+        return False
+    return (st.st_dev, st.st_ino) == (dev, ino)
+
+
+class JournalFormatter(logging.Formatter):
+    """``<priority>name: message`` — the journal keeps the time and reads the level."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"<{PRIORITY.get(record.levelno, 6)}>{record.name}: {record.getMessage()}"
+
+
+def log_handler(stream=None, environ=None) -> logging.Handler:
+    handler = logging.StreamHandler(stream or sys.stderr)
+    if to_journal(stream, environ):
+        handler.setFormatter(JournalFormatter())
+    else:
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    return handler
 
 
 def run(args) -> int:
+    from ..app.daemon import Daemon
+
     overrides = {"rate_hz": args.rate}
     daemon_over = {}
     if args.state_dir:
@@ -36,14 +71,10 @@ def run(args) -> int:
         daemon_over["recalibrate"] = True
     if daemon_over:
         overrides["daemon"] = daemon_over
-    settings = load_settings(args, **overrides)
-    logging.basicConfig(
-        stream=sys.stderr,
-        level=getattr(logging, args.log_level),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    settings = device_settings(args, **overrides)
+    logging.basicConfig(level=getattr(logging, args.log_level), handlers=[log_handler()])
     cli_overrides = {k: v for k, v in {
-        "port": args.port, "baud": args.baud, "dialect": args.dialect, **overrides,
+        "port": settings.port, "baud": args.baud, "dialect": args.dialect, **overrides,
     }.items() if v is not None}
-    daemon = Daemon(settings, config_path=args.config, overrides=cli_overrides, max_samples=args.samples)
+    daemon = Daemon(settings, config_path=args.config, overrides=cli_overrides, max_samples=args.count)
     return daemon.run()

@@ -1,28 +1,28 @@
-"""``magcal show --port URL [--json]``: print the calibration the device (or its host-side
+"""``magcal show [--port URL] [--json]``: print the calibration the device (or its host-side
 store) holds. Works for every backend through the generic Device API: serial boards answer
-from EEPROM, ``i2c:`` devices from the host-side store. Exit code 0 when a calibration is
-stored, 1 when none is, 2 on errors (a torn or edited store file is an error, never applied).
+from EEPROM, ``i2c:`` devices from the host-side store. Exit status: 0 when a calibration is
+stored, 1 when none is, 5 for the device, 6 for a torn or edited store file (an error, never
+applied).
 
 ``--self-test`` also runs the AK8975 self-test on backends that can (``i2c:``, the magcal firmware
-over serial, ``sim://``, ``emu://``) and prints each
-axis against the datasheet window; exit code 3 when it fails."""
+over serial, ``sim://``, ``emu://``) and prints each axis against the datasheet window; then the
+self-test is the question: exit 0 when it passed (whether or not a calibration is stored), 3
+when it failed. ``--json`` prints ``magcal.show/1``."""
 
 from __future__ import annotations
-
-import json
 
 import numpy as np
 
 from ..core.errors import DeviceError
-from ..devices import open_device
+from .common import device_settings, document, open_from_settings, print_json
+from .exits import Exit
+from .options import add
 
 HELP = "print the calibration stored for a device"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--port", required=True, help="device: i2c:1, /dev/ttyACM0, sim://, … (see magcal.devices)")
-    p.add_argument("--dialect", default="native", choices=("native", "motioncal", "auto"))
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add(p, "port", "baud", "dialect", "config", "json")
     p.add_argument("--self-test", action="store_true",
                    help="also run the AK8975 self-test (i2c:, the magcal firmware, sim://, emu://)")
 
@@ -62,28 +62,27 @@ def format_self_test(result) -> str:
 
 
 def run(args) -> int:
-    dev = open_device(args.port, dialect=args.dialect)
+    settings = device_settings(args)
+    dev = open_from_settings(settings)
     result = None
     with dev:
         identity = dev.open()
         if args.self_test:
             if not dev.abilities.self_test:
-                raise DeviceError(f"{args.port}: this backend cannot run the AK8975 self-test "
+                raise DeviceError(f"{settings.port}: this backend cannot run the AK8975 self-test "
                                   "(i2c:, the magcal firmware over serial, sim:// and emu:// can)")
             result = dev.self_test()
         cal = dev.read_calibration()
         where = dev.stored_in()
     if args.json:
-        out = {"device": identity.to_dict(), "calibration": None if cal is None else cal.to_dict()}
-        if where:
-            out["stored_in"] = where
-        if result is not None:
-            out["self_test"] = result.to_dict()
-        print(json.dumps(out, indent=2))
+        out = {"device": identity.to_dict(), "port": settings.port,
+               "calibration": None if cal is None else cal.to_dict(), "stored_in": where,
+               "self_test": None if result is None else result.to_dict()}
+        print_json(document("show", out))
     else:
         print(format_text(identity.to_dict(), cal, where))
         if result is not None:
             print(format_self_test(result))
-    if result is not None and not result.passed:
-        return 3
-    return 0 if cal is not None else 1
+    if result is not None:
+        return Exit.OK if result.passed else Exit.GATE
+    return Exit.OK if cal is not None else Exit.NO

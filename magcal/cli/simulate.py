@@ -1,8 +1,8 @@
 """``magcal simulate``: write a recording from the physics simulator, with known truth.
 
 Handy to try ``fit`` and ``diagnose`` without hardware, and to see what each effect looks
-like. The truth (the calibration that inverts the simulated physics) is printed, or written
-next to the CSV as ``FILE.truth.json``.
+like. The truth (the calibration that inverts the simulated physics) is written next to the
+CSV as ``FILE.truth.json``; ``--json`` prints it as ``magcal.simulate/1``.
 """
 
 from __future__ import annotations
@@ -11,54 +11,56 @@ import json
 
 import numpy as np
 
-from ..core.errors import InputError
 from ..recordings.table import save_csv
 from ..sim.physics import Current, Motion, Physics, Scenario, Temperature
-from .common import add_json_option, print_json
+from .common import document, print_json
+from .options import add, add_alias, floats, non_negative, positive, share
 
 HELP = "write a simulated MPU-9150 recording (CSV, µT) with known physics"
 
 
-def _triple(text: str, what: str) -> tuple:
-    try:
-        v = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        raise InputError(f"{what} takes three comma-separated numbers, got {text!r}") from None
-    if len(v) != 3:
-        raise InputError(f"{what} takes three comma-separated numbers, got {text!r}")
-    return v
-
-
 def add_arguments(p) -> None:
-    p.add_argument("-o", "--output", required=True, metavar="FILE.csv")
-    p.add_argument("--seconds", type=float, default=60.0)
-    p.add_argument("--rate", type=float, default=50.0, metavar="HZ")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--motion", choices=("sphere", "tilt", "yaw", "still"), default="sphere")
-    p.add_argument("--offset", default="23.5,-41.2,12.8", metavar="X,Y,Z", help="hard iron, µT")
-    p.add_argument("--scale", default="1,1,1", metavar="X,Y,Z", help="axis gains (soft iron, diagonal)")
-    p.add_argument("--noise", type=float, default=0.4, metavar="UT")
-    p.add_argument("--field", type=float, default=50.0, metavar="UT")
-    p.add_argument("--temp-swing", type=float, default=0.0, metavar="C", help="peak-to-peak die temperature swing")
-    p.add_argument("--temp-coef", default="0,0,0", metavar="X,Y,Z", help="µT per °C")
-    p.add_argument("--current", type=float, default=0.0, metavar="A", help="intermittent current level")
-    p.add_argument("--current-coef", default="0,0,0", metavar="X,Y,Z", help="µT per A")
-    p.add_argument("--drift", default="0,0,0", metavar="X,Y,Z", help="µT per s")
-    p.add_argument("--glitch-rate", type=float, default=0.0, help="share of samples with a 4–15 µT jump")
-    add_json_option(p)
+    add(p, "output", required=True, help="the CSV file to write (t, mx, my, mz in µT, temp_c, current_a)")
+    p.add_argument("--seconds", type=positive, default=60.0, metavar="S", help="length of the recording")
+    p.add_argument("--rate", type=positive, default=50.0, metavar="HZ", help="samples per second")
+    p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same recording")
+    p.add_argument("--motion", choices=("sphere", "tilt", "yaw", "still"), default="sphere",
+                   help="how the board is turned: every direction (sphere), ±30° tilts, flat turns (yaw), or held still")
+    _quantity(p, "--offset-ut", "--offset", default="23.5,-41.2,12.8", type=floats(3), metavar="X,Y,Z",
+              help="hard iron, µT")
+    _quantity(p, "--scale", None, default="1,1,1", type=floats(3), metavar="X,Y,Z",
+              help="axis gains (soft iron, diagonal)")
+    _quantity(p, "--noise-ut", "--noise", default=0.4, type=non_negative, metavar="UT", help="white noise σ per axis, µT")
+    _quantity(p, "--field-ut", "--field", default=50.0, type=positive, metavar="UT", help="Earth's field strength, µT")
+    p.add_argument("--temp-swing", type=non_negative, default=0.0, metavar="C",
+                   help="peak-to-peak die temperature swing, °C")
+    p.add_argument("--temp-coef", type=floats(3), default="0,0,0", metavar="X,Y,Z", help="offset change per °C, µT/°C")
+    p.add_argument("--current", type=non_negative, default=0.0, metavar="A", help="intermittent current level, A")
+    p.add_argument("--current-coef", type=floats(3), default="0,0,0", metavar="X,Y,Z",
+                   help="offset change per A of current, µT/A")
+    p.add_argument("--drift", type=floats(3), default="0,0,0", metavar="X,Y,Z", help="offset drift, µT/s")
+    p.add_argument("--glitch-rate", type=share, default=0.0, metavar="P",
+                   help="share of samples with a 4–15 µT jump (0…1)")
+    add(p, "json")
+
+
+def _quantity(p, flag: str, old: str | None, **kw) -> None:
+    """An option whose old spelling (``--noise``) still works, unlisted."""
+    dest = flag.lstrip("-").replace("-", "_")
+    p.add_argument(flag, dest=dest, **kw)
+    if old:
+        add_alias(p, old, dest=dest, type=kw["type"])
 
 
 def run(args) -> int:
-    if args.seconds <= 0 or args.rate <= 0:
-        raise InputError("--seconds and --rate must be positive")
     physics = Physics(
-        field_ut=args.field,
-        hard_iron_ut=_triple(args.offset, "--offset"),
-        distortion=tuple(tuple(r) for r in np.diag(_triple(args.scale, "--scale"))),
-        noise_ut=args.noise,
-        temp_coef_ut_per_c=_triple(args.temp_coef, "--temp-coef"),
-        current_coef_ut_per_a=_triple(args.current_coef, "--current-coef"),
-        drift_ut_per_s=_triple(args.drift, "--drift"),
+        field_ut=args.field_ut,
+        hard_iron_ut=args.offset_ut,
+        distortion=tuple(tuple(r) for r in np.diag(args.scale)),
+        noise_ut=args.noise_ut,
+        temp_coef_ut_per_c=args.temp_coef,
+        current_coef_ut_per_a=args.current_coef,
+        drift_ut_per_s=args.drift,
         glitch_rate=args.glitch_rate,
     )
     sc = Scenario(
@@ -75,7 +77,7 @@ def run(args) -> int:
     with open(args.output + ".truth.json", "w", encoding="utf-8") as f:
         json.dump(truth, f, indent=2)
     if args.json:
-        print_json(truth)
+        print_json(document("simulate", truth))
     else:
         print(f"wrote {len(run_.series)} samples to {args.output}; truth in {args.output}.truth.json")
     return 0

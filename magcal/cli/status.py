@@ -1,26 +1,25 @@
 """``magcal status [--state-dir DIR] [--json]``: what a daemon is doing (or last did).
 
 Asks the running daemon over its local UNIX socket; when nobody answers, reads the state file
-(the newest valid one) and says how old it is. Exit 0 with a report; 1 when the daemon is not
-running (the report is still printed from the state file); 2 when there is no state at all."""
+(the newest valid one) and says how old it is. Exit status: 0 when the daemon is running; 1
+when it is not (the report is still printed, from the state file, or saying that no daemon has
+run with this state directory); 6 when the state file is unreadable. ``--json`` prints
+``magcal.status/1`` in every case, with ``running`` and ``source`` (socket, state file, none)."""
 
 from __future__ import annotations
 
 import os
 import time
 
-from ..app.daemon import query_socket
-from ..core.errors import StateError
-from ..recordings.state import StateStore
-from .common import add_config_option, add_json_option, load_settings, print_json
+from .common import document, load_settings, print_json
+from .exits import Exit
+from .options import add
 
 HELP = "report a daemon's live state: samples, coverage, last calibration, faults"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--state-dir", metavar="DIR", help="the daemon's state directory (default from config)")
-    add_config_option(p)
-    add_json_option(p)
+    add(p, "state_dir", "config", "json")
 
 
 def _pid_alive(pid) -> bool:
@@ -32,14 +31,20 @@ def _pid_alive(pid) -> bool:
 
 
 def gather(state_dir) -> tuple[dict, str]:
-    """(status, source) — source is ``socket`` or ``state file``. StateError when there is none."""
+    """(status, source) — source is ``socket``, ``state file`` or ``none`` (no daemon has run
+    with this state directory)."""
+    from ..app.daemon import query_socket
+    from ..recordings.state import StateStore
+
     live = query_socket(state_dir)
     if live is not None:
         return live, "socket"
     store = StateStore(state_dir)
     data = store.load()
     if data is None:
-        raise StateError(f"no daemon state in {store.directory} (is `magcal run` using this --state-dir?)")
+        return {"running": False, "state_dir": str(store.directory),
+                "note": f"no daemon state in {store.directory}: no `magcal run` has used this state "
+                "directory (give --state-dir DIR, or state_dir: in the config file)"}, "none"
     status = dict(data.get("status") or {})
     status["saved_utc"] = data.get("saved_utc")
     status["age_s"] = round(time.time() - float(data.get("saved_utc") or 0), 1)
@@ -55,10 +60,12 @@ def run(args) -> int:
     status, source = gather(os.path.expanduser(state_dir))
     status["source"] = source
     if args.json:
-        print_json(status)
+        print_json(document("status", status))
+    elif source == "none":
+        print(f"daemon     not running; {status['note']}")
     else:
         _print_text(status)
-    return 0 if status.get("running") else 1
+    return Exit.OK if status.get("running") else Exit.NO
 
 
 def _print_text(s: dict) -> None:

@@ -1,9 +1,10 @@
-"""``magcal stream --port URL [--calibrated] [--count N] [--rate HZ] [--json]``: print live
-samples in µT, optionally with the device's stored calibration applied on the host.
+"""``magcal stream [--port URL] [--calibrated] [--count N] [--seconds S] [--rate HZ] [--json]``:
+print live samples in µT, optionally with the device's stored calibration applied on the host.
 
 Text: one line per sample, ``seq t_s x y z |h| temp_c``; rejected readings go to stderr.
-``--json``: one JSON object per line, ``{"type": "sample", ...}`` or ``{"type": "event", ...}``.
-Works for every backend through the generic Device API."""
+``--json``: one JSON object per line (``magcal.stream/1``), ``{"schema": …, "type": "sample",
+...}`` or ``{"schema": …, "type": "event", ...}``. Works for every backend through the generic
+Device API. The output itself shows progress, so there is no other display."""
 
 from __future__ import annotations
 
@@ -15,25 +16,28 @@ import time
 import numpy as np
 
 from ..core.calibration import Calibration
-from ..core.errors import DeviceError, NoReply
+from ..core.errors import NoReply
 from ..core.events import Event
 from ..core.sample import Sample
-from ..devices import open_device
 from ..devices.base import batches
+from .common import device_settings, open_from_settings
+from .options import add, add_alias, positive
+
+SCHEMA = "magcal.stream/1"
 
 HELP = "print live samples (µT), optionally calibrated with the stored calibration"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--port", required=True, help="device: i2c:1, /dev/ttyACM0, sim://, … (see magcal.devices)")
-    p.add_argument("--dialect", default="native", choices=("native", "motioncal", "auto"))
+    add(p, "port", "baud", "dialect", "config")
     p.add_argument("--calibrated", action="store_true", help="apply the calibration stored for this device")
-    p.add_argument("--count", type=int, default=0, help="stop after N samples (default: until Ctrl-C)")
-    p.add_argument("--rate", type=int, default=None, help="measurement rate in Hz (default: the device's)")
-    p.add_argument("--json", action="store_true", help="JSON lines instead of text")
-    p.add_argument(
-        "--stall-s", type=float, default=10.0, help="give up when no sample arrives for this long (default 10 s)"
-    )
+    add(p, "count", help="stop after N samples (default: until Ctrl-C)")
+    add(p, "seconds", help="stop after S seconds (default: until Ctrl-C)")
+    add(p, "rate")
+    add(p, "json", help="one JSON object per line (\"schema\": magcal.stream/1) instead of text")
+    p.add_argument("--stall-timeout", type=positive, default=10.0, metavar="S", dest="stall_s",
+                   help="give up when no sample arrives for S seconds")
+    add_alias(p, "--stall-s", dest="stall_s", type=positive)
 
 
 def apply(cal: Calibration | None, s: Sample) -> np.ndarray:
@@ -52,6 +56,7 @@ def apply(cal: Calibration | None, s: Sample) -> np.ndarray:
 def format_sample(s: Sample, h: np.ndarray, as_json: bool, calibrated: bool) -> str:
     if as_json:
         d = {
+            "schema": SCHEMA,
             "type": "sample",
             "seq": s.seq,
             "t_s": round(s.t_s, 6),
@@ -71,54 +76,57 @@ def format_sample(s: Sample, h: np.ndarray, as_json: bool, calibrated: bool) -> 
 
 def format_event(e: Event, as_json: bool) -> str:
     if as_json:
-        return json.dumps({"type": "event", "kind": e.kind, "seq": e.seq, "count": e.count, "detail": e.detail})
+        return json.dumps({"schema": SCHEMA, "type": "event", "kind": e.kind, "seq": e.seq, "count": e.count, "detail": e.detail})
     where = "" if e.seq is None else f" seq {e.seq}"
     return f"# {e.kind}{where}: {e.detail}".rstrip(": ")
 
 
-def run(args) -> int:
-    if args.count < 0:
-        raise DeviceError(f"--count must be ≥ 0, not {args.count}")
-    dev = open_device(args.port, dialect=args.dialect)
+def _pump(dev, args, cal, port: str) -> int:
+    """Print samples until the count, the time or the source runs out; the number shown."""
     shown = 0
+    t0 = last = time.monotonic()
+    for items in batches(dev, 0.1):
+        for item in items:
+            if isinstance(item, Sample) and item.valid and not (args.count and shown >= args.count):
+                print(format_sample(item, apply(cal, item), args.json, cal is not None), flush=True)
+                shown += 1
+                last = time.monotonic()
+            elif isinstance(item, Event):
+                print(format_event(item, args.json), file=sys.stdout if args.json else sys.stderr, flush=True)
+        now = time.monotonic()
+        if (args.count and shown >= args.count) or (args.seconds is not None and now - t0 >= args.seconds):
+            break
+        if now - last > args.stall_s:
+            raise NoReply(f"{port}: no sample for {args.stall_s:g} s")
+    return shown
+
+
+def run(args) -> int:
+    from .exits import Exit
+
+    settings = device_settings(args)
+    dev = open_from_settings(settings)
     try:
         with dev:
             dev.open()
-            cal = None
-            if args.calibrated:
-                cal = dev.read_calibration()
-                if cal is None:
-                    raise DeviceError(f"{args.port}: no calibration stored for this device (run `magcal calibrate` first)")
+            cal = dev.read_calibration() if args.calibrated else None
+            if args.calibrated and cal is None:
+                print(f"magcal stream: {settings.port}: no calibration stored for this device "
+                      "(run `magcal calibrate` first)", file=sys.stderr)
+                return Exit.NO
             if not args.json:
                 head = "  seq        t_s         x         y         z       |h|  temp_c"
                 print(head + ("   (calibrated)" if cal is not None else "   (µT, uncalibrated)"))
-            dev.start(args.rate)
-            last = time.monotonic()
-            for items in batches(dev, 0.1):
-                for item in items:
-                    if isinstance(item, Sample):
-                        if not item.valid:
-                            continue
-                        print(format_sample(item, apply(cal, item), args.json, cal is not None), flush=True)
-                        shown += 1
-                        last = time.monotonic()
-                        if args.count and shown >= args.count:
-                            break
-                    elif isinstance(item, Event):
-                        line = format_event(item, args.json)
-                        print(line, file=sys.stdout if args.json else sys.stderr, flush=True)
-                if args.count and shown >= args.count:
-                    break
-                if time.monotonic() - last > args.stall_s:
-                    raise NoReply(f"{args.port}: no sample for {args.stall_s:g} s")
+            dev.start(settings.rate_hz)
+            shown = _pump(dev, args, cal, settings.port)
             dev.stop()
     except BrokenPipeError:  # `magcal stream | head`
         try:
             sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - silence the flush at exit
         except OSError:
             pass
-        return 0
+        return Exit.OK
     if not args.json:
         stats = ", ".join(f"{k} {v}" for k, v in sorted(dev.stats().items()))
         print(f"# {shown} samples; {stats}", file=sys.stderr)
-    return 0
+    return Exit.OK

@@ -12,8 +12,9 @@ Only what a device can apply is written, and what is left out is named: a drift 
 (``t_s``) belonged to the recording it was found in, and other covariates have no input on the
 device. A non-symmetric matrix (another tool's convention) is written as its symmetric polar
 factor √(AᵀA), which gives every field the same magnitude; the rotation it leaves out only turns
-the frame. Exit codes: 0 written and verified; 4 refused, unacknowledged or read back different;
-2 for input, port or device errors.
+the frame. Exit status: 0 written and verified; 4 refused, unacknowledged, read back different or a
+read-only device; 6 for a FILE that holds no calibration; 5 for the device or port.
+``--json`` prints ``magcal.write/1``.
 """
 
 from __future__ import annotations
@@ -25,23 +26,31 @@ import numpy as np
 
 from ..core.calibration import Calibration
 from ..core.errors import InputError
-from .common import add_config_option, add_port_options, load_settings, open_from_settings, print_json
+from .common import device_settings, document, open_from_settings, print_json
+from .exits import Exit
+from .options import add
 
 HELP = "write a calibration from fit/diagnose JSON to a device (verified by read-back)"
 
-EXIT_OK, EXIT_WRITE = 0, 4
 DEVICE_CHANNELS = ("temp_c", "current_a")  # what the device can apply (protocol v1 record)
 
 
 def add_arguments(p) -> None:
     p.add_argument("file", metavar="FILE", help="JSON from fit/diagnose/calibrate/show --json, or - for stdin")
-    add_port_options(p)
-    add_config_option(p)
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add(p, "port", "baud", "dialect", "config", "json")
 
 
 def calibration_from_json(obj, name: str = "<json>") -> tuple[Calibration, list[str]]:
-    """(the calibration to write, notes on what was changed or left out), or InputError (pure)."""
+    """(the calibration to write, notes on what was changed or left out), or InputError (pure).
+    From ``fit --json`` of several sessions, the last one that fitted (the newest) is taken."""
+    notes = []
+    if isinstance(obj, dict) and isinstance(obj.get("fits"), list):
+        fitted = [f for f in obj["fits"] if isinstance(f, dict) and isinstance(f.get("calibration"), dict)]
+        if not fitted:
+            raise InputError(f"{name}: none of its fits produced a calibration")
+        if len(fitted) > 1:
+            notes.append(f"took the last of {len(fitted)} fits: {fitted[-1].get('file', '?')}")
+        obj = fitted[-1]
     if isinstance(obj, dict) and isinstance(obj.get("calibration"), dict):
         obj = obj["calibration"]
     elif isinstance(obj, dict) and "calibration" in obj:
@@ -51,7 +60,6 @@ def calibration_from_json(obj, name: str = "<json>") -> tuple[Calibration, list[
     missing = [k for k in ("offset_ut", "field_ut") if k not in obj]
     if missing:
         raise InputError(f"{name}: the calibration lacks {', '.join(missing)}")
-    notes = []
     try:
         offset = np.asarray(obj["offset_ut"], dtype=np.float64).reshape(3)
         field = float(obj["field_ut"])
@@ -106,12 +114,13 @@ def run(args) -> int:
     from ..app.procedure import store_verified
 
     cal, notes = calibration_from_json(_read(args.file), args.file)
-    settings = load_settings(args)
+    settings = device_settings(args)
     device = open_from_settings(settings)
     with device:
         identity = device.open()
         if not device.abilities.store:
-            raise InputError(f"{settings.port}: a read-only source cannot store a calibration")
+            print(f"magcal write: {settings.port}: a read-only source cannot store a calibration", file=sys.stderr)
+            return Exit.WRITE
         try:
             r = store_verified(device, cal)
         except ValueError as exc:  # the device's record cannot carry it (range, terms)
@@ -119,8 +128,9 @@ def run(args) -> int:
     lost = sorted(set(cal.coef_ut_per_unit) - set(r.sent.coef_ut_per_unit))
     if lost:  # e.g. the MotionCal packet has room for hard and soft iron only
         notes.append(f"this device cannot hold the {', '.join(lost)} term(s): written without them")
-    out = {
+    out = document("write", {
         "device": identity.to_dict(),
+        "port": settings.port,
         "sent": r.sent.to_dict(),
         "written": r.written,
         "verified": r.verified,
@@ -129,7 +139,7 @@ def run(args) -> int:
         "failure": r.failure,
         "message": r.message,
         "notes": notes,
-    }
+    })
     if args.json:
         print_json(out)
     else:
@@ -144,4 +154,4 @@ def run(args) -> int:
         else:
             back = {True: "; the previous calibration was put back", False: "; the previous one could NOT be put back"}
             print(f"not written: {r.message}{back.get(r.restored, '')}")
-    return EXIT_OK if r.verified else EXIT_WRITE
+    return Exit.OK if r.verified else Exit.WRITE

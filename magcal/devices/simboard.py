@@ -5,7 +5,8 @@ it talks to a serial port, so every layer above runs unchanged. Its sensor readi
 the one physics simulator (``magcal.sim.physics``); its EEPROM persists to a file when given one.
 
 Options (the port string's, ``magcal.devices.port``): ``seed``, ``rate`` (initial rate, default
-100), ``pace`` (0 = as fast as the host reads, 1 = real time, N = N× real time; default 0),
+100), ``pace`` (1 = real time, the default, as a board would; N = N× real time; 0 = as fast as
+the host reads, for quick trials, tests and benchmarks: ``sim://?pace=0``),
 ``eeprom``, ``motion``, ``offset``, ``noise``, ``field`` and ``fault`` — every fault of
 ``magcal.devices.faults`` but the register-model ones, fired when the board's physics time
 reaches it. Board flags can also be set directly in ``SimBoard.faults`` (``mute``,
@@ -236,6 +237,9 @@ class SerialEnd:
         return self
 
 
+REAL_TIME = 1.0  # sim:// keeps time like a board unless told otherwise (pace=0)
+
+
 class SimBoard(SerialEnd):
     """The simulated board as a pyserial-like transport (read/write/in_waiting/timeout/close)."""
 
@@ -265,7 +269,7 @@ class SimBoard(SerialEnd):
     def from_port(cls, port: Port, scenario: Scenario | None = None) -> "SimBoard":
         """The board a ``sim://`` port string describes (``scenario`` overrides its physics)."""
         return cls(scenario or scenario_of(port), rate_hz=port.get("rate", 100),
-                   pace=port.get("pace", 0.0), eeprom_path=port.get("eeprom"), faults=port.faults)
+                   pace=port.get("pace", REAL_TIME), eeprom_path=port.get("eeprom"), faults=port.faults)
 
     # -- board state -------------------------------------------------------------------------
     def _boot(self) -> None:

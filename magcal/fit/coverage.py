@@ -68,6 +68,10 @@ class SampleSet:
         cells = cell_index(self.field_ut - self.centre_ut, self.bands, self.sectors)
         self._counts = np.bincount(cells, minlength=self.bands * self.sectors)
 
+    def cell_counts(self) -> np.ndarray:
+        """Samples kept in each equal-area cell (band-major: ``band * sectors + sector``)."""
+        return self._counts.copy()
+
     def offer(self, m_ut, aux: dict | None = None) -> bool:
         """Keep the sample if its cell is not yet full; True when kept."""
         m = np.asarray(m_ut, dtype=np.float64)

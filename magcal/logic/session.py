@@ -69,6 +69,7 @@ class Session:
         self._since_estimate = 0
         self._ready = False  # every gate passed at the last check: later samples are not taken
         self._last_seq: int | None = None
+        self.last_field_ut = None  # the latest valid sample (µT): where the board points now
 
     # -- the one choke point -------------------------------------------------------------------
     def _set_status(self, new: Status, reason: str | None = None, message: str = "") -> None:
@@ -115,6 +116,7 @@ class Session:
             self.counters["rejected_nonfinite"] += 1
             return
         self.accumulator.add(m)
+        self.last_field_ut = m
         aux = {"t_s": item.t_s}
         if item.temp_c is not None:
             aux["temp_c"] = item.temp_c
