@@ -32,7 +32,7 @@ MEANING = {
     Exit.DEVICE: "the device or its port: cannot be opened, wrong chip, silent, unplugged",
     Exit.INPUT: "a file cannot be read or written: a recording, a calibration JSON, a state or capture file",
     Exit.INTERRUPTED: "interrupted (Ctrl-C); what was collected is kept where the command keeps it",
-    Exit.PIPE: "the reader of the output went away (e.g. `| head`)",
+    Exit.PIPE: "the reader of the output went away (e.g. output piped into head)",
 }
 
 

@@ -77,7 +77,7 @@ def _progress_text(done, total, unit, elapsed, samples) -> str:
 def run(args) -> int:
     if args.seconds is None and args.count is None:
         raise ConfigError("say when to stop: --seconds S and/or --count N")
-    settings = device_settings(args)
+    settings = device_settings(args, rate_hz=args.rate)
     writer = open_capture_tap(args.output, settings)
     counts = {"samples": 0, "gaps": 0, "resets": 0}
     progress = Progress(quiet=args.quiet)
@@ -93,6 +93,7 @@ def run(args) -> int:
     try:
         ident = dev.open()
         dev.start(settings.rate_hz)
+        ident = dev.identity  # with the rate the device took
         stopped = _read_loop(dev, args, progress, counts)
         with contextlib.suppress(Exception):  # the summary matters more than a polite stop
             dev.stop()

@@ -73,7 +73,7 @@ def run(args) -> int:
     run_ = sc.simulate(int(round(args.seconds * args.rate)), args.rate)
     save_csv(run_.series, args.output)
     truth = {"truth": run_.truth.to_dict(), "glitch_rows": [int(i) for i in run_.glitch_idx],
-             "samples": len(run_.series), "output": args.output}
+             "n_samples": len(run_.series), "output": args.output}
     with open(args.output + ".truth.json", "w", encoding="utf-8") as f:
         json.dump(truth, f, indent=2)
     if args.json:

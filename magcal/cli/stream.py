@@ -104,7 +104,7 @@ def _pump(dev, args, cal, port: str) -> int:
 def run(args) -> int:
     from .exits import Exit
 
-    settings = device_settings(args)
+    settings = device_settings(args, rate_hz=args.rate)
     dev = open_from_settings(settings)
     try:
         with dev:

@@ -14,8 +14,9 @@ which magnitudes cannot separate from |h|, sits in r alone. Parameter vector θ:
 
 (the 4-, 7- and 10-element models of NXP AN4246, with W's scale tied to r.) The Jacobian is
 analytic: the derivative of expm at a symmetric S comes from the Daleckii–Krein formula in S's
-eigenbasis. ``solve`` runs Levenberg–Marquardt (scipy's MINPACK) for the plain loss and a
-trust-region solver for robust losses.
+eigenbasis. ``solve`` runs Levenberg–Marquardt with Marquardt's diagonal scaling (numpy only:
+at most 10 parameters, so the normal equations are tiny); a robust loss (soft_l1, huber,
+cauchy) is minimised by the same steps on iteratively re-weighted residuals.
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from .failure import FitFailure
 
@@ -148,18 +148,81 @@ class GeometricFit:
         return True
 
 
-def _weighted(fun, sw):
-    return lambda theta, m, kind: sw * fun(theta, m, kind) if fun is residual else sw[:, None] * fun(theta, m, kind)
+
+
+LOSSES = ("linear", "soft_l1", "huber", "cauchy")
+
+
+def _rho(loss: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ρ(z) and ρ'(z) of a loss at z = (e / f)² (scipy's definitions: ρ ≈ z near 0)."""
+    if loss == "linear":
+        return z, np.ones_like(z)
+    if loss == "soft_l1":
+        q = np.sqrt(1.0 + z)
+        return 2.0 * (q - 1.0), 1.0 / q
+    if loss == "huber":
+        big = z > 1.0
+        sq = np.sqrt(np.where(big, z, 1.0))
+        return np.where(big, 2.0 * sq - 1.0, z), np.where(big, 1.0 / sq, 1.0)
+    return np.log1p(z), 1.0 / (1.0 + z)  # cauchy
+
+
+def _cost(e: np.ndarray, loss: str, f: float) -> float:
+    return 0.5 * f * f * float(np.sum(_rho(loss, (e / f) ** 2)[0]))
+
+
+def levenberg_marquardt(fun, jac, x0, loss: str = "linear", f_scale: float = 1.0, max_iter: int = 200,
+                        tol: float = 1e-12) -> tuple[np.ndarray, int, bool]:
+    """Minimise ½ f² Σ ρ((fun(x)/f)²) from x0: (x, function evaluations, converged).
+
+    Each step solves (JᵀWJ + λ·diag(JᵀWJ)) δ = −JᵀWe with W = ρ'(z) (all ones for the plain
+    loss: Levenberg–Marquardt; otherwise iteratively re-weighted least squares, whose fixed
+    points are the loss's stationary points). λ shrinks after a step that lowers the cost and
+    grows after one that does not. Converged when a step changes x by less than ``tol``
+    relative, or the cost by less than ``tol`` relative."""
+    x = np.asarray(x0, dtype=np.float64).copy()
+    e = fun(x)
+    cost, nfev, lam = _cost(e, loss, f_scale), 1, None
+    for _ in range(max_iter):
+        J = jac(x)
+        w = _rho(loss, (e / f_scale) ** 2)[1]
+        A = J.T @ (w[:, None] * J)
+        g = J.T @ (w * e)
+        d = np.maximum(np.diag(A), 1e-300)
+        lam = 1e-3 if lam is None else lam
+        while True:
+            try:
+                step = np.linalg.solve(A + lam * np.diag(d), -g)
+            except np.linalg.LinAlgError:
+                step = np.full_like(x, np.nan)
+            x_new = x + step
+            e_new = fun(x_new) if np.all(np.isfinite(x_new)) else np.full_like(e, np.inf)
+            nfev += 1
+            cost_new = _cost(e_new, loss, f_scale) if np.all(np.isfinite(e_new)) else np.inf
+            if cost_new <= cost:
+                break
+            lam *= 10.0
+            if lam > 1e16:
+                return x, nfev, True  # no step lowers the cost: at the minimum to machine precision
+        small_step = np.linalg.norm(step) <= tol * (np.linalg.norm(x) + tol)
+        small_gain = cost - cost_new <= tol * cost
+        x, e, cost, lam = x_new, e_new, cost_new, max(lam / 10.0, 1e-12)
+        if small_step or small_gain:
+            return x, nfev, True
+    return x, nfev, False
 
 
 def solve(
     m_ut: np.ndarray, kind: str, theta0, loss: str = "linear", f_scale_ut: float = 1.0, max_nfev: int = 200,
     weights=None,
 ) -> GeometricFit | FitFailure:
-    """Minimise Σ w_i ρ(e_i) from θ0. ``loss`` is scipy's: linear (ML), huber, soft_l1, cauchy.
-    ``weights`` (n,) are inverse noise variances relative to one another (None: all equal)."""
+    """Minimise Σ w_i ρ(e_i) from θ0. ``loss``: linear (ML), soft_l1, huber, cauchy (scipy's
+    definitions). ``weights`` (n,) are inverse noise variances relative to one another (None:
+    all equal)."""
     if kind not in KINDS:
         raise ValueError(f"unknown model kind {kind!r} (one of {', '.join(KINDS)})")
+    if loss not in LOSSES:
+        raise ValueError(f"unknown loss {loss!r} (one of {', '.join(LOSSES)})")
     m = np.asarray(m_ut, dtype=np.float64).reshape(-1, 3)
     p = n_params(kind)
     if len(m) < p + 1:
@@ -171,29 +234,21 @@ def solve(
     t0 = theta0.copy()
     t0[:3] = 0.0
     t0[3] = theta0[3] / scale
-    method = "lm" if loss == "linear" else "trf"
-    if weights is None:
-        fun, jac = residual, jacobian
-    else:
+    sw = np.ones(len(m))
+    if weights is not None:
         sw = np.sqrt(np.asarray(weights, dtype=np.float64).reshape(-1))
         if len(sw) != len(m) or not np.all(np.isfinite(sw)) or np.any(sw < 0):
             raise ValueError("weights must be finite, non-negative, one per sample")
-        fun, jac = _weighted(residual, sw), _weighted(jacobian, sw)
-    try:
-        res = least_squares(
-            fun, t0, jac=jac, args=(mc, kind), method=method, loss=loss,
-            f_scale=f_scale_ut / scale, x_scale=1.0, max_nfev=max_nfev * (p + 1) if method == "lm" else max_nfev,
-            xtol=1e-12, ftol=1e-12, gtol=1e-12,
-        )
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        return FitFailure("no_convergence", f"{kind} fit failed: {exc}")
-    theta = res.x.copy()
-    if not np.all(np.isfinite(theta)) or res.status <= 0:
-        return FitFailure("no_convergence", f"{kind} fit did not converge ({res.message})")
+    with np.errstate(over="ignore", invalid="ignore"):
+        theta, nfev, converged = levenberg_marquardt(
+            lambda t: sw * residual(t, mc, kind), lambda t: sw[:, None] * jacobian(t, mc, kind), t0,
+            loss=loss, f_scale=f_scale_ut / scale, max_iter=max_nfev)
+    if not np.all(np.isfinite(theta)) or not converged:
+        return FitFailure("no_convergence", f"{kind} fit did not converge in {max_nfev} steps")
     theta[:3] = centre + scale * theta[:3]
     theta[3] = scale * theta[3]
     if theta[3] < 0:  # |h| − r with r < 0 cannot be a minimum unless all |h| ≈ 0
         return FitFailure("degenerate", f"{kind} fit produced a negative radius")
     e = residual(theta, m, kind)
     J = jacobian(theta, m, kind)
-    return GeometricFit(kind=kind, theta=theta, residual_ut=e, jac=J, n_iter=int(res.nfev))
+    return GeometricFit(kind=kind, theta=theta, residual_ut=e, jac=J, n_iter=nfev)

@@ -340,7 +340,12 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
 def _read_rows(lines, hdr_i, delimiter, cols, must, has_header, name):
     """The data rows after ``hdr_i``: (values per column, text columns, 0-based data row of each
     sample). A column whose first value is text is a text column (not a channel); a required
-    column (``must``) must hold a finite number on every row."""
+    column (``must``) must hold a finite number on every row. A clean numeric body is read by
+    numpy in one pass; anything else (text, empty cells, a ragged row) by the row reader below,
+    which names the line and column of a problem."""
+    fast = _read_rows_numpy(lines, hdr_i, delimiter, len(cols), must)
+    if fast is not None:
+        return fast
     ncol = len(cols)
     data: list[list[float]] = [[] for _ in range(ncol)]
     text_cols: set[int] = set()
@@ -372,6 +377,28 @@ def _read_rows(lines, hdr_i, delimiter, cols, must, has_header, name):
     if not rows:
         raise InputError(f"{name}: no data rows after the header (line {hdr_i + 1})")
     return data, text_cols, rows
+
+
+def _read_rows_numpy(lines, hdr_i, delimiter, ncol, must):
+    """``_read_rows``' answer when every data cell is a number and every required one finite,
+    else None."""
+    import warnings
+
+    rows = [i - hdr_i - 1 for i in range(hdr_i + 1, len(lines))
+            if lines[i].strip() and not lines[i].lstrip().startswith("#")]
+    if not rows:
+        return None
+    body = "\n".join(lines[hdr_i + 1 + r] for r in rows)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            a = np.loadtxt(io.StringIO(body), delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
+                           quotechar='"' if delimiter is not None else None)
+    except (ValueError, UserWarning):
+        return None
+    if a.shape != (len(rows), ncol) or not all(np.isfinite(a[:, k]).all() for k in must):
+        return None
+    return [a[:, k] for k in range(ncol)], set(), rows
 
 
 def _describe(mag_names, scale, assumed, time_col, channels) -> str:
