@@ -209,7 +209,7 @@ def test_record_refused_before_reading_leaves_no_empty_capture(tmp_path, capsys)
 
     out = tmp_path / "never.cap"
     rc = main(["record", "--port", "sim://?pace=0", "--dialect", "motioncal", "-o", str(out), "--count", "5"])
-    assert rc == 5 and "needs a serial port" in capsys.readouterr().err
+    assert rc == 2 and "needs a serial port" in capsys.readouterr().err
     assert not out.exists()
 
 

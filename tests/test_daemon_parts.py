@@ -23,7 +23,7 @@ from magcal.devices import open_device
 from magcal.devices.base import batches
 
 
-def settings(port="sim://?seed=2", **daemon):
+def settings(port="sim://?pace=0&seed=2", **daemon):
     d = {"reconnect_min_s": 0.5, "reconnect_max_s": 4.0, "stall_s": 1.0, "socket": False, "monitor_window": 200}
     d.update(daemon)
     return config.load(None, {"port": port, "rate_hz": 100, "daemon": d}, environ={})
@@ -67,7 +67,7 @@ def test_the_link_supervisor_backs_off_doubling_to_its_bound_and_drops_a_stalled
     now = [0.0]
     faults = Counter()
     j = journal()
-    link = LinkSupervisor(settings("sim://?seed=2&fault=unplug+60"), j, faults, open_device=open_device,
+    link = LinkSupervisor(settings("sim://?pace=0&seed=2&fault=unplug+60"), j, faults, open_device=open_device,
                           clock=lambda: now[0])
     waits = []
     for _ in range(5):
@@ -111,7 +111,7 @@ def test_the_drift_watcher_keeps_its_monitor_only_for_the_calibration_it_was_wat
 
 
 def test_the_recalibrator_solves_once_the_gates_pass_and_the_writer_verifies_by_read_back(tmp_path):
-    s = settings(f"sim://?seed=2&eeprom={tmp_path / 'e.bin'}", recalibrate=True)
+    s = settings(f"sim://?pace=0&seed=2&eeprom={tmp_path / 'e.bin'}", recalibrate=True)
     faults = Counter()
     j = journal()
     r = Recalibrator(s, j, faults)

@@ -54,7 +54,7 @@ def test_port_strings_name_bus_and_address(url, bus, path, addr):
         ("i2c:", "no bus"),
         ("i2c:1?addr=0x50", "0x68 (AD0 low) or 0x69"),
         ("i2c:1?addr=high", "not a number"),
-        ("i2c:1?pace=3", "unknown option 'speed'"),
+        ("i2c:1?speed=3", "unknown option 'speed'"),
         ("i2c:1?rate=500", "out of range"),
     ],
 )

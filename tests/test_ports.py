@@ -18,7 +18,7 @@ from magcal.devices.port import VOCABULARY
     ("sim://?sede=3", r"unknown option 'sede' \(sim:// takes: seed, rate"),
     ("emu://?rate=50", r"unknown option 'rate' \(emu:// takes"),
     ("replay://x.cap?seed=1", r"unknown option 'seed' \(replay:// takes: pace, fault\)"),
-    ("i2c:1?pace=3", r"unknown option 'speed' \(i2c: takes: addr, rate\)"),
+    ("i2c:1?speed=3", r"unknown option 'speed' \(i2c: takes: addr, rate\)"),
     ("sim://?seed=-1", "seed"),
     ("sim://?rate=0", "out of range"),
     ("i2c:1?rate=500", "out of range"),
@@ -88,7 +88,7 @@ def test_abilities_are_declared_by_each_backend(tmp_path):
     from magcal.devices.fakebus import FakeBus
     from magcal.sim.physics import demo_scenario
 
-    sim = open_device("sim://")
+    sim = open_device("sim://?pace=0")
     assert sim.abilities.live and sim.abilities.store and sim.abilities.self_test
     assert open_device("i2c:1", bus_factory=lambda n: FakeBus(demo_scenario(1))).abilities.self_test
     cap = tmp_path / "x.cap"
@@ -105,7 +105,7 @@ def _record(path, seconds: float = 3.0):
     from magcal.recordings.capture import CaptureWriter, make_header
 
     w = CaptureWriter(path, make_header("sim://?seed=2", 115200))
-    dev = open_device("sim://?seed=2", tap=w)
+    dev = open_device("sim://?pace=0&seed=2", tap=w)
     dev.open()
     dev.start(100)
     n = 0
@@ -118,7 +118,7 @@ def _record(path, seconds: float = 3.0):
 
 
 def test_a_device_opened_again_reconnects_to_the_same_board():
-    dev = open_device("sim://?seed=3")
+    dev = open_device("sim://?pace=0&seed=3")
     dev.open()
     dev.start(100)
     first = [i for i in dev.read(0.2) if isinstance(i, Sample)]
