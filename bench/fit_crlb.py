@@ -3,7 +3,7 @@
 Trials: the simulator's "tilt" motion (level within ±30°, yaw free), σ = 0.4 µT white noise,
 0.3 µT quantum (× ASA gain), 1500 samples at 50 Hz, a random hard iron per trial. For each trial
 the CRLB of the offset is σ_eff²(JᵀJ)⁻¹ at the true parameters and the trial's own true
-directions, σ_eff² = σ² + q²/12 (q the per-axis quantum). Printed for ``fit(model="sphere")`` and for the
+directions, σ_eff² = σ² + q²/12 (q the per-axis quantum). Printed for ``fit_calibration(model="sphere")`` and for the
 normal equations (the accumulator) on the same trials: the pooled ratio RMS offset error /
 RMS √trace(CRLB), the per-trial ratio √mean(|error|² / trace CRLB) (steadier: trials differ in
 coverage, and a few thin ones dominate pooled sums), and the mean Mahalanobis distance of the
@@ -21,7 +21,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 from magcal.core.sample import UT_PER_COUNT, asa_gain  # noqa: E402
-from magcal.fit import SphereAccumulator, fit  # noqa: E402
+from magcal.fit import SphereAccumulator, fit_calibration  # noqa: E402
 from magcal.fit.uncertainty import crlb_offset  # noqa: E402
 from magcal.sim.physics import Motion, Physics, Scenario  # noqa: E402
 
@@ -38,8 +38,8 @@ def trial(seed: int):
     sigma_eff = float(np.sqrt(NOISE_UT**2 + np.mean(q**2) / 12.0))
     m_true = run.earth_ut + b
     C = crlb_offset(m_true, b, ph.field_ut, sigma_eff)
-    gated = fit(run.series, model="sphere")
-    ml = fit(run.series, model="sphere", max_condition=np.inf)  # the same fit, coverage gate off
+    gated = fit_calibration(run.series, model="sphere")
+    ml = fit_calibration(run.series, model="sphere", max_condition=np.inf)  # the same fit, coverage gate off
     acc = SphereAccumulator()
     acc.add_batch(run.series.field_ut)
     alg = acc.solve(max_condition=np.inf)

@@ -1,8 +1,8 @@
 """Real recordings: fit on the first half in time, judge on the held-out second half.
 
 spread = std/mean of |calibrated field| on the held-out half (%), with cond(soft_iron) beside it
-(a squashed matrix fakes a small spread). Rows: magcal's ``fit(model="ellipsoid")`` with its
-sample selection (``magcal.fit.select``), the same fit on all fit-half points, and the authors'
+(a squashed matrix fakes a small spread). Rows: magcal's ``fit_calibration(model="ellipsoid")`` with its
+sample selection (``magcal.fit.direction_weights``), the same fit on all fit-half points, and the authors'
 published calibrations where PROVENANCE.md gives them (those were fitted on the whole file, so
 they have seen the held-out half). The MotionCal column is PJRC MotionCal measured on exactly
 these splits (figures given with the task; not re-run here).
@@ -31,7 +31,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, ".."))
 
-from magcal.fit import fit  # noqa: E402
+from magcal.fit import fit_calibration  # noqa: E402
 
 DATA = os.environ.get("MAGCAL_REAL_DATA", os.path.join(HERE, "..", "..", "shared", "data", "real"))
 
@@ -99,7 +99,7 @@ def evaluate(name, m, published, **fit_kw):
     fit_half, test_half = m[:half], m[half:]
     row = {"name": name, "n_fit": half, "n_test": len(test_half)}
     for label, kw in (("magcal", fit_kw), ("plain", {"balance": "none"})):
-        r = fit(fit_half, model="ellipsoid", **kw)
+        r = fit_calibration(fit_half, model="ellipsoid", **kw)
         if not r:
             row[label] = None
             row[label + "_why"] = str(r)
@@ -150,7 +150,7 @@ def error_structure(m):
     of direction is fitted out (shape error the ellipsoid cannot follow), the spread of 40
     time-block means before and after that (slow, time-correlated error), and the floor: the
     held-out half's spread under an ellipsoid fitted on that half itself."""
-    r = fit(m, model="ellipsoid")
+    r = fit_calibration(m, model="ellipsoid")
     c = r.calibration
     h = (m - c.offset_ut) @ c.soft_iron.T
     nh = np.linalg.norm(h, axis=1)
@@ -161,7 +161,7 @@ def error_structure(m):
     w = max(len(m) // 40, 5)
     k = len(m) // w * w
     half = len(m) // 2
-    own = fit(m[half:], model="ellipsoid").calibration
+    own = fit_calibration(m[half:], model="ellipsoid").calibration
     return {
         "field": c.field_ut, "rms": float(e.std()),
         "white": float(1.4826 * np.median(np.abs(np.diff(e))) / np.sqrt(2)),
@@ -182,7 +182,7 @@ def block_sensitivity(m, draws=20, blocks=12, keep=9, seed=1):
     for _ in range(draws):
         ks = np.sort(rng.choice(blocks, keep, replace=False))
         idx = np.concatenate([np.arange(edges[k], edges[k + 1]) for k in ks])
-        c = fit(m[idx], model="ellipsoid").calibration
+        c = fit_calibration(m[idx], model="ellipsoid").calibration
         out.append(spread_pct(m[half:], c.offset_ut, c.soft_iron))
     return np.array(out)
 
@@ -209,7 +209,7 @@ def closest_pair_buffer(m, size=650):
 
 
 def _cal(m):
-    c = fit(m, model="ellipsoid").calibration
+    c = fit_calibration(m, model="ellipsoid").calibration
     return c.offset_ut, c.soft_iron
 
 
@@ -276,7 +276,7 @@ def uncertainty_check(recordings) -> None:
           "RMS z reported  RMS z independent-noise")
     for name, (m, _) in recordings.items():
         half = len(m) // 2
-        a, b = fit(m[:half], model="ellipsoid"), fit(m[half:], model="ellipsoid")
+        a, b = fit_calibration(m[:half], model="ellipsoid"), fit_calibration(m[half:], model="ellipsoid")
         if not a or not b:
             print(f"{name:30s} no fit: {a if not a else b}")
             continue

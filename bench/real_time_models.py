@@ -34,8 +34,8 @@ sys.path.insert(0, os.path.join(HERE, ".."))
 
 from real_data import MOTIONCAL, load_all, spread_pct  # noqa: E402
 
-from magcal.fit import fit  # noqa: E402
-from magcal.fit.select import direction_weights  # noqa: E402
+from magcal.fit import fit_calibration  # noqa: E402
+from magcal.fit.direction_weights import direction_weights  # noqa: E402
 
 
 def _unpack(p):
@@ -47,7 +47,7 @@ def _unpack(p):
 def time_varying(m, degree: int, kind: str):
     """(offset, matrix) of an ellipsoid whose radius (kind "radius") or offset ("offset")
     follows a degree-``degree`` Legendre polynomial in time over ``m`` (time order)."""
-    r = fit(m, model="ellipsoid")
+    r = fit_calibration(m, model="ellipsoid")
     c = r.calibration
     keep = np.ones(len(m), bool)
     keep[list(r.outliers)] = False
@@ -78,7 +78,7 @@ def block_median(m, k: int):
     edges = np.linspace(0, len(m), k + 1).astype(int)
     offs, mats = [], []
     for a, b in zip(edges[:-1], edges[1:]):
-        r = fit(m[a:b], model="ellipsoid")
+        r = fit_calibration(m[a:b], model="ellipsoid")
         if r:
             w = np.asarray(r.calibration.soft_iron)
             offs.append(r.calibration.offset_ut)

@@ -97,9 +97,9 @@ def test_a_write_that_is_not_acknowledged_or_echoed_wrong_is_never_reported_writ
 
 
 def test_a_device_that_never_answers_gives_a_clear_error_and_the_device_exit_status(capsys, monkeypatch):
-    import magcal.devices.link as link
+    import magcal.devices.protocol_client as protocol_client
 
-    monkeypatch.setattr(link.ProtocolDevice, "__init__", _quick_init(link.ProtocolDevice.__init__))
+    monkeypatch.setattr(protocol_client.ProtocolDevice, "__init__", _quick_init(protocol_client.ProtocolDevice.__init__))
     code, out, err = run_cli(capsys, "calibrate", "--port", "sim://?pace=0&fault=mute", "--json")
     assert code == 5
     assert "did not identify" in err and "Traceback" not in err

@@ -12,7 +12,7 @@ from magcal.app.load import load_series
 from magcal.core.errors import InputError
 from magcal.core.series import Series
 from magcal.devices.base import read_to_end
-from magcal.devices.link import ProtocolDevice
+from magcal.devices.protocol_client import ProtocolDevice
 from magcal.devices.replay import BytesTransport
 from magcal.recordings.capture import (
     CaptureReader,

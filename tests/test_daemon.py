@@ -13,7 +13,7 @@ from magcal.app.daemon import Daemon, Decision, Stop
 from magcal.devices import open_device, parse_port
 from magcal.devices.base import read_to_end
 from magcal.devices.simboard import SimBoard
-from magcal.recordings.state import StateStore
+from magcal.recordings.state import StateFiles
 from magcal.wire.protocol import record_from_calibration
 
 
@@ -188,7 +188,7 @@ def test_rolling_capture_stays_within_its_bound(tmp_path):
 def test_restart_resumes_the_accumulated_state(tmp_path):
     t = Tracked("seed=11")
     a = t.run(tmp_path, 800)
-    saved = StateStore(tmp_path / "state").load()
+    saved = StateFiles(tmp_path / "state").load()
     assert saved["resume"]["samples"] == a.intake.samples
     b = t.run(tmp_path, a.intake.samples + 500)
     assert b.intake.samples >= a.intake.samples + 500
@@ -212,7 +212,7 @@ def test_state_of_another_port_is_not_mixed_in(tmp_path):
 def test_torn_state_file_falls_back_to_the_previous_one(tmp_path):
     t = Tracked("seed=12")
     a = t.run(tmp_path, 600, state_every_s=0.01)
-    store = StateStore(tmp_path / "state")
+    store = StateFiles(tmp_path / "state")
     blob = store.current.read_bytes()
     store.current.write_bytes(blob[: len(blob) // 3])
     b = Daemon(make_settings(t.url), state_dir=tmp_path / "state", max_samples=a.intake.samples + 100)
@@ -311,7 +311,7 @@ def test_a_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
         first.request_stop()
         th.join(10)
     assert not th.is_alive()
-    assert StateStore(tmp_path).load()["resume"]["samples"] == first.intake.samples  # its state is intact
+    assert StateFiles(tmp_path).load()["resume"]["samples"] == first.intake.samples  # its state is intact
 
 
 def test_the_daemon_keeps_a_capture_of_a_motioncal_board_that_replays_to_the_same_readings(tmp_path):

@@ -14,7 +14,7 @@ import pytest
 from magcal.app import config
 from magcal.logic.monitor import DriftMonitor
 from magcal.logic.session import Session
-from magcal.recordings.state import StateStore
+from magcal.recordings.state import StateFiles
 
 ITERATIONS = 50
 
@@ -71,7 +71,7 @@ def test_kill_9_at_random_points_always_resumes(tmp_path):
             pytest.fail("fork() is required in CI")
         pytest.skip("needs fork()")
     rng = random.Random(20261122)
-    store = StateStore(tmp_path)
+    store = StateFiles(tmp_path)
     before = None
     resumed = 0
     for i in range(ITERATIONS):

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from magcal.core.calibration import Calibration
-from magcal.fit import FitFailure, algebraic_quadric, fit, fit_ellipsoid, quadric_to_correction
+from magcal.fit import FitFailure, algebraic_quadric, fit_calibration, fit_ellipsoid, quadric_to_correction
 from magcal.fit.ellipsoid import correct_with_note
 from magcal.sim.physics import Motion, Physics, Scenario
 
@@ -71,7 +71,7 @@ def test_hyperboloid_start_on_poor_coverage_is_detected_and_the_fit_stays_positi
     verdict = quadric_to_correction(*plain)
     assert isinstance(verdict, FitFailure) and verdict.reason == "not_positive_definite"
     assert "hyperboloid" in verdict.message
-    result = fit(run.series, model="ellipsoid")
+    result = fit_calibration(run.series, model="ellipsoid")
     assert result
     assert np.all(np.linalg.eigvalsh(result.calibration.soft_iron) > 0)
     assert result.model == "sphere" and "condition" in result.reason
@@ -100,7 +100,7 @@ def test_an_ellipsoid_fit_never_returns_a_non_positive_definite_matrix(seed, til
         assert f.field_ut > 0
     else:
         assert isinstance(f, FitFailure) and f.reason and f.message
-    r = fit(m, model="ellipsoid")
+    r = fit_calibration(m, model="ellipsoid")
     if r:
         assert np.all(np.linalg.eigvalsh(r.calibration.soft_iron) > 0)
 
@@ -108,18 +108,18 @@ def test_an_ellipsoid_fit_never_returns_a_non_positive_definite_matrix(seed, til
 def test_model_choice_follows_what_the_coverage_supports():
     phys = Physics(hard_iron_ut=(23.5, -41.2, 12.8), distortion=DISTORTION)
     full = Scenario(physics=phys, motion=Motion("sphere"), seed=4).simulate(1500)
-    r = fit(full.series, model="auto")
+    r = fit_calibration(full.series, model="auto")
     assert r.model == "ellipsoid"
     tilt = Scenario(physics=phys, motion=Motion("tilt", max_tilt_deg=30), seed=4).simulate(1500)
-    r = fit(tilt.series, model="ellipsoid")
+    r = fit_calibration(tilt.series, model="ellipsoid")
     assert r.model == "sphere" and "not fitted" in r.reason
     yaw = Scenario(physics=phys, motion=Motion("yaw"), seed=4).simulate(1500)
-    r = fit(yaw.series, model="auto")
+    r = fit_calibration(yaw.series, model="auto")
     assert not r and r.reason == "ill_conditioned"
 
 
 def test_auto_keeps_the_sphere_when_there_is_no_soft_iron():
     run = Scenario(physics=Physics(hard_iron_ut=(10, 20, 30)), motion=Motion("sphere"), seed=1).simulate(1500)
-    r = fit(run.series, model="auto")
+    r = fit_calibration(run.series, model="auto")
     assert r.model == "sphere" and "BIC" in r.reason
     assert np.array_equal(r.calibration.soft_iron, np.eye(3))

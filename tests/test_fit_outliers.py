@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from magcal.fit import fit, grubbs, grubbs_critical
+from magcal.fit import fit_calibration, grubbs, grubbs_critical
 from magcal.sim.physics import Motion, Physics, Scenario
 
 
@@ -46,7 +46,7 @@ def test_fit_removes_injected_spikes_and_reports_them_by_index():
     idx = np.array([10, 333, 777, 1111, 1400])
     size = np.array([6.0, -5.0, 8.0, -7.0, 30.0])
     m = run_with_radial_spikes(3, idx, size)
-    r = fit(m, model="sphere")
+    r = fit_calibration(m, model="sphere")
     assert set(r.outliers.tolist()) == set(idx.tolist())
     assert r.n_used == 1500 - len(idx)
     assert np.allclose(r.calibration.offset_ut, (15.0, -25.0, 35.0), atol=0.1)
@@ -56,7 +56,7 @@ def test_heavy_contamination_does_not_drag_the_fit():
     rng = np.random.default_rng(5)
     idx = rng.choice(1500, 75, replace=False)  # 5 % of samples off by 10–40 µT
     m = run_with_radial_spikes(6, idx, rng.uniform(10, 40, 75) * rng.choice([-1, 1], 75))
-    r = fit(m, model="sphere")
+    r = fit_calibration(m, model="sphere")
     assert set(idx.tolist()) <= set(r.outliers.tolist())
     assert np.allclose(r.calibration.offset_ut, (15.0, -25.0, 35.0), atol=0.1)
 
@@ -67,7 +67,7 @@ def test_false_removal_rate_on_clean_simulated_runs_is_small():
     removed = 0
     for seed in range(runs):
         run = Scenario(physics=Physics(hard_iron_ut=(5.0, 5.0, 5.0)), motion=Motion("sphere"), seed=200 + seed).simulate(1500)
-        r = fit(run.series, model="sphere")
+        r = fit_calibration(run.series, model="sphere")
         hit += len(r.outliers) > 0
         removed += len(r.outliers)
     # α = 0.01 per test: about 0.3 of 30 runs expected to lose a sample; allow sampling luck

@@ -10,7 +10,7 @@ import pytest
 
 from magcal.cli import main
 from magcal.core.series import Series
-from magcal.fit import FitFailure, fit
+from magcal.fit import FitFailure, fit_calibration
 from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
 
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
@@ -18,7 +18,7 @@ DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
 
 def test_result_dict_has_the_documented_shape_and_calibrates():
     run = demo_scenario(2).simulate(1500)
-    r = fit(run.series, model="ellipsoid")
+    r = fit_calibration(run.series, model="ellipsoid")
     d = json.loads(json.dumps(r.to_dict()))
     assert d["model"] == "ellipsoid"
     assert set(d) >= {"model", "calibration", "uncertainty", "rms_ut", "n_used", "outliers", "reason"}
@@ -42,26 +42,26 @@ def test_flagged_rows_are_neither_used_nor_called_outliers():
     field[[5, 50, 500]] = 999.0  # what a flagged overflow might hold
     spike = 300
     field[spike] *= 1.3  # a real outlier, 30 % off the sphere
-    r = fit(Series(t_s=s.t_s, field_ut=field, valid=valid), model="sphere")
+    r = fit_calibration(Series(t_s=s.t_s, field_ut=field, valid=valid), model="sphere")
     assert spike in r.outliers.tolist()
     assert not {5, 50, 500} & set(r.outliers.tolist())
     assert r.n_used == 800 - 3 - len(r.outliers)
 
 
 def test_failures_are_values_with_reasons():
-    r = fit(np.zeros((3, 3)) + 1.0)
+    r = fit_calibration(np.zeros((3, 3)) + 1.0)
     assert isinstance(r, FitFailure) and not r and r.reason == "too_few_samples"
     assert json.loads(json.dumps(r.to_dict()))["failure"] == "too_few_samples"
     with pytest.raises(ValueError, match="model"):
-        fit(np.ones((20, 3)), model="cylinder")
+        fit_calibration(np.ones((20, 3)), model="cylinder")
     with pytest.raises(ValueError, match="shape"):
-        fit(np.ones((20, 2)))
+        fit_calibration(np.ones((20, 2)))
 
 
 def test_real_recording_held_out_spread_is_small_with_a_sane_matrix():
     m = np.loadtxt(os.path.join(DATA, "lsm9ds1_ckexplorer_every4th.csv"), delimiter=",", skiprows=1)
     half = len(m) // 2
-    r = fit(m[:half], model="auto")
+    r = fit_calibration(m[:half], model="auto")
     assert r.model == "ellipsoid"
     c = r.calibration
     h = np.linalg.norm((m[half:] - c.offset_ut) @ c.soft_iron.T, axis=1)
@@ -96,7 +96,7 @@ def test_cli_json_matches_the_library(tmp_path):
     assert doc["schema"] == "magcal.fit/1" and doc["comparisons"] == []
     (d,) = doc["fits"]
     assert d["file"] == str(p) and d["n_samples"] == 1000
-    lib = fit(run.series.field_ut, model="sphere").to_dict()
+    lib = fit_calibration(run.series.field_ut, model="sphere").to_dict()
     assert d["model"] == "sphere"
     assert np.allclose(d["calibration"]["offset_ut"], lib["calibration"]["offset_ut"], rtol=0, atol=1e-9)
     assert d["n_used"] == lib["n_used"]
@@ -120,7 +120,7 @@ def test_uncertainty_on_a_real_recording_covers_the_offset_change_between_its_ha
     # cover the difference between the two halves' offsets; the reported one must cover it
     m = np.loadtxt(os.path.join(DATA, "lsm9ds1_ckexplorer_every4th.csv"), delimiter=",", skiprows=1)
     half = len(m) // 2
-    a, b = fit(m[:half], model="sphere"), fit(m[half:], model="sphere")
+    a, b = fit_calibration(m[:half], model="sphere"), fit_calibration(m[half:], model="sphere")
     d = a.calibration.offset_ut - b.calibration.offset_ut
     s = np.hypot(a.uncertainty["offset_ut"], b.uncertainty["offset_ut"])
     assert np.sqrt(np.mean((d / s) ** 2)) < 2.5
@@ -129,5 +129,5 @@ def test_uncertainty_on_a_real_recording_covers_the_offset_change_between_its_ha
 
 def test_independent_noise_keeps_the_plain_uncertainty():
     sc = Scenario(physics=Physics(hard_iron_ut=(12.0, -8.0, 30.0), noise_ut=0.4), motion=Motion("sphere"), seed=21)
-    r = fit(sc.simulate(3000, 50.0).series.field_ut, model="sphere")
+    r = fit_calibration(sc.simulate(3000, 50.0).series.field_ut, model="sphere")
     assert r.uncertainty["autocorrelation_factor"] < 1.5

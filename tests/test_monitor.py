@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from magcal import fit as fits
+from magcal.fit import fit_calibration
 from magcal.logic.monitor import DriftMonitor
 from magcal.sim.physics import Motion, demo_scenario
 
@@ -15,7 +15,7 @@ from magcal.sim.physics import Motion, demo_scenario
 @pytest.fixture(scope="module")
 def calibrated():
     sc = demo_scenario(5)
-    cal = fits.fit(sc.simulate(6000, 100.0).series.field_ut, model="auto", outliers=True).calibration
+    cal = fit_calibration(sc.simulate(6000, 100.0).series.field_ut, model="auto", outliers=True).calibration
     return sc, cal
 
 

@@ -11,7 +11,7 @@ from adafruit_device import AdafruitBoard
 
 from magcal.app.load import load_series
 from magcal.cli import main
-from magcal.fit import fit
+from magcal.fit import fit_calibration
 from magcal.wire import motioncal as mc
 
 
@@ -114,7 +114,7 @@ def test_saved_motioncal_log_reads_and_fits(tmp_path):
     s = load_series(p)
     assert len(s) >= len(m) - 20  # a torn Uni: line costs its reading
     assert np.abs(s.field_ut - np.round(m[: len(s)], 2)).max() > 0  # sanity: they are real data
-    res = fit(s.field_ut)
+    res = fit_calibration(s.field_ut)
     assert res, getattr(res, "message", res)
     truth = __import__("adafruit_device").adafruit_scenario(seed=4).physics.truth()
     cal = res.calibration
@@ -163,5 +163,5 @@ def test_a_recorded_motioncal_session_replays_as_it_was_live(capsys, tmp_path, d
     dev.open()
     assert dev.identity.transport == "replay" and not dev.abilities.store and not dev.abilities.live
     with pytest.raises(DeviceError, match="cannot store"):
-        dev.write_calibration(fit(offline.field_ut, model="sphere").calibration)
+        dev.write_calibration(fit_calibration(offline.field_ut, model="sphere").calibration)
     dev.close()

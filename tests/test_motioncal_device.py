@@ -11,7 +11,7 @@ from adafruit_device import AdafruitBoard
 from magcal.core.calibration import Calibration
 from magcal.core.errors import NoReply, WriteRejected
 from magcal.devices import open_device
-from magcal.devices.motioncal import MotionCalDevice
+from magcal.devices.motioncal_client import MotionCalDevice
 from magcal.wire import motioncal as mc
 
 FAST = dict(echo_timeout_s=1.0, tries=2, open_timeout_s=3.0)

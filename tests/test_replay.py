@@ -88,7 +88,7 @@ def test_replay_reports_the_link_defects_it_saw(recorded):
 
 
 def test_fit_on_capture_csv_and_replay_is_bit_identical(recorded, tmp_path, capsys):
-    from magcal.fit import fit
+    from magcal.fit import fit_calibration
 
     path, _ = recorded
     outputs = []
@@ -106,7 +106,7 @@ def test_fit_on_capture_csv_and_replay_is_bit_identical(recorded, tmp_path, caps
     (from_capture,) = json.loads(outputs[0])["fits"]
     assert {**from_capture, "file": None} == {**from_csv, "file": None}
     replayed = Series.from_samples(read_to_end(open_device(f"replay://{path}")))
-    via_replay = json.loads(json.dumps(fit(replayed, model="auto").to_dict()))
+    via_replay = json.loads(json.dumps(fit_calibration(replayed, model="auto").to_dict()))
     assert {**via_replay, "warnings": [], "file": str(path), "n_samples": len(replayed)} == from_capture
 
 

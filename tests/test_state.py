@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from magcal.core.errors import StateError
 from magcal.core.sample import Sample
 from magcal.logic.session import Session
-from magcal.recordings.state import StateStore, decode_state, encode_state
+from magcal.recordings.state import StateFiles, decode_state, encode_state
 from magcal.sim.physics import demo_scenario
 
 json_values = st.recursive(
@@ -64,7 +64,7 @@ def test_wrong_version_and_format_are_named():
 
 
 def test_store_falls_back_to_previous_good_file(tmp_path):
-    store = StateStore(tmp_path)
+    store = StateFiles(tmp_path)
     assert store.load() is None
     store.save({"generation": 1})
     store.save({"generation": 2})
@@ -81,7 +81,7 @@ def test_store_falls_back_to_previous_good_file(tmp_path):
 
 
 def test_store_with_no_valid_file_raises(tmp_path):
-    store = StateStore(tmp_path)
+    store = StateFiles(tmp_path)
     store.current.write_bytes(b'{"format": "magcal-state", "vers')
     with pytest.raises(StateError, match="no valid state"):
         store.load()
@@ -89,7 +89,7 @@ def test_store_with_no_valid_file_raises(tmp_path):
 
 def test_nan_is_refused_when_saving(tmp_path):
     with pytest.raises(StateError, match="JSON"):
-        StateStore(tmp_path).save({"x": float("nan")})
+        StateFiles(tmp_path).save({"x": float("nan")})
 
 
 def test_collecting_session_resumes_exactly():

@@ -158,7 +158,7 @@ def _give_up(session: Session, ended: Ended, timeout_s: float) -> None:
 
 
 @dataclass
-class Stored:
+class WriteResult:
     """What writing one calibration to a device came to."""
 
     sent: Calibration  # as the device holds it (``device.prepare``)
@@ -170,12 +170,12 @@ class Stored:
     message: str = ""
 
 
-def store_verified(device: Device, cal: Calibration) -> Stored:
+def write_verified(device: Device, cal: Calibration) -> WriteResult:
     """Write, compare the echo, read back, compare again — on any opened device that can store.
     On a mismatch the calibration that was stored before is put back (best effort) so a bad one
     is not left on the device. Device errors become failures here, never exceptions."""
     sent = device.prepare(cal)
-    out = Stored(sent=sent)
+    out = WriteResult(sent=sent)
     try:
         previous = device.read_calibration()
     except DeviceError:
@@ -207,16 +207,16 @@ def store_verified(device: Device, cal: Calibration) -> Stored:
 
 
 def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
-    """``store_verified`` for a session's result, with the session taken through writing →
+    """``write_verified`` for a session's result, with the session taken through writing →
     verifying → done (or failed with the reason)."""
     session.begin_write()
-    r = store_verified(device, session.calibration)
+    r = write_verified(device, session.calibration)
     out.written, out.verified, out.stored, out.restored = r.written, r.verified, r.stored, r.restored
     out.link = device.stats()
     if r.failure is WriteFailure.WRITE_FAILED or (r.failure is WriteFailure.VERIFY_MISMATCH and r.stored is None):
         session.fail(r.failure, r.message)  # refused, or the echo already differed
     else:
-        session.stored()
+        session.written()
         if r.failure is WriteFailure.VERIFY_FAILED:
             session.fail(r.failure, r.message)
         else:

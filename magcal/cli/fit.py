@@ -64,12 +64,12 @@ def _fit_file(path: str, args) -> tuple[dict, int]:
     """(the fit as a dict, exit status OK or GATE) for one file; InputError when it cannot be read."""
     from ..app.load import load_series
     from ..core.errors import InputError
-    from ..fit import fit
+    from ..fit import fit_calibration
 
     series = load_series(path, table_format(args))
     if len(series) == 0:
         raise InputError(f"{path}: no samples")
-    result = fit(
+    result = fit_calibration(
         series, model=args.model, outliers=not args.no_outliers, noise_ut=args.noise_ut, balance=args.balance
     )
     if not result:

@@ -34,12 +34,12 @@ def gather(state_dir) -> tuple[dict, str]:
     """(status, source) — source is ``socket``, ``state file`` or ``none`` (no daemon has run
     with this state directory)."""
     from ..app.daemon import query_socket
-    from ..recordings.state import StateStore
+    from ..recordings.state import StateFiles
 
     live = query_socket(state_dir)
     if live is not None:
         return live, "socket"
-    store = StateStore(state_dir)
+    store = StateFiles(state_dir)
     data = store.load()
     if data is None:
         return {"running": False, "state_dir": str(store.directory),

@@ -111,7 +111,7 @@ def _read(path: str):
 
 
 def run(args) -> int:
-    from ..app.procedure import store_verified
+    from ..app.procedure import write_verified
 
     cal, notes = calibration_from_json(_read(args.file), args.file)
     settings = device_settings(args)
@@ -122,7 +122,7 @@ def run(args) -> int:
             print(f"magcal write: {settings.port}: a read-only source cannot store a calibration", file=sys.stderr)
             return Exit.WRITE
         try:
-            r = store_verified(device, cal)
+            r = write_verified(device, cal)
         except ValueError as exc:  # the device's record cannot carry it (range, terms)
             raise InputError(f"{settings.port}: this device cannot hold that calibration: {exc}") from None
     lost = sorted(set(cal.coef_ut_per_unit) - set(r.sent.coef_ut_per_unit))

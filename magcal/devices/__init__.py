@@ -32,8 +32,8 @@ BACKENDS = {
     "emu": "magcal.devices.emulator:open_emulated",
     "replay": "magcal.devices.replay:open_replay",
     "i2c": "magcal.devices.i2c:open_i2c",
-    "serial": "magcal.devices.link:open_serial",
-    "motioncal": "magcal.devices.motioncal:open_motioncal",
+    "serial": "magcal.devices.protocol_client:open_serial",
+    "motioncal": "magcal.devices.motioncal_client:open_motioncal",
 }
 
 

@@ -233,7 +233,7 @@ def open_emulated(port: Port, dialect: str = "native", *, scenario: Scenario | N
 
     The returned device has ``.board`` (the ``EmulatedBoard``: its ``scenario``, ``reset()``,
     ``eeprom_path``, ``served``). The harness starts when the device is opened."""
-    from .link import ProtocolDevice
+    from .protocol_client import ProtocolDevice
 
     if port.get("pace", 0) not in (0, 1):
         raise PortError(f"{port.url!r}: emu:// paces at 0 (as fast as it runs) or 1 (real time), "

@@ -23,7 +23,7 @@ from typing import Callable, Iterable
 from ..core.errors import DeviceError, InputError, PortError, PortUnavailable
 from ..wire.protocol import Hello, classify_line, encode_line
 from .faults import FaultKind, LinkFaults
-from .link import ProtocolDevice
+from .protocol_client import ProtocolDevice
 from .port import Port
 from .transport import WrappedTransport
 
@@ -256,7 +256,7 @@ def recorded_device(url: str, transport, dialect: str = "native", *, tap=None, r
     live, listening only: ``ProtocolDevice`` for protocol v1, ``MotionCalDevice`` for the
     MotionCal convention, each reading timed by when its bytes arrived."""
     if dialect == "motioncal":
-        from .motioncal import MotionCalDevice
+        from .motioncal_client import MotionCalDevice
 
         return MotionCalDevice(url, connect=resuming(transport, url), passive=True, tap=tap,
                                data_clock=lambda: transport.t_rx_s, open_timeout_s=open_timeout_s)

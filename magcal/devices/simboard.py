@@ -44,7 +44,7 @@ from ..wire.protocol import (
     record_crc,
 )
 from .faults import Fault, FaultKind, LinkFaults
-from .link import ProtocolDevice
+from .protocol_client import ProtocolDevice
 from .port import Port, scenario_of
 
 FIRMWARE = "0.1.0"
@@ -63,7 +63,7 @@ class SimEeprom:
                 raw = f.read(EEPROM_SIZE)
             self.data[: len(raw)] = raw
 
-    def store(self, offset: int, payload: bytes) -> None:
+    def put(self, offset: int, payload: bytes) -> None:
         self.data[offset : offset + len(payload)] = payload
         if self.path:
             write_atomic(self.path, bytes(self.data))
@@ -80,7 +80,7 @@ class SimEeprom:
 
     def save_record(self, values) -> None:
         blob = bytes([EEPROM_MAGIC]) + struct.pack("<18i", *values) + struct.pack("<H", record_crc(values))
-        self.store(0, blob)
+        self.put(0, blob)
 
 
 class StandaloneFit:

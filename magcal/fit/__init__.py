@@ -1,6 +1,6 @@
 """Fits: each a constructor that returns a model or a falsy FitFailure, never a half-built object.
 
-``fit(samples, model="sphere"|"ellipsoid"|"auto", outliers=True)`` is the entry point the
+``fit_calibration(samples, model="sphere"|"ellipsoid"|"auto", outliers=True)`` is the entry point the
 session, the CLI and the diagnosis use; the pieces (accumulator, ML sphere, ellipsoid, Grubbs,
 uncertainty) are importable on their own.
 """
@@ -9,12 +9,12 @@ from .accumulator import SphereAccumulator, SphereFit
 from .ellipsoid import algebraic_quadric, fit_ellipsoid, quadric_to_correction
 from .failure import FitFailure
 from .outliers import grubbs, grubbs_critical
-from .pipeline import MODELS, fit
+from .pipeline import MODELS, fit_calibration
 from .result import FitResult
 from .sphere import fit_sphere
 
 __all__ = [
-    "SphereAccumulator", "SphereFit", "FitFailure", "FitResult", "fit", "MODELS",
+    "SphereAccumulator", "SphereFit", "FitFailure", "FitResult", "fit_calibration", "MODELS",
     "fit_sphere", "fit_ellipsoid", "algebraic_quadric", "quadric_to_correction",
     "grubbs", "grubbs_critical",
 ]

@@ -1,6 +1,6 @@
 """``fit``: the one entry point — start, robust fit, outliers, ML refit, model choice, uncertainty.
 
-    fit(m_ut_or_series, model="sphere"|"ellipsoid"|"auto", outliers=True) -> FitResult | FitFailure
+    fit_calibration(m_ut_or_series, model="sphere"|"ellipsoid"|"auto", outliers=True) -> FitResult | FitFailure
 
 1. Samples: an (n, 3) array in µT or a Series (flagged and non-finite rows are left out; they
    are neither used nor reported as outliers).
@@ -37,7 +37,7 @@ from . import outliers as _outliers
 from .ellipsoid import algebraic_start
 from .failure import FitFailure
 from .result import MODEL_NAMES, FitResult
-from .select import direction_weights
+from .direction_weights import direction_weights
 from .sphere import sphere_start
 
 MODELS = ("sphere", "ellipsoid", "auto")
@@ -113,7 +113,7 @@ def _bic(fit: geometric.GeometricFit) -> float:
     return n * np.log(mse) + geometric.n_params(fit.kind) * np.log(n)
 
 
-def fit(
+def fit_calibration(
     data,
     model: str = "auto",
     outliers: bool = True,
@@ -150,7 +150,7 @@ def fit(
 
     kinds = ["sphere"] if model == "sphere" else ["full", "diagonal", "sphere"]
     notes: list[str] = []
-    fits: dict[str, tuple] = {}
+    candidates: dict[str, tuple] = {}
     conds: dict[str, float] = {}
     for kind in kinds:
         if kind == "sphere":
@@ -181,28 +181,28 @@ def fit(
                 f" (limit {100 * max_shape_sigma:.2g} %)"
             )
             continue
-        fits[kind] = (f, keep)
+        candidates[kind] = (f, keep)
         if model == "ellipsoid" and kind != "sphere":
             break  # the fullest determinable ellipsoid
         if model == "ellipsoid" and kind == "sphere":
             notes.append("fell back to the sphere")
 
-    if not fits:
+    if not candidates:
         return FitFailure("no_convergence", "; ".join(notes) or "no model could be fitted")
-    if model == "auto" and len(fits) > 1:
-        bics = {k: _bic(f) for k, (f, _) in fits.items()}
+    if model == "auto" and len(candidates) > 1:
+        bics = {k: _bic(f) for k, (f, _) in candidates.items()}
         chosen = min(bics, key=bics.get)
         others = ", ".join(f"{MODEL_NAMES[k]} {bics[k] - bics[chosen]:+.1f}" for k in bics if k != chosen)
         notes.append(f"{MODEL_NAMES[chosen]} has the lowest BIC (ΔBIC: {others})")
     else:
-        chosen = next(iter(fits))
+        chosen = next(iter(candidates))
         if model == "sphere":
             notes.append("sphere requested")
         elif model == "ellipsoid" and chosen != "sphere":
             notes.append(f"{MODEL_NAMES[chosen]} is the fullest model the coverage determines")
         elif model == "auto":
             notes.append(f"{MODEL_NAMES[chosen]} is the only model the coverage determines")
-    g, keep = fits[chosen]
+    g, keep = candidates[chosen]
     weights = None
     if balance == "directions" or (balance == "auto" and g.kind != "sphere"):
         mk = m[keep]
@@ -233,5 +233,5 @@ def fit(
         condition=conds[chosen],
         used=idx[keep],
         residual_ut=g.residual_ut,
-        alternatives={MODEL_NAMES[k]: f.rms_ut for k, (f, _) in fits.items()},
+        alternatives={MODEL_NAMES[k]: f.rms_ut for k, (f, _) in candidates.items()},
     )

@@ -21,11 +21,10 @@ from enum import Enum
 
 import numpy as np
 
-from .. import fit as fits
 from ..core.calibration import Calibration
 from ..core.events import Event
 from ..core.sample import Sample
-from ..fit import SphereAccumulator
+from ..fit import SphereAccumulator, fit_calibration
 from ..fit.coverage import SampleSet
 from .gates import GateResult, Gates, model_gates
 
@@ -184,7 +183,7 @@ class Session:
         Returns the FitResult, or the failure (and the session is FAILED)."""
         self._set_status(Status.SOLVING)
         self.update_estimate()
-        result = fits.fit(self.kept.field_ut, model=self.model, outliers=True)
+        result = fit_calibration(self.kept.field_ut, model=self.model, outliers=True)
         if not result:
             self.fail("fit_failed", f"the fit failed: {getattr(result, 'message', result)}")
             return result
@@ -202,7 +201,7 @@ class Session:
     def begin_write(self) -> None:
         self._set_status(Status.WRITING)
 
-    def stored(self) -> None:
+    def written(self) -> None:
         self._set_status(Status.VERIFYING)
 
     def verified(self, ok: bool, message: str = "") -> None:

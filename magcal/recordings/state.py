@@ -7,9 +7,9 @@ On disk (one JSON object, UTF-8)::
 
 The checksum covers the payload serialised canonically (sorted keys, no spaces), so a file cut
 short, edited by hand or mixed from two writes is refused with ``StateError`` rather than read
-as valid. ``StateStore.save`` keeps the previous good file as ``state.prev.json`` before it
+as valid. ``StateFiles.save`` keeps the previous good file as ``state.prev.json`` before it
 replaces ``state.json`` (both through ``magcal.recordings.atomic.write_atomic``: write, fsync, rename,
-fsync the directory); ``StateStore.load`` falls back to the previous file when the current one
+fsync the directory); ``StateFiles.load`` falls back to the previous file when the current one
 is invalid, and says so.
 
 Nothing here knows what the payload means: the daemon decides that (see ``magcal.app.daemon``).
@@ -74,7 +74,7 @@ def _refuse_constant(token: str):
     raise ValueError(f"non-finite number {token} in state file")
 
 
-class StateStore:
+class StateFiles:
     """``state.json`` and ``state.prev.json`` in one directory."""
 
     def __init__(self, directory):

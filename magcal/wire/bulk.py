@@ -33,9 +33,9 @@ from .protocol import (
     MAX_LINE,
     SEQ_MOD,
     CalibratedSample,
+    Frame,
     Gap,
     Hello,
-    Item,
     Message,
     RawSample,
     Restart,
@@ -64,14 +64,14 @@ class Frames:
     st2: np.ndarray  # (n,) int64
     temp: np.ndarray  # (n,) int64 TEMP_OUT
     others: list[tuple[int, Message]]  # (position, message) for every non-sample message
-    events: list[tuple[int, Item]]  # (position of the message it precedes, Gap | Restart)
+    events: list[tuple[int, Frame]]  # (position of the message it precedes, Gap | Restart)
     counters: Counter = field(default_factory=Counter)
     tail: bytes = b""
 
     def __len__(self) -> int:
         return len(self.pos)
 
-    def items(self) -> list[Item]:
+    def items(self) -> list[Frame]:
         """Everything in order, as the incremental framer returns it (for tests and tools)."""
         seq = self.seq.tolist()
         ms = self.ms.tolist()
@@ -307,7 +307,7 @@ def _sequence(pos: np.ndarray, seq: np.ndarray, others: list, counters: Counter)
     counters["restarts"] += int(hello0.sum())
     counters["gaps"] += int(gap.sum())
     counters["lost_lines"] += int(lost[gap].sum())
-    events: list[tuple[int, Item]] = []
+    events: list[tuple[int, Frame]] = []
     for i in np.flatnonzero(hello0 | gap).tolist():
         if hello0[i]:
             events.append((int(at[i]), Restart(0)))

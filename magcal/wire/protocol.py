@@ -148,7 +148,7 @@ class Restart:
 
 
 Message = Union[Hello, RawSample, CalibratedSample, Ack, ErrorReply, RecordReply, FitReply, Log]
-Item = Union[Message, Gap, Restart]
+Frame = Union[Message, Gap, Restart]  # what the framer yields: a message, or a gap or restart it saw
 
 
 class ParseError(ValueError):
@@ -316,8 +316,8 @@ class Framer:
         """Forget the last sequence number (after the host itself reset the device)."""
         self._seq.last = None
 
-    def feed(self, data: bytes) -> list[Item]:
-        out: list[Item] = []
+    def feed(self, data: bytes) -> list[Frame]:
+        out: list[Frame] = []
         buf = bytes(data)
         n = len(buf)
         c = self.counters

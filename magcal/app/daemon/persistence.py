@@ -1,7 +1,7 @@
 """The state keeper: what the daemon writes so that a restart resumes where it stopped, and the
 lock that keeps one daemon per state directory.
 
-The file (``magcal.recordings.state.StateStore``: atomic, checksummed, previous good file kept)
+The file (``magcal.recordings.state.StateFiles``: atomic, checksummed, previous good file kept)
 holds one payload: ``{"kind", "generation", "saved_utc", "status", "resume"}``. ``resume`` is
 read back by ``Saved.parse`` into typed values before any of it is used, so a state that is
 malformed anywhere is refused whole.
@@ -20,7 +20,7 @@ from ...core.calibration import Calibration
 from ...core.errors import StateError
 from ...logic.monitor import DriftMonitor
 from ...logic.session import Session
-from ...recordings.state import StateStore
+from ...recordings.state import StateFiles
 from .journal import Decision, Journal
 
 STATE_KIND = "magcal-daemon"
@@ -75,7 +75,7 @@ class Saved:
 class StateKeeper:
     def __init__(self, state_dir: Path, journal: Journal, faults: Counter,
                  clock: Callable[[], float] = time.monotonic):
-        self.store = StateStore(state_dir)
+        self.files = StateFiles(state_dir)
         self._journal = journal
         self._faults = faults
         self._clock = clock
@@ -90,7 +90,7 @@ class StateKeeper:
         self._next_save = self._clock() + every_s
         self.generation += 1
         try:
-            self.store.save(payload(self.generation))
+            self.files.save(payload(self.generation))
         except (OSError, StateError) as exc:
             self._faults["state_write_failed"] += 1
             self._journal.record(Decision.STATE_NOT_WRITTEN, error=str(exc))
@@ -100,7 +100,7 @@ class StateKeeper:
     def load(self) -> dict | None:
         """The saved payload; None (and why, in the journal) when there is none to resume."""
         try:
-            data = self.store.load()
+            data = self.files.load()
         except StateError as exc:
             self._faults["state_refused"] += 1
             self._journal.record(Decision.STATE_REFUSED, error=str(exc))
@@ -116,12 +116,12 @@ class StateKeeper:
     @property
     def load_note(self) -> str:
         """What the last load had to do, in words (fell back, found nothing …)."""
-        return self.store.last_load_note
+        return self.files.last_load_note
 
     @property
     def loaded_from(self) -> str | None:
         """The file the last load took its state from (``state.prev.json`` after a fall-back)."""
-        return self.store.loaded_from
+        return self.files.loaded_from
 
 
 class StateDirLock:

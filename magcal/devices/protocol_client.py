@@ -429,7 +429,7 @@ def open_serial(port: Port, dialect: str = "native", *, baud: int = 115200, tap=
     # a capture records from the first byte, the detection's included
     dialect, seen = detect_dialect(tapped(first, tap))
     if dialect == "motioncal":
-        from .motioncal import MotionCalDevice
+        from .motioncal_client import MotionCalDevice
 
         first.close()
         return MotionCalDevice(url, baud=baud, tap=tap, open_timeout_s=open_timeout_s,
