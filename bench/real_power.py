@@ -45,7 +45,7 @@ from magcal.diagnose import channels as ch  # noqa: E402
 from magcal.diagnose import harmonics  # noqa: E402
 from magcal.diagnose import softiron as si  # noqa: E402
 from magcal.diagnose import wander as wd  # noqa: E402
-from magcal.diagnose.ladder import RICH_DEGREE, WANDER_DEGREE  # noqa: E402
+from magcal.diagnose.design import RICH_DEGREE, WANDER_DEGREE  # noqa: E402
 from magcal.diagnose.model import Spec, fit_model  # noqa: E402
 
 KINDS = {"temp": ("temp_c", "temperature_drift"), "current": ("current_a", "current_interference")}

@@ -337,7 +337,7 @@ def test_a_channel_the_motion_cannot_test_is_named_under_limits():
 
 def test_the_floor_by_direction_says_when_a_direction_is_never_pinned():
     from magcal.diagnose.channels import slow_term_floor, slow_term_floor_range
-    from magcal.diagnose.ladder import _by_direction
+    from magcal.diagnose.limits import by_direction as _by_direction
 
     t = np.linspace(0.0, 1.0, 2000)
     temp = 20.0 + 10.0 * np.sin(2 * np.pi * t)

@@ -7,6 +7,7 @@ the statistics (inference) and the ladder that ties them (ladder).
 """
 
 from .finding import Finding
-from .ladder import Diagnosis, diagnose
+from .diagnosis import Diagnosis
+from .ladder import diagnose
 
 __all__ = ["Diagnosis", "Finding", "diagnose"]

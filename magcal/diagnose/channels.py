@@ -28,6 +28,9 @@ TIME = "t_s"
 TEMP = "temp_c"
 CURRENT = "current_a"
 CONFOUND_CORR = 0.95
+# a slow channel term must explain at least 4× the (variance of the) slow offset wander it leaves
+# unexplained, i.e. ≥ 80 % of it: one slow channel cycle otherwise matches real wander by chance
+WANDER_RATIO = 4.0
 
 _EFFECT = {TEMP: "temperature_drift", CURRENT: "current_interference", TIME: "time_drift"}
 _UNIT = {TEMP: "°C", CURRENT: "A", TIME: "s"}

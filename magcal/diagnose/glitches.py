@@ -32,6 +32,7 @@ from scipy import stats
 
 from ..fit.failure import FitFailure
 from ..fit.sphere import sphere_start
+from .finding import Finding
 
 _LOCAL = 128  # samples per block of the local scale
 _TRIM = 0.9  # the scale is the RMS of the central 90 % of |d| …
@@ -290,3 +291,35 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
         flagged &= ~burst
     idx = np.flatnonzero(flagged)
     return Glitches(idx, zs[idx], jumps[idx], thr, noise, thr_r, by_radial[idx])
+
+
+def describe(glitch: Glitches, rows: np.ndarray, times: np.ndarray, radial_ut: np.ndarray) -> Finding:
+    """The ``outliers`` finding: ``rows`` and ``times`` of the flagged samples (file rows and
+    seconds), ``radial_ut`` how far each lies off the baseline sphere."""
+    seen = float(np.median(np.abs(radial_ut) / np.maximum(glitch.jump_ut, 1e-9)))
+    summary = (
+        f"{len(glitch.index)} sample(s) jump off the smooth trajectory by {np.median(glitch.jump_ut):.1f} µT "
+        f"(median) and straight back: isolated read glitches or corrupted samples, not field. "
+        + (
+            f"Only about {100 * seen:.0f} % of a jump shows in |m|, so a radius check alone misses the sideways ones."
+            if seen < 0.7
+            else f"About {100 * min(seen, 1.0):.0f} % of a jump shows in |m|: these jumps are mostly radial."
+        )
+    )
+    return Finding(
+        effect="outliers",
+        summary=summary,
+        where={"time_s": [float(v) for v in times[:200]], "n": int(len(glitch.index))},
+        evidence={
+            "test": "neighbour-interpolation innovation of the 3-vector (chi2(3)) and of |m - c| - r (chi2(1)), "
+            "robust local scales, Bonferroni over samples and both channels",
+            "threshold_z": glitch.threshold_z,
+            "threshold_radial_z": glitch.threshold_radial_z if np.isfinite(glitch.threshold_radial_z) else None,
+            "n_seen_in_magnitude_only": int(np.sum(glitch.radial)),
+            "z": [float(v) for v in glitch.z[:200]],
+            "jump_ut": [float(v) for v in glitch.jump_ut[:200]],
+            "median_radial_change_ut": float(np.median(np.abs(radial_ut))),
+            "median_radial_share_of_jump": seen,
+        },
+        params={"indices": [int(v) for v in rows]},
+    )

@@ -44,7 +44,7 @@ def _block_sums(x: np.ndarray, r: np.ndarray, blocks: list[slice]) -> np.ndarray
     return np.stack([x[b].T @ r[b] for b in blocks])
 
 
-def _pinv_sym(g: np.ndarray) -> np.ndarray:
+def pinv_sym(g: np.ndarray) -> np.ndarray:
     """Pseudo-inverse of a symmetric PSD matrix (redundant columns get no weight)."""
     if g.size == 0:
         return g
@@ -98,7 +98,7 @@ def block_wald(
     for name, cols in groups.items():
         cols = np.asarray(cols)
         other = np.setdiff1d(np.arange(p), cols)
-        goo = _pinv_sym(gram[np.ix_(other, other)])
+        goo = pinv_sym(gram[np.ix_(other, other)])
         xo = xs[:, other]
         xc = xs[:, cols]
         xp = xc - xo @ (goo @ gram[np.ix_(other, cols)])

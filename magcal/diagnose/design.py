@@ -1,0 +1,124 @@
+"""The candidate design: every term diagnosis may add, as columns of one linear regression.
+
+At the baseline (hard iron + radius) the radial residual e is regressed on
+
+* the baseline's own Jacobian (offset and radius: what the refit would absorb anyway);
+* soft iron, the five degree-2 directions (magcal.diagnose.softiron);
+* one offset-versus-channel term per candidate channel, three columns each (magcal.diagnose.channels);
+* nuisance columns: the degree-3/4 direction harmonics (magcal.diagnose.harmonics) and a slow
+  offset wander in time (magcal.diagnose.wander).
+
+Each named group of columns is then tested for being zero by the block-HAC Wald test of
+magcal.diagnose.inference, and a channel group a second time against a rich wander.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy import stats
+
+from . import channels, harmonics, softiron, wander
+from .inference import WaldResult, block_wald, shift_inflation
+from .model import ModelFit
+
+# the slow wander as a nuisance: Legendre degrees 2..WANDER_DEGREE of the offset versus time, in
+# every test and held-out comparison
+WANDER_DEGREE = 2
+# the second test of each channel: against a wander up to this degree, on at most RICH_MAX rows
+RICH_DEGREE = 12
+RICH_MAX = 50_000
+SHIFTS = 63  # circular shifts calibrating the rich-wander test of a channel (shift_inflation)
+
+
+@dataclass(frozen=True)
+class Design:
+    """The columns of every candidate term at the baseline, and which group is which."""
+
+    x: np.ndarray  # (n, p): baseline Jacobian, soft iron, channel terms, harmonics, wander
+    residual_ut: np.ndarray  # (n,) the baseline's radial residual
+    groups: dict  # effect name → its column indices in x
+    candidates: dict  # channel effect name → ChannelCandidate
+    n_jacobian: int  # leading columns that are the baseline's own Jacobian
+    n_before_wander: int  # columns before the wander nuisance (Jacobian … harmonics)
+    directions: np.ndarray  # (n, 3) unit field directions about the baseline offset
+    offset_ut: np.ndarray  # the baseline offset the columns were built about
+
+    @property
+    def wander_cols(self) -> np.ndarray:
+        return np.arange(self.n_before_wander, self.x.shape[1])
+
+    @property
+    def channel_groups(self) -> dict:
+        """Channel effects other than time (time always goes through the wander gate)."""
+        return {g: c for g, c in self.groups.items() if g != softiron.EFFECT and self.candidates[g].channel != channels.TIME}
+
+
+def build(m: np.ndarray, t: np.ndarray, chans: dict, base: ModelFit, candidates: list) -> Design:
+    """The design at ``base`` for samples ``m`` (µT), times ``t`` and channel arrays ``chans``
+    (keyed by channel name, time included as ``channels.TIME``)."""
+    residual, jac = base.jacobian(m, {})
+    cols = [jac, softiron.regressors(m, base.offset_ut)]
+    groups = {softiron.EFFECT: np.arange(jac.shape[1], jac.shape[1] + 5)}
+    k = jac.shape[1] + 5
+    by_effect = {}
+    for cand in candidates:
+        cols.append(channels.regressors(chans[cand.channel], cand.reference, m, base.offset_ut))
+        groups[cand.effect] = np.arange(k, k + 3)
+        by_effect[cand.effect] = cand
+        k += 3
+    d = m - base.offset_ut
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    cols.append(harmonics.regressors(u))
+    n_before_wander = k + cols[-1].shape[1]
+    cols.append(wander.regressors(t, u, WANDER_DEGREE))
+    return Design(np.concatenate(cols, axis=1), residual, groups, by_effect, jac.shape[1], n_before_wander, u, base.offset_ut)
+
+
+@dataclass(frozen=True)
+class RichTests:
+    """Each channel tested against the rich wander, calibrated by its own circular shifts."""
+
+    results: dict  # effect → WaldResult
+    inflation: dict  # effect → λ (only for channels that could pass)
+
+
+def test_against_rich_wander(design: Design, m: np.ndarray, t: np.ndarray, chans: dict, alpha: float) -> RichTests:
+    """Each channel tested a second time against a rich wander nuisance (Legendre degrees
+    2..RICH_DEGREE of the offset vs time). A channel that varies faster than the wander (an
+    intermittent current) keeps most of its variation and needs no wander gate; a slow one (a
+    temperature cycle) is absorbed and left to the first test and the gate. The statistic of a
+    channel that could pass is divided by how much its circularly shifted copies run above the
+    F distribution on this recording (inference.shift_inflation)."""
+    groups = design.channel_groups
+    if not groups:
+        return RichTests({}, {})
+    # on a systematic subsample of at most RICH_MAX rows: the wide design stays small in memory
+    sel = slice(None, None, max(1, -(-len(design.residual_ut) // RICH_MAX)))
+    x_rich = np.concatenate(
+        [design.x[sel, : design.n_before_wander], wander.regressors(t[sel], design.directions[sel], RICH_DEGREE)], axis=1
+    )
+    e_sel = design.residual_ut[sel]
+    results = block_wald(x_rich, e_sel, groups)
+    inflation = {}
+    for g in groups:
+        if results[g].p > alpha:
+            continue
+        cand = design.candidates[g]
+        x_g = chans[cand.channel][sel]
+        lags = np.unique((np.linspace(0.05, 0.95, SHIFTS) * len(x_g)).round().astype(int))
+        shifted = (channels.regressors(np.roll(x_g, lag), cand.reference, m[sel], design.offset_ut) for lag in lags)
+        # the aligned columns stay in the design: the shifted copies are judged on the residual
+        # the channel leaves, so an effect that is there does not inflate its own null
+        inflation[g] = shift_inflation(x_rich, e_sel, shifted)
+        results[g] = calibrated(results[g], inflation[g])
+    return RichTests(results, inflation)
+
+
+def calibrated(result: WaldResult, inflation: float) -> WaldResult:
+    """The test with its F statistic divided by the shift inflation λ (p never lowered)."""
+    if inflation <= 1.0:
+        return result
+    p_cal = float(stats.f.sf(result.f / inflation, result.df1, result.df2))
+    return replace(result, p=max(result.p, p_cal))

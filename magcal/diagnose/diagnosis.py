@@ -1,0 +1,82 @@
+"""Diagnosis: what ``diagnose`` returns, as a value (the JSON shape of ``magcal diagnose``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.series import Series
+from . import channels
+from .finding import Finding
+from .model import ModelFit
+
+
+def model_name(fit: ModelFit) -> str:
+    """"sphere" or "ellipsoid", then each channel term: ``ellipsoid+temp_c``."""
+    parts = ["ellipsoid" if fit.spec.soft_iron else "sphere"]
+    parts += [f"{c}" for c in fit.spec.channels]
+    return "+".join(parts)
+
+
+def calibration_dict(fit: ModelFit) -> dict:
+    """The ``calibration`` object of the JSON: what ``magcal write`` puts on a device."""
+    cal = fit.calibration()
+    reference = {channels.TEMP: float(cal.reference.get(channels.TEMP, 0.0)), channels.CURRENT: 0.0}
+    reference.update({k: float(v) for k, v in cal.reference.items()})
+    if channels.TEMP not in cal.reference:
+        reference.pop(channels.TEMP)
+    out = {
+        "offset_ut": [float(v) for v in cal.offset_ut],
+        "field_ut": float(cal.field_ut),
+        "soft_iron": [[float(v) for v in row] for row in cal.soft_iron],
+        "reference": reference,
+    }
+    if cal.coef_ut_per_unit:
+        out["coef_ut_per_unit"] = {k: [float(x) for x in v] for k, v in cal.coef_ut_per_unit.items()}
+    return out
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    n_samples: int
+    baseline: ModelFit
+    final: ModelFit
+    findings: tuple[Finding, ...]
+    baseline_heldout_rms_ut: float
+    final_heldout_rms_ut: float
+    simulated_rms_ut: float
+    noise_ut: float
+    series: Series = field(repr=False)  # the analysed samples (valid, finite)
+    outlier_mask: np.ndarray = field(repr=False)
+    tests: dict = field(default_factory=dict, repr=False)
+    folds: tuple = field(default=(), repr=False)
+    fold_rms: tuple = field(default=(), repr=False)  # ((baseline, final) per fold)
+    limits: tuple = ()  # what this recording could not test, and whether it is suspected (dicts)
+
+    @property
+    def effects(self) -> list[str]:
+        return [f.effect for f in self.findings]
+
+    def model_name(self, fit: ModelFit) -> str:
+        return model_name(fit)
+
+    def to_dict(self) -> dict:
+        return {
+            "n_samples": int(self.n_samples),
+            "baseline": {
+                "model": "sphere",
+                "rms_ut": float(self.baseline.rms_ut),
+                "heldout_rms_ut": float(self.baseline_heldout_rms_ut),
+            },
+            "findings": [f.to_dict() for f in self.findings],
+            "final": {
+                "model": model_name(self.final),
+                "rms_ut": float(self.final.rms_ut),
+                "heldout_rms_ut": float(self.final_heldout_rms_ut),
+                "simulated_rms_ut": float(self.simulated_rms_ut),
+            },
+            "noise_ut": float(self.noise_ut),
+            "limits": [dict(x) for x in self.limits],
+            "calibration": calibration_dict(self.final),
+        }

@@ -1,0 +1,144 @@
+"""What a recording could not test, and whether it is suspected: the ``limits`` of a diagnosis.
+
+Silence about a term must not read as "it is not there". Each function returns a tuple of
+dicts (the JSON shape of one limit: ``effect``, ``suspected``, ``summary`` and figures).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import channels, softiron
+from .model import ModelFit
+
+
+def untested_channels(tests: dict, by_effect: dict) -> tuple:
+    """A channel term the recording could not test at all is named, with why: silence about a
+    column the user logged must not read as "it has no effect"."""
+    out = []
+    for g, r in tests.items():
+        if g == softiron.EFFECT or not (r.f == 0.0 and r.p >= 1.0):
+            continue
+        c = by_effect[g]
+        what = "time" if c.channel == channels.TIME else c.channel
+        if c.confounded:
+            what += " (with " + ", ".join(n for n, _ in c.confounded) + ", which only rose or fell with it)"
+        if r.basis.shape[1] == 0:
+            why = (
+                "with this motion an offset that follows it looks the same as the hard iron, a "
+                "direction-dependent error or the slow wander (the sensor pointed in different "
+                "directions while it changed); record while it goes up and down with the board "
+                "turning through all orientations"
+            )
+        else:
+            why = "it varies in too few independent stretches of the recording to be tested against the slow wander"
+        out.append({"effect": g, "suspected": False, "channel": c.channel, "summary": f"An offset following {what} could not be tested: {why}."})
+    return tuple(out)
+
+
+WANDER_BLOCKS = 20
+
+
+def by_direction(r) -> str:
+    if not r:
+        return ""
+    lo, hi = r
+    return f" ({lo:.2g}–{hi:.2g} by its direction)" if hi is not None else f" ({lo:.2g} or more by its direction; along some, not at all)"
+
+
+def wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, floor_ut: float, untested: list) -> tuple:
+    """Real recordings wander: the offset moves slowly in a way no logged channel explains.
+    That is not a calibration term (it cannot be predicted for the next session), but it bounds
+    what the calibration is good for and what slow effects this recording can identify, so it
+    is stated when the final model's block offsets scatter beyond the noise (χ², at ``alpha``)
+    by more than the practical floor."""
+    used = {c: chans[c] for c in final.spec.channels}
+    e = final.residual(m, used)
+    h = final.calibration().correct(m, used)
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    rms, p = channels.offset_wander(e, u, WANDER_BLOCKS)
+    if not (p < alpha and rms >= floor_ut):
+        return ()
+    others = [c for c in untested if c != channels.TIME]
+    if others:
+        tail = f"; an effect of {', '.join(others)} or of time that varies this slowly could not be told apart from it"
+    elif any(c != channels.TIME for c in chans):  # every logged channel is in the model
+        tail = "; a drift in time that varies this slowly could not be told apart from it"
+    else:
+        tail = "; a temperature (none is logged) or drift effect that varies this slowly could not be told apart from it"
+    # how large a slow term of each channel not in the model would have had to be
+    floors, ranges = {}, {}
+    for c in untested:
+        f = channels.slow_term_floor(chans[c], rms, channels.WANDER_RATIO, WANDER_BLOCKS) if c in chans else None
+        if f is not None:
+            floors[c] = f
+            ranges[c] = channels.slow_term_floor_range(chans[c], u, rms, channels.WANDER_RATIO, WANDER_BLOCKS)
+    if floors:
+        tail += " (to be reported, a slowly varying term would have needed about " + ", ".join(
+            f"{v:.2g} µT/{channels.unit_of(c)} of {'drift in time' if c == channels.TIME else c}"
+            + by_direction(ranges.get(c))
+            for c, v in floors.items()
+        ) + ")"
+    p_text = "p < 1e-12" if p < 1e-12 else f"p = {p:.1g}"
+    return (
+        {
+            "effect": "offset_wander",
+            "suspected": True,
+            "rms_ut": rms,
+            "p_value": p,
+            "blocks": WANDER_BLOCKS,
+            "slow_term_floor_ut_per_unit": floors,
+            "slow_term_floor_range_ut_per_unit": {c: list(r) for c, r in ranges.items() if r},
+            "summary": (
+                f"The offset wanders slowly by about {rms:.2f} µT RMS between {WANDER_BLOCKS} stretches of the recording, "
+                f"more than the noise allows ({p_text}) and explained by no logged channel (environment, sensor drift, an "
+                f"unlogged temperature): a calibration from this recording is good to about that much{tail}."
+            ),
+        },
+    )
+
+
+# the final model's residual this much above what it predicts for the measured noise is
+# practically "something left unmodelled" (simulated clean recordings stay within ±7 %)
+SUSPECT_EXCESS = 1.15
+
+
+def soft_iron_limits(test, accepted: bool, rms_ut: float, simulated_rms_ut: float, duration_s: float) -> tuple:
+    """Say so when the recording could not test soft iron fully — too few directions covered,
+    or too few independent stretches of motion — and whether the residual suggests it is
+    there: silence must not read as "no soft iron"."""
+    k = int(test.basis.shape[1])
+    untested = test.p >= 1.0 and test.f == 0.0
+    if k >= 5 and not untested:
+        return ()
+    reasons = []
+    if k < 5:
+        reasons.append(
+            f"with this motion only {k} of the 5 soft-iron directions can be told apart from the offset, the "
+            "radius and a slow wander in time, so a scale mismatch along the others would go unseen; turn the "
+            "board through all orientations, visiting each more than once"
+        )
+    if untested and k > 0:
+        reasons.append(
+            f"the {duration_s:.0f} s of motion hold too few independent stretches to test it against slow "
+            "wander; record longer (a few minutes), turning through all orientations more than once"
+        )
+    excess = rms_ut / simulated_rms_ut if simulated_rms_ut > 0 else float("nan")
+    suspected = bool(np.isfinite(excess) and excess >= SUSPECT_EXCESS)
+    part = "along the directions it could test, soft iron is modelled; beyond them it " if accepted else "Soft iron "
+    lead = (
+        part[0].upper() + part[1:] + f"is suspected but not identifiable: the residual ({rms_ut:.2f} µT) is "
+        f"{excess:.2f}× what the fitted model predicts for this noise, and "
+        if suspected
+        else "Soft iron could not be fully tested: "
+    )
+    return (
+        {
+            "effect": softiron.EFFECT,
+            "suspected": suspected,
+            "identifiable_directions": k,
+            "of_directions": 5,
+            "residual_over_predicted": float(excess),
+            "summary": lead + "; ".join(reasons) + ".",
+        },
+    )

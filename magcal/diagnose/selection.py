@@ -1,0 +1,112 @@
+"""Which tested terms earn a place in the model: significance, size, wander, held-out gain.
+
+1. Holm's family-wise control over both test families (against the quadratic wander, and each
+   channel against the rich wander); a channel significant against the rich wander at or above
+   the practical floor is *fast* (an intermittent current) and passes straight on.
+2. The practical floor: an effect smaller than max(0.03 µT, 0.1 × noise) is not worth a term;
+   soft iron must also move some gain by at least softiron.MIN_GAIN_DEVIATION.
+3. The wander gate: a slow channel term (significant only against the quadratic wander) must
+   explain at least channels.WANDER_RATIO × the slow offset wander it leaves unexplained.
+4. Held-out: drop, one at a time, any term whose removal does not hurt the held-out residual of
+   the linearised model (interleaved time blocks, both models carrying the wander nuisance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import channels, softiron
+from .design import Design
+from .inference import heldout_sse, holm, pinv_sym
+
+HELDOUT_INTERLEAVE = 4
+
+
+def practical_floor_ut(noise_ut: float) -> float:
+    """The smallest effect (RMS µT of its radial signature) worth a term in the model."""
+    return max(0.03, 0.1 * noise_ut)
+
+
+@dataclass(frozen=True)
+class Significant:
+    """After the tests: Holm's verdict per term, and which channels passed as fast."""
+
+    rejected: dict  # effect → rejected against the quadratic wander (Holm over both families)
+    fast: set  # channels significant against the rich wander, above the practical floor
+
+
+def significant(tests: dict, rich: dict, alpha: float, floor_ut: float) -> Significant:
+    """Holm's step-down over both test families together."""
+    pvals = {g: r.p for g, r in tests.items()}
+    pvals.update({("rich", g): r.p for g, r in rich.items()})
+    rejected_all = holm(pvals, alpha)
+    fast = {g for g, r in rich.items() if rejected_all[("rich", g)] and r.effect_rms_ut >= floor_ut}
+    return Significant({g: rejected_all[g] for g in tests}, fast)
+
+
+def above_floor(tests: dict, verdict: Significant, floor_ut: float) -> list:
+    """Terms that are significant and large enough to matter (fast channels pass as they are)."""
+    out = []
+    for g, r in tests.items():
+        if g in verdict.fast:
+            out.append(g)
+            continue
+        if not verdict.rejected[g] or r.effect_rms_ut < floor_ut:
+            continue
+        if g == softiron.EFFECT:
+            w_lin = np.eye(3) + np.tensordot(r.beta, softiron.SOFT_BASIS, axes=1)
+            if np.any(np.linalg.eigvalsh(w_lin) <= 0) or softiron.max_deviation(w_lin) < softiron.MIN_GAIN_DEVIATION:
+                continue
+        out.append(g)
+    return out
+
+
+def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tuple[list, dict]:
+    """Real recordings wander slowly: a slow channel term must explain most of the block offsets
+    (channels.wander_shares, channels.WANDER_RATIO). Returns the survivors that pass and, for
+    each channel judged, (explained, unexplained) block-offset mean squares (µT²)."""
+    judged = [g for g in survivors if g != softiron.EFFECT]
+    if not judged:
+        return survivors, {}
+    x, e = design.x, design.residual_ut
+    # the residual with everything but the channel terms fitted out (soft iron and the direction
+    # harmonics would otherwise alias into block offsets under partial coverage)
+    colscale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
+    xs = x / colscale
+    beta = (pinv_sym(xs.T @ xs) @ (xs.T @ e)) / colscale
+    chan_cols = [design.groups[g] for g in design.groups if g != softiron.EFFECT]
+    chan_cols = np.concatenate(chan_cols) if chan_cols else np.zeros(0, int)
+    other = np.setdiff1d(np.arange(x.shape[1]), np.concatenate([chan_cols, design.wander_cols]))
+    e_w = e - x[:, other] @ beta[other]
+    cands = design.candidates
+    shares, v_rem = channels.wander_shares(
+        e_w,
+        design.directions,
+        {g: chans[cands[g].channel] - cands[g].reference for g in judged},
+        {g: -beta[design.groups[g]] for g in judged},
+    )
+    shares_of = {g: (shares[g], v_rem) for g in judged}
+    passed = [g for g in survivors if g == softiron.EFFECT or g in fast or shares[g] >= channels.WANDER_RATIO * v_rem]
+    return passed, shares_of
+
+
+def drop_by_heldout(design: Design, survivors: list, folds: int) -> tuple[list, dict]:
+    """Drop, one at a time, any survivor whose removal does not hurt the held-out residual of
+    the linearised model. The baseline columns and the wander nuisance are in every model; the
+    direction harmonics are not (fitted on 90 % of a recording they extrapolate badly into the
+    held-out block). Returns the accepted terms and the last held-out RMS per subset."""
+    base_cols = np.concatenate([np.arange(design.n_jacobian), design.wander_cols])
+    accepted = list(survivors)
+    heldout = {}
+    while accepted:
+        subsets = {"_all": np.concatenate([base_cols] + [design.groups[g] for g in accepted])}
+        for g in accepted:
+            subsets[g] = np.concatenate([base_cols] + [design.groups[h] for h in accepted if h != g])
+        heldout = heldout_sse(design.x, design.residual_ut, subsets, 2 * folds, HELDOUT_INTERLEAVE)
+        worst = max(accepted, key=lambda g: -(heldout[g] - heldout["_all"]))
+        if heldout[worst] - heldout["_all"] > 0:
+            break
+        accepted.remove(worst)
+    return accepted, heldout
