@@ -1,6 +1,6 @@
 """The real firmware's command parser, fed random command streams through the emulated board
 (simavr running the very ELF a user flashes): no crash, no hang, and a reply — an ``A``, ``E``
-or ``C`` line — to every line (PROTOCOL.md: a line starts at ``$``; bytes outside lines are
+or ``C`` line — to every line (docs/protocol.md: a line starts at ``$``; bytes outside lines are
 noise, dropped without a reply), including garbage, bad checksums, wrong field counts,
 out-of-range values and over-long lines. Noise between the lines must not disturb the replies
 to the lines after it. Afterwards the board still identifies itself.

@@ -1,7 +1,7 @@
 """The real firmware under simavr, spoken to with raw pyserial on the harness's pty.
 
 Protocol-level behaviour a host relies on: identity at boot, error replies that never stop the
-stream, record validation, the EEPROM layout of PROTOCOL.md, rate and reset commands."""
+stream, record validation, the EEPROM layout of docs/protocol.md, rate and reset commands."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Protocol v1 framing, encoding and calibration records (firmware/PROTOCOL.md)."""
+"""Protocol v1 framing, encoding and calibration records (docs/protocol.md)."""
 
 import numpy as np
 import pytest

@@ -1,7 +1,7 @@
 /*
  * MPU-9150 + AK8975 I2C register model (see mpu9150_model.h).
  *
- * Register facts: docs in the repository (hardware.md), from the AK8975 datasheet
+ * Register facts: docs/hardware.md, from the AK8975 datasheet
  * (MS1187-E-02) and the MPU-6050/9150 register maps.
  *
  * Measurements complete lazily: every call that carries a time first settles a measurement

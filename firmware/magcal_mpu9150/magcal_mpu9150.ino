@@ -1,6 +1,6 @@
 // magcal device firmware for an Arduino Uno (ATmega328P) wired to an MPU-9150.
 //
-// Speaks firmware/PROTOCOL.md v1 at 115200 baud: identity, single AK8975 measurements at a
+// Speaks docs/protocol.md v1 at 115200 baud: identity, single AK8975 measurements at a
 // configurable rate (DRDY polled, ST2 reported), streaming, a calibration record in EEPROM
 // (version + CRC-16, never applied when blank or corrupt), calibrated output, and a standalone
 // sphere fit that needs no host.
@@ -123,7 +123,7 @@ static uint16_t crc16_update(uint16_t crc, uint8_t b)
     return crc;
 }
 
-// CRC-16/CCITT-FALSE over the 18 values as little-endian int32 (PROTOCOL.md).
+// CRC-16/CCITT-FALSE over the 18 values as little-endian int32 (docs/protocol.md).
 static uint16_t record_crc(const int32_t *v)
 {
     uint16_t crc = 0xFFFF;

@@ -3,7 +3,7 @@
 Port strings: ``i2c:1`` (``/dev/i2c-1``), ``i2c:/dev/i2c-1``, ``i2c:1?addr=0x69`` (AD0 high),
 ``i2c:1?addr=0x69&rate=50``.
 
-What the host does (register facts: docs in ``hardware.md``, AK8975 datasheet MS1187-E-02):
+What the host does (register facts: ``docs/hardware.md``, AK8975 datasheet MS1187-E-02):
 
 1. Bring-up: ``WHO_AM_I`` (0x75) must read 0x68 (whatever AD0 is); reset (``PWR_MGMT_1`` =
    0x80, 100 ms), wake with the X-gyro clock (0x01), clear ``I2C_MST_EN`` in ``USER_CTRL``,

@@ -143,10 +143,15 @@ VOCABULARY = {o.name: o for o in (
 @dataclass(frozen=True)
 class Scheme:
     name: str
-    target: str  # "" (none), "file" or "bus": what comes between the scheme and '?'
+    target: str  # "" (none), "file" or "bus": what comes between the prefix and '?'
     options: tuple[str, ...]
     faults: frozenset = frozenset()
     aliases: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def prefix(self) -> str:
+        """What a port string of this scheme starts with (``sim://``, ``i2c:``)."""
+        return "i2c:" if self.name == "i2c" else f"{self.name}://"
 
 
 SCHEMES = {s.name: s for s in (
@@ -176,13 +181,8 @@ class Port:
 
 
 def scheme_of(url: str) -> str:
-    """The backend a port string selects: sim, emu, replay, i2c or serial."""
-    if url.startswith("i2c:"):
-        return "i2c"
-    for name in ("sim", "emu", "replay"):
-        if url.startswith(name + "://"):
-            return name
-    return "serial"
+    """The scheme a port string names (``SCHEMES``); anything else is a serial port."""
+    return next((s.name for s in SCHEMES.values() if s.name != "serial" and url.startswith(s.prefix)), "serial")
 
 
 def parse_port(url: str) -> Port:
@@ -193,8 +193,8 @@ def parse_port(url: str) -> Port:
         if not url.strip():
             raise PortError("no port given (a serial port such as /dev/ttyACM0, or sim://)")
         return Port(url, "serial", url)
-    rest = url[len(scheme.name) + (1 if scheme.name == "i2c" else 3):]
-    if scheme.name == "i2c" and rest.startswith("//"):
+    rest = url[len(scheme.prefix):]
+    if scheme.name == "i2c" and rest.startswith("//"):  # i2c://1 reads as i2c:1
         rest = rest[2:]
     target, _, query = rest.partition("?")
     _check_target(url, scheme, target)
@@ -220,8 +220,7 @@ def _parse_query(url: str, scheme: Scheme, query: str) -> tuple[dict, tuple[Faul
         name = aliases.get(given, given)
         if name not in scheme.options:
             known = ", ".join(scheme.options) or "none"
-            prefix = "i2c:" if scheme.name == "i2c" else f"{scheme.name}://"
-            raise PortError(f"{url!r}: unknown option {given!r} ({prefix} takes: {known})")
+            raise PortError(f"{url!r}: unknown option {given!r} ({scheme.prefix} takes: {known})")
         if name == "fault":
             where = f"{url!r}: "
             faults += [parse_fault(f, scheme.faults, where) for v in values for f in v.split(";") if f]

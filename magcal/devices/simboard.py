@@ -441,7 +441,7 @@ class SimBoard(SerialEnd):
             self._wall0, self._sim0_ms = self._clock(), self._ms
             self._emit("A", tag, cmd, n)
         else:
-            self._emit("E", tag, "?", "UNKNOWN")  # as the firmware and PROTOCOL.md (Versioning)
+            self._emit("E", tag, "?", "UNKNOWN")  # as the firmware and docs/protocol.md (Versioning)
 
     def power_cycle(self) -> None:
         """An unsolicited reset (brown-out, watchdog): a fresh hello with seq 0, EEPROM kept."""

@@ -4,7 +4,7 @@ Model: b(x) = b₀ + K (x − x_ref), K three µT per unit of the channel (senso
 order the radial residual of a fit without it is uᵀK(x − x_ref), so the candidate regressors
 are (x − x_ref)·u (3 columns).
 
-Temperature and time are confounded during a monotone warm-up (physics.md): when the
+Temperature and time are confounded during a monotone warm-up (docs/physics.md, "Temperature and time"): when the
 temperature history is explained by a straight line in time (|corr| ≥ CONFOUND_CORR) the two
 cannot be told apart from one recording. Diagnosis then tests a single term and reports it as
 ``time_drift`` — the offset moved during the recording — with ``confounded_with: temp_c`` and

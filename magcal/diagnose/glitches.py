@@ -1,6 +1,6 @@
 """Glitches: isolated jumps of the field 3-vector that the motion cannot explain.
 
-A glitch perpendicular to the field barely changes |m| (physics.md), so the radial residual
+A glitch perpendicular to the field barely changes |m| (docs/physics.md, "Glitches"), so the radial residual
 cannot see it; the smoothness of the trajectory can. Each sample is predicted from its two
 neighbours by cubic (Lagrange) interpolation from two samples on each side; the innovation d_i = m_i − prediction is scaled
 per axis by a robust (MAD) scale of the data's own innovations, taken locally (motion speed

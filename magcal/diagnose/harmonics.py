@@ -1,6 +1,6 @@
 """Pure degree-3 and degree-4 spherical-harmonic functions of the field direction.
 
-A linear sensor error shows in a sphere fit's residual as degrees 0–2 (physics.md); degrees
+A linear sensor error shows in a sphere fit's residual as degrees 0–2 (docs/physics.md, "The residual of a sphere fit"); degrees
 ≥ 3 are something else (nonlinearity, field gradients, an imperfect environment). Real
 recordings carry such direction-dependent residue, and when the mix of directions changes
 during a recording a slow channel (temperature) times the direction can soak it up. Diagnosis

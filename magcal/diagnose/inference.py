@@ -1,6 +1,6 @@
 """Autocorrelation-robust tests, family-wise error control and contiguous held-out blocks.
 
-Residuals of real recordings are autocorrelated (physics.md), so ordinary F-tests "find" an
+Residuals of real recordings are autocorrelated (docs/physics.md, "Real residuals"), so ordinary F-tests "find" an
 effect in any smooth covariate. The Wald test here uses a batch-means (block-sum) HAC
 covariance: the regression scores are summed over B contiguous time blocks and the covariance
 is estimated from those B sums; the statistic is referred to an F distribution, which stays honest

@@ -4,7 +4,7 @@ Model (sensor frame, µT), per sample i with auxiliary channels x_c::
 
     h_i = W (m_i − b − Σ_c K_c (x_ci − ref_c))        e_i = |h_i| − r
 
-W is symmetric with trace 3 (the overall scale trades with r, physics.md "Identifiability"),
+W is symmetric with trace 3 (the overall scale trades with r, docs/physics.md, "Identifiability"),
 parametrised as I + Σ_p s_p E_p over an orthonormal basis of trace-free symmetric matrices —
 the five degree-2 directions of the sphere-fit residual. b is the offset at the reference
 conditions, K_c the µT of offset per unit of channel c.

@@ -2,7 +2,7 @@
 
 The candidate regressors are ∂|h|/∂s_p = uᵀE_p d for the five trace-free symmetric directions
 E_p (magcal.diagnose.model.SOFT_BASIS). From magnitudes alone the three causes cannot be told
-apart (physics.md), so they are one effect with one symmetric matrix.
+apart (docs/physics.md, "Identifiability"), so they are one effect with one symmetric matrix.
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 started from the sphere accumulator's algebraic solution.
 
 The algebraic (normal-equation) fit minimises Σ(|m − c|² − r²)², a geometric residual weighted
-by |m − c| + r; on partial coverage that weighting biases the centre (physics.md: +2.9 µT in z on
-a ±30° cap). The geometric residual is the Gaussian likelihood, so this fit reaches the
-Cramér–Rao bound (see bench/fit_crlb.py).
+by |m − c| + r; on partial coverage that weighting biases the centre (docs/physics.md,
+"Algebraic and geometric fits": +2.9 µT in z on a ±30° cap). The geometric residual is the
+Gaussian likelihood, so this fit reaches the Cramér–Rao bound (see bench/fit_crlb.py).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""The PJRC MotionCal / Adafruit convention, pure: lines in, values out; packets out. No ports
-or clocks; the one effect is ``load_log``, which reads a saved log file.
+"""The PJRC MotionCal / Adafruit convention, pure: lines in, values out; packets out. No ports,
+clocks or files (``parse_log`` takes a saved log's bytes; ``magcal.app.load`` reads the file).
 
 Device → host, one text line per reading (we accept CR, LF or CRLF endings)::
 
@@ -14,9 +14,9 @@ Host → device, the 68-byte calibration packet (``encode_packet``): the signatu
 16 little-endian float32 — accel offset (3), gyro offset (3), hard iron V (3, µT), field B
 (µT), invW00, invW11, invW22, invW01, invW02, invW12 — then CRC-16 (poly 0xA001 reflected, init
 0xFFFF, i.e. CRC-16/MODBUS) over the first 66 bytes, low byte first. A receiver checks that the
-CRC over all 68 bytes is 0. Sources: ``../shared`` anchors note; Adafruit_AHRS
-``examples/calibration/calibration.ino`` (``receiveCalibration``, the ``Cal1:``/``Cal2:``
-prints) and Adafruit_Sensor_Calibration ``calibrate()``.
+CRC over all 68 bytes is 0. Sources: PJRC MotionCal (``send_calibration()``, the packet it sends);
+Adafruit_AHRS ``examples/calibration/calibration.ino`` (``receiveCalibration``, the
+``Cal1:``/``Cal2:`` prints) and Adafruit_Sensor_Calibration ``calibrate()``.
 
 Soft iron. The device applies ``h = invW · (m − V)`` (Adafruit ``calibrate()``: subtract
 ``mag_hardiron``, multiply by ``mag_softiron``, which the sketch fills symmetrically from the

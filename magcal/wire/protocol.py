@@ -1,4 +1,4 @@
-"""Wire protocol v1 (``firmware/PROTOCOL.md``): pure framing, parsing and encoding.
+"""Wire protocol v1 (``docs/protocol.md``): pure framing, parsing and encoding.
 
 No I/O here. ``Framer.feed(data)`` takes any chunk of bytes — torn lines, noise, over-long runs,
 bad checksums — and returns the messages it completed plus link events (sequence gaps, device
@@ -294,7 +294,7 @@ class Framer:
     """Bytes in, messages and link events out. Bounded memory: at most MAX_LINE bytes held.
 
     The result does not depend on how the stream is split into chunks: feeding a stream whole
-    or byte by byte gives the same items and the same counters. Rules (PROTOCOL.md "Lines"):
+    or byte by byte gives the same items and the same counters. Rules (docs/protocol.md, "Lines"):
     every '$' starts a line; a line is complete at '\\n'. Counted, never raised:
 
     - ``noise_bytes``: every byte not inside a complete line (bytes outside lines, torn and
