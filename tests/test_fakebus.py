@@ -10,24 +10,14 @@ import errno
 
 import numpy as np
 import pytest
+from i2c_support import BurstHookBus, opened, samples
 
 from magcal.core.errors import PortUnavailable
 from magcal.core.events import Event
-from magcal.core.sample import UT_PER_COUNT, Sample, asa_gain
+from magcal.core.sample import UT_PER_COUNT, asa_gain
 from magcal.devices.fakebus import FakeBus, FakeClock
-from magcal.devices import open_device
 from magcal.devices.i2c import AK_ADDR, MODE_SINGLE, REG_ASAX, REG_CNTL, REG_HXL, REG_ST1
 from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
-
-
-def opened(bus: FakeBus, url: str = "i2c:1", **kw):
-    dev = open_device(url, bus_factory=lambda n: bus, **kw)
-    dev.open()
-    return dev
-
-
-def samples(items):
-    return [i for i in items if isinstance(i, Sample)]
 
 
 def test_each_address_has_its_own_registers_and_ad0_selects_the_mpu():
@@ -103,17 +93,9 @@ def test_asa_is_readable_only_in_fuse_rom_mode_and_the_backend_gets_it():
     assert bus.peek(AK_ADDR, REG_CNTL) == 0x00
 
 
-class _InterferingBus(FakeBus):
-    """Something else on the bus starts a new measurement just before our burst read."""
-
-    def read_i2c_block_data(self, addr, reg, n, force=None):
-        if addr == AK_ADDR and reg == REG_HXL:
-            self.write_byte_data(AK_ADDR, REG_CNTL, MODE_SINGLE)
-        return super().read_i2c_block_data(addr, reg, n)
-
-
 def test_a_read_during_a_measurement_sets_derr_and_the_backend_rejects_it():
-    bus = _InterferingBus(demo_scenario(2))
+    # something else on the bus starts a new measurement just before our burst read
+    bus = BurstHookBus(demo_scenario(2), lambda b: b.write_byte_data(AK_ADDR, REG_CNTL, MODE_SINGLE))
     dev = opened(bus)
     dev.start(50)
     items = dev.read(0.1)

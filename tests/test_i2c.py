@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 import pytest
+from i2c_support import BurstHookBus, opened
 
 from magcal.core.calibration import Calibration
 from magcal.core.errors import DeviceError, IdentityError, NoReply, PortError, PortUnavailable
@@ -24,12 +25,6 @@ from magcal.devices.i2c import (
     SelfTestResult,
 )
 from magcal.sim.physics import demo_scenario
-
-
-def opened(bus, url="i2c:1", **kw):
-    dev = open_device(url, bus_factory=lambda n: bus, **kw)
-    dev.open()
-    return dev
 
 
 # -- port strings ------------------------------------------------------------------------------
@@ -251,21 +246,14 @@ def test_a_dead_self_test_coil_fails_on_the_z_axis_only():
     assert dev.counters["self_test_fail"] == 1
 
 
-class _GlitchyBus(FakeBus):
-    """One NACK on the n-th burst read (a glitch on a long cable)."""
-
-    fail_on = 3
-
-    def read_i2c_block_data(self, addr, reg, n, force=None):
-        if addr == AK_ADDR and reg == 0x03:
-            self.fail_on -= 1
-            if self.fail_on == 0:
-                raise OSError(121, "Remote I/O error")
-        return super().read_i2c_block_data(addr, reg, n)
-
-
 def test_a_single_bus_glitch_is_an_event_and_an_unplugged_bus_is_port_unavailable():
-    bus = _GlitchyBus(demo_scenario(1))
+    bursts = iter(range(1, 1000))
+
+    def nack_the_third(bus):  # one NACK on the third burst read (a glitch on a long cable)
+        if next(bursts) == 3:
+            raise OSError(121, "Remote I/O error")
+
+    bus = BurstHookBus(demo_scenario(1), nack_the_third)
     dev = opened(bus)
     dev.start(50)
     items = dev.read(0.19)

@@ -198,25 +198,10 @@ def _fast_group(a: np.ndarray, starts: np.ndarray, le: int):
     return ok, vals
 
 
-def parse_stream(data: bytes) -> Frames:
-    """Parse a whole byte stream as a fresh ``Framer`` would (see the module docstring)."""
-    a = np.frombuffer(bytes(data), np.uint8)
-    n = len(a)
-    counters: Counter = Counter()
-    starts, ends, kind = _runs(a)
-    line = kind == 0
-    ls, le_ = starts[line], ends[line]
-    tail = b""
-    tail_len = 0
-    if len(kind) and kind[-1] == 3:
-        tail = bytes(a[starts[-1] :])
-        tail_len = len(tail)
-    counters["torn_lines"] = int(np.sum(kind == 1))
-    counters["overlong_lines"] = int(np.sum(kind == 2))
-    counters["noise_bytes"] = int(n - np.sum(le_ - ls + 1) - tail_len)
-
-    # effective length without a trailing '\r'
-    eff = le_ - ls
+def _fast_lines(a: np.ndarray, ls: np.ndarray, le_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sample lines (``S``/``U``) the vectorised path parses, grouped by length:
+    (which lines it took, their 7 values)."""
+    eff = le_ - ls  # the length without a trailing '\r'
     has_cr = np.zeros(len(ls), bool)
     nz = eff > 1
     has_cr[nz] = a[le_[nz] - 1] == _CR
@@ -236,15 +221,18 @@ def parse_stream(data: bytes) -> Frames:
             ok, vals = _fast_group(a, ls[g], int(le))
             fast_ok[g] = ok
             fast_vals[g] = vals
+    return fast_ok, fast_vals
 
-    # everything else is judged by the incremental framer's own line judge
+
+def _judged_lines(raw: bytes, ls: np.ndarray, le_: np.ndarray, counters: Counter):
+    """Every other line, judged by the incremental framer's own line judge: (positions, kinds
+    and values of the samples among them, the other messages with their positions); defects
+    go to ``counters``."""
     sample_pos: list[int] = []
     sample_kind: list[int] = []
     sample_vals: list[tuple] = []
     others: list[tuple[int, Message]] = []
-    raw = bytes(data)
-    for idx in np.flatnonzero(~fast_ok).tolist():
-        p, e = int(ls[idx]), int(le_[idx])
+    for p, e in zip(ls.tolist(), le_.tolist()):
         msg = classify_line(raw[p:e])
         if isinstance(msg, str):
             counters[msg] += 1
@@ -255,6 +243,28 @@ def parse_stream(data: bytes) -> Frames:
             sample_vals.append((msg.seq, msg.ms, *v, msg.st2, msg.temp_raw))
         else:
             others.append((p, msg))
+    return sample_pos, sample_kind, sample_vals, others
+
+
+def parse_stream(data: bytes) -> Frames:
+    """Parse a whole byte stream as a fresh ``Framer`` would (see the module docstring)."""
+    a = np.frombuffer(bytes(data), np.uint8)
+    n = len(a)
+    counters: Counter = Counter()
+    starts, ends, kind = _runs(a)
+    line = kind == 0
+    ls, le_ = starts[line], ends[line]
+    tail = b""
+    tail_len = 0
+    if len(kind) and kind[-1] == 3:
+        tail = bytes(a[starts[-1] :])
+        tail_len = len(tail)
+    counters["torn_lines"] = int(np.sum(kind == 1))
+    counters["overlong_lines"] = int(np.sum(kind == 2))
+    counters["noise_bytes"] = int(n - np.sum(le_ - ls + 1) - tail_len)
+
+    fast_ok, fast_vals = _fast_lines(a, ls, le_)
+    sample_pos, sample_kind, sample_vals, others = _judged_lines(bytes(data), ls[~fast_ok], le_[~fast_ok], counters)
 
     fi = np.flatnonzero(fast_ok)
     pos = np.concatenate([ls[fi], np.array(sample_pos, np.int64)])

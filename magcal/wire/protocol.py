@@ -64,6 +64,8 @@ def crc16_ccitt(data: bytes) -> int:
 # -- messages -----------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class Hello:
+    """``H``: who the device is (also its boot message: seq 0)."""
+
     seq: int
     proto: int
     firmware: str
@@ -74,52 +76,71 @@ class Hello:
 
 
 @dataclass(frozen=True, slots=True)
-class RawSample:
+class Measurement:
+    """A measurement line: device ``millis()`` at the trigger, three values, ST2, TEMP_OUT."""
+
     seq: int
     ms: int
-    raw: tuple[int, int, int]
+    values: tuple[int, int, int]
     st2: int
     temp_raw: int
 
 
 @dataclass(frozen=True, slots=True)
-class CalibratedSample:
-    seq: int
-    ms: int
-    field_nt: tuple[int, int, int]
-    st2: int
-    temp_raw: int
+class RawSample(Measurement):
+    """``S``: the AK8975 data registers as signed counts, not ASA-adjusted."""
+
+    @property
+    def raw(self) -> tuple[int, int, int]:
+        return self.values
 
 
 @dataclass(frozen=True, slots=True)
-class Ack:
+class CalibratedSample(Measurement):
+    """``U`` (output mode 1): the field with the stored calibration applied, in nT."""
+
+    @property
+    def field_nt(self) -> tuple[int, int, int]:
+        return self.values
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    """An answer to the host command that carried ``tag``."""
+
     seq: int
     tag: int
+
+
+@dataclass(frozen=True, slots=True)
+class Ack(Reply):
+    """``A``: command ``cmd`` done; any result fields follow."""
+
     cmd: str
     result: tuple[str, ...]
 
 
 @dataclass(frozen=True, slots=True)
-class ErrorReply:
-    seq: int
-    tag: int
+class ErrorReply(Reply):
+    """``E``: command ``cmd`` refused, with an error code (``RANGE``, ``UNKNOWN`` …)."""
+
     cmd: str
     code: str
 
 
 @dataclass(frozen=True, slots=True)
-class RecordReply:
-    seq: int
-    tag: int
+class RecordReply(Reply):
+    """``C``: the stored calibration record (the reply to ``K``, and to ``W`` after storing)."""
+
     status: str  # OK, BLANK, CORRUPT
     values: tuple[int, ...]  # the 18 record integers
     crc: int
 
 
 @dataclass(frozen=True, slots=True)
-class FitReply:
-    seq: int
-    tag: int
+class FitReply(Reply):
+    """``F``: the board's own sphere fit: offset and radius in nT, the pivot ratio × 1000."""
+
     n: int
     offset_nt: tuple[int, int, int]
     radius_nt: int
@@ -128,6 +149,8 @@ class FitReply:
 
 @dataclass(frozen=True, slots=True)
 class Log:
+    """``L``: free text from the device (counted, ignored)."""
+
     seq: int
     text: str
 
