@@ -104,7 +104,8 @@ def test_bad_input_names_the_problem_and_stores_nothing(tmp_path, capsys, text, 
     src = tmp_path / "cal.json"
     src.write_text(text)
     eeprom = tmp_path / "e.bin"
-    code, _, err = run_cli(capsys, "write", str(src), "--port", f"sim://?pace=0&eeprom={eeprom}")
+    # --force: past the gates (tested below), to the device's own range check
+    code, _, err = run_cli(capsys, "write", str(src), "--port", f"sim://?pace=0&eeprom={eeprom}", "--force")
     assert code == 6 and message in err
     if not eeprom.exists():
         return
@@ -140,3 +141,80 @@ def test_the_real_firmware_stores_a_diagnosed_temperature_term(tmp_path, capsys)
     assert stored["offset_ut"] == pytest.approx(cal["offset_ut"], abs=1e-3)
     assert stored["coef_ut_per_unit"]["temp_c"] == pytest.approx([0.1, -0.05, 0.02], abs=1e-3)
     assert stored["reference"]["temp_c"] == 25.0
+
+
+def _no_calibration_stored(capsys, port) -> bool:
+    code, out, _ = run_cli(capsys, "show", "--port", port, "--json")
+    return code == 1 and json.loads(out)["calibration"] is None  # show: 1 when nothing is stored
+
+
+def test_a_calibration_failing_the_gates_is_not_written(tmp_path, capsys):
+    """A 5000 µT offset with a 5 µT field is no hard iron: refused (exit 3), nothing sent."""
+    src = tmp_path / "cal.json"
+    src.write_text(json.dumps({"offset_ut": [5000, 0, 0], "field_ut": 5.0}))
+    port = f"sim://?pace=0&eeprom={tmp_path}/e.bin"
+    code, out, _ = run_cli(capsys, "write", str(src), "--port", port, "--json")
+    r = json.loads(out)
+    assert code == 3 and not r["written"] and set(r["gates"]["failing"]) == {"field_range", "max_offset"}
+    assert "max_rms" in r["gates"]["not_judged"]  # a bare calibration says nothing of its residuals
+    assert _no_calibration_stored(capsys, port)
+
+
+def test_a_fit_failing_its_gates_is_not_written_and_force_is_recorded(tmp_path, capsys):
+    """A fit of a 9 µT field with a 1200 µT hard iron passes no field-range or offset gate."""
+    rec = tmp_path / "rec.csv"
+    assert run_cli(capsys, "simulate", "-o", str(rec), "--field", "9", "--offset", "1200,0,0", "--seconds", "30")[0] == 0
+    code, out, _ = run_cli(capsys, "fit", str(rec), "--json")
+    assert code == 0
+    fit_json = tmp_path / "fit.json"
+    fit_json.write_text(out)
+    port = f"sim://?pace=0&eeprom={tmp_path}/e.bin"
+    code, out, _ = run_cli(capsys, "write", str(fit_json), "--port", port)
+    assert code == 3 and "FAIL  field radius" in out
+    assert "not written" in out and _no_calibration_stored(capsys, port)
+    code, out, err = run_cli(capsys, "write", str(fit_json), "--port", port, "--force", "--json")
+    r = json.loads(out)
+    assert code == 0 and r["verified"] and r["gates"]["forced"] and set(r["gates"]["failing"]) >= {"field_range", "max_offset"}
+    assert "--force" in err and "FORCED" in err
+
+
+def test_a_gate_read_from_the_configuration_applies_to_write(tmp_path, capsys):
+    src = tmp_path / "cal.json"
+    src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "rms_ut": 3.0}))
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("gates:\n  max_rms_ut: 4.0\n")
+    port = f"sim://?pace=0&eeprom={tmp_path}/e.bin"
+    assert run_cli(capsys, "write", str(src), "--port", port)[0] == 3  # 3 µT > the default 2 µT
+    assert run_cli(capsys, "write", str(src), "--port", port, "--config", str(cfg))[0] == 0
+
+
+def test_every_path_that_writes_needs_the_gates_clearance(tmp_path):
+    """write_verified refuses a calibration without a clearance that covers it."""
+    from magcal.app.procedure import write_verified
+    from magcal.core.calibration import Calibration
+    from magcal.devices import open_device
+    from magcal.logic.gates import Evidence, Gates, clear_for_write
+
+    bad = Calibration(offset_ut=np.array([5000.0, 0, 0]), field_ut=5.0)
+    good = Calibration(offset_ut=np.array([1.0, 2, 3]), field_ut=48.0)
+    refused = clear_for_write(Gates(), Evidence(tuple(bad.offset_ut), bad.field_ut))
+    cleared = clear_for_write(Gates(), Evidence(tuple(good.offset_ut), good.field_ut))
+    with open_device(f"sim://?pace=0&eeprom={tmp_path}/e.bin") as dev:
+        dev.open()
+        with pytest.raises(ValueError, match="gates did not clear"):
+            write_verified(dev, bad, refused)
+        with pytest.raises(ValueError, match="gates did not clear"):
+            write_verified(dev, bad, cleared)  # a clearance of another calibration
+        assert write_verified(dev, good, cleared).verified
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+    ('{"offset_ut": [1, 2, 3], "field_ut": 48, "rms_ut": "small"}', "'rms_ut' must be a finite number"),
+    ('{"offset_ut": [1, 2, 3], "field_ut": 48, "uncertainty": {"offset_ut": [1e999, 0, 0]}}', "'offset_ut' must be 3 finite"),
+])
+def test_a_malformed_result_file_is_a_named_input_error(tmp_path, capsys, text, message):
+    src = tmp_path / "r.json"
+    src.write_text(text)
+    code, _, err = run_cli(capsys, "write", str(src), "--port", f"sim://?pace=0&eeprom={tmp_path}/e.bin")
+    assert code == 6 and message in err and str(src) in err and "Traceback" not in err

@@ -14,6 +14,7 @@ from ..core.calibration import Calibration
 from ..core.errors import DeviceError
 from ..core.events import Code, Identity
 from ..devices.base import Device, batches
+from ..logic.gates import Clearance
 from ..logic.session import Session, Status
 from .config import Settings
 
@@ -170,10 +171,15 @@ class WriteResult:
     message: str = ""
 
 
-def write_verified(device: Device, cal: Calibration) -> WriteResult:
+def write_verified(device: Device, cal: Calibration, clearance: Clearance) -> WriteResult:
     """Write, compare the echo, read back, compare again — on any opened device that can store.
     On a mismatch the calibration that was stored before is put back (best effort) so a bad one
-    is not left on the device. Device errors become failures here, never exceptions."""
+    is not left on the device. Device errors become failures here, never exceptions.
+
+    ``clearance`` is the gates' decision on ``cal`` (``logic.gates.clear_for_write``): every
+    path that writes comes through here, and nothing is written without one that allows it."""
+    if not (clearance.allowed and clearance.covers(cal.offset_ut, cal.field_ut)):
+        raise ValueError("refusing to write a calibration the gates did not clear: " + clearance.summary())
     sent = device.prepare(cal)
     out = WriteResult(sent=sent)
     try:
@@ -210,7 +216,7 @@ def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
     """``write_verified`` for a session's result, with the session taken through writing →
     verifying → done (or failed with the reason)."""
     session.begin_write()
-    r = write_verified(device, session.calibration)
+    r = write_verified(device, session.calibration, session.clearance)
     out.written, out.verified, out.stored, out.restored = r.written, r.verified, r.stored, r.restored
     out.link = device.stats()
     if r.failure is WriteFailure.WRITE_FAILED or (r.failure is WriteFailure.VERIFY_MISMATCH and r.stored is None):

@@ -12,21 +12,30 @@ Only what a device can apply is written, and what is left out is named: a drift 
 (``t_s``) belonged to the recording it was found in, and other covariates have no input on the
 device. A non-symmetric matrix (another tool's convention) is written as its symmetric polar
 factor √(AᵀA), which gives every field the same magnitude; the rotation it leaves out only turns
-the frame. Exit status: 0 written and verified; 4 refused, unacknowledged, read back different or a
-read-only device; 6 for a FILE that holds no calibration; 5 for the device or port.
-``--json`` prints ``magcal.write/1``.
+the frame.
+
+Before anything is sent the calibration is judged by the same gates as ``calibrate`` and ``run``
+(``gates:`` in the configuration): its field radius and offset always, and the residual RMS,
+offset uncertainty and sample count when FILE carries them (a ``fit``/``diagnose``/``calibrate``
+result does; a bare calibration object does not, and the gates it cannot judge are named).
+A calibration that fails a gate is not written unless ``--force`` is given; a forced write says
+so on stderr and in the JSON (``"gates": {"forced": true, ...}``).
+
+Exit status: 0 written and verified; 3 refused by a gate (nothing sent); 4 refused,
+unacknowledged, read back different or a read-only device; 6 for a FILE that holds no
+calibration; 5 for the device or port. ``--json`` prints ``magcal.write/1``.
 """
 
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np
 
 from ..core.calibration import Calibration
 from ..core.errors import InputError
-from .common import device_settings, document, open_from_settings, print_json
+from ..logic.gates import Evidence, clear_for_write
+from .common import document, load_settings, open_from_settings, print_json
 from .exits import Exit
 from .options import add
 
@@ -38,6 +47,8 @@ DEVICE_CHANNELS = ("temp_c", "current_a")  # what the device can apply (protocol
 def add_arguments(p) -> None:
     p.add_argument("file", metavar="FILE", help="JSON from fit/diagnose/calibrate/show --json, or - for stdin")
     add(p, "port", "baud", "dialect", "config", "json")
+    p.add_argument("--force", action="store_true",
+                   help="write even when the calibration fails a gate (the output records that it was forced)")
 
 
 def calibration_from_json(obj, name: str = "<json>") -> tuple[Calibration, list[str]]:
@@ -100,21 +111,79 @@ def calibration_from_json(obj, name: str = "<json>") -> tuple[Calibration, list[
 
 
 def _read(path: str):
+    from ..recordings.jsonfile import MAX_BYTES, parse_json, read_json
+
+    if path != "-":
+        return read_json(path)
     try:
-        text = sys.stdin.read() if path == "-" else open(path, encoding="utf-8").read()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+        data = sys.stdin.buffer.read(MAX_BYTES + 1)
+    except OSError as exc:
+        raise InputError(f"standard input: cannot read: {exc.strerror or exc}") from None
+    if len(data) > MAX_BYTES:
+        raise InputError(f"standard input: more than {MAX_BYTES} bytes is too large for a JSON result")
+    return parse_json(data, "standard input")
+
+
+def _number(obj, key: str, name: str, n: int | None = None):
+    """obj[key] as a finite float (or n of them); None when absent; InputError when malformed."""
+    if not isinstance(obj, dict) or obj.get(key) is None:
+        return None
     try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path} line {exc.lineno}: not JSON ({exc.msg})") from None
+        v = np.asarray(obj[key], dtype=np.float64).reshape(-1 if n else ())
+        ok = bool(np.all(np.isfinite(v))) and (n is None or v.shape == (n,))
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        want = f"{n} finite numbers" if n else "a finite number"
+        raise InputError(f"{name}: {key!r} must be {want}")
+    return tuple(v.tolist()) if n else float(v)
+
+
+def evidence_from_json(obj, cal: Calibration, name: str = "<json>") -> Evidence:
+    """What a fit/diagnose/calibrate result says about its calibration, for the gates (pure).
+    A bare calibration object carries only the offset and the field; of several fits, the one
+    ``calibration_from_json`` takes (the last that fitted)."""
+    top = obj if isinstance(obj, dict) else {}
+    if isinstance(top.get("fits"), list):
+        fitted = [f for f in top["fits"] if isinstance(f, dict) and isinstance(f.get("calibration"), dict)]
+        top = fitted[-1] if fitted else {}
+    quality = top.get("quality") if isinstance(top.get("quality"), dict) else {}
+    final = top.get("final") if isinstance(top.get("final"), dict) else {}
+    rms = next((v for v in (_number(top, "rms_ut", name), _number(quality, "rms_ut", name),
+                            _number(final, "rms_ut", name)) if v is not None), None)
+    sigma = _number(top.get("uncertainty"), "offset_ut", name, 3)
+    samples = next((v for v in (_number(top, "n_used", name), _number(quality, "kept", name),
+                                _number(top, "n_samples", name)) if v is not None), None)
+    return Evidence(offset_ut=tuple(float(v) for v in cal.offset_ut), field_ut=float(cal.field_ut), rms_ut=rms,
+                    offset_sigma_ut=sigma, samples=None if samples is None else int(samples),
+                    coverage=_number(quality, "coverage", name))
+
+
+def _refused(args, clearance) -> int:
+    if args.json:
+        print_json(document("write", {"written": False, "verified": False, "failure": "gates",
+                                      "message": clearance.summary(), "gates": clearance.to_dict()}))
+    else:
+        for r in clearance.results:
+            if r.passed is not None:
+                print(f"gate       {'pass' if r.passed else 'FAIL'}  {r.message}")
+        print(f"not written: {clearance.summary()}; nothing was sent (--force writes it anyway)")
+    return Exit.GATE
 
 
 def run(args) -> int:
     from ..app.procedure import write_verified
+    from .ports import with_port
 
-    cal, notes = calibration_from_json(_read(args.file), args.file)
-    settings = device_settings(args)
+    obj = _read(args.file)
+    cal, notes = calibration_from_json(obj, args.file)
+    settings = load_settings(args)
+    clearance = clear_for_write(settings.gates, evidence_from_json(obj, cal, args.file), force=args.force)
+    if not clearance.allowed:
+        return _refused(args, clearance)
+    if clearance.forced and clearance.failing:
+        print(f"magcal write: --force: {clearance.summary()}", file=sys.stderr)
+    settings = with_port(settings)
     device = open_from_settings(settings)
     with device:
         identity = device.open()
@@ -122,7 +191,7 @@ def run(args) -> int:
             print(f"magcal write: {settings.port}: a read-only source cannot store a calibration", file=sys.stderr)
             return Exit.WRITE
         try:
-            r = write_verified(device, cal)
+            r = write_verified(device, cal, clearance)
         except ValueError as exc:  # the device's record cannot carry it (range, terms)
             raise InputError(f"{settings.port}: this device cannot hold that calibration: {exc}") from None
     lost = sorted(set(cal.coef_ut_per_unit) - set(r.sent.coef_ut_per_unit))
@@ -139,12 +208,14 @@ def run(args) -> int:
         "failure": r.failure,
         "message": r.message,
         "notes": notes,
+        "gates": clearance.to_dict(),
     })
     if args.json:
         print_json(out)
     else:
         for n in notes:
             print(f"note       {n}")
+        print(f"gates      {clearance.summary()}")
         o = r.sent.offset_ut
         print(f"offset     [{o[0]:.3f}, {o[1]:.3f}, {o[2]:.3f}] µT   field {r.sent.field_ut:.3f} µT")
         for name, coef in r.sent.coef_ut_per_unit.items():

@@ -22,7 +22,12 @@ class MagcalError(Exception):
 
 
 class ConfigError(MagcalError):
-    pass
+    """``keys``: the settings the problem is about (dotted paths), so the reader of the
+    settings can say where each was set (file, environment variable, option)."""
+
+    def __init__(self, message: str, keys: tuple = ()):
+        super().__init__(message)
+        self.keys = tuple(keys)
 
 
 class PortError(ConfigError):

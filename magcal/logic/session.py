@@ -26,7 +26,7 @@ from ..core.events import Event
 from ..core.sample import Sample
 from ..fit import SphereAccumulator, fit_calibration
 from ..fit.coverage import SampleSet
-from .gates import GateResult, Gates, model_gates
+from .gates import Clearance, Evidence, GateResult, Gates, clear_for_write, data_gates, model_gates
 
 ESTIMATE_EVERY = 50  # samples between live re-solves (cheap: a 4×4 solve)
 RECENTRE_UT = 2.0  # re-bin the kept samples when the centre estimate moves this much
@@ -64,6 +64,7 @@ class Session:
         self.estimate = None  # SphereFit | FitFailure | None
         self.result = None  # the final FitResult once solved
         self.final_gates: list[GateResult] = []  # the gates as judged on the final fit
+        self.clearance: Clearance | None = None  # the decision on writing the final fit
         self.history: list[tuple[str, str]] = []
         self._since_estimate = 0
         self._ready = False  # every gate passed at the last check: later samples are not taken
@@ -144,20 +145,11 @@ class Session:
     def live_gates(self) -> list[GateResult]:
         g = self.gates_cfg
         est = self.estimate
-        out = [
-            GateResult("min_samples", len(self.kept) >= g.min_samples, float(len(self.kept)), g.min_samples,
-                       f"{len(self.kept)} of {g.min_samples} well-spread samples"),
-            GateResult("min_coverage", self.kept.coverage() >= g.min_coverage, self.kept.coverage(), g.min_coverage,
-                       f"{100 * self.kept.coverage():.0f}% of directions covered, {100 * g.min_coverage:.0f}% needed"),
-        ]
+        out = data_gates(g, len(self.kept), self.kept.coverage(), float(est.condition) if est else None)
         if not est:
             why = getattr(est, "message", "no estimate yet")
-            out.append(GateResult("solvable", False, None, None, why))
-            return out
-        out.append(GateResult("max_condition", est.condition <= g.max_condition, float(est.condition), g.max_condition,
-                              f"normal-matrix condition {est.condition:.0f} (≤ {g.max_condition:.0f})"))
-        out += model_gates(self.gates_cfg, est.offset_ut, est.field_ut, est.rms_ut, est.offset_sigma_ut)
-        return out
+            return out[:2] + [GateResult("solvable", False, None, None, why)]
+        return out + model_gates(g, est.offset_ut, est.field_ut, est.rms_ut, est.offset_sigma_ut)
 
     def ready(self) -> bool:
         return self.status is Status.COLLECTING and self._ready
@@ -187,16 +179,23 @@ class Session:
         if not result:
             self.fail("fit_failed", f"the fit failed: {getattr(result, 'message', result)}")
             return result
-        unc = result.uncertainty
-        self.final_gates = model_gates(self.gates_cfg, 
-            result.calibration.offset_ut, result.calibration.field_ut, result.rms_ut, np.asarray(unc["offset_ut"])
-        )
-        failing = [r for r in self.final_gates if not r.passed]
+        self.clearance = clear_for_write(self.gates_cfg, self.evidence(result))
+        self.final_gates = list(self.clearance.results)
         self.result = result
+        failing = self.clearance.failing
         if failing:
             self.fail("gate:" + failing[0].name, "final fit fails gate: " + "; ".join(r.message for r in failing))
-            return result
         return result
+
+    def evidence(self, result) -> Evidence:
+        """What the final fit and the kept samples show, for the gates."""
+        cal = result.calibration
+        est = self.estimate
+        return Evidence(offset_ut=tuple(float(v) for v in cal.offset_ut), field_ut=float(cal.field_ut),
+                        rms_ut=float(result.rms_ut),
+                        offset_sigma_ut=tuple(float(v) for v in result.uncertainty["offset_ut"]),
+                        samples=len(self.kept), coverage=self.kept.coverage(),
+                        condition=float(est.condition) if est else None)
 
     def begin_write(self) -> None:
         self._set_status(Status.WRITING)
