@@ -38,7 +38,7 @@ def test_config_file_from_environment(tmp_path):
         ("colour: red\n", ["colour", "allowed"]),
         ("gates:\n  max_rms: 1\n", ["gates.max_rms"]),
         ("rate_hz: fast\n", ["rate_hz", "integer"]),
-        ("rate_hz: 500\n", ["rate_hz", "1…100"]),
+        ("rate_hz: 500\n", ["rate_hz", "[1, 100]"]),
         ("gates:\n  field_range_ut: [60, 20]\n", ["field_range_ut"]),
         ("model: cube\n", ["model", "cube"]),
         ("write: maybe\n", ["write", "true or false"]),
@@ -63,3 +63,106 @@ def test_bad_environment_is_named():
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(ConfigError, match="not found"):
         config.load(str(tmp_path / "nope.yaml"), environ={})
+
+
+# -- every bad input a named error ---------------------------------------------------------------
+def _named(exc, *words):
+    text = str(exc.value)
+    assert "\n" not in text and all(w in text for w in words), text
+
+
+@pytest.mark.parametrize(
+    "blob, words",
+    [
+        (bytes(range(256)) * 4, ["not UTF-8 text"]),
+        (b"port: sim://\n\0\0\0", ["binary file"]),
+        (b"gates: " + b"[" * 100_000 + b"]" * 100_000, ["nested too deeply"]),
+        (b"1: 2\n", ["setting names are text", "1 (int)"]),
+        (b"~: 2\n", ["setting names are text", "None"]),
+        (b"gates: {7: 1}\n", ["setting names are text", "gates"]),
+        (b"gates:\n  field_range_ut: []\n", ["gates.field_range_ut", "2 numbers"]),
+        (b"gates:\n  field_range_ut: [1, 2, 3]\n", ["gates.field_range_ut", "2 numbers"]),
+        (b"gates:\n  field_range_ut: [20, .nan]\n", ["gates.field_range_ut", "finite"]),
+        (b"gates:\n  min_samples: 5000\n", ["gates.min_samples", "1024"]),
+        (b"timeout_s: .inf\n", ["timeout_s", "finite"]),
+        (b"daemon:\n  state_every_s: .nan\n", ["daemon.state_every_s", "finite"]),
+        (b"daemon:\n  stall_s: -.inf\n", ["daemon.stall_s", "finite"]),
+        (b"daemon:\n  capture_max_bytes: 10\n", ["daemon.capture_max_bytes", "4096"]),
+        (b"baud: 1e999\n", ["baud", "integer"]),
+        (b"daemon:\n  state_dir: \"\"\n", ["daemon.state_dir", "non-empty"]),
+        (b"port: \"a\\x01b\"\n", ["port", "printable"]),
+        (b"x" * (2 << 20), ["larger than"]),
+    ],
+)
+def test_a_bad_config_file_is_one_line_naming_the_file_and_the_problem(tmp_path, blob, words):
+    f = tmp_path / "c.yaml"
+    f.write_bytes(blob)
+    with pytest.raises(ConfigError) as exc:
+        config.load(str(f), environ={})
+    _named(exc, str(f), *words)
+
+
+def test_a_directory_or_an_unreadable_file_as_config_is_named(tmp_path):
+    with pytest.raises(ConfigError) as exc:
+        config.load(str(tmp_path), environ={})
+    _named(exc, str(tmp_path), "cannot read")
+    with pytest.raises(ConfigError) as exc:  # unreadable even for root
+        config.load("/proc/self/mem", environ={})
+    _named(exc, "/proc/self/mem", "cannot read")
+
+
+@pytest.mark.parametrize(
+    "env, words",
+    [
+        ({"MAGCAL_PORT": "/dev/ttyACM0", "MAGCAL_PORT__X": "1"}, ["MAGCAL_PORT__X", "port"]),
+        ({"MAGCAL_GATES__FIELD_RANGE_UT": "[1,2,3]"}, ["MAGCAL_GATES__FIELD_RANGE_UT", "2 numbers"]),
+        ({"MAGCAL_DAEMON__STATE_EVERY_S": ".nan"}, ["MAGCAL_DAEMON__STATE_EVERY_S", "finite"]),
+        ({"MAGCAL_TIMEOUT_S": ".inf"}, ["MAGCAL_TIMEOUT_S", "finite"]),
+        ({"MAGCAL_DAEMON__STALL_S": "nan"}, ["MAGCAL_DAEMON__STALL_S", "number"]),
+        ({"MAGCAL_GATES": "3"}, ["MAGCAL_GATES", "mapping"]),
+        ({"MAGCAL_": "1"}, ["MAGCAL_", "not a setting name"]),
+        ({"MAGCAL_RATE_HZ": "[" * 5000}, ["MAGCAL_RATE_HZ", "not a value"]),
+        ({"MAGCAL_DAEMON__RECONNECT_MIN_S": "10", "MAGCAL_DAEMON__RECONNECT_MAX_S": "5"},
+         ["reconnect_max_s", "MAGCAL_DAEMON__RECONNECT_MAX_S", "MAGCAL_DAEMON__RECONNECT_MIN_S"]),
+    ],
+)
+def test_a_bad_environment_variable_is_named(env, words):
+    with pytest.raises(ConfigError) as exc:
+        config.load(environ=env)
+    _named(exc, *words)
+
+
+def test_a_binary_file_named_by_magcal_config_is_named(tmp_path):
+    f = tmp_path / "c.yaml"
+    f.write_bytes(bytes(range(128, 256)))
+    with pytest.raises(ConfigError) as exc:
+        config.load(environ={"MAGCAL_CONFIG": str(f)})
+    _named(exc, "MAGCAL_CONFIG", str(f), "UTF-8")
+
+
+def test_a_text_setting_takes_the_variable_as_it_is():
+    assert config.load(environ={"MAGCAL_PORT": "yes"}).port == "yes"  # not YAML's True
+    assert config.load(environ={"MAGCAL_PORT": "0x10"}).port == "0x10"
+
+
+@pytest.mark.parametrize("key", ["timeout_s"])
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -1.0, 0.0])
+def test_a_command_line_value_out_of_bounds_is_named(key, value):
+    with pytest.raises(ConfigError) as exc:
+        config.load(overrides={key: value}, environ={})
+    _named(exc, key, "command line")
+
+
+def test_a_baud_rate_in_the_config_does_not_break_a_port_without_one(tmp_path, capsys):
+    """baud is a serial-port setting: sim:// ignores it; --baud with sim:// is refused by name."""
+    from magcal.cli import main
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("baud: 9600\n")
+    cal = tmp_path / "cal.json"
+    cal.write_text('{"offset_ut": [1, 2, 3], "field_ut": 48}')
+    port = f"sim://?eeprom={tmp_path}/e.bin"
+    assert main(["write", str(cal), "--port", port, "--config", str(cfg)]) == 0
+    capsys.readouterr()
+    assert main(["write", str(cal), "--port", port, "--baud", "9600"]) == 2
+    assert "--baud applies to serial ports" in capsys.readouterr().err

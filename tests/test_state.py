@@ -107,3 +107,79 @@ def test_collecting_session_resumes_exactly():
     assert np.array_equal(a.kept.field_ut, b.kept.field_ut)
     assert a.progress() == b.progress()
     assert [g.to_dict() for g in a.live_gates()] == [g.to_dict() for g in b.live_gates()]
+
+
+# -- the state directory and the umask -----------------------------------------------------------
+import os  # noqa: E402
+
+from magcal.cli import main  # noqa: E402
+
+
+def _main(argv) -> int:
+    try:
+        return main(argv)
+    except SystemExit as exc:  # a usage error found while parsing the options
+        return exc.code
+
+
+@pytest.mark.parametrize("command", ["run", "status"])
+def test_a_state_dir_that_is_a_file_is_named(tmp_path, capsys, command):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    for d in (f, f / "sub"):
+        argv = [command, "--state-dir", str(d)] + (["--port", "sim://?pace=0", "--count", "10"] if command == "run" else [])
+        assert _main(argv) == 2
+        err = capsys.readouterr().err
+        assert str(d) in err and ("not a directory" in err or "does not exist" in err) and "Traceback" not in err
+
+
+class _Unprivileged:
+    """Root may write anywhere: as root, act as the unprivileged user 'nobody' for a while."""
+
+    def __enter__(self):
+        self.root = os.geteuid() == 0
+        if self.root:
+            os.setegid(65534)
+            os.seteuid(65534)
+
+    def __exit__(self, *exc):
+        if self.root:
+            os.seteuid(0)
+            os.setegid(0)
+
+
+def test_a_state_dir_this_user_cannot_write_is_named(capsys):
+    import shutil
+    import tempfile
+
+    base = tempfile.mkdtemp(prefix="magcal-ro-")
+    # the same command once as this user first: what it imports is then loaded (the
+    # unprivileged user may not read this Python's library folders)
+    assert _main(["run", "--port", "sim://?pace=0", "--count", "5", "--state-dir", os.path.join(base, "ok")]) == 0
+    capsys.readouterr()
+    try:
+        os.chmod(base, 0o755)
+        ro = os.path.join(base, "ro")
+        os.mkdir(ro, 0o555)
+        os.chmod(ro, 0o555)
+        for d, words in ((ro, "not writable by this user"), (os.path.join(ro, "sub"), "cannot be created")):
+            with _Unprivileged():
+                code = _main(["run", "--port", "sim://?pace=0", "--count", "10", "--state-dir", d])
+            err = capsys.readouterr().err
+            assert code == 2 and f"state directory {d}: {words}" in err and "Traceback" not in err, err
+    finally:
+        shutil.rmtree(base)
+
+
+def test_state_files_honour_a_restrictive_umask(tmp_path):
+    old = os.umask(0o077)
+    try:
+        store = StateFiles(tmp_path / "s")
+        store.save({"a": 1})
+        store.save({"a": 2})  # the previous one is kept as state.prev.json
+    finally:
+        os.umask(old)
+    for name in ("state.json", "state.prev.json"):
+        assert (tmp_path / "s" / name).stat().st_mode & 0o777 == 0o600
+    store.save({"a": 3})  # under the usual umask 022: 0644, as before
+    assert (tmp_path / "s" / "state.json").stat().st_mode & 0o077 == (0o644 & ~old) & 0o077

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
+from ..core.errors import ConfigError
 from .options import DEVICE_OPTIONS, add, add_table_options, table_format  # noqa: F401 - re-exported
 
 
@@ -35,7 +36,16 @@ def load_settings(args, **extra):
     overrides.update(extra)
     from ..app import config
 
-    return config.load(getattr(args, "config", None), overrides)
+    settings = config.load(getattr(args, "config", None), overrides)
+    if getattr(args, "baud", None) is not None and not _serial(settings.port):
+        raise ConfigError(f"--baud applies to serial ports; {settings.port} has no baud rate (leave --baud out)")
+    return settings
+
+
+def _serial(port: str) -> bool:
+    from ..devices import scheme_of
+
+    return scheme_of(port) == "serial"
 
 
 def device_settings(args, **extra):
@@ -46,10 +56,11 @@ def device_settings(args, **extra):
 
 
 def open_from_settings(settings, **options):
-    from ..devices import open_device, scheme_of
+    """The device the settings name; ``baud`` (a serial-port setting) only goes to a serial port."""
+    from ..devices import open_device
 
     kw = dict(options)
-    if settings.baud != 115200 and scheme_of(settings.port) == "serial":
+    if settings.baud != 115200 and _serial(settings.port):
         kw["baud"] = settings.baud
     return open_device(settings.port, dialect=settings.dialect, **kw)
 

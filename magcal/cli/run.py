@@ -12,6 +12,7 @@ import logging
 import os
 import sys
 
+from ..recordings.state import state_directory
 from .common import device_settings
 from .options import add, add_alias, positive_int
 
@@ -72,6 +73,7 @@ def run(args) -> int:
     if daemon_over:
         overrides["daemon"] = daemon_over
     settings = device_settings(args, **overrides)
+    state_directory(settings.daemon.state_dir)  # a file, or a directory it cannot write: said now
     logging.basicConfig(level=getattr(logging, args.log_level), handlers=[log_handler()])
     cli_overrides = {k: v for k, v in {
         "port": settings.port, "baud": args.baud, "dialect": args.dialect, **overrides,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import time
 
+from ..recordings.state import state_directory
 from .common import document, load_settings, print_json
 from .exits import Exit
 from .options import add
@@ -56,8 +57,8 @@ def gather(state_dir) -> tuple[dict, str]:
 
 
 def run(args) -> int:
-    state_dir = args.state_dir or load_settings(args).daemon.state_dir
-    status, source = gather(os.path.expanduser(state_dir))
+    state_dir = state_directory(args.state_dir or load_settings(args).daemon.state_dir, create=False)
+    status, source = gather(state_dir)
     status["source"] = source
     if args.json:
         print_json(document("status", status))

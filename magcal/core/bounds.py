@@ -42,7 +42,10 @@ class Bounds:
         return "finite"
 
     def holds(self, v: float) -> bool:
-        if not math.isfinite(v):
+        try:
+            if not math.isfinite(v):
+                return False
+        except OverflowError:
             return False
         if self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo):
             return False
@@ -52,8 +55,8 @@ class Bounds:
         """None when ``v`` is allowed, else what is wrong, as ``must be …, got v``."""
         try:
             finite = math.isfinite(v)
-        except OverflowError:  # an integer too large for a float
-            finite = False
+        except OverflowError:  # an integer too large for a float: out of any range
+            finite = True
         if not finite:
             return f"must be a finite number, got {_short(v)}"
         if self.holds(v):
@@ -75,3 +78,19 @@ def setting(default, *, lo=None, hi=None, lo_open=False, hi_open=False, why: str
 
 def bounds_of(f: dataclasses.Field) -> Bounds | None:
     return f.metadata.get("bounds") if f.metadata else None
+
+
+def check_bounds(obj, prefix: str = "") -> None:
+    """ConfigError naming the first field of the dataclass ``obj`` whose value (each element,
+    for a tuple) is outside its declared bounds; ``keys`` holds its dotted name."""
+    from .errors import ConfigError
+
+    for f in dataclasses.fields(obj):
+        b = bounds_of(f)
+        if b is None:
+            continue
+        v = getattr(obj, f.name)
+        for x in v if isinstance(v, tuple) else (v,):
+            problem = b.problem(x)
+            if problem:
+                raise ConfigError(f"{prefix}{f.name} {problem}", keys=(prefix + f.name,))

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.bounds import Bounds, setting
+from ..core.bounds import check_bounds, setting
 from ..core.errors import ConfigError
 from ..fit.coverage import DEFAULT_BANDS, DEFAULT_SECTORS
 
@@ -46,16 +46,7 @@ class Gates:
 
     def check(self) -> None:
         """ConfigError naming the first setting out of bounds (also for Gates built in code)."""
-        from dataclasses import fields
-
-        for f in fields(self):
-            b: Bounds | None = f.metadata.get("bounds")
-            v = getattr(self, f.name)
-            values = v if isinstance(v, tuple) else (v,)
-            for x in values:
-                problem = b.problem(x) if b is not None else None
-                if problem:
-                    raise ConfigError(f"gates.{f.name} {problem}", keys=(f"gates.{f.name}",))
+        check_bounds(self, "gates.")
         lo_hi = self.field_range_ut
         if len(lo_hi) != 2 or not lo_hi[0] < lo_hi[1]:
             raise ConfigError(f"gates.field_range_ut must be two increasing positive numbers [low, high], "

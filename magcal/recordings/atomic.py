@@ -6,12 +6,15 @@ it to disk (``fsync``), renames it over ``path`` (atomic on POSIX, and on Window
 
 If the process dies at any point before the rename, ``path`` still holds its old content; a
 stray ``.<name>.*.tmp`` file may be left behind, which readers ignore (``TMP_SUFFIX``).
+
+The new file gets ``mode`` less the process umask, as any file the process creates: under
+``umask 077`` (a hardened service) state and calibration files are readable by their owner only.
 """
 
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 TMP_SUFFIX = ".tmp"
@@ -30,6 +33,18 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+def _create_temporary(directory: Path, name: str, mode: int) -> tuple[int, str]:
+    """A new file next to the target, created with ``mode`` (the kernel takes the umask off)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0) | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(100):
+        tmp_name = str(directory / f".{name}.{secrets.token_hex(4)}{TMP_SUFFIX}")
+        try:
+            return os.open(tmp_name, flags, mode), tmp_name
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name for {name} in {directory}")
+
+
 def write_atomic(path, data: bytes, mode: int = 0o644) -> Path:
     """Replace the file at ``path`` with ``data`` atomically; returns the path.
 
@@ -41,7 +56,7 @@ def write_atomic(path, data: bytes, mode: int = 0o644) -> Path:
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
     directory.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TMP_SUFFIX, dir=directory)
+    fd, tmp_name = _create_temporary(directory, path.name, mode)
     try:
         with os.fdopen(fd, "wb") as fh:
             view = memoryview(data)
@@ -50,7 +65,6 @@ def write_atomic(path, data: bytes, mode: int = 0o644) -> Path:
                 view = view[n:]
             fh.flush()
             os.fsync(fh.fileno())
-        os.chmod(tmp_name, mode)
         os.replace(tmp_name, path)
     except BaseException:
         try:

@@ -20,9 +20,10 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from pathlib import Path
 
-from ..core.errors import StateError
+from ..core.errors import ConfigError, StateError
 from .atomic import write_atomic
 
 FORMAT = "magcal-state"
@@ -74,6 +75,33 @@ def _refuse_constant(token: str):
     raise ValueError(f"non-finite number {token} in state file")
 
 
+def state_directory(path, create: bool = True) -> Path:
+    """The daemon's state directory, checked before anything is put in it: ConfigError naming
+    the path and the fix when it is a file, cannot be created or cannot be written. Created
+    (with its parents) when ``create``; new directories get the process umask's permissions."""
+    d = Path(os.path.expanduser(os.fspath(path)))
+    what = f"state directory {d}"
+    try:
+        existing = next((p for p in (d, *d.parents) if p.exists()), None)
+    except OSError as exc:  # a parent this user may not look into
+        raise ConfigError(f"{what}: cannot be looked at: {exc.strerror or exc} (give --state-dir a directory "
+                          "this user may use)") from None
+    if existing is not None and not existing.is_dir():
+        where = "is a file" if existing == d else f"is inside {existing}, which is a file"
+        raise ConfigError(f"{what}: {where}, not a directory (give --state-dir a directory)")
+    if not create:
+        return d
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{what}: cannot be created: {exc.strerror or exc} (give --state-dir a directory "
+                          "this user may create or write)") from None
+    if not os.access(d, os.W_OK | os.X_OK, effective_ids=os.access in os.supports_effective_ids):
+        raise ConfigError(f"{what}: not writable by this user (uid {os.geteuid()}); give --state-dir a "
+                          "directory it may write")
+    return d
+
+
 class StateFiles:
     """``state.json`` and ``state.prev.json`` in one directory."""
 
@@ -112,6 +140,9 @@ class StateFiles:
             try:
                 data = path.read_bytes()
             except FileNotFoundError:
+                continue
+            except OSError as exc:
+                errors.append(f"{path}: cannot read: {exc.strerror or exc}")
                 continue
             try:
                 payload = decode_state(data, path.name)

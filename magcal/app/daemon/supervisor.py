@@ -95,7 +95,7 @@ class LinkSupervisor:
         tap = self._tap()
         if tap is not None and scheme_of(s.port) in TAP_SCHEMES:
             options["tap"] = tap
-        if s.baud != 115200:
+        if s.baud != 115200 and scheme_of(s.port) == "serial":  # a serial-port setting
             options["baud"] = s.baud
         return self._open_device(s.port, dialect=s.dialect, **options)  # PortError: no retry helps
 
