@@ -252,8 +252,51 @@ def test_counter_totals_account_for_every_byte():
     stream = b"junk" + head + b"$$$" + good + b"\x00" * 300 + good[:9]
     items, f = feed_all(split(stream, [3, 77, 400, 401]))
     c = f.counters
-    assert c["lines"] == 22
+    assert c["lines"] == 20 and c["duplicate_lines"] == 2  # seq 0 and 1 came twice: delivered once
     assert c["torn_lines"] == 4  # the cut line and three lone '$'
     assert len(f._carry) == 9
     assert c["noise_bytes"] == len(stream) - (len(lines[0]) + len(lines[1]) + len(good)) - 9
     assert parse_stream(stream).counters == +c
+
+
+@st.composite
+def numbered_streams(draw):
+    """A stream as a link delivers it: numbers mostly in order, with copies of older lines,
+    losses, long jumps, restarts and renumberings without a hello; some lines damaged."""
+    seq, parts = draw(st.integers(0, 65535)), []
+    sent: list[bytes] = []
+    for _ in range(draw(st.integers(1, 80))):
+        r = draw(st.integers(0, 19))
+        if r == 0 and sent:
+            parts.append(sent[-draw(st.integers(1, min(len(sent), 150)))])  # an older line again
+            continue
+        if r == 1:
+            seq += draw(st.integers(2, 5000))  # lines lost, or a jump too long to be loss
+        elif r == 2:
+            seq = 0
+            parts.append(hello_line(0))
+        elif r == 3:
+            seq = draw(st.integers(0, 65535))  # renumbered without a hello
+        else:
+            seq += 1
+        line = sample_line(seq % 65536, ms=seq)
+        sent.append(line)
+        parts.append(draw(damaged(line)) if r == 4 else line)
+    return b"".join(parts)
+
+
+@SETTINGS
+@given(numbered_streams(), st.lists(st.integers(0, 10**6), max_size=8))
+def test_sequence_rules_are_the_same_in_bulk_and_never_deliver_a_line_twice(data, cuts):
+    items, f = feed_all(split(data, cuts))
+    frames = parse_stream(data)
+    assert frames.items() == items and frames.counters == +f.counters
+    epoch: set[int] = set()
+    span = 0  # numbers passed since the numbering began (a wrap may reuse them)
+    for it in items:  # within one numbering, each sequence number is delivered once
+        span += it.count if isinstance(it, Gap) else 1
+        if isinstance(it, Restart) or span >= 65536:
+            epoch, span = set(), 0
+        elif isinstance(it, RawSample):
+            assert it.seq not in epoch
+            epoch.add(it.seq)

@@ -7,6 +7,8 @@ recorded bytes), so a recording yields the samples the live run saw.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ..core.errors import DeviceError, InputError
 from ..core.series import Series
 from ..recordings.capture import MAX_HEADER, CaptureReader, is_capture, recorded_dialect, series_from_frames
@@ -17,26 +19,49 @@ from ..wire.protocol import CalibratedSample, RawSample
 
 
 def load_capture(path) -> Series:
+    """A capture's samples, read by the live link's rules; damage to the chunk structure is
+    read around and counted (``Series.reading``)."""
     reader = CaptureReader(path)
     dialect = recorded_dialect(reader)
     if dialect != "native":
-        return _foreign_capture(reader, dialect)
-    return _native_series(reader.data(), str(path))
+        series = _foreign_capture(reader, dialect)
+    else:
+        series = _native_series(reader.data(), str(path))
+    return replace(series, reading={**series.reading, **reader.reading()})
 
 
 def _native_series(data: bytes, name: str) -> Series:
     frames = parse_stream(data)
     if any(isinstance(m, (RawSample, CalibratedSample)) for _, m in frames.others):
         # a number too large for the fast arrays: take the live client's path instead
-        return _series_via_device(data, name)
-    return series_from_frames(frames)
+        return _raw_only(_series_via_device(data, name), name)
+    return _raw_only(series_from_frames(frames), name)
 
 
 def _series_via_device(data: bytes, name: str) -> Series:
     from ..devices.base import read_to_end
     from ..devices.replay import BytesTransport, recorded_device
 
-    return Series.from_samples(read_to_end(recorded_device(name, BytesTransport([(0.0, data)]))))
+    dev = recorded_device(name, BytesTransport([(0.0, data)]))
+    series = Series.from_samples(read_to_end(dev))
+    return replace(series, reading={**dev.framer.counters, "hellos_refused": dev.counters["hellos_refused"]})
+
+
+def _raw_only(series: Series, name: str) -> Series:
+    """The raw readings only: calibrated (``U``) lines — the device's own output in calibrated
+    mode — are not raw data and are left out (counted as ``calibrated_lines``), as the live
+    session rejects them."""
+    flag = series.channels.get("calibrated")
+    if flag is None:
+        return series
+    cal = flag == 1.0
+    n_cal = int(cal.sum())
+    if n_cal == len(series):
+        raise InputError(f"{name}: all {n_cal} sample lines are calibrated (U) readings, which cannot be "
+                         "fitted; record the device's raw output (magcal record, or the daemon's capture)")
+    kept = series.take(~cal)
+    channels = {k: v for k, v in kept.channels.items() if k != "calibrated"}
+    return replace(kept, channels=channels, reading={**series.reading, "calibrated_lines": n_cal})
 
 
 def _foreign_capture(reader: CaptureReader, dialect: str) -> Series:

@@ -102,6 +102,36 @@ def document(command: str, body: dict, version: int = 1) -> dict:
     return {"schema": f"magcal.{command}/{version}", **body}
 
 
+# what reading a recording met that changes what is in it: counter → how to say it
+_READING_WORDS = {
+    "calibrated_lines": "calibrated (U) lines left out (not raw readings)",
+    "duplicate_lines": "duplicate or late lines taken once",
+    "out_of_sequence_lines": "out-of-sequence lines left out",
+    "sequence_resyncs": "renumberings without a hello",
+    "lost_lines": "lines lost (sequence gaps)",
+    "hellos_refused": "hellos with a changed identity refused",
+    "damaged_chunks": "damaged capture chunks",
+    "skipped_bytes": "capture bytes skipped at damage",
+    "truncated_bytes": "bytes of a cut-off last chunk",
+    "bad_checksums": "lines with a bad checksum",
+    "torn_lines": "torn lines",
+    "overlong_lines": "over-long lines",
+    "malformed_lines": "malformed lines",
+    "bad_syntax": "lines with bad fields",
+    "unknown_types": "lines of unknown type",
+}
+
+
+def reading_report(series, path) -> dict:
+    """What reading ``path`` met (``Series.reading``) for the JSON ``reading`` key; when any
+    of it left something out or found damage, one warning line on stderr says what."""
+    r = dict(series.reading)
+    said = [f"{r[k]} {w}" for k, w in _READING_WORDS.items() if r.get(k)]
+    if said:
+        print(f"magcal: warning: {path}: " + "; ".join(said), file=sys.stderr)
+    return r
+
+
 def print_json(obj) -> None:
     json.dump(obj, sys.stdout, indent=2, allow_nan=False, default=_default)
     sys.stdout.write("\n")

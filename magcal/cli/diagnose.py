@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import sys
 
-from .common import calibration_lines, field_warning
+from .common import calibration_lines, field_warning, reading_report
 from .options import add, add_table_options, directory, fraction, table_format
 
 HELP = "find what a sphere calibration leaves out of a recording, model it, show held-out gain"
@@ -73,11 +73,13 @@ def run(args) -> int:
     from ..diagnose import diagnose
 
     series = load_series(args.file, table_format(args))
+    reading = reading_report(series, args.file)
     diagnosis = diagnose(series, alpha=args.alpha)
     d = diagnosis.to_dict()
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
     if series.source:
         d["input"] = series.source
+    d["reading"] = reading
     if args.report:
         from ..app.report import write_report
 

@@ -11,7 +11,7 @@ import os
 from ..app.load import load_series
 from ..core.errors import InputError
 from ..recordings.table import save_csv
-from .common import document, print_json
+from .common import document, print_json, reading_report
 from .options import add, add_table_options, table_format
 
 HELP = "export a recording as CSV (t, mx, my, mz in µT, temp_c, other channels)"
@@ -30,6 +30,7 @@ def run(args) -> int:
     if os.path.exists(out) and os.path.samefile(out, args.file):
         raise InputError(f"{out}: refusing to overwrite the input; give -o OUT")
     series = load_series(args.file, table_format(args))
+    reading = reading_report(series, args.file)
     save_csv(series, out)
     summary = document("export", {
         "file": args.file,
@@ -38,6 +39,7 @@ def run(args) -> int:
         "n_invalid": int((~series.valid).sum()),
         "columns": ["t", "mx", "my", "mz"] + (["temp_c"] if "temp_c" in series.channels else [])
         + sorted(k for k in series.channels if k != "temp_c") + ([] if series.valid.all() else ["valid"]),
+        "reading": reading,
     })
     if args.json:
         print_json(summary)

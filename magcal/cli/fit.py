@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import sys
 
-from .common import field_warning
+from .common import field_warning, reading_report
 from .exits import Exit
 from .options import add, add_table_options, table_format
 
@@ -67,6 +67,7 @@ def _fit_file(path: str, args) -> tuple[dict, int]:
     from ..fit import fit_calibration
 
     series = load_series(path, table_format(args))
+    reading = reading_report(series, path)
     if len(series) == 0:
         raise InputError(f"{path}: no samples")
     result = fit_calibration(
@@ -80,6 +81,7 @@ def _fit_file(path: str, args) -> tuple[dict, int]:
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
     if series.source:
         d["input"] = series.source
+    d["reading"] = reading
     return d, Exit.OK
 
 

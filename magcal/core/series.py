@@ -4,7 +4,9 @@
 maps an auxiliary channel name (``temp_c``, ``current_a`` …) to an (n,) array, ``seq`` the
 device sequence numbers when known, ``valid`` False for samples the device flagged (HOFL, DERR,
 rails, all-zero). ``row`` maps each sample back to its 0-based data row in the source file;
-``source`` says how a table was read (which columns, which units), when it was one.
+``source`` says how a table was read (which columns, which units), when it was one;
+``reading`` counts what reading the file met (framing defects, duplicates, lost lines, damaged
+chunks, lines left out, by name) so that none of it passes silently.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ class Series:
     seq: np.ndarray | None = None
     row: np.ndarray | None = None
     source: str | None = None  # how a table was read (columns, units), for the user to check
+    reading: Mapping[str, int] = field(default_factory=dict)  # what reading met: counts by name
 
     def __post_init__(self):
         f = np.asarray(self.field_ut, dtype=np.float64).reshape(-1, 3)
@@ -46,6 +49,7 @@ class Series:
         object.__setattr__(self, "channels", ch)
         object.__setattr__(self, "valid", valid)
         object.__setattr__(self, "row", row)
+        object.__setattr__(self, "reading", {str(k): int(v) for k, v in dict(self.reading).items() if v})
         if self.seq is not None:
             object.__setattr__(self, "seq", np.asarray(self.seq, np.int64).reshape(-1))
 
@@ -62,6 +66,7 @@ class Series:
             seq=None if self.seq is None else self.seq[idx],
             row=self.row[idx],
             source=self.source,
+            reading=self.reading,
         )
 
     def only_valid(self) -> "Series":

@@ -39,6 +39,7 @@ from ..wire.protocol import (
     Restart,
     calibration_from_record,
     encode_command,
+    hello_applies,
     quantize_calibration,
     record_crc,
     record_from_calibration,
@@ -106,6 +107,9 @@ class Inbox:
                 self.pending.append(Event("reset", seq=item.seq, detail="unsolicited hello"))
             self._new_epoch()
         elif isinstance(item, Hello):
+            if not hello_applies(self.hello, item):
+                self._counters["hellos_refused"] += 1  # a changed identity without a restart
+                return
             self.hello = item
             if item.seq == 0 and self.expect_restart:
                 self.expect_restart = False

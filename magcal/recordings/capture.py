@@ -39,6 +39,7 @@ Tables (magcal's CSV and other people's delimited text) are read by ``magcal.rec
 from __future__ import annotations
 
 import json
+import math
 import os
 import struct
 import time
@@ -53,7 +54,7 @@ from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT
 from ..core.series import Series
 from ..wire.bulk import Frames
 from ..wire.dialect import dialect_of
-from ..wire.protocol import Hello, Restart
+from ..wire.protocol import Hello, Restart, hello_applies
 
 FORMAT = "magcal-capture"
 VERSION = 1
@@ -277,10 +278,87 @@ def is_capture(head: bytes) -> bool:
         return False
 
 
+def _read_header(blob: bytes, path: str) -> tuple[dict, int]:
+    nl = blob.find(b"\n", 0, MAX_HEADER)
+    if nl < 0 or not is_capture(blob[: nl + 1]):
+        more = " (or its header line is longer than 64 KiB)" if blob[:1] == b"{" and nl < 0 else ""
+        raise InputError(f"{path} line 1: not a magcal capture (no capture header){more}")
+    try:
+        header = json.loads(blob[:nl].decode("utf-8"))
+    except (ValueError, RecursionError):
+        raise InputError(f"{path} line 1: the capture header is not a JSON object") from None
+    if header.get("version") != VERSION:
+        raise InputError(f"{path} line 1: capture version {_short(header.get('version'))} is not {VERSION}")
+    return header, nl + 1
+
+
+def _short(v) -> str:
+    text = repr(v)
+    return text if len(text) <= 40 else text[:37] + "…"
+
+
+MAX_PAUSE_S = 1e7  # receive times of two chunks in a row never differ by more (116 days)
+
+
+def _header_at(blob: bytes, i: int, last_t: float, marker: bool = True) -> tuple[float, int] | None:
+    """(time, end) of a chunk at ``i`` whose header checks out — the marker (unless ``marker``
+    is False), a finite receive time from ``last_t`` to MAX_PAUSE_S after it, a size within
+    the file — else None."""
+    if i + CHUNK_OVERHEAD > len(blob) or (marker and blob[i : i + 1] != CHUNK_MARK):
+        return None
+    t, size = _CHUNK_HEAD.unpack_from(blob, i + 1)
+    end = i + CHUNK_OVERHEAD + size
+    if not (math.isfinite(t) and (last_t == -math.inf or last_t <= t <= last_t + MAX_PAUSE_S)) or end > len(blob):
+        return None
+    return t, end
+
+
+def _next_ok(blob: bytes, end: int, t: float, strict: bool) -> bool:
+    """Can what follows a chunk that ends at ``end`` (received at ``t``) be read on? The end of
+    the file, or a marker — ``strict``: with a header that checks out, or cut short by the end
+    of the file; not ``strict``: a header that checks out without its marker is enough (that
+    chunk's marker byte is then the damage)."""
+    if end >= len(blob):
+        return True
+    if blob[end : end + 1] == CHUNK_MARK:
+        return not strict or _header_at(blob, end, t) is not None or _cut_short(blob, end)
+    return not strict and _header_at(blob, end, t, marker=False) is not None
+
+
+def _resync(blob: bytes, i: int, last_t: float) -> tuple[int, float, int] | None:
+    """After damage at ``i``: (start, time, end) of the next chunk that checks out together with
+    the one after it — the chunk at ``i`` itself when only its marker byte is wrong. None when
+    nothing after ``i`` does."""
+    h = _header_at(blob, i, last_t, marker=False)
+    if h is not None and _next_ok(blob, h[1], h[0], strict=True):
+        return i, h[0], h[1]
+    j = blob.find(CHUNK_MARK, i + 1)
+    while j >= 0:
+        h = _header_at(blob, j, last_t)
+        if h is not None and _next_ok(blob, h[1], h[0], strict=True):
+            return j, h[0], h[1]
+        j = blob.find(CHUNK_MARK, j + 1)
+    return None
+
+
+def _cut_short(blob: bytes, i: int) -> bool:
+    """Is the chunk at ``i`` the last one, cut short by the end of the file (a crash mid-write)?"""
+    if blob[i : i + 1] != CHUNK_MARK:
+        return False
+    if i + CHUNK_OVERHEAD > len(blob):
+        return True
+    return i + CHUNK_OVERHEAD + _CHUNK_HEAD.unpack_from(blob, i + 1)[1] > len(blob)
+
+
 class CaptureReader:
-    """A capture file: ``header`` (dict), iteration yields ``(t_rx_s, bytes)`` per chunk;
-    ``truncated_bytes`` > 0 when the file ends inside a chunk (a crash mid-write) and
-    ``problem`` says where."""
+    """A capture file: ``header`` (dict), iteration yields ``(t_rx_s, bytes)`` per chunk.
+
+    Damage is read around and counted, never fatal: ``truncated_bytes`` > 0 when the file ends
+    inside a chunk (a crash mid-write); ``damaged_chunks`` counts places where the chunk
+    structure broke (a flipped marker, size or time byte) and ``skipped_bytes`` what was not
+    read there. Reading resumes at the next place where two chunks in a row check out (marker,
+    a finite receive time not earlier than the last, a size within the file); a chunk whose
+    only defect is its marker byte is kept. ``problem`` says where the first damage was."""
 
     def __init__(self, path):
         self.path = os.fspath(path)
@@ -299,35 +377,44 @@ class CaptureReader:
         return self
 
     def _parse(self, blob: bytes) -> None:
-        nl = blob.find(b"\n", 0, MAX_HEADER)
-        if nl < 0 or not is_capture(blob[: nl + 1]):
-            raise InputError(f"{self.path} line 1: not a magcal capture (no capture header)")
-        self.header = json.loads(blob[:nl].decode("utf-8"))
-        if self.header.get("version") != VERSION:
-            raise InputError(f"{self.path} line 1: capture version {self.header.get('version')!r} is not {VERSION}")
+        self.header, i = _read_header(blob, self.path)
         self.problem = ""
+        self.damaged_chunks = self.skipped_bytes = 0
         times: list[float] = []
         spans: list[tuple[int, int]] = []
-        i, n = nl + 1, len(blob)
+        n, last_t = len(blob), -math.inf
         while i < n:
-            if blob[i : i + 1] != CHUNK_MARK:
-                self.problem = f"bad chunk marker at byte {i}"
-                break
-            if i + CHUNK_OVERHEAD > n:
-                self.problem = f"truncated chunk header at byte {i}"
-                break
-            t, size = _CHUNK_HEAD.unpack_from(blob, i + 1)
-            start = i + CHUNK_OVERHEAD
-            if start + size > n:
-                self.problem = f"truncated chunk at byte {i} ({n - start} of {size} bytes)"
-                break
-            times.append(t)
-            spans.append((start, start + size))
-            i = start + size
+            h = _header_at(blob, i, -math.inf)  # receive times need not rise where nothing is damaged
+            if h is None or not _next_ok(blob, h[1], h[0], strict=False):
+                found = _resync(blob, i, last_t)
+                if found is None:
+                    if not _cut_short(blob, i):  # else: a crash mid-write, counted as truncated
+                        self._damage(f"damaged chunk structure from byte {i} to the end", n - i)
+                        i = n
+                    break
+                j, t, end = found
+                self._damage(f"damaged chunk {'marker' if j == i else 'structure'} at byte {i}", j - i)
+                h, i = (t, end), j
+            last_t = h[0]
+            times.append(last_t)
+            spans.append((i + CHUNK_OVERHEAD, h[1]))
+            i = h[1]
         self.truncated_bytes = n - i
+        if self.truncated_bytes:
+            self.problem = self.problem or f"truncated chunk at byte {i} ({self.truncated_bytes} bytes cut)"
         self._blob = blob
         self._spans = spans
         self.t_rx_s = np.array(times, np.float64)
+
+    def _damage(self, where: str, skipped: int) -> None:
+        self.damaged_chunks += 1
+        self.skipped_bytes += skipped
+        self.problem = self.problem or where
+
+    def reading(self) -> dict:
+        """What reading the file met, by name (for ``Series.reading``)."""
+        return {"damaged_chunks": self.damaged_chunks, "skipped_bytes": self.skipped_bytes,
+                "truncated_bytes": self.truncated_bytes}
 
     def __len__(self) -> int:
         return len(self._spans)
@@ -348,7 +435,7 @@ def series_from_frames(frames: Frames) -> Series:
     reset epoch, validity by ``Sample.valid``'s rules. Bit-identical (tests hold it)."""
     n = len(frames)
     pos = frames.pos
-    hellos = [(p, m) for p, m in frames.others if isinstance(m, Hello)]
+    hellos, refused = _applied_hellos(frames)
     h_pos = np.array([p for p, _ in hellos], np.int64)
     gains = np.array([[1.0, 1.0, 1.0]] + [[asa_gain(a) for a in m.asa] for _, m in hellos], np.float64)
     which = np.searchsorted(h_pos, pos)  # 0: before any hello
@@ -379,7 +466,22 @@ def series_from_frames(frames: Frames) -> Series:
     channels = {"temp_c": temp_c} if n else {}
     if n and not raw_kind.all():
         channels["calibrated"] = np.where(raw_kind, np.nan, 1.0)
-    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, seq=frames.seq.copy())
+    reading = {**frames.counters, "hellos_refused": refused}
+    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, seq=frames.seq.copy(), reading=reading)
+
+
+def _applied_hellos(frames: Frames) -> tuple[list, int]:
+    """The hellos that set the gain of later samples, by the live client's rule
+    (``hello_applies``), and how many were refused."""
+    out, current, refused = [], None, 0
+    for p, m in frames.others:
+        if isinstance(m, Hello):
+            if hello_applies(current, m):
+                out.append((p, m))
+                current = m
+            else:
+                refused += 1
+    return out, refused
 
 
 def recorded_dialect(reader: "CaptureReader") -> str:

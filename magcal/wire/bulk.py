@@ -16,7 +16,8 @@ with numpy so that replaying an hour of 100 Hz data takes a fraction of a second
    ``protocol.classify_line``, the same function the incremental framer uses, so defects are
    named identically;
 4. sequence gaps and restarts are computed from the merged, position-ordered sequence numbers
-   with the ``SequenceTracker`` rule.
+   with the ``SequenceTracker`` rules (vectorised while every step is plain; duplicates and
+   out-of-sequence lines are judged by the tracker itself and not delivered).
 
 Pure: bytes in, arrays out; no I/O.
 """
@@ -30,6 +31,7 @@ import numpy as np
 
 from .protocol import (
     CRC8_TABLE_NP,
+    MAX_DROPOUT,
     MAX_LINE,
     SEQ_MOD,
     CalibratedSample,
@@ -39,6 +41,7 @@ from .protocol import (
     Message,
     RawSample,
     Restart,
+    SequenceTracker,
     classify_line,
 )
 
@@ -273,7 +276,10 @@ def parse_stream(data: bytes) -> Frames:
     order = np.argsort(pos, kind="stable")
     pos, kinds, vals = pos[order], kinds[order], vals[order]
 
-    events = _sequence(pos, vals[:, 0], others, counters)
+    events, keep_s, keep_o = _sequence(pos, vals[:, 0], others, counters)
+    if not keep_s.all():  # duplicates and out-of-sequence lines are not delivered
+        pos, kinds, vals = pos[keep_s], kinds[keep_s], vals[keep_s]
+    others = [o for o, k in zip(others, keep_o.tolist()) if k]
     counters["lines"] = len(pos) + len(others)
     counters = +counters  # drop zero entries, as the incremental framer never creates them
     return Frames(
@@ -296,8 +302,11 @@ def _fits(msg) -> bool:
     return all(-(2**62) < v < 2**62 for v in vals)
 
 
-def _sequence(pos: np.ndarray, seq: np.ndarray, others: list, counters: Counter) -> list:
-    """Gaps and restarts over all messages in position order (the SequenceTracker rule)."""
+def _sequence(pos: np.ndarray, seq: np.ndarray, others: list, counters: Counter):
+    """Gaps and restarts over all messages in position order, by the ``SequenceTracker``
+    rules: (events, which samples continue the stream, which others do). Vectorised while
+    every step is a plain one (1 … MAX_DROPOUT ahead, or a restart); from the first line that
+    is not, the tracker itself judges each line."""
     o_pos = np.array([p for p, _ in others], np.int64)
     o_seq = np.array([m.seq for _, m in others], np.int64)
     o_h0 = np.array([isinstance(m, Hello) and m.seq == 0 for _, m in others], bool)
@@ -306,21 +315,45 @@ def _sequence(pos: np.ndarray, seq: np.ndarray, others: list, counters: Counter)
     h0 = np.concatenate([np.zeros(len(pos), bool), o_h0])
     order = np.argsort(all_pos, kind="stable")
     all_pos, all_seq, h0 = all_pos[order], all_seq[order], h0[order]
-    if len(all_seq) < 2:
-        return []
-    last = all_seq[:-1]
-    cur = all_seq[1:]
-    at = all_pos[1:]
-    hello0 = h0[1:] & (last != SEQ_MOD - 1)
-    lost = (cur - last - 1) % SEQ_MOD
-    gap = ~hello0 & (lost != 0)
-    counters["restarts"] += int(hello0.sum())
-    counters["gaps"] += int(gap.sum())
-    counters["lost_lines"] += int(lost[gap].sum())
+    keep = np.ones(len(all_pos), bool)
     events: list[tuple[int, Frame]] = []
-    for i in np.flatnonzero(hello0 | gap).tolist():
-        if hello0[i]:
-            events.append((int(at[i]), Restart(0)))
-        else:
-            events.append((int(at[i]), Gap(int(cur[i]), int(lost[i]))))
-    return events
+    if len(all_seq) >= 2:
+        last, cur = all_seq[:-1], all_seq[1:]
+        hello0 = h0[1:] & (last != SEQ_MOD - 1)
+        ahead = (cur - last) % SEQ_MOD
+        plain = hello0 | ((ahead >= 1) & (ahead <= MAX_DROPOUT))
+        odd = np.flatnonzero(~plain)
+        stop = int(odd[0]) if len(odd) else len(plain)  # steps 0 … stop-1 are plain
+        hello0, ahead = hello0[:stop], ahead[:stop]
+        gap = ~hello0 & (ahead > 1)
+        counters["restarts"] += int(hello0.sum())
+        counters["gaps"] += int(gap.sum())
+        counters["lost_lines"] += int((ahead[gap] - 1).sum())
+        for i in np.flatnonzero(hello0 | gap).tolist():
+            at = int(all_pos[i + 1])
+            events.append((at, Restart(0) if hello0[i] else Gap(int(cur[i]), int(ahead[i] - 1))))
+        if len(odd):
+            _track(all_pos, order, stop + 1, len(pos), others, seq, counters, events, keep)
+    kept = np.empty(len(all_pos), bool)
+    kept[order] = keep
+    return events, kept[: len(pos)], kept[len(pos):]
+
+
+def _track(all_pos, order, start, n_samples, others, seq, counters, events, keep) -> None:
+    """The tracker over the messages from position-ordered index ``start`` on."""
+    tracker = SequenceTracker()
+    prev = order[start - 1]
+    tracker.last = int(seq[prev] if prev < n_samples else others[prev - n_samples][1].seq)
+    for k in range(start, len(order)):
+        j = order[k]
+        msg = _Seq(int(seq[j])) if j < n_samples else others[j - n_samples][1]
+        out: list = []
+        keep[k] = tracker.step(msg, counters, out)
+        events.extend((int(all_pos[k]), e) for e in out)
+
+
+@dataclass(frozen=True, slots=True)
+class _Seq:
+    """A sample line, as far as the sequence rules see it."""
+
+    seq: int

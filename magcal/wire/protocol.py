@@ -227,7 +227,13 @@ def parse_payload(payload: bytes) -> Message:
         fw = f[1].decode("ascii")
         if not fw or any(c not in "0123456789." for c in fw):
             raise ParseError(f"bad firmware version {fw!r}")
-        return Hello(seq, _int(f[0]), fw, _hex(f[2]), _hex(f[3]), _ints(f[4:7]), _int(f[7]))
+        asa = _ints(f[4:7])
+        if not all(0 <= a <= 255 for a in asa):
+            raise ParseError(f"ASA bytes out of range: {asa}")
+        who, wia = _hex(f[2]), _hex(f[3])
+        if who > 255 or wia > 255:
+            raise ParseError("WHO_AM_I and WIA are single bytes")
+        return Hello(seq, _int(f[0]), fw, who, wia, asa, _int(f[7]))
     if kind == b"A":
         if len(f) < 2:
             raise ParseError("A needs tag and command")
@@ -281,27 +287,70 @@ def classify_line(line: bytes) -> Message | str:
         return "bad_syntax"
 
 
+def hello_applies(current: Hello | None, new: Hello) -> bool:
+    """Does ``new`` describe the chip that sends the samples after it? The first hello and a
+    boot hello (seq 0) do. A later one (the reply to ``I``) must repeat the chip's identity —
+    WHO_AM_I, WIA and the fuse-ROM ASA bytes cannot change without a restart — so one that does
+    not is refused (and counted by the reader as ``hellos_refused``): a changed ASA in a line
+    whose CRC-8 happened to match would otherwise rescale every later sample."""
+    if current is None or new.seq == 0:
+        return True
+    return (new.who_am_i, new.wia, new.asa) == (current.who_am_i, current.wia, current.asa)
+
+
+MAX_MISORDER = 100  # a line this far behind the last one is a late copy, not news
+MAX_DROPOUT = 3000  # a jump further ahead than this is implausible as loss (30 s at 100 Hz)
+
+
 class SequenceTracker:
-    """Sequence-number bookkeeping shared by every framer: gaps and device restarts."""
+    """Sequence-number bookkeeping shared by every framer: which lines continue the stream,
+    gaps, device restarts. The rules follow RFC 3550, appendix A.1 (RTP's sequence check):
+
+    - a hello with seq 0 that does not continue the numbering is a device restart;
+    - 1 … ``MAX_DROPOUT`` ahead of the last line continues the stream; the numbers skipped
+      are ``lost_lines`` (one ``gap`` per jump);
+    - the same number again, or up to ``MAX_MISORDER`` behind, is a copy that came late or
+      twice: ``duplicate_lines``, never delivered (a sample is never counted twice);
+    - any other jump is ``out_of_sequence_lines`` (not delivered) unless the next line
+      follows it: then the device has renumbered without a hello (``sequence_resyncs``),
+      delivered as a restart so the time axis starts a new epoch.
+    """
 
     def __init__(self):
         self.last: int | None = None
+        self._probation: int | None = None  # the number that would confirm a renumbering
 
-    def step(self, msg: Message, counters: Counter, out: list) -> None:
-        last = self.last
-        self.last = msg.seq
-        if isinstance(msg, Hello) and msg.seq == 0 and last != SEQ_MOD - 1:
+    def step(self, msg: Message, counters: Counter, out: list) -> bool:
+        """Judge ``msg``; True when it continues the stream (deliver it), False when not."""
+        last, seq = self.last, msg.seq
+        if isinstance(msg, Hello) and seq == 0 and last != SEQ_MOD - 1:
+            self.last, self._probation = 0, None
             if last is not None:
                 counters["restarts"] += 1
-                out.append(Restart(msg.seq))
-            return
+                out.append(Restart(0))
+            return True
         if last is None:
-            return
-        lost = (msg.seq - last - 1) % SEQ_MOD
-        if lost:
-            counters["lost_lines"] += lost
-            counters["gaps"] += 1
-            out.append(Gap(msg.seq, lost))
+            self.last = seq
+            return True
+        ahead = (seq - last) % SEQ_MOD
+        if ahead == 0 or ahead > SEQ_MOD - MAX_MISORDER:
+            counters["duplicate_lines"] += 1
+            return False
+        if ahead <= MAX_DROPOUT:
+            self.last, self._probation = seq, None
+            if ahead > 1:
+                counters["lost_lines"] += ahead - 1
+                counters["gaps"] += 1
+                out.append(Gap(seq, ahead - 1))
+            return True
+        if seq == self._probation:  # two in a row on a new numbering
+            self.last, self._probation = seq, None
+            counters["sequence_resyncs"] += 1
+            out.append(Restart(seq))
+            return True
+        self._probation = (seq + 1) % SEQ_MOD
+        counters["out_of_sequence_lines"] += 1
+        return False
 
 
 def _next_stop(buf: bytes, i: int) -> int:
@@ -326,7 +375,9 @@ class Framer:
     - ``overlong_lines``: a '$' run that reaches MAX_LINE bytes without a '\\n' (dropped
       until the next '\\n' or '$');
     - per complete line, see ``classify_line``; ``lines`` counts the good ones;
-    - ``gaps``/``lost_lines``/``restarts`` from the sequence numbers (``SequenceTracker``).
+    - ``gaps``/``lost_lines``/``restarts``, ``duplicate_lines``, ``out_of_sequence_lines`` and
+      ``sequence_resyncs`` from the sequence numbers (``SequenceTracker``); duplicates and
+      out-of-sequence lines are not returned.
     """
 
     def __init__(self):
@@ -394,9 +445,9 @@ class Framer:
         if isinstance(msg, str):
             self.counters[msg] += 1
             return
-        self._seq.step(msg, self.counters, out)
-        out.append(msg)
-        self.counters["lines"] += 1
+        if self._seq.step(msg, self.counters, out):
+            out.append(msg)
+            self.counters["lines"] += 1
 
 
 def parse_command(line: bytes) -> tuple[str, int, tuple[bytes, ...]]:
