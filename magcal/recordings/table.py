@@ -40,7 +40,9 @@ import csv
 import io
 import math
 import re
+import warnings
 from dataclasses import dataclass
+from itertools import chain, islice
 
 import numpy as np
 
@@ -147,10 +149,13 @@ def _sniff(line: str) -> str | None:
     return None
 
 
-def _split(line: str, delimiter: str | None) -> list[str]:
+def _split(line: str, delimiter: str | None, name: str = "<table>", line_no: int = 0) -> list[str]:
     if delimiter is None:
         return line.split()
-    return [c.strip() for c in next(csv.reader([line], delimiter=delimiter))]
+    try:
+        return [c.strip() for c in next(csv.reader([line], delimiter=delimiter))]
+    except csv.Error as exc:  # e.g. a field longer than the csv module's limit
+        raise InputError(f"{name} line {line_no}: cannot split into columns: {exc}") from None
 
 
 def _position(spec: str, cols: list[str], name: str, what: str) -> int:
@@ -243,46 +248,121 @@ def _find_time(cols: list[str], fmt: TableFormat, name: str) -> tuple[int | None
     return None, 1.0
 
 
-def _units_row(lines: list[str], hdr_i: int, delimiter: str | None, ncol: int):
+def _units_row(lines: list[str], hdr_i: int, delimiter: str | None, ncol: int, name: str = "<table>"):
     """(index, cells) of a row of units right under the header (``s,uT,uT,uT``), or None."""
     for i in range(hdr_i + 1, min(len(lines), hdr_i + 20)):
         ln = lines[i]
         if not ln.strip() or ln.lstrip().startswith("#"):
             continue
-        cells = _split(ln, delimiter)
+        cells = _split(ln, delimiter, name, i + 1)
         if len(cells) == ncol and all(c and _number(c) is None for c in cells):
             return i, cells
         return None
     return None
 
 
+MAX_COLUMNS = 10_000  # a magnetometer log with more is not one this reader takes whole
+MAX_LINE_CHARS = 1 << 20  # characters in one line (10 000 columns of 100 characters)
+HEAD_LINES = 100  # the header, a preamble before it and a row of units are found in these
+BLOCK_ROWS = 65536  # data rows converted to arrays at a time (bounds the Python objects held)
+
+
 def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None) -> Series:
     """Delimited text → Series (see the module docstring)."""
+    return read_table(iter(text.splitlines()), name, fmt)
+
+
+def _head(lines) -> tuple[list[str], int]:
+    """(the first HEAD_LINES lines from the first one that is not blank or a comment, the number
+    of lines before them) — blank and comment lines before a table are not kept."""
+    skipped = 0
+    for ln in lines:
+        if ln.strip() and not ln.lstrip().startswith("#"):
+            return [ln, *islice(lines, HEAD_LINES - 1)], skipped
+        skipped += 1
+    return [], skipped
+
+
+def _not_too_long(ln: str, name: str, line_no: int) -> str:
+    if len(ln) > MAX_LINE_CHARS:
+        raise InputError(f"{name} line {line_no}: {len(ln)} characters in one line, more than a table of at most "
+                         f"{MAX_COLUMNS} columns holds ({MAX_LINE_CHARS}); is it a table with one line per sample?")
+    return ln
+
+
+@dataclass
+class _Layout:
+    """How the table's columns are to be read, as found from its head."""
+
+    cols: list
+    delimiter: str | None
+    has_header: bool
+    hdr_i: int  # index in the head of the last line before the data (-1: the data start at once)
+    mag: list
+    scale: float
+    assumed_unit: bool
+    t_col: int | None
+    t_scale: float
+    must: set
+    keep: dict  # column → channel name, for every column that may become a channel
+    renamed: dict  # column → temp_c / current_a, as --temp / --current named them
+
+
+def read_table(lines, name: str = "<table>", fmt: TableFormat | None = None) -> Series:
+    """Lines of delimited text (any iterator; read once, in bounded memory) → Series."""
     fmt = fmt or TableFormat()
-    lines = text.splitlines()
-    first = header_index(lines, fmt.delimiter)
+    lines = iter(lines)
+    head, skipped = _head(lines)
+    for j, ln in enumerate(head):
+        _not_too_long(ln, name, skipped + j + 1)
+    lay = _layout(head, fmt, name, skipped)
+    rest = chain(head[lay.hdr_i + 1:], lines)
+    data, text_cols, rows = _read_rows(rest, skipped + lay.hdr_i + 1, lay, name)
+    for k, as_name in lay.renamed.items():
+        if k in text_cols:
+            raise InputError(f"{name}: column {lay.cols[k]!r}, to be read as {as_name}, holds text, not numbers")
+    n = len(rows)
+    field = lay.scale * np.column_stack([data[k] for k in lay.mag])
+    t = lay.t_scale * data[lay.t_col] if lay.t_col is not None else np.arange(n, dtype=np.float64)
+    valid, channels = None, {}
+    for k, as_name in lay.keep.items():
+        if k in text_cols:
+            continue
+        if as_name == "valid":
+            valid = data[k] != 0
+        else:
+            channels[as_name] = data[k]
+    source = _describe([lay.cols[k] for k in lay.mag], lay.scale, lay.assumed_unit,
+                       None if lay.t_col is None else (lay.cols[lay.t_col], lay.t_scale), list(channels))
+    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=rows, source=source)
+
+
+def _layout(head: list[str], fmt: TableFormat, name: str, skipped: int) -> _Layout:
+    first = header_index(head, fmt.delimiter)
     if first is None:
         raise InputError(f"{name}: empty file (no header row)")
-    delimiter = fmt.delimiter if fmt.delimiter is not None else _sniff(lines[first])
+    delimiter = fmt.delimiter if fmt.delimiter is not None else _sniff(head[first])
     if delimiter is not None and delimiter.strip() == "" and delimiter != "\t":
         delimiter = None
-    cells = _split(lines[first], delimiter)
+    cells = _split(head[first], delimiter, name, skipped + first + 1)
+    if len(cells) > MAX_COLUMNS:
+        raise InputError(f"{name} line {skipped + first + 1}: {len(cells)} columns, more than {MAX_COLUMNS}; keep the "
+                         "columns you need (e.g. cut -d, -f7-10 FILE) and read that")
     has_header = any(_number(c) is None for c in cells)
-    if has_header:
-        cols = [c if c else f"col{k + 1}" for k, c in enumerate(cells)]  # unnamed columns
-        hdr_i = first
-    else:
-        cols = [f"col{k + 1}" for k in range(len(cells))]
-        hdr_i = first - 1
-    mag, named_unit = _find_mag(cols, fmt, name, first + 1)
+    cols = [c if c else f"col{k + 1}" for k, c in enumerate(cells)] if has_header else \
+        [f"col{k + 1}" for k in range(len(cells))]
+    hdr_i = first if has_header else first - 1
+    mag, named_unit = _find_mag(cols, fmt, name, skipped + first + 1)
     t_col, t_scale = _find_time(cols, fmt, name)
     if has_header:
-        dup = sorted({c for c in cols if cols.count(c) > 1})
+        seen, dup = set(), set()
+        for c in cols:
+            (dup if c in seen else seen).add(c)
         if dup:
-            raise InputError(f"{name} line {hdr_i + 1}: duplicate column(s) {', '.join(dup)}")
+            raise InputError(f"{name} line {skipped + hdr_i + 1}: duplicate column(s) {', '.join(sorted(dup)[:10])}")
     if len(set(mag)) != 3 or (t_col is not None and t_col in mag):
         raise InputError(f"{name}: the magnetometer and time columns must be different columns")
-    units_row = _units_row(lines, hdr_i, delimiter, len(cols)) if has_header else None
+    units_row = _units_row(head, hdr_i, delimiter, len(cols), name) if has_header else None
     if units_row is not None:
         hdr_i, unit_cells = units_row
         said = {unit_cells[k].strip("[]() ").lower() for k in mag}
@@ -293,10 +373,18 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
             t_scale = TIME_UNITS_S[t_unit]
     scale = unit_scale(fmt.unit) if fmt.unit is not None else (named_unit or 1.0)
     must = set(mag) | ({t_col} if t_col is not None else set())
-    # another magnetometer in the same table measures the same field: it is not a covariate
+    keep, renamed = _channels(cols, fmt, name, mag, must)
+    return _Layout(cols, delimiter, has_header, hdr_i, mag, scale, fmt.unit is None and named_unit is None,
+                   t_col, t_scale, must, keep, renamed)
+
+
+def _channels(cols: list, fmt: TableFormat, name: str, mag: list, must: set) -> tuple[dict, dict]:
+    """(column → the name it is kept under: a channel, ``valid``, or temp_c/current_a when
+    named by --temp/--current; the renamed ones). The other columns are not kept."""
     other_mags = {i for tri in _mag_triples(cols).values() for i in tri.values()} - set(mag)
-    if all(c in cols for c in NATIVE):
-        other_mags |= {cols.index(c) for c in NATIVE} - set(mag)
+    index = {c: k for k, c in enumerate(cols)}
+    if all(c in index for c in NATIVE):
+        other_mags |= {index[c] for c in NATIVE} - set(mag)
     wanted = None
     if fmt.channels is not None:
         wanted = {_position(c, cols, name, "channel") for c in fmt.channels if c.strip()}
@@ -307,98 +395,127 @@ def parse_table(text: str, name: str = "<table>", fmt: TableFormat | None = None
             if k in must or k in renamed:
                 raise InputError(f"{name}: column {cols[k]!r} cannot be both {as_name} and another column")
             renamed[k] = as_name
-    data, text_cols, rows = _read_rows(lines, hdr_i, delimiter, cols, must, has_header, name)
-    for k, as_name in renamed.items():
-        if k in text_cols:
-            raise InputError(f"{name}: column {cols[k]!r}, to be read as {as_name}, holds text, not numbers")
-    n = len(rows)
-    field = scale * np.column_stack([np.array(data[k], np.float64) for k in mag])
-    t = t_scale * np.array(data[t_col], np.float64) if t_col is not None else np.arange(n, dtype=np.float64)
-    valid = None
-    channels = {}
+    keep = {}
     for k, c in enumerate(cols):
-        if k in must or k in text_cols:
+        if k in must:
             continue
-        arr = np.array(data[k], np.float64)
-        if c == "valid":
-            valid = arr != 0
-            continue
-        if k in renamed:
-            channels[renamed[k]] = arr
+        if c == "valid" or k in renamed:
+            keep[k] = "valid" if c == "valid" else renamed[k]
             continue
         if (wanted is not None and k not in wanted) or (wanted is None and k in other_mags):
             continue
-        known = c.lower() if c.lower() in KNOWN_CHANNELS and c.lower() not in cols else c
-        if known in renamed.values():
-            continue  # the column given by --temp/--current takes the name
-        channels[known] = arr
-    source = _describe([cols[k] for k in mag], scale, fmt.unit is None and named_unit is None,
-                       None if t_col is None else (cols[t_col], t_scale), list(channels))
-    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=np.array(rows, np.int64), source=source)
+        known = c.lower() if c.lower() in KNOWN_CHANNELS and c.lower() not in index else c
+        if known not in renamed.values():  # the column given by --temp/--current takes the name
+            keep[k] = known
+    return keep, renamed
 
 
-def _read_rows(lines, hdr_i, delimiter, cols, must, has_header, name):
-    """The data rows after ``hdr_i``: (values per column, text columns, 0-based data row of each
-    sample). A column whose first value is text is a text column (not a channel); a required
-    column (``must``) must hold a finite number on every row. A clean numeric body is read by
-    numpy in one pass; anything else (text, empty cells, a ragged row) by the row reader below,
-    which names the line and column of a problem."""
-    fast = _read_rows_numpy(lines, hdr_i, delimiter, len(cols), must)
-    if fast is not None:
-        return fast
-    ncol = len(cols)
-    data: list[list[float]] = [[] for _ in range(ncol)]
-    text_cols: set[int] = set()
-    rows: list[int] = []
-    for i in range(hdr_i + 1, len(lines)):
-        ln = lines[i]
-        if not ln.strip() or ln.lstrip().startswith("#"):
+def _read_rows(lines, first_no: int, lay: _Layout, name: str):
+    """The data rows (``lines``, the first being line ``first_no + 1`` of the file): (an array
+    per column, text columns, 0-based data row of each sample). A column whose first value is
+    text is a text column (not a channel); a required column must hold a finite number on every
+    row. Rows are taken in blocks; a block is read at once when it is plain numbers, else line by
+    line, which names the first line that is wrong."""
+    ncol = len(lay.cols)
+    blocks: list[list[np.ndarray]] = [[] for _ in range(ncol)]
+    text_cols: set[int] | None = None
+    rows: list[np.ndarray] = []
+    block: list[str] = []
+    at: list[int] = []
+    for i, ln in enumerate(lines, start=first_no):
+        if not _not_too_long(ln, name, i + 1).strip() or ln.lstrip().startswith("#"):
             continue
-        row_cells = _split(ln, delimiter)
+        block.append(ln)
+        at.append(i)
+        if len(block) == BLOCK_ROWS:
+            text_cols = _take_block(block, at, lay, name, blocks, text_cols)
+            rows.append(np.array(at, np.int64) - first_no)
+            block, at = [], []
+    if block:
+        text_cols = _take_block(block, at, lay, name, blocks, text_cols)
+        rows.append(np.array(at, np.int64) - first_no)
+    if not rows:
+        raise InputError(f"{name}: no data rows after the header (line {first_no})")
+    data = {}
+    for k in range(ncol):
+        if k not in text_cols and (k in lay.must or k in lay.keep):
+            data[k] = np.concatenate(blocks[k])
+        blocks[k] = []
+    return data, text_cols, np.concatenate(rows)
+
+
+def _take_block(block, at, lay: _Layout, name: str, blocks, text_cols):
+    """Append one block's values to ``blocks`` (per column); returns the text columns."""
+    if text_cols is not None:
+        values = _plain_block(block, lay, text_cols)
+        if values is not None:
+            for k, col in values.items():
+                blocks[k].append(col)
+            return text_cols
+    values, text_cols = _rows_one_by_one(block, at, lay, name, text_cols)
+    for k, col in values.items():
+        blocks[k].append(np.array(col, np.float64))
+    return text_cols
+
+
+def _plain_block(block, lay: _Layout, text_cols: set) -> dict | None:
+    """The block's numeric columns at once, when every cell is a number and every required one
+    finite; else None (the block is then read line by line)."""
+    use = [k for k in range(len(lay.cols)) if k not in text_cols and (k in lay.must or k in lay.keep)]
+    if not use:
+        return {}
+    text = dict.fromkeys(text_cols, _zero)  # parsed for their place only: the count is checked
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # an empty block or a short line: not plain
+            a = np.loadtxt(block, delimiter=lay.delimiter, dtype=np.float64, ndmin=2, comments=None,
+                           converters=text or None, quotechar='"' if lay.delimiter is not None else None)
+    except (ValueError, UserWarning):
+        return None
+    if a.shape != (len(block), len(lay.cols)):
+        return None
+    out = {k: a[:, k].copy() for k in use}
+    if not all(np.isfinite(out[k]).all() for k in lay.must):
+        return None
+    return out
+
+
+def _zero(_cell) -> float:
+    return 0.0
+
+
+def _rows_one_by_one(block, at, lay: _Layout, name: str, text_cols):
+    ncol = len(lay.cols)
+    data: dict[int, list[float]] = {k: [] for k in range(ncol)}
+    first = text_cols is None
+    text_cols = set() if text_cols is None else set(text_cols)
+    for ln, i in zip(block, at):
+        row_cells = _split(ln, lay.delimiter, name, i + 1)
         if len(row_cells) != ncol:
-            what = "the header has" if has_header else "the first line has"
+            what = "the header has" if lay.has_header else "the first line has"
             raise InputError(f"{name} line {i + 1}: {len(row_cells)} values, {what} {ncol}")
         for k, cell in enumerate(row_cells):
             if k in text_cols:
                 continue
             v = _number(cell) if cell else math.nan
-            if v is None or (k in must and not cell):
-                if k in must:
-                    problem = "is empty" if not cell else f"{cell!r} is not a number"
-                    raise InputError(f"{name} line {i + 1}: column {cols[k]!r}: {problem}")
-                if not data[k]:  # a text column: not a channel
+            if v is None or (k in lay.must and not cell):
+                if k in lay.must:
+                    problem = "is empty" if not cell else f"{_short(cell)} is not a number"
+                    raise InputError(f"{name} line {i + 1}: column {_short(lay.cols[k])}: {problem}")
+                if first and not data[k]:  # a text column: not a channel
                     text_cols.add(k)
                     continue
-                raise InputError(f"{name} line {i + 1}: column {cols[k]!r}: {cell!r} is not a number")
-            if k in must and not math.isfinite(v):
-                raise InputError(f"{name} line {i + 1}: column {cols[k]!r}: {cell!r} is not finite")
+                raise InputError(f"{name} line {i + 1}: column {_short(lay.cols[k])}: {_short(cell)} is not a number")
+            if k in lay.must and not math.isfinite(v):
+                raise InputError(f"{name} line {i + 1}: column {_short(lay.cols[k])}: {_short(cell)} is not finite")
             data[k].append(v)
-        rows.append(i - hdr_i - 1)
-    if not rows:
-        raise InputError(f"{name}: no data rows after the header (line {hdr_i + 1})")
-    return data, text_cols, rows
+        first = False
+    return {k: v for k, v in data.items() if k not in text_cols and (k in lay.must or k in lay.keep)}, text_cols
 
 
-def _read_rows_numpy(lines, hdr_i, delimiter, ncol, must):
-    """``_read_rows``' answer when every data cell is a number and every required one finite,
-    else None."""
-    import warnings
-
-    rows = [i - hdr_i - 1 for i in range(hdr_i + 1, len(lines))
-            if lines[i].strip() and not lines[i].lstrip().startswith("#")]
-    if not rows:
-        return None
-    body = "\n".join(lines[hdr_i + 1 + r] for r in rows)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")
-            a = np.loadtxt(io.StringIO(body), delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
-                           quotechar='"' if delimiter is not None else None)
-    except (ValueError, UserWarning):
-        return None
-    if a.shape != (len(rows), ncol) or not all(np.isfinite(a[:, k]).all() for k in must):
-        return None
-    return [a[:, k] for k in range(ncol)], set(), rows
+def _short(text) -> str:
+    text = repr(text)
+    return text if len(text) <= 40 else text[:37] + "…"
 
 
 def _describe(mag_names, scale, assumed, time_col, channels) -> str:
@@ -419,12 +536,13 @@ def parse_csv(text: str, name: str = "<csv>") -> Series:
 
 
 def load_table(path, fmt: TableFormat | None = None) -> Series:
+    """A table file, read line by line: memory bounded by the samples it holds, time linear
+    in its size."""
     try:
-        with open(path, "r", encoding="utf-8-sig", newline="") as fh:
-            text = fh.read()
+        with open(path, "r", encoding="utf-8-sig") as fh:
+            return read_table(fh, str(path), fmt)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read as text: {getattr(exc, 'strerror', None) or exc}") from exc
-    return parse_table(text, str(path), fmt)
 
 
 def load_csv(path) -> Series:
