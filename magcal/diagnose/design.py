@@ -21,7 +21,7 @@ from scipy import stats
 
 from . import channels, harmonics, softiron, wander
 from .inference import WaldResult, block_wald, shift_inflation
-from .model import ModelFit
+from .model import ModelFit, Spec, residual_jacobian
 
 # the slow wander as a nuisance: Legendre degrees 2..WANDER_DEGREE of the offset versus time, in
 # every test and held-out comparison
@@ -34,16 +34,17 @@ SHIFTS = 63  # circular shifts calibrating the rich-wander test of a channel (sh
 
 @dataclass(frozen=True)
 class Design:
-    """The columns of every candidate term at the baseline, and which group is which."""
+    """The columns of every candidate term at the reference model, and which group is which."""
 
-    x: np.ndarray  # (n, p): baseline Jacobian, soft iron, channel terms, harmonics, wander
-    residual_ut: np.ndarray  # (n,) the baseline's radial residual
+    x: np.ndarray  # (n, p): reference Jacobian, soft iron, channel terms, harmonics, wander
+    residual_ut: np.ndarray  # (n,) the reference's radial residual with its soft iron taken back out
     groups: dict  # effect name → its column indices in x
     candidates: dict  # channel effect name → ChannelCandidate
-    n_jacobian: int  # leading columns that are the baseline's own Jacobian
+    n_jacobian: int  # leading columns for offset and radius (what any refit absorbs anyway)
     n_before_wander: int  # columns before the wander nuisance (Jacobian … harmonics)
-    directions: np.ndarray  # (n, 3) unit field directions about the baseline offset
-    offset_ut: np.ndarray  # the baseline offset the columns were built about
+    directions: np.ndarray  # (n, 3) unit field directions (calibrated by the reference)
+    offset_directions: np.ndarray  # (n, 3) W·u: how an offset change shows in the residual
+    reference: ModelFit  # the model the columns were built at
 
     @property
     def wander_cols(self) -> np.ndarray:
@@ -54,26 +55,38 @@ class Design:
         """Channel effects other than time (time always goes through the wander gate)."""
         return {g: c for g, c in self.groups.items() if g != softiron.EFFECT and self.candidates[g].channel != channels.TIME}
 
+    def channel_columns(self, x: np.ndarray, reference: float, rows=slice(None)) -> np.ndarray:
+        """The three columns of an offset following channel values ``x`` (on ``rows``)."""
+        return -(np.asarray(x, np.float64) - reference)[:, None] * self.offset_directions[rows]
 
-def build(m: np.ndarray, t: np.ndarray, chans: dict, base: ModelFit, candidates: list) -> Design:
-    """The design at ``base`` for samples ``m`` (µT), times ``t`` and channel arrays ``chans``
-    (keyed by channel name, time included as ``channels.TIME``)."""
-    residual, jac = base.jacobian(m, {})
-    cols = [jac, softiron.regressors(m, base.offset_ut)]
-    groups = {softiron.EFFECT: np.arange(jac.shape[1], jac.shape[1] + 5)}
-    k = jac.shape[1] + 5
-    by_effect = {}
-    for cand in candidates:
-        cols.append(channels.regressors(chans[cand.channel], cand.reference, m, base.offset_ut))
-        groups[cand.effect] = np.arange(k, k + 3)
-        by_effect[cand.effect] = cand
-        k += 3
-    d = m - base.offset_ut
-    u = d / np.linalg.norm(d, axis=1, keepdims=True)
-    cols.append(harmonics.regressors(u))
-    n_before_wander = k + cols[-1].shape[1]
-    cols.append(wander.regressors(t, u, WANDER_DEGREE))
-    return Design(np.concatenate(cols, axis=1), residual, groups, by_effect, jac.shape[1], n_before_wander, u, base.offset_ut)
+
+def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: list) -> Design:
+    """The design at the reference model ``ref`` (hard iron, radius and the soft iron the data
+    determine) for samples ``m`` (µT), times ``t`` and channel arrays ``chans`` (keyed by
+    channel name, time included as ``channels.TIME``).
+
+    Soft iron is tested as a Wald test of the reference's own soft-iron coordinates: the
+    residual is the reference's with its soft iron taken back out to first order, so the test
+    is linearised where the model fits, not at a sphere that may be far off. The direction
+    harmonics are made orthogonal to offset, radius and all five soft-iron columns on the data's
+    own directions, so that on a band or any non-uniform coverage they cannot soak up soft iron."""
+    spec = Spec(soft_iron=True, channels=tuple(c.channel for c in candidates))
+    params = np.concatenate([ref.offset_ut, ref.soft, [ref.field_ut], np.zeros(3 * len(candidates))])
+    residual, jac = residual_jacobian(params, spec, m, [chans[c.channel] - c.reference for c in candidates])
+    offset_radius = np.concatenate([jac[:, 0:3], jac[:, 8:9]], axis=1)
+    soft = jac[:, 3:8]
+    residual = residual - soft @ ref.soft  # the soft iron taken back out, to first order
+    groups = {softiron.EFFECT: np.arange(4, 9)}
+    by_effect = {c.effect: c for c in candidates}
+    for j, c in enumerate(candidates):
+        groups[c.effect] = np.arange(9 + 3 * j, 12 + 3 * j)
+    h = ref.calibration().correct(m)
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    wu = -jac[:, 0:3]
+    harm = harmonics.on_data(u)
+    cols = [offset_radius, soft, jac[:, 9:], harm, wander.regressors(t, wu, WANDER_DEGREE)]
+    x = np.concatenate(cols, axis=1)
+    return Design(x, residual, groups, by_effect, 4, 9 + 3 * len(candidates) + harm.shape[1], u, wu, ref)
 
 
 @dataclass(frozen=True)
@@ -84,7 +97,7 @@ class RichTests:
     inflation: dict  # effect → λ (only for channels that could pass)
 
 
-def test_against_rich_wander(design: Design, m: np.ndarray, t: np.ndarray, chans: dict, alpha: float) -> RichTests:
+def test_against_rich_wander(design: Design, t: np.ndarray, chans: dict, alpha: float) -> RichTests:
     """Each channel tested a second time against a rich wander nuisance (Legendre degrees
     2..RICH_DEGREE of the offset vs time). A channel that varies faster than the wander (an
     intermittent current) keeps most of its variation and needs no wander gate; a slow one (a
@@ -108,7 +121,7 @@ def test_against_rich_wander(design: Design, m: np.ndarray, t: np.ndarray, chans
         cand = design.candidates[g]
         x_g = chans[cand.channel][sel]
         lags = np.unique((np.linspace(0.05, 0.95, SHIFTS) * len(x_g)).round().astype(int))
-        shifted = (channels.regressors(np.roll(x_g, lag), cand.reference, m[sel], design.offset_ut) for lag in lags)
+        shifted = (design.channel_columns(np.roll(x_g, lag), cand.reference, sel) for lag in lags)
         # the aligned columns stay in the design: the shifted copies are judged on the residual
         # the channel leaves, so an effect that is there does not inflate its own null
         inflation[g] = shift_inflation(x_rich, e_sel, shifted)

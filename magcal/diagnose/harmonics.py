@@ -9,7 +9,11 @@ a channel effect must be more than a direction-dependent misfit seen at differen
 
 The functions are the degree-3 and degree-4 monomials with their lower-degree parts removed
 (least squares over a uniform spherical design), so they are orthogonal to degrees 0–2 over
-the sphere and do not compete with hard iron, radius or soft iron.
+the sphere. Over a band of directions, or any coverage that is not uniform, they are not: a
+degree-4 function restricted to a band shares a large part with degree-2 ones, and as a
+nuisance it soaks up soft iron. ``on_data`` therefore removes, by least squares over the
+recording's own directions, every part of them that degrees 0–2 (the columns of hard iron,
+radius and soft iron, as functions of the direction alone) can express.
 """
 
 from __future__ import annotations
@@ -50,3 +54,14 @@ def regressors(u: np.ndarray) -> np.ndarray:
         low = np.concatenate([_monomials(u, d) if d else np.ones((len(u), 1)) for d in lower], axis=1)
         cols.append(p - low @ c)
     return np.concatenate(cols, axis=1)
+
+
+def on_data(u: np.ndarray) -> np.ndarray:
+    """The harmonics of ``regressors`` made orthogonal, on these directions u (n, 3), to every
+    polynomial of degree ≤ 2 in u: they can no longer stand in for offset, radius or soft iron.
+    The low-degree functions are of the direction alone (no |m|), so the noise along the field,
+    which the residual carries, does not enter them."""
+    low = np.concatenate([np.ones((len(u), 1)), u, _monomials(u, 2)], axis=1)
+    h = regressors(u)
+    coef = np.linalg.lstsq(low, h, rcond=None)[0]
+    return h - low @ coef

@@ -38,6 +38,9 @@ class WaldResult:
     beta: np.ndarray  # coefficients of the group's columns (original units; 0 off the tested subspace)
     effect_rms_ut: float
     basis: np.ndarray  # (n_cols, k) the identifiable directions tested, in the group's column units
+    cov: np.ndarray | None = None  # (n_cols, n_cols) block-HAC covariance of beta (0 off the tested subspace)
+    nu: float = float("nan")  # effective number of independent blocks behind cov
+    untestable: str = ""  # why the group could not be tested: "directions", "blocks", or ""
 
 
 def _block_sums(x: np.ndarray, r: np.ndarray, blocks: list[slice]) -> np.ndarray:
@@ -53,24 +56,84 @@ def pinv_sym(g: np.ndarray) -> np.ndarray:
     return (v[:, keep] / w[keep]) @ v[:, keep].T
 
 
-def _block_wald_stat(z: np.ndarray, r0: np.ndarray, blocks: list[slice]):
-    """The block-HAC Wald statistic of regressing r0 on z (z already orthogonal to every other
-    column): coefficients, (ZᵀZ)⁻¹, the statistic, the effective number of independent blocks
-    ν and the F denominator degrees of freedom ν − k + 1."""
+def _sqrt_sym(a: np.ndarray, power: float) -> np.ndarray:
+    w, v = np.linalg.eigh(0.5 * (a + a.T))
+    return (v * np.maximum(w, 1e-300) ** power) @ v.T
+
+
+@dataclass(frozen=True)
+class _Nuisance:
+    """The other columns of a test: x (n, r) and the pseudo-inverse of their Gram matrix."""
+
+    x: np.ndarray
+    ginv: np.ndarray
+
+    def project_out(self, y: np.ndarray) -> np.ndarray:
+        return y - self.x @ (self.ginv @ (self.x.T @ y))
+
+    def extended(self, q: np.ndarray) -> "_Nuisance":
+        """With columns q added (q orthogonal to x)."""
+        g = pinv_sym(q.T @ q)
+        r = self.ginv.shape[0]
+        ginv = np.zeros((r + len(g), r + len(g)))
+        ginv[:r, :r], ginv[r:, r:] = self.ginv, g
+        return _Nuisance(np.concatenate([self.x, q], axis=1), ginv)
+
+
+# the block-HAC variance estimate keeps less than this share of its expectation under
+# independent noise (the nuisance columns take most of the block-level variation): no test
+MIN_KEPT_VARIANCE = 0.05
+
+
+@dataclass(frozen=True)
+class _Stat:
+    bz: np.ndarray  # coefficients of z
+    cov: np.ndarray  # their (bias-corrected) block-HAC covariance
+    wald: float
+    nu: float  # effective number of independent blocks
+    df2: float  # F denominator degrees of freedom ν − k + 1
+    kept_variance: float  # smallest share of the iid variance the block estimate keeps
+    parts: tuple  # what the wild bootstrap needs: (h_b, c_b, P_b, S_b, zinv, T, N⁻¹)
+
+
+def _block_wald_stat(z: np.ndarray, r0: np.ndarray, blocks: list[slice], nuis: _Nuisance) -> _Stat:
+    """The block-HAC Wald statistic of regressing r0 on z (z and r0 already orthogonal to the
+    nuisance columns).
+
+    The batch-means covariance (ZᵀZ)⁻¹ Σ_b G_b G_bᵀ (ZᵀZ)⁻¹, G_b = Σ_{i∈b} z_i r_i, is biased
+    low when nuisance columns are fitted: the residual r is orthogonal to every nuisance column,
+    and a smooth nuisance (direction harmonics, wander) that resembles z within each block
+    forces the block scores G_b to cancel. Under independent noise E[Σ G_b G_bᵀ] = σ² E with
+    E = Σ_b (S_b − P_b N⁻¹ P_bᵀ − S_b (ZᵀZ)⁻¹ S_b), S_b = Z_bᵀZ_b, P_b = Z_bᵀX_b (X the nuisance,
+    N its Gram matrix); the estimate is rescaled by T = (ZᵀZ)^½ E^−½ so that it is unbiased
+    there (the bias-reduced cluster covariance of Bell & McCaffrey 2002, in matrix form).
+    ν, the effective number of independent blocks, is Satterthwaite's from each block's share
+    of E."""
     k = z.shape[1]
     ztz = z.T @ z
     zinv = np.linalg.inv(ztz)
     bz = zinv @ (z.T @ r0)
     r = r0 - z @ bz
-    # covariance of bz: (ZᵀZ)⁻¹ Σ_b G_b G_bᵀ (ZᵀZ)⁻¹ with G_b = Σ_{i∈b} z_i r_i (Z ⟂ Q)
-    gz = _block_sums(z, r, blocks)
-    v = zinv @ (gz.T @ gz) @ zinv
-    wald = float(bz @ np.linalg.solve(v, bz))
-    # effective number of independent blocks (Satterthwaite): a regressor whose weight sits
-    # in a few blocks (time, an intermittent current) gives a noisier covariance estimate
-    share = np.array([np.trace(zinv @ (z[b].T @ z[b])) for b in blocks]) / k
-    nu = 1.0 / float(np.sum(share**2)) - 1.0  # −1: the block sums add up to zero
-    return bz, zinv, wald, nu, nu - k + 1
+    s_b = np.stack([z[b].T @ z[b] for b in blocks])
+    p_b = np.stack([z[b].T @ nuis.x[b] for b in blocks])
+    e_b = s_b - np.einsum("bkr,rs,bls->bkl", p_b, nuis.ginv, p_b) - s_b @ zinv @ s_b
+    e_sum = e_b.sum(axis=0)
+    root = _sqrt_sym(zinv, 0.5)
+    kept = float(np.linalg.eigvalsh(root @ e_sum @ root).min())
+    t = _sqrt_sym(ztz, 0.5) @ _sqrt_sym(e_sum, -0.5)
+    g = _block_sums(z, r, blocks)
+    cov = zinv @ t @ (g.T @ g) @ t.T @ zinv
+    wald = float(bz @ np.linalg.solve(cov, bz))
+    share = np.einsum("kl,blk->b", zinv, e_b)
+    share = share / share.sum()
+    nu = 1.0 / float(np.sum(share**2)) - 1.0
+    h_b = _block_sums(z, r0, blocks)
+    c_b = _block_sums(nuis.x, r0, blocks)
+    return _Stat(bz, cov, wald, nu, nu - k + 1, kept, (h_b, c_b, p_b, s_b, zinv, t, nuis.ginv))
+
+
+def _untested(k: int, nb: int, ncols: int, basis: np.ndarray, why: str) -> "WaldResult":
+    return WaldResult(0.0, max(k, 1), max(nb - k, 1), 1.0, np.zeros(ncols), 0.0, basis, untestable=why)
 
 
 def block_wald(
@@ -86,43 +149,53 @@ def block_wald(
     Only the group's *identifiable* directions are tested: those whose part not explained by
     the other columns keeps at least ``min_unique`` of its norm (a coverage gate — with
     yaw-only motion most soft-iron directions trade with offset and radius, and their
-    second-order residue would otherwise pass for a signal)."""
+    second-order residue would otherwise pass for a signal); its other directions are
+    nuisances of the test."""
     n, p = x.shape
     scale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
     xs = x / scale
     blocks = contiguous_blocks(n, n_blocks or n_test_blocks(n))
-    nb = len(blocks)
+    gram = xs.T @ xs
     out = {}
-    gram = xs.T @ xs  # everything below works from Gram blocks: no n-row factorisations
-    xte = xs.T @ e
     for name, cols in groups.items():
         cols = np.asarray(cols)
         other = np.setdiff1d(np.arange(p), cols)
-        goo = pinv_sym(gram[np.ix_(other, other)])
-        xo = xs[:, other]
+        nuis = _Nuisance(xs[:, other], pinv_sym(gram[np.ix_(other, other)]))
         xc = xs[:, cols]
-        xp = xc - xo @ (goo @ gram[np.ix_(other, cols)])
+        xp = nuis.project_out(xc)
         ev, vec = np.linalg.eigh(xp.T @ xp)  # singular values² and right singular vectors
         keep = np.sqrt(np.maximum(ev, 0.0)) >= min_unique
-        basis_s = vec[:, keep]  # in scaled-column units
-        k = int(keep.sum())
-        if k == 0 or nb - k < 2:
-            out[name] = WaldResult(0.0, max(k, 1), max(nb - k, 1), 1.0, np.zeros(len(cols)), 0.0, basis_s / scale[cols, None])
-            continue
-        z = xp @ basis_s  # the identifiable part, already orthogonal to the other columns
-        r0 = e - xo @ (goo @ xte[other])
-        bz, zinv, wald, nu, df2 = _block_wald_stat(z, r0, blocks)
-        if df2 < 2:
-            out[name] = WaldResult(0.0, k, max(int(df2), 1), 1.0, np.zeros(len(cols)), 0.0, basis_s / scale[cols, None])
-            continue
-        f = wald * df2 / (k * nu)
-        pval = max(float(stats.f.sf(f, k, df2)), _wild_block_p(z, r0, blocks, wald, zinv))
-        beta = (basis_s @ bz) / scale[cols]
-        # the effect's size is that of the whole term (not only of its part the other columns
-        # cannot mimic: a nuisance that shares part of a slow channel must not shrink it)
-        size = float(np.sqrt(np.mean((xc @ (basis_s @ bz)) ** 2)))
-        out[name] = WaldResult(f, k, int(round(df2)), pval, beta, size, basis_s / scale[cols, None])
+        basis = vec[:, keep] / scale[cols, None]
+        out[name] = _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, scale[cols])
     return out
+
+
+def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale) -> WaldResult:
+    """One group's test on its identifiable directions (see block_wald)."""
+    k, nb, ncols = int(keep.sum()), len(blocks), len(keep)
+    if k == 0:
+        return _untested(0, nb, ncols, basis, "directions")
+    if k < ncols:
+        # the group's own directions that the other columns mimic are nuisances of the test,
+        # not ignored: left in the residual they would leak into the tested directions
+        nuis = nuis.extended(xp @ vec[:, ~keep])
+    z = xp @ vec[:, keep]  # the identifiable part, orthogonal to the other columns
+    z = nuis.project_out(z) if k < ncols else z
+    r0 = nuis.project_out(e)
+    st = _block_wald_stat(z, r0, blocks, nuis)
+    if st.kept_variance < MIN_KEPT_VARIANCE:
+        return _untested(k, nb, ncols, basis, "blocks")
+    if st.df2 < 2:
+        return _untested(k, nb, ncols, basis, "blocks")
+    f = st.wald * st.df2 / (k * st.nu)
+    pval = max(float(stats.f.sf(f, k, st.df2)), _wild_block_p(st))
+    basis_s = vec[:, keep]
+    beta = (basis_s @ st.bz) / col_scale
+    # the effect's size is that of the whole term (not only of its part the other columns
+    # cannot mimic: a nuisance that shares part of a slow channel must not shrink it)
+    size = float(np.sqrt(np.mean((xc @ (basis_s @ st.bz)) ** 2)))
+    cov = (basis_s / col_scale[:, None]) @ st.cov @ (basis_s / col_scale[:, None]).T
+    return WaldResult(f, k, int(round(st.df2)), pval, beta, size, basis, cov=cov, nu=st.nu)
 
 
 def shift_inflation(x_other: np.ndarray, e: np.ndarray, shifted_cols, n_blocks: int | None = None) -> float:
@@ -139,45 +212,47 @@ def shift_inflation(x_other: np.ndarray, e: np.ndarray, shifted_cols, n_blocks: 
     scale = np.sqrt(np.maximum((x_other * x_other).sum(axis=0), 1e-300))
     q, rr = np.linalg.qr(x_other / scale)
     q = q[:, np.abs(np.diag(rr)) > 1e-10 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)]
-    r0 = e - q @ (q.T @ e)
+    nuis = _Nuisance(q, np.eye(q.shape[1]))
+    r0 = nuis.project_out(e)
     blocks = contiguous_blocks(n, n_blocks or n_test_blocks(n))
     ratios = []
     for xc in shifted_cols:
         xc = xc / np.sqrt(np.maximum((xc * xc).sum(axis=0), 1e-300))
-        z = xc - q @ (q.T @ xc)
+        z = nuis.project_out(xc)
         ev, vec = np.linalg.eigh(z.T @ z)
         z = z @ vec[:, ev > 1e-8 * max(float(ev.max()), 1e-300)]  # its identifiable directions
         k = z.shape[1]
         if k == 0:
             continue
-        _, _, wald, nu, df2 = _block_wald_stat(z, r0, blocks)
-        if df2 < 2:
+        st = _block_wald_stat(z, r0, blocks, nuis)
+        if st.df2 < 2 or st.kept_variance < MIN_KEPT_VARIANCE:
             continue
-        ratios.append(wald * df2 / (k * nu) / float(stats.f.ppf(0.5, k, df2)))
+        ratios.append(st.wald * st.df2 / (k * st.nu) / float(stats.f.ppf(0.5, k, st.df2)))
     return max(1.0, float(np.median(ratios))) if ratios else 1.0
 
 
 _REPS = 1999
 
 
-def _wild_block_p(z, r0, blocks, wald, zinv, reps: int = _REPS, seed: int = 0x6D61) -> float:
+def _wild_block_p(st: _Stat, reps: int = _REPS, seed: int = 0x6D61) -> float:
     """Restricted wild block bootstrap of the same Wald statistic: flip the sign of the
     null-model residual block by block (Rademacher), which keeps any within-block
-    autocorrelation and the exact shape of the regressors; p = share of draws at least as large.
-    Works on block sums only, so it costs O(reps · blocks · k²) whatever n."""
-    h = np.stack([z[b].T @ r0[b] for b in blocks])  # (B, k)
-    mb = np.stack([z[b].T @ z[b] for b in blocks])  # (B, k, k)
+    autocorrelation and the exact shape of the regressors, refit z and the nuisance to each
+    draw and studentise it the same way; p = the share of draws at least as large. Works on
+    block sums only, so it costs O(reps · blocks · k · r) whatever n."""
+    h_b, c_b, p_b, s_b, zinv, t, ginv = st.parts
     rng = np.random.default_rng(seed)
-    sgn = rng.choice(np.array([-1.0, 1.0]), size=(reps, len(blocks)))
-    bz = (sgn @ h) @ zinv  # (R, k)
-    g = sgn[:, :, None] * h[None] - np.einsum("bkl,rl->rbk", mb, bz)
-    s = np.einsum("rbk,rbl->rkl", g, g)
-    v = zinv[None] @ s @ zinv[None]
+    sgn = rng.choice(np.array([-1.0, 1.0]), size=(reps, len(h_b)))
+    bz = (sgn @ h_b) @ zinv  # (R, k)
+    nuis = (sgn @ c_b) @ ginv  # (R, r): the nuisance refitted to each draw
+    g = sgn[:, :, None] * h_b[None] - np.einsum("bkr,Rr->Rbk", p_b, nuis) - np.einsum("bkl,Rl->Rbk", s_b, bz)
+    g = g @ t.T
+    v = zinv[None] @ np.einsum("rbk,rbl->rkl", g, g) @ zinv[None]
     try:
         w = np.einsum("rk,rk->r", bz, np.linalg.solve(v, bz[:, :, None])[:, :, 0])
     except np.linalg.LinAlgError:
         return 1.0
-    return float((1 + np.sum(w >= wald * (1 - 1e-12))) / (reps + 1))
+    return float((1 + np.sum(w >= st.wald * (1 - 1e-12))) / (reps + 1))
 
 
 def holm(pvals: dict[str, float], alpha: float) -> dict[str, bool]:

@@ -84,9 +84,10 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     """Model discovery on one recording (see the module docstring for the ladder)."""
     analysed = set_aside_glitches(prepare(series), alpha)
     baseline, base_kept = fit_baseline(analysed)
+    reference = fit_reference(analysed, base_kept)
     noise_ut = analysed.glitches.noise_ut
-    selected = select_terms(analysed, base_kept, alpha, noise_ut, folds)
-    final, accepted = refit(analysed, base_kept, selected)
+    selected = select_terms(analysed, base_kept, reference, alpha, noise_ut, folds)
+    final, accepted = refit(analysed, reference, selected)
     selected = replace(selected, accepted=accepted)
     fold_slices = contiguous_blocks(len(analysed.m), folds)
     heldout_b, heldout_f, fold_rms = compare_heldout(analysed, baseline, final, fold_slices)
@@ -151,22 +152,41 @@ def fit_baseline(a: Analysed) -> tuple[ModelFit, ModelFit]:
     return baseline, _require(fit_model(m_kept, {}, Spec(), start=baseline), "sphere")
 
 
-def test_terms(a: Analysed, base: ModelFit, alpha: float) -> tuple[design.Design, dict, design.RichTests, list]:
-    """Build the candidate design at the baseline and test every term (magcal.diagnose.design).
-    Returns the design, the tests against the quadratic wander, the rich-wander tests of the
-    channels and the channels skipped as constant or incomplete."""
+def fit_reference(a: Analysed, base: ModelFit) -> ModelFit:
+    """The model every term is tested at: hard iron, radius and soft iron along every direction
+    the data determine (softiron.determined_directions), fitted on the kept samples; the
+    sphere when the motion determines none or the ellipsoid cannot be fitted."""
+    m_kept, _, _ = a.kept
+    dirs = softiron.determined_directions(m_kept, base.offset_ut, base.rms_ut)
+    if dirs.shape[1] == 0:
+        return base
+    spec = Spec(soft_iron=True, soft_dirs=None if dirs.shape[1] == 5 else tuple(map(tuple, dirs)))
+    ref = fit_model(m_kept, {}, spec, start=base)
+    return base if isinstance(ref, FitFailure) else ref
+
+
+def test_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float) -> tuple[design.Design, dict, design.RichTests, list]:
+    """Build the candidate design and test every term (magcal.diagnose.design): soft iron at
+    the sphere (a score test: no fitted soft iron can slide along a weakly determined
+    direction and come back as a signal), every channel at the reference model (so that the
+    soft iron a sphere leaves cannot pass for a channel). Returns the design at the reference,
+    the tests against the quadratic wander, the rich-wander tests of the channels and the
+    channels skipped as constant or incomplete."""
     m_kept, t_kept, chans_kept = a.kept
     candidates, skipped = channels.candidates(a.t, a.logged)
-    dsg = design.build(m_kept, t_kept, chans_kept, base, candidates)
-    tests = design.block_wald(dsg.x, dsg.residual_ut, dsg.groups)
-    rich = design.test_against_rich_wander(dsg, m_kept, t_kept, chans_kept, alpha)
+    dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
+    at_sphere = dsg if ref is sphere else design.build(m_kept, t_kept, chans_kept, sphere, candidates)
+    soft = {softiron.EFFECT: at_sphere.groups[softiron.EFFECT]}
+    tests = design.block_wald(at_sphere.x, at_sphere.residual_ut, soft)
+    tests.update(design.block_wald(dsg.x, dsg.residual_ut, {g: c for g, c in dsg.groups.items() if g not in soft}))
+    rich = design.test_against_rich_wander(dsg, t_kept, chans_kept, alpha)
     return dsg, tests, rich, skipped
 
 
-def select_terms(a: Analysed, base: ModelFit, alpha: float, noise_ut: float, folds: int) -> Selected:
+def select_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float, noise_ut: float, folds: int) -> Selected:
     """Which tested terms earn a place (magcal.diagnose.selection): significant, above the
     practical floor, past the wander gate, and helping the held-out residual."""
-    dsg, tests, rich, skipped = test_terms(a, base, alpha)
+    dsg, tests, rich, skipped = test_terms(a, sphere, ref, alpha)
     floor_ut = selection.practical_floor_ut(noise_ut)
     verdict = selection.significant(tests, rich.results, alpha, floor_ut)
     survivors = selection.above_floor(tests, verdict, floor_ut)
@@ -176,24 +196,23 @@ def select_terms(a: Analysed, base: ModelFit, alpha: float, noise_ut: float, fol
     return Selected(tests, rich, verdict.fast, survivors, wander, accepted, heldout, skipped, dsg.candidates)
 
 
-def refit(a: Analysed, base: ModelFit, selected: Selected) -> tuple[ModelFit, list]:
-    """The accepted terms fitted jointly on the kept samples; on failure the baseline (never a
-    half-built model). Soft iron is restricted to the directions its test could identify."""
+def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, list]:
+    """The accepted terms fitted jointly on the kept samples; on failure the reference (never a
+    half-built model). Soft iron, when found, is carried along every direction the data
+    determine (the reference's), not only along those its test could tell from the nuisances."""
     accepted = selected.accepted
     cands = selected.candidates
-    soft_dirs = None
-    if softiron.EFFECT in accepted and selected.tests[softiron.EFFECT].basis.shape[1] < 5:
-        soft_dirs = tuple(map(tuple, selected.tests[softiron.EFFECT].basis))
+    with_soft = softiron.EFFECT in accepted and ref.spec.soft_iron
     spec = Spec(
-        soft_iron=softiron.EFFECT in accepted,
+        soft_iron=with_soft,
         channels=tuple(cands[g].channel for g in accepted if g != softiron.EFFECT),
-        soft_dirs=soft_dirs,
+        soft_dirs=ref.spec.soft_dirs if with_soft else None,
     )
     reference = {cands[g].channel: cands[g].reference for g in accepted if g != softiron.EFFECT}
     m_kept, _, chans_kept = a.kept
-    final = fit_model(m_kept, chans_kept, spec, reference, start=base)
+    final = fit_model(m_kept, chans_kept, spec, reference, start=ref)
     if isinstance(final, FitFailure):
-        return base, []
+        return ref, [softiron.EFFECT] if ref.spec.soft_iron else []
     return final, list(accepted)
 
 

@@ -56,7 +56,7 @@ def above_floor(tests: dict, verdict: Significant, floor_ut: float) -> list:
         if not verdict.rejected[g] or r.effect_rms_ut < floor_ut:
             continue
         if g == softiron.EFFECT:
-            w_lin = np.eye(3) + np.tensordot(r.beta, softiron.SOFT_BASIS, axes=1)
+            w_lin = np.eye(3) - np.tensordot(r.beta, softiron.SOFT_BASIS, axes=1)
             if np.any(np.linalg.eigvalsh(w_lin) <= 0) or softiron.max_deviation(w_lin) < softiron.MIN_GAIN_DEVIATION:
                 continue
         out.append(g)

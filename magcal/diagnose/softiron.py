@@ -14,12 +14,36 @@ from .model import SOFT_BASIS
 
 EFFECT = "soft_iron"
 MIN_GAIN_DEVIATION = 0.0025  # practical floor: 0.25 % of gain
+# a soft-iron direction is determined by the data when its gain is pinned to 1 % (1σ, the limit
+# magcal.fit puts on an ellipsoid's shape) and its columns keep a tenth of their length once
+# offset and radius are fitted: below that the gain trades with the offset along a flat valley
+# (a level band of directions pins the vertical gain only through the tilt), where a nonlinear
+# fit can slide far off
+MAX_GAIN_SIGMA = 0.01
+MIN_UNIQUE = 0.1
 
 
 def regressors(m: np.ndarray, offset_ut: np.ndarray) -> np.ndarray:
     d = m - offset_ut
     u = d / np.linalg.norm(d, axis=1, keepdims=True)
     return np.stack([np.einsum("ij,jk,ik->i", u, e_p, d) for e_p in SOFT_BASIS], axis=1)
+
+
+def determined_directions(m: np.ndarray, offset_ut: np.ndarray, sigma_ut: float) -> np.ndarray:
+    """(5, k): the combinations of SOFT_BASIS the data determine about this offset, judged on
+    the data's own information: the soft-iron block of the information matrix once offset and
+    radius are fitted (its Schur complement), whose eigenvectors are the directions and whose
+    eigenvalues give each direction's 1σ of gain for residual σ ``sigma_ut``."""
+    d = m - offset_ut
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    base = np.concatenate([-u, -np.ones((len(m), 1))], axis=1)
+    soft = regressors(m, offset_ut)
+    g_bb, g_bs, g_ss = base.T @ base, base.T @ soft, soft.T @ soft
+    schur = g_ss - g_bs.T @ np.linalg.solve(g_bb, g_bs)
+    lam, vec = np.linalg.eigh(0.5 * (schur + schur.T))
+    share = lam / np.maximum(vec.T**2 @ np.diag(g_ss), 1e-300)  # squared unique fraction of each direction
+    ok = (share >= MIN_UNIQUE**2) & (sigma_ut / np.sqrt(np.maximum(lam, 1e-300)) <= MAX_GAIN_SIGMA)
+    return vec[:, ok]
 
 
 def gains(soft_iron: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
