@@ -258,18 +258,26 @@ def slow_term_floor(x: np.ndarray, wander_rms_ut: float, ratio: float, n_blocks:
     return float(np.sqrt(ratio * 3.0 / between) * wander_rms_ut)
 
 
+def slow_block_energy(x: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> np.ndarray | None:
+    """M = Σ_b (x̄_b − x̄)² G_b / n (G_b = Σ_{i∈b} u_iu_iᵀ): a slow term uᵀk·x has block-offset
+    energy kᵀMk per sample. None when x is not slow (see ``slow_term_floor``)."""
+    slow = _slow_blocks(x, n_blocks)
+    if slow is None:
+        return None
+    blocks, nb, dev = slow
+    u = np.asarray(u, np.float64)
+    return sum(d**2 * (u[b].T @ u[b]) for b, d in zip(blocks, dev)) / nb.sum()
+
+
 def slow_term_floor_range(x: np.ndarray, u: np.ndarray, wander_rms_ut: float, ratio: float,
                           n_blocks: int = 20) -> tuple[float, float | None] | None:
     """``slow_term_floor`` along the direction of k the motion pins best and the one it pins
     worst: a block's offset along k̂ is seen through its directions u (Gram matrix G_b = Σ uuᵀ),
     so the term's block-offset energy is k̂ᵀ M k̂ |k|² with M = Σ_b (x̄_b − x̄)² G_b / n, and the
     floor along k̂ is √(ratio / k̂ᵀMk̂) · wander. The mean over directions is ``slow_term_floor``."""
-    slow = _slow_blocks(x, n_blocks)
-    if slow is None:
+    m = slow_block_energy(x, u, n_blocks)
+    if m is None:
         return None
-    blocks, nb, dev = slow
-    u = np.asarray(u, np.float64)
-    m = sum(d**2 * (u[b].T @ u[b]) for b, d in zip(blocks, dev)) / nb.sum()
     lam = np.linalg.eigvalsh(m)
     if lam[-1] <= 0:
         return None

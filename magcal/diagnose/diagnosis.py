@@ -53,6 +53,7 @@ class Diagnosis:
     folds: tuple = field(default=(), repr=False)
     fold_rms: tuple = field(default=(), repr=False)  # ((baseline, final) per fold)
     limits: tuple = ()  # what this recording could not test, and whether it is suspected (dicts)
+    floors: dict = field(default_factory=dict)  # channel → the size a term of it must reach to be reported
 
     @property
     def effects(self) -> list[str]:
@@ -78,5 +79,6 @@ class Diagnosis:
             },
             "noise_ut": float(self.noise_ut),
             "limits": [dict(x) for x in self.limits],
+            "floors": {c: dict(f) for c, f in self.floors.items()},
             "calibration": calibration_dict(self.final),
         }

@@ -29,9 +29,8 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.series import Series
-from . import channels, design, glitches, limits, selection, softiron
+from . import channels, design, glitches, selection, softiron, statements
 from .diagnosis import Diagnosis
-from .finding import Finding
 from .inference import contiguous_blocks
 from .model import FitFailure, ModelFit, Spec, fit_model
 
@@ -78,6 +77,8 @@ class Selected:
     heldout: dict
     skipped: list  # channels that could not be candidates (constant, missing values)
     candidates: dict  # channel effect → ChannelCandidate
+    design: design.Design  # the columns every channel was tested with
+    n_tests: int  # hypotheses in Holm's family
 
 
 def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagnosis:
@@ -93,22 +94,24 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     heldout_b, heldout_f, fold_rms = compare_heldout(analysed, baseline, final, fold_slices)
     m_kept, _, chans_kept = analysed.kept
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
-    findings = describe_findings(analysed, selected, final, base_kept, alpha, noise_ut)
+    wander = statements.measure_wander(full_model(analysed, reference, final), m_kept, chans_kept)
+    floors = statements.channel_floors(selected, wander, chans_kept, alpha, noise_ut)
     return Diagnosis(
         n_samples=len(series),
         baseline=baseline,
         final=final,
-        findings=findings,
+        findings=statements.findings(analysed, selected, final, base_kept, alpha, noise_ut),
         baseline_heldout_rms_ut=heldout_b,
         final_heldout_rms_ut=heldout_f,
         simulated_rms_ut=simulated,
         noise_ut=noise_ut,
         series=analysed.series,
         outlier_mask=analysed.outlier,
-        tests=tests_record(selected),
+        tests=statements.tests_record(selected),
         folds=tuple((int(analysed.rows[sl.start]), int(analysed.rows[sl.stop - 1]) + 1) for sl in fold_slices),
         fold_rms=tuple(fold_rms),
-        limits=describe_limits(analysed, selected, final, simulated, alpha, noise_ut),
+        limits=statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut),
+        floors={c: f.to_dict() for c, f in floors.items()},
     )
 
 
@@ -193,7 +196,8 @@ def select_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float, noi
     _, _, chans_kept = a.kept
     survivors, wander = selection.wander_gate(dsg, chans_kept, survivors, verdict.fast)
     accepted, heldout = selection.drop_by_heldout(dsg, survivors, folds)
-    return Selected(tests, rich, verdict.fast, survivors, wander, accepted, heldout, skipped, dsg.candidates)
+    n_tests = len(tests) + len(rich.results)
+    return Selected(tests, rich, verdict.fast, survivors, wander, accepted, heldout, skipped, dsg.candidates, dsg, n_tests)
 
 
 def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, list]:
@@ -214,6 +218,18 @@ def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, lis
     if isinstance(final, FitFailure):
         return ref, [softiron.EFFECT] if ref.spec.soft_iron else []
     return final, list(accepted)
+
+
+def full_model(a: Analysed, ref: ModelFit, final: ModelFit) -> ModelFit:
+    """The final model with every soft-iron direction the data determine, whether or not soft
+    iron was reported: the wander and the floors are stated with the full calibration in
+    place (a soft iron left out would otherwise pass for wander and inflate both)."""
+    if final.spec.soft_iron or not ref.spec.soft_iron:
+        return final
+    m_kept, _, chans_kept = a.kept
+    spec = Spec(soft_iron=True, channels=final.spec.channels, soft_dirs=ref.spec.soft_dirs)
+    full = fit_model(m_kept, chans_kept, spec, final.reference, start=final)
+    return final if isinstance(full, FitFailure) else full
 
 
 def compare_heldout(a: Analysed, baseline: ModelFit, final: ModelFit, fold_slices: list) -> tuple[float, float, list]:
@@ -257,73 +273,3 @@ def compare_with_simulation(fit: ModelFit, m: np.ndarray, chans: dict, noise_ut:
 
 
 simulated_rms = compare_with_simulation
-
-
-def _evidence(g: str, selected: Selected, alpha: float, floor_ut: float) -> dict:
-    """The statistics behind one accepted term (a finding's ``evidence``)."""
-    fast = g in selected.fast
-    r = selected.rich.results[g] if fast else selected.tests[g]
-    nuisance = f"slow offset wander up to degree {design.RICH_DEGREE} in time" if fast else "quadratic offset wander in time"
-    ev = {
-        "test": "Wald, block-HAC (batch means over contiguous time blocks), Holm-controlled, with a "
-        + nuisance
-        + " as a nuisance",
-        "F": r.f,
-        "df": [r.df1, r.df2],
-        "p_value": r.p,
-        "alpha_familywise": alpha,
-        "effect_rms_ut": r.effect_rms_ut,
-        "practical_floor_ut": floor_ut,
-        "heldout_rms_ut_with": selected.heldout.get("_all"),
-        "heldout_rms_ut_without": selected.heldout.get(g),
-    }
-    if g in selected.wander:
-        ev["block_offset_rms_ut_explained"] = float(np.sqrt(selected.wander[g][0]))
-        ev["block_offset_rms_ut_unexplained"] = float(np.sqrt(selected.wander[g][1]))
-    return ev
-
-
-def describe_findings(a: Analysed, selected: Selected, final: ModelFit, base: ModelFit, alpha: float, noise_ut: float) -> tuple:
-    """The findings: glitches (if any), then each accepted term with its evidence."""
-    out: list[Finding] = []
-    if a.outlier.any():
-        idx = a.glitches.index
-        radial = base.residual(a.series.field_ut[idx], {})
-        out.append(glitches.describe(a.glitches, a.series.row[idx], a.series.t_s[idx], radial))
-    floor_ut = selection.practical_floor_ut(noise_ut)
-    for g in selected.accepted:
-        ev = _evidence(g, selected, alpha, floor_ut)
-        if g == softiron.EFFECT:
-            out.append(softiron.describe(final.soft_iron, ev))
-            continue
-        cand = selected.candidates[g]
-        coef = final.coef_ut_per_unit[cand.channel]
-        out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP)))
-    return tuple(out)
-
-
-def describe_limits(a: Analysed, selected: Selected, final: ModelFit, simulated: float, alpha: float, noise_ut: float) -> tuple:
-    """What the recording could not test: soft iron, untestable channels, the offset wander."""
-    m_kept, _, chans_kept = a.kept
-    duration_s = float(a.t[-1] - a.t[0])
-    found_soft = softiron.EFFECT in selected.accepted
-    out = limits.soft_iron_limits(selected.tests[softiron.EFFECT], found_soft, final.rms_ut, simulated, duration_s)
-    out += limits.untested_channels(selected.tests, selected.candidates)
-    left_out = [selected.candidates[g].channel for g in selected.candidates if g not in selected.accepted]
-    floor_ut = selection.practical_floor_ut(noise_ut)
-    return out + limits.wander_limit(final, m_kept, chans_kept, alpha, floor_ut, left_out)
-
-
-def tests_record(selected: Selected) -> dict:
-    """The intermediate statistics (``Diagnosis.tests``; not part of the JSON)."""
-    rich = {
-        g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in selected.fast,
-            "shift_inflation": selected.rich.inflation.get(g)}
-        for g, r in selected.rich.results.items()
-    }
-    candidates = {
-        g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "coef_ut_per_unit": -r.beta if g != softiron.EFFECT else None}
-        for g, r in selected.tests.items()
-    }
-    return {"skipped_channels": selected.skipped, "against_rich_wander": rich, "survivors": list(selected.survivors),
-            "heldout": dict(selected.heldout), "candidates": candidates}

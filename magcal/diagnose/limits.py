@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from . import channels, softiron
-from .model import ModelFit
 
 
 def untested_channels(tests: dict, by_effect: dict) -> tuple:
@@ -46,17 +45,13 @@ def by_direction(r) -> str:
     return f" ({lo:.2g}–{hi:.2g} by its direction)" if hi is not None else f" ({lo:.2g} or more by its direction; along some, not at all)"
 
 
-def wander_limit(final: ModelFit, m: np.ndarray, chans: dict, alpha: float, floor_ut: float, untested: list) -> tuple:
+def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: list) -> tuple:
     """Real recordings wander: the offset moves slowly in a way no logged channel explains.
     That is not a calibration term (it cannot be predicted for the next session), but it bounds
     what the calibration is good for and what slow effects this recording can identify, so it
-    is stated when the final model's block offsets scatter beyond the noise (χ², at ``alpha``)
-    by more than the practical floor."""
-    used = {c: chans[c] for c in final.spec.channels}
-    e = final.residual(m, used)
-    h = final.calibration().correct(m, used)
-    u = h / np.linalg.norm(h, axis=1, keepdims=True)
-    rms, p = channels.offset_wander(e, u, WANDER_BLOCKS)
+    is stated when the full model's block offsets (``wander``, statements.Wander) scatter beyond
+    the noise (χ², at ``alpha``) by more than the practical floor."""
+    rms, p, u = wander.rms_ut, wander.p_value, wander.directions
     if not (p < alpha and rms >= floor_ut):
         return ()
     others = [c for c in untested if c != channels.TIME]

@@ -1,0 +1,157 @@
+"""What a diagnosis says: findings with their evidence, limits, the offset wander and floors.
+
+Everything here describes results the ladder has computed (magcal.diagnose.ladder); nothing
+here decides what is in the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from . import channels, design, floors, glitches, limits as limits_, selection, softiron
+from .finding import Finding
+from .model import ModelFit
+
+WANDER_BLOCKS = limits_.WANDER_BLOCKS
+
+
+@dataclass(frozen=True)
+class Wander:
+    """The offset's slow wander in a model's residual (channels.offset_wander)."""
+
+    rms_ut: float  # beyond the noise
+    p_value: float  # of "no wander"
+    directions: np.ndarray  # (n, 3) calibrated unit field directions
+
+
+def measure_wander(model: ModelFit, m: np.ndarray, chans: dict) -> Wander:
+    """Offsets fitted in WANDER_BLOCKS time blocks of ``model``'s residual, their scatter
+    beyond the within-block noise."""
+    used = {c: chans[c] for c in model.spec.channels}
+    h = model.calibration().correct(m, used)
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    rms, p = channels.offset_wander(model.residual(m, used), u, WANDER_BLOCKS)
+    return Wander(rms, p, u)
+
+
+def _accepting_test(g: str, selected) -> tuple:
+    """(the test that accepted term g, its shift inflation λ)."""
+    if g in selected.fast:
+        return selected.rich.results[g], max(selected.rich.inflation.get(g, 1.0), 1.0)
+    return selected.tests[g], 1.0
+
+
+def interval(coef: np.ndarray, result, inflation: float) -> dict:
+    """The 95 % uncertainty of a channel coefficient from the block-HAC covariance of its test
+    (× the shift inflation λ of a rich-wander test): per axis (Student t with ν, the effective
+    number of blocks, as degrees of freedom) and as a joint region
+    (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
+    if result.cov is None:
+        return {}
+    cov = result.cov * inflation
+    nu = float(result.nu)
+    half = float(stats.t.isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
+    k, df2 = result.df1, float(result.df2)
+    return {
+        "coef_ci95_ut_per_unit": [[float(c - h), float(c + h)] for c, h in zip(coef, half)],
+        "coef_cov_ut_per_unit": [[float(v) for v in row] for row in cov],
+        "coef_region95_wald": float(k * nu / df2 * stats.f.isf(0.05, k, df2)),
+    }
+
+
+def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
+    """The statistics behind one accepted term (a finding's ``evidence``)."""
+    r, _ = _accepting_test(g, selected)
+    fast = g in selected.fast
+    nuisance = f"slow offset wander up to degree {design.RICH_DEGREE} in time" if fast else "quadratic offset wander in time"
+    ev = {
+        "test": "Wald, block-HAC (batch means over contiguous time blocks, bias-corrected for the fitted "
+        "nuisance columns), Holm-controlled, with a " + nuisance + " as a nuisance",
+        "F": r.f,
+        "df": [r.df1, r.df2],
+        "p_value": r.p,
+        "alpha_familywise": alpha,
+        "effect_rms_ut": r.effect_rms_ut,
+        "practical_floor_ut": floor_ut,
+        "heldout_rms_ut_with": selected.heldout.get("_all"),
+        "heldout_rms_ut_without": selected.heldout.get(g),
+    }
+    if fast:
+        ev["shift_inflation"] = selected.rich.inflation.get(g, 1.0)
+    if g in selected.wander:
+        ev["block_offset_rms_ut_explained"] = float(np.sqrt(selected.wander[g][0]))
+        ev["block_offset_rms_ut_unexplained"] = float(np.sqrt(selected.wander[g][1]))
+    return ev
+
+
+def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_ut: float) -> tuple:
+    """The findings: glitches (if any), then each accepted term with its evidence."""
+    out: list[Finding] = []
+    if a.outlier.any():
+        idx = a.glitches.index
+        radial = base.residual(a.series.field_ut[idx], {})
+        out.append(glitches.describe(a.glitches, a.series.row[idx], a.series.t_s[idx], radial))
+    floor_ut = selection.practical_floor_ut(noise_ut)
+    for g in selected.accepted:
+        ev = _evidence(g, selected, alpha, floor_ut)
+        if g == softiron.EFFECT:
+            out.append(softiron.describe(final.soft_iron, ev))
+            continue
+        cand = selected.candidates[g]
+        coef = final.coef_ut_per_unit[cand.channel]
+        ev.update(interval(coef, *_accepting_test(g, selected)))
+        out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP)))
+    return tuple(out)
+
+
+def channel_floors(selected, wander: Wander, chans: dict, alpha: float, noise_ut: float) -> dict:
+    """Per candidate channel not in the model: the size a term of it must reach to be reported
+    (magcal.diagnose.floors), with the full calibration model in place."""
+    alpha_each = alpha / max(selected.n_tests, 1)
+    floor_ut = selection.practical_floor_ut(noise_ut)
+    dsg = selected.design
+    out = {}
+    for g, cand in selected.candidates.items():
+        if g in selected.accepted:
+            continue
+        x = chans[cand.channel] - cand.reference
+        practical = floors.practical_floor(x, dsg.offset_directions, floor_ut)
+        energy = channels.slow_block_energy(chans[cand.channel], wander.directions, WANDER_BLOCKS)
+        gate = floors.gate_floor(energy, wander.rms_ut, channels.WANDER_RATIO) if wander.rms_ut > 0 else practical * 0
+        slow = [floors.wald_floor(selected.tests.get(g), alpha_each), practical, gate]
+        fast = []
+        if g in selected.rich.results:
+            rich = selected.rich.results[g]
+            fast = [floors.wald_floor(rich, alpha_each, selected.rich.inflation.get(g, 1.0)), practical]
+        out[cand.channel] = floors.combine(fast, slow)
+    return out
+
+
+def limits(a, selected, final: ModelFit, simulated: float, wander: Wander, floor_of: dict, alpha: float, noise_ut: float) -> tuple:
+    """What the recording could not test: soft iron, untestable channels, the offset wander."""
+    duration_s = float(a.t[-1] - a.t[0])
+    found_soft = softiron.EFFECT in selected.accepted
+    out = limits_.soft_iron_limits(selected.tests[softiron.EFFECT], found_soft, final.rms_ut, simulated, duration_s)
+    out += limits_.untested_channels(selected.tests, selected.candidates)
+    left_out = [selected.candidates[g].channel for g in selected.candidates if g not in selected.accepted]
+    floor_ut = selection.practical_floor_ut(noise_ut)
+    _, _, chans_kept = a.kept
+    return out + limits_.wander_limit(wander, chans_kept, alpha, floor_ut, left_out)
+
+
+def tests_record(selected) -> dict:
+    """The intermediate statistics (``Diagnosis.tests``; not part of the JSON)."""
+    rich = {
+        g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in selected.fast,
+            "shift_inflation": selected.rich.inflation.get(g)}
+        for g, r in selected.rich.results.items()
+    }
+    candidates = {
+        g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "coef_ut_per_unit": -r.beta if g != softiron.EFFECT else None}
+        for g, r in selected.tests.items()
+    }
+    return {"skipped_channels": selected.skipped, "against_rich_wander": rich, "survivors": list(selected.survivors),
+            "heldout": dict(selected.heldout), "candidates": candidates}
