@@ -42,8 +42,8 @@ sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
 from magcal.diagnose import diagnose  # noqa: E402
-from magcal.physics import Current, Scenario, Temperature  # noqa: E402
-from magcal.series import Series  # noqa: E402
+from magcal.sim.physics import Current, Scenario, Temperature  # noqa: E402
+from magcal.core.series import Series  # noqa: E402
 
 CHANNEL = {"temp": "temp_c", "current": "current_a", "drift": "t_s"}
 EFFECT = {"temp_c": "temperature_drift", "current_a": "current_interference", "t_s": "time_drift", "aux_null": "covariate:aux_null"}
@@ -103,6 +103,8 @@ class Row:
     upper_floor: float | None = None
     coef_err: float | None = None
     in_region: bool | None = None
+    in_region_tested: bool | None = None
+    coef_err_tested: float | None = None
     seconds: float = 0.0
 
 
@@ -125,6 +127,10 @@ def judge(d: dict, row: Row, truth: np.ndarray | None, channel: str | None, intr
             diff = got - truth
             w = float(diff @ np.linalg.pinv(np.array(ev["coef_cov_ut_per_unit"]), rcond=1e-10) @ diff)
             row.in_region = w <= ev["coef_region95_wald"]
+            diff = np.array(ev["coef_ut_per_unit_tested"]) - truth
+            w = float(diff @ np.linalg.pinv(np.array(ev["coef_cov_ut_per_unit"]), rcond=1e-10) @ diff)
+            row.in_region_tested = w <= ev["coef_region95_wald"]
+            row.coef_err_tested = float(np.linalg.norm(diff) / np.linalg.norm(truth))
     return row
 
 

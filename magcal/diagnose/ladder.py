@@ -32,7 +32,7 @@ from ..core.series import Series
 from . import channels, design, glitches, selection, softiron, statements
 from .diagnosis import Diagnosis
 from .inference import contiguous_blocks
-from .model import FitFailure, ModelFit, Spec, fit_model
+from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms
 
 ALPHA = 0.01
 FOLDS = 5
@@ -201,9 +201,12 @@ def select_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float, noi
 
 
 def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, list]:
-    """The accepted terms fitted jointly on the kept samples; on failure the reference (never a
+    """The accepted terms fitted on the kept samples; on failure the reference (never a
     half-built model). Soft iron, when found, is carried along every direction the data
-    determine (the reference's), not only along those its test could tell from the nuisances."""
+    determine (the reference's), not only along those its test could tell from the nuisances.
+    A channel coefficient is the one its test estimated with the wander nuisance in place (a
+    plain refit would hand it part of the wander); offset, soft iron and radius are refitted
+    around it."""
     accepted = selected.accepted
     cands = selected.candidates
     with_soft = softiron.EFFECT in accepted and ref.spec.soft_iron
@@ -214,7 +217,8 @@ def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, lis
     )
     reference = {cands[g].channel: cands[g].reference for g in accepted if g != softiron.EFFECT}
     m_kept, _, chans_kept = a.kept
-    final = fit_model(m_kept, chans_kept, spec, reference, start=ref)
+    coefs = {cands[g].channel: -statements.accepting_test(g, selected)[0].beta for g in accepted if g != softiron.EFFECT}
+    final = fit_with_channel_terms(m_kept, chans_kept, spec, reference, coefs, start=ref)
     if isinstance(final, FitFailure):
         return ref, [softiron.EFFECT] if ref.spec.soft_iron else []
     return final, list(accepted)
@@ -228,7 +232,7 @@ def full_model(a: Analysed, ref: ModelFit, final: ModelFit) -> ModelFit:
         return final
     m_kept, _, chans_kept = a.kept
     spec = Spec(soft_iron=True, channels=final.spec.channels, soft_dirs=ref.spec.soft_dirs)
-    full = fit_model(m_kept, chans_kept, spec, final.reference, start=final)
+    full = fit_with_channel_terms(m_kept, chans_kept, spec, final.reference, final.coef_ut_per_unit, start=ref)
     return final if isinstance(full, FitFailure) else full
 
 

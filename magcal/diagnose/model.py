@@ -234,3 +234,24 @@ def fit_model(
     except np.linalg.LinAlgError:
         cov = None
     return ModelFit(spec, p, ref, float(np.sqrt(cost / n)), n, it, cov)
+
+
+def fit_with_channel_terms(
+    m: np.ndarray,
+    channels: Mapping[str, np.ndarray],
+    spec: Spec,
+    reference: Mapping[str, float],
+    coefs: Mapping[str, np.ndarray],
+    start: ModelFit | None = None,
+) -> ModelFit | FitFailure:
+    """The model of ``spec`` with its channel coefficients held at ``coefs`` (estimated
+    elsewhere, e.g. by a test that carried nuisance terms) and offset, soft iron and radius
+    fitted to the samples with those channel offsets taken out."""
+    ref = {c: float(reference.get(c, 0.0)) for c in spec.channels}
+    shift = sum((np.outer(np.asarray(channels[c], np.float64) - ref[c], coefs[c]) for c in spec.channels), np.zeros((len(m), 3)))
+    inner = Spec(soft_iron=spec.soft_iron, soft_dirs=spec.soft_dirs)
+    fit = fit_model(np.asarray(m, np.float64) - shift, {}, inner, start=start)
+    if isinstance(fit, FitFailure):
+        return fit
+    params = np.concatenate([fit.params] + [np.asarray(coefs[c], np.float64) for c in spec.channels])
+    return ModelFit(spec, params, ref, fit.rms_ut, fit.n, fit.iterations, None)

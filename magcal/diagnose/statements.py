@@ -37,7 +37,7 @@ def measure_wander(model: ModelFit, m: np.ndarray, chans: dict) -> Wander:
     return Wander(rms, p, u)
 
 
-def _accepting_test(g: str, selected) -> tuple:
+def accepting_test(g: str, selected) -> tuple:
     """(the test that accepted term g, its shift inflation λ)."""
     if g in selected.fast:
         return selected.rich.results[g], max(selected.rich.inflation.get(g, 1.0), 1.0)
@@ -56,6 +56,7 @@ def interval(coef: np.ndarray, result, inflation: float) -> dict:
     half = float(stats.t.isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
     k, df2 = result.df1, float(result.df2)
     return {
+        "coef_ut_per_unit_tested": [float(v) for v in -result.beta],
         "coef_ci95_ut_per_unit": [[float(c - h), float(c + h)] for c, h in zip(coef, half)],
         "coef_cov_ut_per_unit": [[float(v) for v in row] for row in cov],
         "coef_region95_wald": float(k * nu / df2 * stats.f.isf(0.05, k, df2)),
@@ -64,7 +65,7 @@ def interval(coef: np.ndarray, result, inflation: float) -> dict:
 
 def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
     """The statistics behind one accepted term (a finding's ``evidence``)."""
-    r, _ = _accepting_test(g, selected)
+    r, _ = accepting_test(g, selected)
     fast = g in selected.fast
     nuisance = f"slow offset wander up to degree {design.RICH_DEGREE} in time" if fast else "quadratic offset wander in time"
     ev = {
@@ -102,7 +103,7 @@ def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_u
             continue
         cand = selected.candidates[g]
         coef = final.coef_ut_per_unit[cand.channel]
-        ev.update(interval(coef, *_accepting_test(g, selected)))
+        ev.update(interval(coef, *accepting_test(g, selected)))
         out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP)))
     return tuple(out)
 
