@@ -46,13 +46,24 @@ def format_text(d: dict) -> str:
         )
     for k in d["findings"]:
         lines.append(f"finding     {k['effect']}: {k['summary']}")
+    lines += left_out_lines(d.get("limits", []))
     for k in d.get("limits", []):
-        lines.append(f"limit       {k['effect']}: {k['summary']}")
+        if not k.get("left_out"):
+            lines.append(f"limit       {k['effect']}: {k['summary']}")
     lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT")
     lines += calibration_lines(d["calibration"])
     for name, coef in (d["calibration"].get("coef_ut_per_unit") or {}).items():
         lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + "   µT per unit")
     return "\n".join(lines)
+
+
+def left_out_lines(limits: list) -> list[str]:
+    """One line per reason for the channels diagnosis left out of its candidates."""
+    by_why: dict[str, list[str]] = {}
+    for k in limits:
+        if k.get("left_out"):
+            by_why.setdefault(k["reason"], []).append(k["channel"])
+    return [f"left out    {', '.join(names)}: {why} (--channels to test them)" for why, names in by_why.items()]
 
 
 MANY_CHANNELS = 8
@@ -74,7 +85,9 @@ def run(args) -> int:
 
     series = load_series(args.file, table_format(args))
     reading = reading_report(series, args.file)
-    diagnosis = diagnose(series, alpha=args.alpha)
+    # channels the user named are tested as named; otherwise those that follow the orientation
+    # or the reading are left out (magcal.diagnose.hygiene)
+    diagnosis = diagnose(series, alpha=args.alpha, screen=args.channels is None)
     d = diagnosis.to_dict()
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
     if series.source:

@@ -12,6 +12,10 @@ from .finding import Finding
 from .model import ModelFit
 
 
+def _num(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
 def model_name(fit: ModelFit) -> str:
     """"sphere" or "ellipsoid", then each channel term: ``ellipsoid+temp_c``."""
     parts = ["ellipsoid" if fit.spec.soft_iron else "sphere"]
@@ -54,6 +58,13 @@ class Diagnosis:
     fold_rms: tuple = field(default=(), repr=False)  # ((baseline, final) per fold)
     limits: tuple = ()  # what this recording could not test, and whether it is suspected (dicts)
     floors: dict = field(default_factory=dict)  # channel → the size a term of it must reach to be reported
+    fit_heldout_rms_ut: float = float("nan")  # magcal fit --model auto's model on the same held-out blocks
+    diagnosis_model: ModelFit | None = field(default=None, repr=False)  # diagnosis's own (final unless fit's was better)
+
+    @property
+    def returned_fit(self) -> bool:
+        """True when the calibration returned is magcal fit's (it did better on held-out data)."""
+        return self.diagnosis_model is not None and self.diagnosis_model is not self.final
 
     @property
     def effects(self) -> list[str]:
@@ -76,6 +87,8 @@ class Diagnosis:
                 "rms_ut": float(self.final.rms_ut),
                 "heldout_rms_ut": float(self.final_heldout_rms_ut),
                 "simulated_rms_ut": float(self.simulated_rms_ut),
+                "from": "fit" if self.returned_fit else "diagnose",
+                "fit_heldout_rms_ut": _num(self.fit_heldout_rms_ut),
             },
             "noise_ut": float(self.noise_ut),
             "limits": [dict(x) for x in self.limits],

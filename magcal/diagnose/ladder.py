@@ -6,6 +6,9 @@
 2. ``set_aside_glitches`` — glitches found from the smoothness of the 3-vector trajectory
    (magcal.diagnose.glitches) and set aside; a long recording analysed on a subsample;
 3. ``fit_baseline`` — hard iron + radius (the sphere);
+   ``screen_channels`` — channels that follow the orientation or the reading left out
+   (magcal.diagnose.hygiene);
+   ``fit_reference`` — the sphere plus soft iron along every direction the data determine;
 4. ``test_terms`` — every candidate term at the baseline (magcal.diagnose.design): soft iron and
    one offset-versus-channel term per channel and for time, block-HAC Wald tests with the
    direction harmonics and a quadratic offset wander as nuisances, and each channel again
@@ -29,10 +32,12 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.series import Series
-from . import channels, design, glitches, selection, softiron, statements
+from . import channels, design, glitches, hygiene, selection, softiron, statements
 from .diagnosis import Diagnosis
 from .inference import contiguous_blocks
-from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms
+from ..fit import fit_calibration
+from .diagnosis import model_name
+from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms, from_calibration
 
 ALPHA = 0.01
 FOLDS = 5
@@ -81,17 +86,23 @@ class Selected:
     n_tests: int  # hypotheses in Holm's family
 
 
-def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagnosis:
-    """Model discovery on one recording (see the module docstring for the ladder)."""
+def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: bool = True) -> Diagnosis:
+    """Model discovery on one recording (see the module docstring for the ladder).
+    ``screen``: leave out channels that follow the orientation or the reading
+    (magcal.diagnose.hygiene); False when the user named the channels."""
     analysed = set_aside_glitches(prepare(series), alpha)
     baseline, base_kept = fit_baseline(analysed)
+    analysed, left_out = screen_channels(analysed, base_kept) if screen else (analysed, ())
     reference = fit_reference(analysed, base_kept)
     noise_ut = analysed.glitches.noise_ut
     selected = select_terms(analysed, base_kept, reference, alpha, noise_ut, folds)
     final, accepted = refit(analysed, reference, selected)
     selected = replace(selected, accepted=accepted)
     fold_slices = contiguous_blocks(len(analysed.m), folds)
-    heldout_b, heldout_f, fold_rms = compare_heldout(analysed, baseline, final, fold_slices)
+    fit_auto = fit_like_magcal_fit(analysed)
+    heldout = compare_heldout(analysed, [baseline, final, fit_auto], fold_slices)
+    fit_is_better = never_worse(final, fit_auto, heldout)
+    returned = fit_auto if fit_is_better else final
     m_kept, _, chans_kept = analysed.kept
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
     wander = statements.measure_wander(full_model(analysed, reference, final), m_kept, chans_kept)
@@ -99,18 +110,22 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagno
     return Diagnosis(
         n_samples=len(series),
         baseline=baseline,
-        final=final,
+        final=returned,
         findings=statements.findings(analysed, selected, final, base_kept, alpha, noise_ut),
-        baseline_heldout_rms_ut=heldout_b,
-        final_heldout_rms_ut=heldout_f,
+        baseline_heldout_rms_ut=heldout.rms_ut[0],
+        final_heldout_rms_ut=heldout.rms_ut[2 if fit_is_better else 1],
         simulated_rms_ut=simulated,
         noise_ut=noise_ut,
         series=analysed.series,
         outlier_mask=analysed.outlier,
         tests=statements.tests_record(selected),
         folds=tuple((int(analysed.rows[sl.start]), int(analysed.rows[sl.stop - 1]) + 1) for sl in fold_slices),
-        fold_rms=tuple(fold_rms),
-        limits=statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut),
+        fold_rms=tuple((b[0], b[2 if fit_is_better else 1]) for b in heldout.per_block),
+        fit_heldout_rms_ut=heldout.rms_ut[2],
+        diagnosis_model=final,
+        limits=statements.left_out(left_out)
+        + statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut)
+        + ((fit_is_better,) if fit_is_better else ()),
         floors={c: f.to_dict() for c, f in floors.items()},
     )
 
@@ -153,6 +168,20 @@ def fit_baseline(a: Analysed) -> tuple[ModelFit, ModelFit]:
     baseline = _require(fit_model(a.m, {}, Spec()), "sphere")
     m_kept, _, _ = a.kept
     return baseline, _require(fit_model(m_kept, {}, Spec(), start=baseline), "sphere")
+
+
+def screen_channels(a: Analysed, base: ModelFit) -> tuple[Analysed, tuple]:
+    """Leave out the channels that follow the board's orientation or the magnetic reading
+    itself (magcal.diagnose.hygiene), judged on the directions about the baseline offset."""
+    if not a.logged:
+        return a, ()
+    d = a.m - base.offset_ut
+    kept, left = hygiene.screen(a.logged, d / np.linalg.norm(d, axis=1, keepdims=True), a.t)
+    if not left:
+        return a, ()
+    chans = dict(kept)
+    chans[channels.TIME] = a.chans[channels.TIME]
+    return replace(a, chans=chans), left
 
 
 def fit_reference(a: Analysed, base: ModelFit) -> ModelFit:
@@ -236,30 +265,66 @@ def full_model(a: Analysed, ref: ModelFit, final: ModelFit) -> ModelFit:
     return final if isinstance(full, FitFailure) else full
 
 
-def compare_heldout(a: Analysed, baseline: ModelFit, final: ModelFit, fold_slices: list) -> tuple[float, float, list]:
-    """Baseline and final model refitted without each contiguous time block and judged on it
-    (glitches excluded): (baseline held-out RMS, final held-out RMS, (baseline, final) per block)."""
-    sse_b = sse_f = 0.0
+@dataclass(frozen=True)
+class HeldOut:
+    """Each model refitted without each contiguous time block and judged on it."""
+
+    rms_ut: tuple  # per model, over every held-out block (glitches excluded)
+    per_block: tuple  # per block: per model RMS
+
+
+def compare_heldout(a: Analysed, models: list, fold_slices: list) -> HeldOut:
+    """``models`` (None entries skipped) refitted on the kept samples outside each contiguous
+    time block, from their own values, and judged on the block's kept samples."""
+    sse = np.zeros(len(models))
     n_eval = 0
-    fold_rms = []
+    per_block = []
     for held in fold_slices:
         train = np.ones(len(a.m), bool)
         train[held] = False
+        train &= a.keep
         test = ~train & a.keep
-        fit_b = fit_model(a.m[train], {}, Spec(), start=baseline)
-        train_k = train & a.keep
-        fit_f = fit_model(a.m[train_k], {c: v[train_k] for c, v in a.chans.items()}, final.spec, final.reference, start=final)
-        if not fit_b or not fit_f or not test.any():
+        test[: held.start] = test[held.stop :] = False
+        chans_train = {c: v[train] for c, v in a.chans.items()}
+        chans_test = {c: v[test] for c, v in a.chans.items()}
+        fits = [None if m is None else fit_model(a.m[train], chans_train, m.spec, m.reference, start=m) for m in models]
+        if not test.any() or any(m is not None and not f for m, f in zip(models, fits)):
             continue
-        res_b = fit_b.residual(a.m[test], {})
-        res_f = fit_f.residual(a.m[test], {c: v[test] for c, v in a.chans.items()})
-        sse_b += res_b @ res_b
-        sse_f += res_f @ res_f
+        res = [f.residual(a.m[test], chans_test) if f else np.zeros(int(test.sum())) for f in fits]
+        sse += [r @ r for r in res]
         n_eval += int(test.sum())
-        fold_rms.append((float(np.sqrt(np.mean(res_b**2))), float(np.sqrt(np.mean(res_f**2)))))
-    if not n_eval:
-        return float("nan"), float("nan"), fold_rms
-    return float(np.sqrt(sse_b / n_eval)), float(np.sqrt(sse_f / n_eval)), fold_rms
+        per_block.append(tuple(float(np.sqrt(np.mean(r**2))) for r in res))
+    rms = tuple(float(np.sqrt(v / n_eval)) if n_eval else float("nan") for v in sse)
+    return HeldOut(tuple(r if m is not None else float("nan") for r, m in zip(rms, models)), tuple(per_block))
+
+
+def fit_like_magcal_fit(a: Analysed) -> ModelFit | None:
+    """What ``magcal fit --model auto`` makes of the analysed samples (its outlier removal,
+    model choice and direction balance), as a ModelFit; None when it finds no model."""
+    result = fit_calibration(a.m, model="auto")
+    if not result:
+        return None
+    return from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
+
+
+def never_worse(final: ModelFit, fit_auto: ModelFit | None, heldout: HeldOut) -> dict | None:
+    """When the fit's model does better on the held-out blocks than diagnosis's own, a limit
+    saying so (the fit's calibration is then the one returned); None otherwise."""
+    if fit_auto is None:
+        return None
+    own, theirs = heldout.rms_ut[1], heldout.rms_ut[2]
+    if not (np.isfinite(own) and np.isfinite(theirs)) or own <= theirs * (1 + 1e-9):
+        return None
+    return {
+        "effect": "calibration",
+        "suspected": False,
+        "heldout_rms_ut_diagnosis": own,
+        "heldout_rms_ut_fit": theirs,
+        "summary": f"On held-out stretches of the recording the calibration of magcal fit --model auto "
+        f"({model_name(fit_auto)}) leaves {theirs:.3f} µT against {own:.3f} µT for diagnosis's model "
+        f"({model_name(final)}), so the fit's calibration is the one returned; the findings stand as "
+        "evidence, but what they add did not improve unseen data here.",
+    }
 
 
 def compare_with_simulation(fit: ModelFit, m: np.ndarray, chans: dict, noise_ut: float, seed: int = 0) -> float:

@@ -98,26 +98,35 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
 SUSPECT_EXCESS = 1.15
 
 
-def soft_iron_limits(test, accepted: bool, rms_ut: float, simulated_rms_ut: float, duration_s: float) -> tuple:
-    """Say so when the recording could not test soft iron fully — too few directions covered,
-    or too few independent stretches of motion — and whether the residual suggests it is
-    there: silence must not read as "no soft iron"."""
-    k = int(test.basis.shape[1])
-    untested = test.p >= 1.0 and test.f == 0.0
-    if k >= 5 and not untested:
-        return ()
+def _soft_iron_reasons(k: int, determined: int, accepted: bool, untested: bool, duration_s: float) -> list:
     reasons = []
     if k < 5:
-        reasons.append(
-            f"with this motion only {k} of the 5 soft-iron directions can be told apart from the offset, the "
-            "radius and a slow wander in time, so a scale mismatch along the others would go unseen; turn the "
-            "board through all orientations, visiting each more than once"
-        )
+        text = (f"with this motion only {k} of the 5 soft-iron directions can be told apart from the offset, the "
+                "radius and a slow wander in time")
+        if accepted and determined > k:
+            text += (f"; soft iron is fitted along the {determined} the motion determines, but along {determined - k} "
+                     "of them the fit may hold slow wander as much as soft iron")
+        if determined < 5:
+            text += f"; along {5 - determined} it cannot be fitted at all, so a scale mismatch there would go unseen"
+        reasons.append(text + "; turn the board through all orientations, visiting each more than once")
     if untested and k > 0:
         reasons.append(
             f"the {duration_s:.0f} s of motion hold too few independent stretches to test it against slow "
             "wander; record longer (a few minutes), turning through all orientations more than once"
         )
+    return reasons
+
+
+def soft_iron_limits(test, accepted: bool, determined: int, rms_ut: float, simulated_rms_ut: float, duration_s: float) -> tuple:
+    """Say so when the recording could not test soft iron fully — too few directions covered,
+    or too few independent stretches of motion — and whether the residual suggests it is
+    there: silence must not read as "no soft iron". ``determined``: how many of the five
+    directions the motion determines (and the model carries when soft iron is found)."""
+    k = int(test.basis.shape[1])
+    untested = test.p >= 1.0 and test.f == 0.0
+    if k >= 5 and not untested:
+        return ()
+    reasons = _soft_iron_reasons(k, determined, accepted, untested, duration_s)
     excess = rms_ut / simulated_rms_ut if simulated_rms_ut > 0 else float("nan")
     suspected = bool(np.isfinite(excess) and excess >= SUSPECT_EXCESS)
     part = "along the directions it could test, soft iron is modelled; beyond them it " if accepted else "Soft iron "
@@ -132,6 +141,7 @@ def soft_iron_limits(test, accepted: bool, rms_ut: float, simulated_rms_ut: floa
             "effect": softiron.EFFECT,
             "suspected": suspected,
             "identifiable_directions": k,
+            "determined_directions": int(determined),
             "of_directions": 5,
             "residual_over_predicted": float(excess),
             "summary": lead + "; ".join(reasons) + ".",

@@ -255,3 +255,20 @@ def fit_with_channel_terms(
         return fit
     params = np.concatenate([fit.params] + [np.asarray(coefs[c], np.float64) for c in spec.channels])
     return ModelFit(spec, params, ref, fit.rms_ut, fit.n, fit.iterations, None)
+
+
+# magcal.fit's model names → the soft-iron directions of SOFT_BASIS they carry (None: all five)
+_FIT_SOFT_DIRS = {"sphere": (), "ellipsoid_diagonal": ((1.0, 0.0), (0.0, 1.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)), "ellipsoid": None}
+
+
+def from_calibration(cal: Calibration, model: str, n: int, rms_ut: float) -> ModelFit:
+    """A magcal.fit result (``model`` its name, W with det 1) as a ModelFit of the same shape:
+    W rescaled to trace 3 and the radius with it, so |W(m − b)| − r only changes scale."""
+    dirs = _FIT_SOFT_DIRS[model]
+    spec = Spec() if dirs == () else Spec(soft_iron=True, soft_dirs=dirs)
+    w = np.asarray(cal.soft_iron, np.float64)
+    scale = 3.0 / float(np.trace(w))
+    soft = np.einsum("pij,ij->p", SOFT_BASIS, w * scale - np.eye(3))
+    coords = np.linalg.lstsq(spec.soft_matrix, soft, rcond=None)[0] if spec.n_soft else np.zeros(0)
+    params = np.concatenate([cal.offset_ut, coords, [cal.field_ut * scale]])
+    return ModelFit(spec, params, {}, rms_ut * scale, n, 0, None)

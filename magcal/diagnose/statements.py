@@ -135,12 +135,31 @@ def limits(a, selected, final: ModelFit, simulated: float, wander: Wander, floor
     """What the recording could not test: soft iron, untestable channels, the offset wander."""
     duration_s = float(a.t[-1] - a.t[0])
     found_soft = softiron.EFFECT in selected.accepted
-    out = limits_.soft_iron_limits(selected.tests[softiron.EFFECT], found_soft, final.rms_ut, simulated, duration_s)
+    determined = selected.design.reference.spec.n_soft
+    out = limits_.soft_iron_limits(selected.tests[softiron.EFFECT], found_soft, determined, final.rms_ut, simulated, duration_s)
     out += limits_.untested_channels(selected.tests, selected.candidates)
     left_out = [selected.candidates[g].channel for g in selected.candidates if g not in selected.accepted]
     floor_ut = selection.practical_floor_ut(noise_ut)
     _, _, chans_kept = a.kept
     return out + limits_.wander_limit(wander, chans_kept, alpha, floor_ut, left_out)
+
+
+def left_out(channels_left_out: tuple) -> tuple:
+    """One limit per channel the screen left out (magcal.diagnose.hygiene), saying why."""
+    return tuple(
+        {
+            "effect": channels.effect_name(c.channel),
+            "suspected": False,
+            "channel": c.channel,
+            "left_out": True,
+            "reason": c.kind or "it follows the board's orientation",
+            "orientation_share": float(c.orientation_share),
+            "summary": f"An offset following {c.channel} could not be tested: {c.why}, so an offset that "
+            "followed it would be a direction-dependent error, which hard and soft iron already model; "
+            "left out of the candidates (name the channels with --channels to test it anyway).",
+        }
+        for c in channels_left_out
+    )
 
 
 def tests_record(selected) -> dict:
