@@ -142,6 +142,7 @@ def block_wald(
     groups: dict[str, np.ndarray],
     n_blocks: int | None = None,
     min_unique: float = 0.2,
+    bootstrap: bool = True,
 ) -> dict[str, WaldResult]:
     """For each named column group of x: regress e on all columns and test, with a block-HAC
     Wald statistic, that the group's coefficients are zero.
@@ -150,7 +151,8 @@ def block_wald(
     the other columns keeps at least ``min_unique`` of its norm (a coverage gate — with
     yaw-only motion most soft-iron directions trade with offset and radius, and their
     second-order residue would otherwise pass for a signal); its other directions are
-    nuisances of the test."""
+    nuisances of the test. ``bootstrap``: also check a test that could pass against the wild
+    block bootstrap (False where the statistic is calibrated another way)."""
     n, p = x.shape
     scale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
     xs = x / scale
@@ -166,11 +168,11 @@ def block_wald(
         ev, vec = np.linalg.eigh(xp.T @ xp)  # singular values² and right singular vectors
         keep = np.sqrt(np.maximum(ev, 0.0)) >= min_unique
         basis = vec[:, keep] / scale[cols, None]
-        out[name] = _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, scale[cols])
+        out[name] = _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, scale[cols], bootstrap)
     return out
 
 
-def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale) -> WaldResult:
+def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale, bootstrap: bool) -> WaldResult:
     """One group's test on its identifiable directions (see block_wald)."""
     k, nb, ncols = int(keep.sum()), len(blocks), len(keep)
     if k == 0:
@@ -189,7 +191,7 @@ def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale) -> WaldRes
         return _untested(k, nb, ncols, basis, "blocks")
     f = st.wald * st.df2 / (k * st.nu)
     pval = float(stats.f.sf(f, k, st.df2))
-    if pval <= BOOTSTRAP_BELOW:
+    if bootstrap and pval <= BOOTSTRAP_BELOW:
         # only a test that could pass is checked against the bootstrap (p is the larger of the two)
         pval = max(pval, _wild_block_p(st))
     basis_s = vec[:, keep]
@@ -263,6 +265,41 @@ def _wild_block_p(st: _Stat, reps: int = _REPS, seed: int = 0x6D61) -> float:
     # no draw as large: the bootstrap does not contradict the F approximation at any level it
     # can resolve, and must not cap p at 1/(reps + 1) (with many tests Holm asks for less)
     return float((1 + exceed) / (reps + 1)) if exceed else 0.0
+
+
+def phase_surrogates(x: np.ndarray, count: int, rng) -> np.ndarray:
+    """(count, n) copies of x with the same power spectrum and mean and random Fourier phases
+    (Theiler et al. 1992): series as slow and as smooth as x, unrelated to anything else."""
+    x = np.asarray(x, np.float64)
+    n = len(x)
+    spec = np.abs(np.fft.rfft(x - x.mean()))
+    ph = rng.uniform(0.0, 2 * np.pi, (count, len(spec)))
+    ph[:, 0] = 0.0
+    if n % 2 == 0:
+        ph[:, -1] = 0.0
+    return np.fft.irfft(spec * np.exp(1j * ph), n=n, axis=1) + x.mean()
+
+
+def surrogate_p(x_other: np.ndarray, e: np.ndarray, columns, x: np.ndarray, count: int, seed: int) -> float:
+    """p-value of a channel's regression sum of squares on the residual (the other columns
+    fitted out) against the same for ``count`` phase-randomised surrogates of the channel.
+    ``columns(x)`` builds the channel's (n, k) columns from channel values x. A slow channel
+    lines up with a slow wander by chance as often as its surrogates do; one that carries an
+    effect lines up better than all of them."""
+    scale = np.sqrt(np.maximum((x_other * x_other).sum(axis=0), 1e-300))
+    q, rr = np.linalg.qr(x_other / scale)
+    q = q[:, np.abs(np.diag(rr)) > 1e-10 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)]
+    nuis = _Nuisance(q, np.eye(q.shape[1]))
+    r0 = nuis.project_out(e)
+
+    def ss(values):
+        z = nuis.project_out(columns(values))
+        zr = z.T @ r0
+        return float(zr @ np.linalg.lstsq(z.T @ z, zr, rcond=1e-12)[0])
+
+    observed = ss(x)
+    others = [ss(v) for v in phase_surrogates(x, count, np.random.default_rng(seed))]
+    return float((1 + sum(o >= observed for o in others)) / (count + 1))
 
 
 def holm(pvals: dict[str, float], alpha: float) -> dict[str, bool]:

@@ -78,6 +78,7 @@ class Selected:
     fast: set
     survivors: list
     wander: dict  # effect → (explained, unexplained) block-offset mean squares
+    surrogate: dict  # slow channel effect → p against phase-randomised copies of the channel
     accepted: list
     heldout: dict
     skipped: list  # channels that could not be candidates (constant, missing values)
@@ -224,9 +225,10 @@ def select_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float, noi
     survivors = selection.above_floor(tests, verdict, floor_ut)
     _, _, chans_kept = a.kept
     survivors, wander = selection.wander_gate(dsg, chans_kept, survivors, verdict.fast)
+    survivors, surrogate_p = selection.surrogate_gate(dsg, chans_kept, survivors, verdict.fast, alpha)
     accepted, heldout = selection.drop_by_heldout(dsg, survivors, folds)
     n_tests = len(tests) + len(rich.results)
-    return Selected(tests, rich, verdict.fast, survivors, wander, accepted, heldout, skipped, dsg.candidates, dsg, n_tests)
+    return Selected(tests, rich, verdict.fast, survivors, wander, surrogate_p, accepted, heldout, skipped, dsg.candidates, dsg, n_tests)
 
 
 def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, list]:
@@ -246,7 +248,7 @@ def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, lis
     )
     reference = {cands[g].channel: cands[g].reference for g in accepted if g != softiron.EFFECT}
     m_kept, _, chans_kept = a.kept
-    coefs = {cands[g].channel: -statements.accepting_test(g, selected)[0].beta for g in accepted if g != softiron.EFFECT}
+    coefs = {cands[g].channel: -statements.estimating_test(g, selected).beta for g in accepted if g != softiron.EFFECT}
     final = fit_with_channel_terms(m_kept, chans_kept, spec, reference, coefs, start=ref)
     if isinstance(final, FitFailure):
         return ref, [softiron.EFFECT] if ref.spec.soft_iron else []

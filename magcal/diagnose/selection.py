@@ -6,20 +6,22 @@
 2. The practical floor: an effect smaller than max(0.03 µT, 0.1 × noise) is not worth a term;
    soft iron must also move some gain by at least softiron.MIN_GAIN_DEVIATION.
 3. The wander gate: a slow channel term (significant only against the quadratic wander) must
-   explain at least channels.WANDER_RATIO × the slow offset wander it leaves unexplained.
+   explain at least channels.WANDER_RATIO × the slow offset wander it leaves unexplained, and
+   line up with the residual better than phase-randomised copies of itself (surrogate gate).
 4. Held-out: drop, one at a time, any term whose removal does not hurt the held-out residual of
    the linearised model (interleaved time blocks, both models carrying the wander nuisance).
 """
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import channels, softiron
 from .design import Design
-from .inference import heldout_sse, holm, pinv_sym
+from .inference import heldout_sse, holm, pinv_sym, surrogate_p
 
 HELDOUT_INTERLEAVE = 4
 
@@ -90,6 +92,28 @@ def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tupl
     shares_of = {g: (shares[g], v_rem) for g in judged}
     passed = [g for g in survivors if g == softiron.EFFECT or g in fast or shares[g] >= channels.WANDER_RATIO * v_rem]
     return passed, shares_of
+
+
+SURROGATES = 199
+
+
+def surrogate_gate(design: Design, chans: dict, survivors: list, fast: set, alpha: float) -> tuple[list, dict]:
+    """A slow channel term (one that passed by the quadratic-wander test and the wander gate)
+    must also line up with the residual better than phase-randomised copies of the channel
+    (inference.surrogate_p at ``alpha``): the quadratic wander leaves real wander behind, and
+    one slow channel cycle matches it by chance more often than the F distribution says. Time
+    is not judged here (a straight line has no surrogates). Returns the survivors that pass and
+    each judged channel's p."""
+    judged = [g for g in survivors if g != softiron.EFFECT and g not in fast and design.candidates[g].channel != channels.TIME]
+    p_of = {}
+    for g in judged:
+        cand = design.candidates[g]
+        cols = design.groups[g]
+        other = np.setdiff1d(np.arange(design.x.shape[1]), cols)
+        seed = zlib.crc32(cand.channel.encode())
+        p_of[g] = surrogate_p(design.x[:, other], design.residual_ut, lambda v: design.channel_columns(v, cand.reference),
+                              chans[cand.channel], SURROGATES, seed)
+    return [g for g in survivors if g not in p_of or p_of[g] <= alpha], p_of
 
 
 def drop_by_heldout(design: Design, survivors: list, folds: int) -> tuple[list, dict]:

@@ -44,6 +44,13 @@ def accepting_test(g: str, selected) -> tuple:
     return selected.tests[g], 1.0
 
 
+def estimating_test(g: str, selected):
+    """The test whose regression gives term g's coefficient and its covariance: the one with
+    the quadratic wander as nuisance, whichever test accepted the term (against the rich
+    wander a fast channel is tested well but its coefficient shares more with the nuisance)."""
+    return selected.tests[g]
+
+
 def interval(coef: np.ndarray, result, inflation: float) -> dict:
     """The 95 % uncertainty of a channel coefficient from the block-HAC covariance of its test
     (× the shift inflation λ of a rich-wander test): per axis (Student t with ν, the effective
@@ -82,6 +89,8 @@ def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
     }
     if fast:
         ev["shift_inflation"] = selected.rich.inflation.get(g, 1.0)
+    if g in selected.surrogate:
+        ev["surrogate_p"] = selected.surrogate[g]
     if g in selected.wander:
         ev["block_offset_rms_ut_explained"] = float(np.sqrt(selected.wander[g][0]))
         ev["block_offset_rms_ut_unexplained"] = float(np.sqrt(selected.wander[g][1]))
@@ -103,7 +112,7 @@ def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_u
             continue
         cand = selected.candidates[g]
         coef = final.coef_ut_per_unit[cand.channel]
-        ev.update(interval(coef, *accepting_test(g, selected)))
+        ev.update(interval(coef, estimating_test(g, selected), 1.0))
         out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP)))
     return tuple(out)
 
