@@ -59,12 +59,8 @@ class Diagnosis:
     limits: tuple = ()  # what this recording could not test, and whether it is suspected (dicts)
     floors: dict = field(default_factory=dict)  # channel → the size a term of it must reach to be reported
     fit_heldout_rms_ut: float = float("nan")  # magcal fit --model auto's model on the same held-out blocks
-    diagnosis_model: ModelFit | None = field(default=None, repr=False)  # diagnosis's own (final unless fit's was better)
-
-    @property
-    def returned_fit(self) -> bool:
-        """True when the calibration returned is magcal fit's (it did better on held-out data)."""
-        return self.diagnosis_model is not None and self.diagnosis_model is not self.final
+    diagnosis_model: ModelFit | None = field(default=None, repr=False)  # diagnosis's own least-squares model
+    calibration_from: str = "diagnose"  # "fit", "fit+channels" or "diagnose" (see ladder.choose_calibration)
 
     @property
     def effects(self) -> list[str]:
@@ -87,7 +83,7 @@ class Diagnosis:
                 "rms_ut": float(self.final.rms_ut),
                 "heldout_rms_ut": float(self.final_heldout_rms_ut),
                 "simulated_rms_ut": float(self.simulated_rms_ut),
-                "from": "fit" if self.returned_fit else "diagnose",
+                "from": self.calibration_from,
                 "fit_heldout_rms_ut": _num(self.fit_heldout_rms_ut),
             },
             "noise_ut": float(self.noise_ut),

@@ -25,7 +25,14 @@ import numpy as np
 
 
 def _monomials(u: np.ndarray, degree: int) -> np.ndarray:
-    return np.stack([np.prod(u[:, list(c)], axis=1) for c in combinations_with_replacement(range(3), degree)], axis=1)
+    """All monomials of the given degree in u's three components, (n, count)."""
+    out = []
+    for c in combinations_with_replacement(range(3), degree):
+        col = u[:, c[0]].copy()
+        for i in c[1:]:
+            col *= u[:, i]
+        out.append(col)
+    return np.stack(out, axis=1)
 
 
 @lru_cache(maxsize=1)

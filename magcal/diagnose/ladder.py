@@ -43,6 +43,7 @@ ALPHA = 0.01
 FOLDS = 5
 MIN_SAMPLES = 50
 MAX_ANALYSED = 200_000
+HELDOUT_ITER = 6  # Gauss–Newton steps refitting a model without one block, from its full-data values
 
 
 @dataclass(frozen=True)
@@ -100,10 +101,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     final, accepted = refit(analysed, reference, selected)
     selected = replace(selected, accepted=accepted)
     fold_slices = contiguous_blocks(len(analysed.m), folds)
-    fit_auto = fit_like_magcal_fit(analysed)
-    heldout = compare_heldout(analysed, [baseline, final, fit_auto], fold_slices)
-    fit_is_better = never_worse(final, fit_auto, heldout)
-    returned = fit_auto if fit_is_better else final
+    chosen = choose_calibration(analysed, baseline, final, fold_slices)
     m_kept, _, chans_kept = analysed.kept
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
     wander = statements.measure_wander(full_model(analysed, reference, final), m_kept, chans_kept)
@@ -111,22 +109,23 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     return Diagnosis(
         n_samples=len(series),
         baseline=baseline,
-        final=returned,
+        final=chosen.model,
         findings=statements.findings(analysed, selected, final, base_kept, alpha, noise_ut),
-        baseline_heldout_rms_ut=heldout.rms_ut[0],
-        final_heldout_rms_ut=heldout.rms_ut[2 if fit_is_better else 1],
+        baseline_heldout_rms_ut=chosen.heldout.rms_ut[0],
+        final_heldout_rms_ut=chosen.heldout_rms_ut,
         simulated_rms_ut=simulated,
         noise_ut=noise_ut,
         series=analysed.series,
         outlier_mask=analysed.outlier,
         tests=statements.tests_record(selected),
         folds=tuple((int(analysed.rows[sl.start]), int(analysed.rows[sl.stop - 1]) + 1) for sl in fold_slices),
-        fold_rms=tuple((b[0], b[2 if fit_is_better else 1]) for b in heldout.per_block),
-        fit_heldout_rms_ut=heldout.rms_ut[2],
+        fold_rms=chosen.fold_rms,
+        fit_heldout_rms_ut=chosen.fit_heldout_rms_ut,
         diagnosis_model=final,
+        calibration_from=chosen.source,
         limits=statements.left_out(left_out)
         + statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut)
-        + ((fit_is_better,) if fit_is_better else ()),
+        + chosen.limits,
         floors={c: f.to_dict() for c, f in floors.items()},
     )
 
@@ -289,7 +288,7 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list) -> HeldOut:
         test[: held.start] = test[held.stop :] = False
         chans_train = {c: v[train] for c, v in a.chans.items()}
         chans_test = {c: v[test] for c, v in a.chans.items()}
-        fits = [None if m is None else fit_model(a.m[train], chans_train, m.spec, m.reference, start=m) for m in models]
+        fits = [None if m is None else fit_model(a.m[train], chans_train, m.spec, m.reference, start=m, max_iter=HELDOUT_ITER) for m in models]
         if not test.any() or any(m is not None and not f for m, f in zip(models, fits)):
             continue
         res = [f.residual(a.m[test], chans_test) if f else np.zeros(int(test.sum())) for f in fits]
@@ -300,31 +299,74 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list) -> HeldOut:
     return HeldOut(tuple(r if m is not None else float("nan") for r, m in zip(rms, models)), tuple(per_block))
 
 
-def fit_like_magcal_fit(a: Analysed) -> ModelFit | None:
-    """What ``magcal fit --model auto`` makes of the analysed samples (its outlier removal,
-    model choice and direction balance), as a ModelFit; None when it finds no model."""
+@dataclass(frozen=True)
+class Chosen:
+    """The calibration diagnosis returns, and how it did on the held-out blocks."""
+
+    model: ModelFit
+    source: str  # "fit" (magcal fit --model auto's), "fit+channels" (its shape and estimator with
+    #              diagnosis's channel terms) or "diagnose" (fit found no model)
+    heldout: HeldOut  # baseline, the calibration returned, fit's plain model when it was compared
+    limits: tuple
+
+    @property
+    def heldout_rms_ut(self) -> float:
+        return self.heldout.rms_ut[2] if self.source == "fit" and self.limits else self.heldout.rms_ut[1]
+
+    @property
+    def fit_heldout_rms_ut(self) -> float:
+        return self.heldout.rms_ut[2] if np.isfinite(self.heldout.rms_ut[2]) else self.heldout.rms_ut[1]
+
+    @property
+    def fold_rms(self) -> tuple:
+        col = 2 if self.source == "fit" and self.limits else 1
+        return tuple((b[0], b[col]) for b in self.heldout.per_block)
+
+
+def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_slices: list) -> Chosen:
+    """Never worse than ``magcal fit --model auto``: its calibration (outlier removal, model
+    choice by BIC, direction balance) is the geometry returned; diagnosis adds its channel terms
+    to it, fitted the same way on the samples with those terms taken out — and only when that
+    does better on the held-out blocks than the fit alone; otherwise a limit says so."""
     result = fit_calibration(a.m, model="auto")
     if not result:
+        return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), ())
+    plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
+    if not final.spec.channels:
+        return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices), ())
+    with_channels = _fit_geometry_around_channels(a, final) or final
+    heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices)
+    limit = never_worse(with_channels, plain, heldout)
+    return Chosen(plain, "fit", heldout, (limit,)) if limit else Chosen(with_channels, "fit+channels", heldout, ())
+
+
+def _fit_geometry_around_channels(a: Analysed, final: ModelFit) -> ModelFit | None:
+    """Offset, soft iron and radius as magcal fit finds them once ``final``'s channel terms
+    are taken out of every analysed sample; the channel terms kept as they are."""
+    shift = final.calibration().channel_offset_ut(a.chans, len(a.m))
+    result = fit_calibration(a.m - shift, model="auto")
+    if not result:
         return None
-    return from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
+    geometry = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
+    spec = replace(geometry.spec, channels=final.spec.channels)
+    params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in final.spec.channels])
+    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, None)
 
 
-def never_worse(final: ModelFit, fit_auto: ModelFit | None, heldout: HeldOut) -> dict | None:
-    """When the fit's model does better on the held-out blocks than diagnosis's own, a limit
+def never_worse(own: ModelFit, fit_auto: ModelFit, heldout: HeldOut) -> dict | None:
+    """When the fit's plain model does better on the held-out blocks than diagnosis's, a limit
     saying so (the fit's calibration is then the one returned); None otherwise."""
-    if fit_auto is None:
-        return None
-    own, theirs = heldout.rms_ut[1], heldout.rms_ut[2]
-    if not (np.isfinite(own) and np.isfinite(theirs)) or own <= theirs * (1 + 1e-9):
+    mine, theirs = heldout.rms_ut[1], heldout.rms_ut[2]
+    if not (np.isfinite(mine) and np.isfinite(theirs)) or mine <= theirs * (1 + 1e-9):
         return None
     return {
         "effect": "calibration",
         "suspected": False,
-        "heldout_rms_ut_diagnosis": own,
+        "heldout_rms_ut_diagnosis": mine,
         "heldout_rms_ut_fit": theirs,
         "summary": f"On held-out stretches of the recording the calibration of magcal fit --model auto "
-        f"({model_name(fit_auto)}) leaves {theirs:.3f} µT against {own:.3f} µT for diagnosis's model "
-        f"({model_name(final)}), so the fit's calibration is the one returned; the findings stand as "
+        f"({model_name(fit_auto)}) leaves {theirs:.3f} µT against {mine:.3f} µT with diagnosis's channel terms "
+        f"added ({model_name(own)}), so the fit's calibration is the one returned; the findings stand as "
         "evidence, but what they add did not improve unseen data here.",
     }
 

@@ -147,8 +147,9 @@ def residual_jacobian(p, spec: Spec, m, xs, want_j=True):
     wu = u if w is None else u @ w
     cols = [-wu]
     if ns:
-        # ∂|h|/∂s_p = uᵀ E_p d
-        cols.append(np.stack([np.einsum("ij,jk,ik->i", u, e_p, d) for e_p in basis], axis=1))
+        # ∂|h|/∂s_p = uᵀ E_p d, all p at once: (u · [E_1 … E_k]) reshaped, times d
+        ue = (u @ basis.transpose(1, 0, 2).reshape(3, 3 * ns)).reshape(len(m), ns, 3)
+        cols.append(np.einsum("npj,nj->np", ue, d))
     cols.append(-np.ones((len(m), 1)))
     for x in xs:
         cols.append(-x[:, None] * wu)
