@@ -28,12 +28,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import warnings
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # one BLAS thread, set before numpy loads
+    os.environ.setdefault(_name, "1")
 
 import numpy as np
 
@@ -212,7 +216,7 @@ def main(argv=None) -> int:
     ap.add_argument("--first-seed", type=int, default=20261123)
     ap.add_argument("--max-samples", type=int, default=8000)
     ap.add_argument("--sources", default="", help="comma-separated subset of the sources")
-    ap.add_argument("--json", metavar="FILE", help="write every case as JSON")
+    ap.add_argument("--json", metavar="FILE", help="write every case as a JSON line, as it is judged")
     args = ap.parse_args(argv)
     warnings.filterwarnings("ignore")
     sources = load_sources(set(filter(None, args.sources.split(","))), args.max_samples)
@@ -221,9 +225,14 @@ def main(argv=None) -> int:
     for name, (t, m) in sources.items():
         plain = diagnose(Series(t_s=t, field_ut=m)).to_dict()
         intrinsic = {f["effect"] for f in plain["findings"]} & {"time_drift"}
-        mine = [run_case(name, t, m, "control", args.first_seed + j, intrinsic) for j in range(args.controls)]
-        for kind in ("temp", "current", "drift"):
-            mine += [run_case(name, t, m, kind, args.first_seed + 1000 + j, intrinsic) for j in range(args.cases)]
+        jobs = [("control", args.first_seed + j) for j in range(args.controls)]
+        jobs += [(kind, args.first_seed + 1000 + j) for kind in ("temp", "current", "drift") for j in range(args.cases)]
+        mine = []
+        for kind, seed in jobs:
+            mine.append(run_case(name, t, m, kind, seed, intrinsic))
+            if args.json:
+                with open(args.json, "a") as f:
+                    f.write(json.dumps({**mine[-1].__dict__, "seed": seed}, default=float) + "\n")
         rows += mine
         print_row(name, summarise(mine))
         print(f"{'':<26}{len(m)} samples, {np.median([r.seconds for r in mine]):.2f} s CPU per case"
@@ -232,8 +241,6 @@ def main(argv=None) -> int:
     total = summarise(rows)
     print(f"floor too high to inject (a term of 0.3–6× it would exceed a tenth of the field): {total['floor_too_high']} cases; "
           f"no upper floor stated (some direction never pinned): {total['no_upper_floor']}")
-    if args.json:
-        Path(args.json).write_text(json.dumps([r.__dict__ for r in rows], indent=1, default=float))
     return 0
 
 

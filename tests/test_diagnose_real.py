@@ -85,3 +85,23 @@ def test_the_wander_limit_names_how_large_a_slow_term_would_have_had_to_be(tilt_
         large = diagnose(Series(t_s=t, field_ut=h + np.outer(temp - temp.mean(), 2.0 * k), channels=chans))
         assert "temperature_drift" not in small.effects
         assert "temperature_drift" in large.effects
+
+
+def test_a_current_twice_the_stated_floor_on_the_raw_recording_is_found_inside_its_interval():
+    """On the raw excerpt (its own hard and soft iron kept), a current term of 2.5 × the upper
+    floor diagnose states for that channel is found, its coefficient within 30 % and inside the
+    reported 95 % region; the same channel with no effect is not credited."""
+    a = np.loadtxt(DATA, delimiter=",", skiprows=1)
+    t, m = a[:, 0] - a[0, 0], a[:, 1:4] * UT_PER_COUNT
+    cur = _current(t, 11)
+    plain = diagnose(Series(t_s=t, field_ut=m, channels={"current_a": cur}))
+    assert "current_interference" not in plain.effects
+    lo, hi = plain.to_dict()["floors"]["current_a"]["range_ut_per_unit"]
+    coef = 2.5 * hi * np.array([0.48, -0.6, 0.64])
+    d = diagnose(Series(t_s=t, field_ut=m + np.outer(cur, coef), channels={"current_a": cur}))
+    assert "soft_iron" in d.effects and "current_interference" in d.effects
+    (f,) = [f for f in d.findings if f.effect == "current_interference"]
+    got = np.array(f.params["coef_ut_per_unit"])
+    assert np.linalg.norm(got - coef) / np.linalg.norm(coef) < 0.3
+    diff = got - coef
+    assert diff @ np.linalg.pinv(np.array(f.evidence["coef_cov_ut_per_unit"])) @ diff <= f.evidence["coef_region95_wald"]

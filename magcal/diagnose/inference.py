@@ -41,6 +41,7 @@ class WaldResult:
     cov: np.ndarray | None = None  # (n_cols, n_cols) block-HAC covariance of beta (0 off the tested subspace)
     nu: float = float("nan")  # effective number of independent blocks behind cov
     untestable: str = ""  # why the group could not be tested: "directions", "blocks", or ""
+    fallback: str = ""  # when the block covariance could not carry the test, what was used instead
 
 
 def _block_sums(x: np.ndarray, r: np.ndarray, blocks: list[slice]) -> np.ndarray:
@@ -185,13 +186,12 @@ def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale, bootstrap:
     z = nuis.project_out(z) if k < ncols else z
     r0 = nuis.project_out(e)
     st = _block_wald_stat(z, r0, blocks, nuis)
-    if st.kept_variance < MIN_KEPT_VARIANCE:
-        return _untested(k, nb, ncols, basis, "blocks")
-    if st.df2 < 2:
-        return _untested(k, nb, ncols, basis, "blocks")
+    fallback = ""
+    if st.kept_variance < MIN_KEPT_VARIANCE or st.df2 < 2:
+        st, fallback = _scalar_autocorrelation_stat(z, r0, blocks, st)
     f = st.wald * st.df2 / (k * st.nu)
     pval = float(stats.f.sf(f, k, st.df2))
-    if bootstrap and pval <= BOOTSTRAP_BELOW:
+    if bootstrap and not fallback and pval <= BOOTSTRAP_BELOW:
         # only a test that could pass is checked against the bootstrap (p is the larger of the two)
         pval = max(pval, _wild_block_p(st))
     basis_s = vec[:, keep]
@@ -200,7 +200,32 @@ def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale, bootstrap:
     # cannot mimic: a nuisance that shares part of a slow channel must not shrink it)
     size = float(np.sqrt(np.mean((xc @ (basis_s @ st.bz)) ** 2)))
     cov = (basis_s / col_scale[:, None]) @ st.cov @ (basis_s / col_scale[:, None]).T
-    return WaldResult(f, k, int(round(st.df2)), pval, beta, size, basis, cov=cov, nu=st.nu)
+    return WaldResult(f, k, int(round(st.df2)), pval, beta, size, basis, cov=cov, nu=st.nu, fallback=fallback)
+
+
+def _scalar_autocorrelation_stat(z: np.ndarray, r0: np.ndarray, blocks: list[slice], hac: _Stat) -> tuple[_Stat, str]:
+    """When the block covariance of a term rests on too few effective blocks (its information
+    sits in a few stretches of the recording) or the nuisances leave it too little block-level
+    variation, the test is not refused: the independent-noise covariance σ²(ZᵀZ)⁻¹ is widened by
+    the residual's own autocorrelation factor λ (the long-run over the plain variance, from the
+    sums of the residual over all blocks, B − 1 degrees of freedom). Returns the statistic and a
+    sentence saying which gate was met and why."""
+    k = z.shape[1]
+    ztz = z.T @ z
+    zinv = np.linalg.inv(ztz)
+    bz = zinv @ (z.T @ r0)
+    r = r0 - z @ bz
+    sums = np.array([r[b].sum() for b in blocks])
+    sizes = np.array([b.stop - b.start for b in blocks], np.float64)
+    sigma2 = float(r @ r) / max(len(r) - k, 1)
+    lam = max(1.0, float(np.sum(sums**2) / (sigma2 * sizes.sum())))
+    cov = lam * sigma2 * zinv
+    wald = float(bz @ np.linalg.solve(cov, bz))
+    nu = float(len(blocks) - 1)
+    why = (f"the block covariance rested on {max(hac.nu, 0.0):.1f} effective blocks (its information sits in a few "
+           f"stretches of the recording; it kept {100 * max(hac.kept_variance, 0.0):.0f} % of its expected variation), "
+           f"so the independent-noise covariance widened by the residual's autocorrelation factor {lam:.2f} was used")
+    return _Stat(bz, cov, wald, nu, nu - k + 1, 1.0, ()), why
 
 
 def shift_inflation(x_other: np.ndarray, e: np.ndarray, shifted_cols, n_blocks: int | None = None) -> float:
@@ -234,6 +259,28 @@ def shift_inflation(x_other: np.ndarray, e: np.ndarray, shifted_cols, n_blocks: 
             continue
         ratios.append(st.wald * st.df2 / (k * st.nu) / float(stats.f.ppf(0.5, k, st.df2)))
     return max(1.0, float(np.median(ratios))) if ratios else 1.0
+
+
+def shifted_spread(x_all: np.ndarray, e: np.ndarray, shifted_cols) -> np.ndarray | None:
+    """The spread of a channel term's coefficient when the channel cannot carry the effect:
+    the mean of ββᵀ over circularly shifted copies of its columns, each regressed on this
+    recording's residual with every column of ``x_all`` (the aligned channel's included, so
+    an effect that is there does not widen its own spread). Shifted copies keep the channel's
+    own time structure, so this is what slow wander and fast residual structure lend a
+    coefficient here — the empirical counterpart of its covariance. None without copies."""
+    scale = np.sqrt(np.maximum((x_all * x_all).sum(axis=0), 1e-300))
+    q, rr = np.linalg.qr(x_all / scale)
+    q = q[:, np.abs(np.diag(rr)) > 1e-10 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)]
+    nuis = _Nuisance(q, np.eye(q.shape[1]))
+    r0 = nuis.project_out(e)
+    betas = []
+    for xc in shifted_cols:
+        z = nuis.project_out(xc)
+        betas.append(np.linalg.lstsq(z, r0, rcond=1e-10)[0])
+    if not betas:
+        return None
+    b = np.array(betas)
+    return b.T @ b / len(b)
 
 
 _REPS = 1999

@@ -2,7 +2,8 @@
 
 1. Holm's family-wise control over both test families (against the quadratic wander, and each
    channel against the rich wander); a channel significant against the rich wander at or above
-   the practical floor is *fast* (an intermittent current) and passes straight on.
+   the practical floor, and at ``alpha`` against the quadratic wander, is *fast* (an
+   intermittent current) and passes straight on.
 2. The practical floor: an effect smaller than max(0.03 µT, 0.1 × noise) is not worth a term;
    soft iron must also move some gain by at least softiron.MIN_GAIN_DEVIATION.
 3. The wander gate: a slow channel term (significant only against the quadratic wander) must
@@ -44,7 +45,10 @@ def significant(tests: dict, rich: dict, alpha: float, floor_ut: float) -> Signi
     pvals = {g: r.p for g, r in tests.items()}
     pvals.update({("rich", g): r.p for g, r in rich.items()})
     rejected_all = holm(pvals, alpha)
-    fast = {g for g, r in rich.items() if rejected_all[("rich", g)] and r.effect_rms_ut >= floor_ut}
+    # fast: significant against the rich wander (Holm), and on its own at alpha against the
+    # quadratic one too (two views of the same term must agree; chance rarely fools both)
+    fast = {g for g, r in rich.items()
+            if rejected_all[("rich", g)] and r.effect_rms_ut >= floor_ut and tests[g].p <= alpha}
     return Significant({g: rejected_all[g] for g in tests}, fast)
 
 

@@ -13,6 +13,7 @@ from scipy import stats
 
 from . import channels, design, floors, glitches, limits as limits_, selection, softiron
 from .finding import Finding
+from .inference import shifted_spread
 from .model import ModelFit
 
 WANDER_BLOCKS = limits_.WANDER_BLOCKS
@@ -51,15 +52,38 @@ def estimating_test(g: str, selected):
     return selected.tests[g]
 
 
-def interval(coef: np.ndarray, result, inflation: float) -> dict:
+def spread_of(g: str, selected, chans: dict, shifts: int = design.SHIFTS) -> np.ndarray | None:
+    """inference.shifted_spread of term g's coefficient in the regression it is estimated in
+    (the quadratic-wander design), over ``shifts`` circular shifts of its channel."""
+    dsg = selected.design
+    cand = selected.candidates[g]
+    x = chans[cand.channel]
+    lags = np.unique((np.linspace(0.05, 0.95, shifts) * len(x)).round().astype(int))
+    shifted = (dsg.channel_columns(np.roll(x, lag), cand.reference) for lag in lags)
+    return shifted_spread(dsg.x, dsg.residual_ut, shifted)
+
+
+def widened(cov: np.ndarray, spread: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """The test's covariance scaled up, when the shifted copies spread wider, by their mean
+    ratio tr(V⁻¹ S) / k (never down): (covariance, factor)."""
+    if spread is None:
+        return cov, 1.0
+    k = cov.shape[0]
+    factor = max(1.0, float(np.trace(np.linalg.pinv(cov, rcond=1e-10, hermitian=True) @ spread)) / k)
+    return cov * factor, factor
+
+
+def interval(coef: np.ndarray, result, inflation: float, spread: np.ndarray | None = None) -> dict:
     """The 95 % uncertainty of a channel coefficient from the block-HAC covariance of its test
-    (× the shift inflation λ of a rich-wander test): per axis (Student t with ν, the effective
-    number of blocks, as degrees of freedom) and as a joint region
-    (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
+    (× the shift inflation λ of a rich-wander test), widened to the spread of the coefficient
+    over shifted copies of the channel where that is larger (``spread``, see ``widened``): per
+    axis (Student t with ν, the effective number of blocks, as degrees of freedom) and as a
+    joint region (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
     if result.cov is None:
         return {}
     cov = result.cov * inflation
     nu = float(result.nu)
+    cov, factor = widened(cov, spread)
     half = float(stats.t.isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
     k, df2 = result.df1, float(result.df2)
     return {
@@ -67,6 +91,7 @@ def interval(coef: np.ndarray, result, inflation: float) -> dict:
         "coef_ci95_ut_per_unit": [[float(c - h), float(c + h)] for c, h in zip(coef, half)],
         "coef_cov_ut_per_unit": [[float(v) for v in row] for row in cov],
         "coef_region95_wald": float(k * nu / df2 * stats.f.isf(0.05, k, df2)),
+        "coef_cov_widened_by": factor,
     }
 
 
@@ -89,6 +114,8 @@ def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
     }
     if fast:
         ev["shift_inflation"] = selected.rich.inflation.get(g, 1.0)
+    if r.fallback:
+        ev["test_fallback"] = r.fallback
     if g in selected.surrogate:
         ev["surrogate_p"] = selected.surrogate[g]
     if g in selected.wander:
@@ -112,7 +139,8 @@ def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_u
             continue
         cand = selected.candidates[g]
         coef = final.coef_ut_per_unit[cand.channel]
-        ev.update(interval(coef, estimating_test(g, selected), 1.0))
+        _, _, chans_kept = a.kept
+        ev.update(interval(coef, estimating_test(g, selected), 1.0, spread_of(g, selected, chans_kept)))
         out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP)))
     return tuple(out)
 
@@ -135,7 +163,8 @@ def channel_floors(selected, wander: Wander, chans: dict, alpha: float, noise_ut
         fast = []
         if g in selected.rich.results:
             rich = selected.rich.results[g]
-            fast = [floors.wald_floor(rich, alpha_each, selected.rich.inflation.get(g, 1.0)), practical]
+            fast = [floors.wald_floor(rich, alpha_each, selected.rich.inflation.get(g, 1.0)), practical,
+                    floors.wald_floor(selected.tests.get(g), alpha)]
         out[cand.channel] = floors.combine(fast, slow)
     return out
 
