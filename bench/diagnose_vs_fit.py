@@ -41,7 +41,8 @@ PESBOARD = TableFormat(columns=("7", "8", "9"), unit="gauss", time="10", time_un
 # (file, table options or None, why these options)
 FILES = [
     ("ardupilot_solo_log171/log171.bin", None, ""),
-    ("fluxgate_magnav_flt1002/Flt1002_1002.02.txt", None, ""),
+    ("fluxgate_magnav_flt1002/Flt1002_1002.02.txt", TableFormat(columns=("2", "3", "4"), unit="0.001", time="1"),
+     "headerless: flux_x,y,z in nT, time in s (PROVENANCE.md)"),
     ("fxos8700_mwrona/mag-readings.txt", None, ""),
     ("gearvr_utzinger/Officeacc.txt", None, ""),
     ("gearvr_utzinger/Officemag.txt", None, ""),

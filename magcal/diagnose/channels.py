@@ -312,7 +312,7 @@ def offset_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> tuple[flo
     """The offset's slow wander in a model's residual: (RMS beyond noise in µT, p-value of
     "no wander"). Under independent noise the block offsets' energy × n / σ² is χ² with
     3(B − 1) degrees of freedom (σ² from the scatter inside the blocks)."""
-    from scipy import stats
+    from .distributions import chi2_sf
 
     fitted = _block_offsets(e, u, {}, n_blocks)
     if fitted is None:
@@ -321,4 +321,4 @@ def offset_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> tuple[flo
     energy = _energy(grams, d_e, n)
     df = 3 * (len(grams) - 1)
     v = max(energy - df * s2 / n, 0.0)
-    return float(np.sqrt(v)), float(stats.chi2.sf(energy * n / max(s2, 1e-300), df))
+    return float(np.sqrt(v)), float(chi2_sf(energy * n / max(s2, 1e-300), df))

@@ -17,9 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
 
 from . import channels, harmonics, softiron, wander
+from .distributions import f_sf
 from .inference import WaldResult, block_wald, shift_inflation
 from .model import ModelFit, Spec, residual_jacobian
 
@@ -134,5 +134,5 @@ def calibrated(result: WaldResult, inflation: float) -> WaldResult:
     """The test with its F statistic divided by the shift inflation λ (p never lowered)."""
     if inflation <= 1.0:
         return result
-    p_cal = float(stats.f.sf(result.f / inflation, result.df1, result.df2))
+    p_cal = float(f_sf(result.f / inflation, result.df1, result.df2))
     return replace(result, p=max(result.p, p_cal))

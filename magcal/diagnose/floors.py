@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import stats
 
+from .distributions import f_isf
 from .inference import WaldResult
 
 
@@ -49,7 +49,7 @@ def wald_floor(result: WaldResult | None, alpha_each: float, inflation: float = 
     if result is None or result.cov is None or result.untestable:
         return np.full(len(dirs), np.inf)
     k, df2, nu = result.df1, float(result.df2), float(result.nu)
-    w_crit = k * nu / df2 * float(stats.f.isf(alpha_each, k, df2)) * max(inflation, 1.0)
+    w_crit = k * nu / df2 * float(f_isf(alpha_each, k, df2)) * max(inflation, 1.0)
     prec = np.linalg.pinv(result.cov, rcond=1e-10, hermitian=True)
     q = np.einsum("di,ij,dj->d", dirs, prec, dirs)
     with np.errstate(divide="ignore"):

@@ -28,10 +28,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from ..fit.failure import FitFailure
 from ..fit.sphere import sphere_start
+from .distributions import chi2_isf
 from .finding import Finding
 
 _LOCAL = 128  # samples per block of the local scale
@@ -223,10 +223,10 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
     noise = float(np.median(trimmed_scale(d))) if n else 0.0
     sphere = _radial(m) if n >= 10 else None
     channels = 2 if sphere is not None else 1
-    thr = float(np.sqrt(stats.chi2.isf(alpha / (channels * max(n, 1)), 3))) if n else np.inf
-    thr_r = float(np.sqrt(stats.chi2.isf(alpha / (2 * max(n, 1)), 1))) if sphere is not None else np.inf
-    side_thr = float(np.sqrt(stats.chi2.isf(alpha, 3)))
-    side_thr_r = float(np.sqrt(stats.chi2.isf(alpha, 1)))
+    thr = float(np.sqrt(chi2_isf(alpha / (channels * max(n, 1)), 3))) if n else np.inf
+    thr_r = float(np.sqrt(chi2_isf(alpha / (2 * max(n, 1)), 1))) if sphere is not None else np.inf
+    side_thr = float(np.sqrt(chi2_isf(alpha, 3)))
+    side_thr_r = float(np.sqrt(chi2_isf(alpha, 1)))
     floor_r = np.array([float(np.min(floor))])
 
     def radial_series(mm):

@@ -16,7 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+
+from .distributions import f_isf, f_sf
 
 
 def contiguous_blocks(n: int, k: int) -> list[slice]:
@@ -190,7 +191,7 @@ def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale, bootstrap:
     if st.kept_variance < MIN_KEPT_VARIANCE or st.df2 < 2:
         st, fallback = _scalar_autocorrelation_stat(z, r0, blocks, st)
     f = st.wald * st.df2 / (k * st.nu)
-    pval = float(stats.f.sf(f, k, st.df2))
+    pval = float(f_sf(f, k, st.df2))
     if bootstrap and not fallback and pval <= BOOTSTRAP_BELOW:
         # only a test that could pass is checked against the bootstrap (p is the larger of the two)
         pval = max(pval, _wild_block_p(st))
@@ -257,7 +258,7 @@ def shift_inflation(x_other: np.ndarray, e: np.ndarray, shifted_cols, n_blocks: 
         st = _block_wald_stat(z, r0, blocks, nuis)
         if st.df2 < 2 or st.kept_variance < MIN_KEPT_VARIANCE:
             continue
-        ratios.append(st.wald * st.df2 / (k * st.nu) / float(stats.f.ppf(0.5, k, st.df2)))
+        ratios.append(st.wald * st.df2 / (k * st.nu) / float(f_isf(0.5, k, st.df2)))
     return max(1.0, float(np.median(ratios))) if ratios else 1.0
 
 

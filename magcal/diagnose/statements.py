@@ -9,9 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from . import channels, design, floors, glitches, limits as limits_, selection, softiron
+from .distributions import f_isf, t_isf
 from .finding import Finding
 from .inference import shifted_spread
 from .model import ModelFit
@@ -84,13 +84,13 @@ def interval(coef: np.ndarray, result, inflation: float, spread: np.ndarray | No
     cov = result.cov * inflation
     nu = float(result.nu)
     cov, factor = widened(cov, spread)
-    half = float(stats.t.isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
+    half = float(t_isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
     k, df2 = result.df1, float(result.df2)
     return {
         "coef_ut_per_unit_tested": [float(v) for v in -result.beta],
         "coef_ci95_ut_per_unit": [[float(c - h), float(c + h)] for c, h in zip(coef, half)],
         "coef_cov_ut_per_unit": [[float(v) for v in row] for row in cov],
-        "coef_region95_wald": float(k * nu / df2 * stats.f.isf(0.05, k, df2)),
+        "coef_region95_wald": float(k * nu / df2 * f_isf(0.05, k, df2)),
         "coef_cov_widened_by": factor,
     }
 
