@@ -50,7 +50,9 @@ def format_text(d: dict) -> str:
     for k in d.get("limits", []):
         if not k.get("left_out"):
             lines.append(f"limit       {k['effect']}: {k['summary']}")
-    lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT")
+    source = {"fit": "   (magcal fit's calibration)", "fit+channels": "   (magcal fit's, with the channel terms)"}
+    lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT"
+                 + source.get(f.get("from", ""), ""))
     lines += calibration_lines(d["calibration"])
     for name, coef in (d["calibration"].get("coef_ut_per_unit") or {}).items():
         lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + "   µT per unit")
