@@ -50,7 +50,6 @@ MAX_CLASS_LINES = 300
 KNOWN_TOO_LONG = {
     "magcal/fit/pipeline.py:fit_calibration",  # issue 16 (u16) rebuilds it; issue 19 (k19) edits it too
     "magcal/app/report.py:write_report",  # issue 16 (u16): the report page rebuilt
-    "magcal/diagnose/ladder.py:diagnose",  # issue 14 (d14): diagnose() as a pipeline of named steps
 }
 TOP_LEVEL = {"": "core", "__main__": "cli"}  # magcal/__init__.py holds only the version
 
