@@ -66,9 +66,9 @@ def hint(counts, bands: int, sectors: int, direction) -> str:
         return "every direction seen: hold still or keep turning slowly while the fit settles"
     cell, angle = found
     side = side_name(cell_centres(bands, sectors)[cell])
-    turn = f", a turn of about {angle:.0f}°" if np.isfinite(angle) else ""
-    return (f"next: aim the board's {side} side along the Earth's field (magnetic north, dipping down "
-            f"in the northern hemisphere){turn} — ◎ on the map")
+    turn = f", about {angle:.0f}° from now" if np.isfinite(angle) else ""
+    return (f"next: aim the board's {side} side along the field (north, dipping down in the northern "
+            f"hemisphere): ◎ on the map{turn}")
 
 
 def _cell_text(n: int, per_cell: int, colour: bool) -> str:

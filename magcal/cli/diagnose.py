@@ -71,19 +71,24 @@ def many_channels_hint(n_channels: int, d: dict) -> str | None:
 def run(args) -> int:
     from ..app.load import load_series
     from ..diagnose import diagnose
+    from .common import Progress
 
-    series = load_series(args.file, table_format(args))
-    reading = reading_report(series, args.file)
-    diagnosis = diagnose(series, alpha=args.alpha)
-    d = diagnosis.to_dict()
-    d["warnings"] = field_warning(d["calibration"]["field_ut"])
-    if series.source:
-        d["input"] = series.source
-    d["reading"] = reading
-    if args.report:
-        from ..app.report import write_report
+    with Progress(quiet=args.quiet).working(f"diagnose {args.file}") as ticker:
+        ticker.doing("reading")
+        series = load_series(args.file, table_format(args))
+        reading = reading_report(series, args.file)
+        ticker.doing(f"diagnosing {len(series):,} samples".replace(",", " "))
+        diagnosis = diagnose(series, alpha=args.alpha)
+        d = diagnosis.to_dict()
+        d["warnings"] = field_warning(d["calibration"]["field_ut"])
+        if series.source:
+            d["input"] = series.source
+        d["reading"] = reading
+        if args.report:
+            from ..app.report import write_report
 
-        write_report(diagnosis, args.report, title=str(args.file))
+            ticker.doing(f"drawing the report in {args.report}")
+            write_report(diagnosis, args.report, title=str(args.file))
     if args.json:
         from .common import document, print_json
 
