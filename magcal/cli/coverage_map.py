@@ -14,18 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fit.coverage import cell_centres, side_name
+
 FULL, EMPTY, HERE, NEXT = "██", "··", "◆◆", "◎◎"
 SHADES = ("░░", "▒▒", "▓▓")
 _GREEN, _YELLOW, _DIM, _CYAN, _RESET = "\033[32m", "\033[33m", "\033[2m", "\033[1;36m", "\033[0m"
-
-
-def cell_centres(bands: int, sectors: int) -> np.ndarray:
-    """Unit vectors at the centre of each cell, band-major (pure)."""
-    z = -1.0 + (2 * np.arange(bands) + 1) / bands
-    lon = -np.pi + (2 * np.arange(sectors) + 1) * np.pi / sectors
-    zz, ll = np.meshgrid(z, lon, indexing="ij")
-    r = np.sqrt(1 - zz**2)
-    return np.stack([r * np.cos(ll), r * np.sin(ll), zz], axis=-1).reshape(-1, 3)
 
 
 def cell_of(direction, bands: int, sectors: int) -> int:
@@ -48,15 +41,6 @@ def next_cell(counts, bands: int, sectors: int, direction) -> tuple[int, float] 
     cosang = np.clip(centres @ u, -1.0, 1.0)
     k = int(np.argmax(cosang))
     return int(empty[k]), float(np.degrees(np.arccos(cosang[k])))
-
-
-def side_name(direction) -> str:
-    """The board's side a direction points out of: ``−Z``, ``+X/−Z`` (strongest first)."""
-    u = np.asarray(direction, dtype=np.float64)
-    u = u / (np.linalg.norm(u) or 1.0)
-    order = np.argsort(-np.abs(u))
-    parts = [("+" if u[i] >= 0 else "−") + "XYZ"[i] for i in order if abs(u[i]) >= 0.38]
-    return "/".join(parts[:2]) or "+X"
 
 
 def hint(counts, bands: int, sectors: int, direction) -> str:

@@ -50,8 +50,10 @@ def format_text(d: dict) -> str:
         lines.append(f"limit       {k['effect']}: {k['summary']}")
     lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT")
     lines += calibration_lines(d["calibration"])
+    from ..diagnose.channels import unit_of
+
     for name, coef in (d["calibration"].get("coef_ut_per_unit") or {}).items():
-        lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + "   µT per unit")
+        lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + f"   µT per {unit_of(name)}")
     return "\n".join(lines)
 
 
