@@ -11,6 +11,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from magcal.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -75,12 +77,52 @@ def test_record_shows_rate_and_time_left_in_a_terminal_only(tmp_path):
     assert p.returncode == 0 and p.stderr == "" and "recorded" in p.stdout
 
 
-def test_a_long_fit_says_what_it_is_doing(tmp_path):
-    big = tmp_path / "big.csv"
-    assert main(["simulate", "-o", str(big), "--seconds", "4000", "--quiet"]) == 0  # 200 000 samples
+@pytest.fixture(scope="module")
+def big(tmp_path_factory):
+    path = tmp_path_factory.mktemp("big") / "big.csv"
+    assert main(["simulate", "-o", str(path), "--seconds", "4000", "--temp-swing", "10", "--quiet"]) == 0
+    return path  # 200 000 samples
+
+
+def test_a_long_fit_says_what_it_is_doing(big):
     code, out = in_terminal("fit", str(big), "--model", "ellipsoid")
     plain = ANSI.sub("", out)
     assert code == 0 and re.search(r"fit  \d+ s  fitting 200 000 samples", plain), plain[-500:]
     assert "offset_ut" in plain
     p = in_pipe("fit", str(big), "--model", "ellipsoid")
     assert p.returncode == 0 and p.stderr == ""
+
+
+def test_a_long_diagnosis_gives_its_step_and_an_eta(big):
+    code, out = in_terminal("diagnose", str(big))
+    plain = ANSI.sub("", out)
+    assert code == 0 and re.search(r"200 000 samples: \w+ \(\d+ % done\)  ETA \d+ s", plain), plain[-600:]
+    p = in_pipe("diagnose", str(big), "--quiet")
+    assert p.returncode == 0 and p.stderr == ""
+
+
+def test_at_a_terminal_with_no_device_named_it_asks_which(tmp_path):
+    """No --port, no MAGCAL_PORT, no config: a terminal user is asked (and may name the simulator)."""
+    leader, follower = pty.openpty()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MAGCAL_")}
+    env.update(PYTHONPATH=str(REPO), TERM="xterm", HOME=str(tmp_path))
+    p = subprocess.Popen([sys.executable, "-m", "magcal", "show"], stdin=follower, stdout=follower,
+                         stderr=follower, env=env, close_fds=True, cwd=tmp_path)
+    os.close(follower)
+    seen = b""
+    deadline = time.monotonic() + 60
+    while b"port to use" not in seen and time.monotonic() < deadline:
+        if select.select([leader], [], [], 0.2)[0]:
+            seen += os.read(leader, 4096)
+    os.write(leader, b"sim://?pace=0\n")
+    while p.poll() is None and time.monotonic() < deadline:
+        if select.select([leader], [], [], 0.2)[0]:
+            try:
+                seen += os.read(leader, 4096)
+            except OSError:
+                break
+    p.wait(timeout=10)
+    os.close(leader)
+    text = seen.decode("utf-8", "replace")
+    assert "port to use" in text and "sim:// for the simulator" in text
+    assert p.returncode == 1 and "none stored" in text  # it went on with the answer

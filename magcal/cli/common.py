@@ -256,6 +256,7 @@ class _Ticker:
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.t0 = progress.clock()
         self.counted, self.what = "", ""
+        self.total_s = None  # the expected whole, once a share is known
 
     def step(self, i: int, n: int, name: str) -> None:
         """Step ``i`` of ``n`` (0-based, steps of like size) begins: ETA from the pace so far."""
@@ -267,6 +268,13 @@ class _Ticker:
         """What the work is doing now (no ETA of its own: its parts are not alike)."""
         self.what = f"  {what}"
 
+    def share(self, done: float, what: str) -> None:
+        """``done`` (0…1) of the work is behind, by a known share per step: the ETA follows
+        from the pace so far (and counts down while a step runs)."""
+        elapsed = self.progress.clock() - self.t0
+        self.total_s = elapsed / done if done > 0.05 and elapsed > 0.5 else None
+        self.what = f"  {what} ({100 * done:.0f} % done)"
+
     def _run(self) -> None:
         spin = "|/-\\"
         k = 0
@@ -274,7 +282,11 @@ class _Ticker:
             k += 1
             elapsed = self.progress.clock() - self.t0
             if elapsed >= 1.0:
-                self.progress.show(f"{spin[k % 4]} {self.label}  {duration(elapsed)}{self.counted}{self.what}",
+                eta = ""
+                if self.total_s is not None:
+                    left = self.total_s - elapsed
+                    eta = f"  ETA {duration(left)}" if left >= 1 else "  finishing"
+                self.progress.show(f"{spin[k % 4]} {self.label}  {duration(elapsed)}{self.counted}{self.what}{eta}",
                                    force=True)
 
     def __enter__(self):

@@ -80,18 +80,31 @@ class Selected:
     candidates: dict  # channel effect → ChannelCandidate
 
 
-def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS) -> Diagnosis:
-    """Model discovery on one recording (see the module docstring for the ladder)."""
+STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare_heldout",
+         "compare_with_simulation", "describe")
+
+
+def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, on_step=None) -> Diagnosis:
+    """Model discovery on one recording (see the module docstring for the ladder).
+    ``on_step(name)``, when given, is told as each step begins (``STEPS``: a progress display)."""
+    step = on_step or (lambda name: None)
+    step("set_aside_glitches")
     analysed = set_aside_glitches(prepare(series), alpha)
+    step("fit_baseline")
     baseline, base_kept = fit_baseline(analysed)
     noise_ut = analysed.glitches.noise_ut
+    step("select_terms")
     selected = select_terms(analysed, base_kept, alpha, noise_ut, folds)
+    step("refit")
     final, accepted = refit(analysed, base_kept, selected)
     selected = replace(selected, accepted=accepted)
     fold_slices = contiguous_blocks(len(analysed.m), folds)
+    step("compare_heldout")
     heldout_b, heldout_f, fold_rms = compare_heldout(analysed, baseline, final, fold_slices)
     m_kept, _, chans_kept = analysed.kept
+    step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
+    step("describe")
     findings = describe_findings(analysed, selected, final, base_kept, alpha, noise_ut)
     return Diagnosis(
         n_samples=len(series),
