@@ -275,3 +275,12 @@ def test_emu_keeps_its_eeprom_in_the_users_state_directory(tmp_path):
     # told otherwise: a file of the user's choosing, or none kept at all
     assert magcal("show", "--port", "emu://?seed=3&eeprom=none", env=env).returncode == 1
     assert magcal("show", "--port", f"emu://?seed=3&eeprom={tmp_path}/own.bin", env=env).returncode == 1
+
+
+def test_a_short_timeout_names_the_gate_it_stopped_on_or_calibrates():
+    for _ in range(3):
+        p = magcal("calibrate", "--port", "sim://?pace=0", "--timeout", "0.2", "--no-write")
+        assert p.returncode in (Exit.OK, Exit.GATE), p.stderr
+        if p.returncode == Exit.GATE:
+            failing = re.search(r"failing: ([a-z_, ]+) \(", p.stdout)
+            assert failing and failing.group(1).strip(), p.stdout  # never "failing: none ()"
