@@ -10,6 +10,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 AVR_PACKAGES := gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude
+# the report's test opens the page in a real browser (headless)
+BROWSER_PACKAGES := chromium
 
 .PHONY: demo test bench firmware emulator toolchain clean
 
@@ -19,19 +21,19 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q -e '.[test,i2c,report]'
 	touch $(STAMP)
 
-# Installs the AVR toolchain and simavr if they are missing and we may use apt-get.
+# Installs the AVR toolchain, simavr and Chromium if they are missing and we may use apt-get.
 toolchain:
 	@if command -v avr-gcc >/dev/null 2>&1 && [ -f /usr/include/simavr/sim_avr.h ] \
-	    && [ -d /usr/share/arduino/hardware/arduino/avr ]; then \
-	  echo "AVR toolchain and simavr: present"; \
+	    && [ -d /usr/share/arduino/hardware/arduino/avr ] && command -v chromium >/dev/null 2>&1; then \
+	  echo "AVR toolchain, simavr and chromium: present"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	  echo "installing the AVR toolchain and simavr (apt-get)"; \
-	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(AVR_PACKAGES) >/dev/null; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(AVR_PACKAGES) $(BROWSER_PACKAGES) >/dev/null; \
 	elif command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then \
-	  sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(AVR_PACKAGES) >/dev/null; \
+	  sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(AVR_PACKAGES) $(BROWSER_PACKAGES) >/dev/null; \
 	else \
-	  echo "note: AVR toolchain missing and apt-get unavailable; firmware tests will be skipped" \
-	       "and the demo uses the pure-Python board (install: $(AVR_PACKAGES))"; \
+	  echo "note: AVR toolchain or chromium missing and apt-get unavailable; firmware and report-browser" \
+	       "tests will be skipped and the demo uses the pure-Python board (install: $(AVR_PACKAGES) $(BROWSER_PACKAGES))"; \
 	fi
 
 demo: $(STAMP) toolchain

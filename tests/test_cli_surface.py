@@ -255,3 +255,32 @@ def test_a_fit_loads_only_its_own_command_and_no_scipy(tmp_path):
     loaded = _modules_after(["fit", str(tmp_path / "s.csv")], tmp_path)
     assert "magcal.cli.fit" in loaded and "magcal.cli.calibrate" not in loaded
     assert not any(m == "scipy" or m.startswith("scipy.") for m in loaded)
+
+
+# -- emu:// remembers, as a board does ------------------------------------------------------------
+
+
+def test_emu_keeps_its_eeprom_in_the_users_state_directory(tmp_path):
+    from firmware_support import require_firmware
+
+    require_firmware()
+    env = {"XDG_STATE_HOME": str(tmp_path / "state")}
+    cal = magcal("calibrate", "--port", "emu://?seed=3", "--json", env=env, timeout=300)
+    assert cal.returncode == 0 and json.loads(cal.stdout)["verified"], cal.stderr
+    shown = magcal("show", "--port", "emu://?seed=3", "--json", env=env)  # a new process, a new harness
+    d = json.loads(shown.stdout)
+    assert shown.returncode == 0 and d["calibration"]["offset_ut"] == pytest.approx(
+        json.loads(cal.stdout)["calibration"]["offset_ut"], abs=0.01)
+    assert d["stored_in"].startswith(str(tmp_path / "state" / "magcal" / "emu"))
+    # told otherwise: a file of the user's choosing, or none kept at all
+    assert magcal("show", "--port", "emu://?seed=3&eeprom=none", env=env).returncode == 1
+    assert magcal("show", "--port", f"emu://?seed=3&eeprom={tmp_path}/own.bin", env=env).returncode == 1
+
+
+def test_a_short_timeout_names_the_gate_it_stopped_on_or_calibrates():
+    for _ in range(3):
+        p = magcal("calibrate", "--port", "sim://?pace=0", "--timeout", "0.2", "--no-write")
+        assert p.returncode in (Exit.OK, Exit.GATE), p.stderr
+        if p.returncode == Exit.GATE:
+            failing = re.search(r"failing: ([a-z_, ]+) \(", p.stdout)
+            assert failing and failing.group(1).strip(), p.stdout  # never "failing: none ()"

@@ -180,11 +180,11 @@ def test_report_writes_pictures_and_a_page(tmp_path):
     save_csv(run.series, path)
     out = tmp_path / "report"
     _cli_json(["diagnose", str(path), "--json", "--report", str(out)])
-    for name in ("sphere.png", "time.png", "channels.png", "heldout.png"):
+    for name in ("directions.png", "time.png", "channels.png", "heldout.png", "coverage.png", "magnitude.png"):
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10000
     page = (out / "index.html").read_text()
-    assert "temperature_drift" in page and all(n in page for n in ("sphere.png", "heldout.png"))
+    assert "temperature_drift" in page and all(n in page for n in ("directions.png", "heldout.png"))
     assert "Read as: field from mx,my,mz in µT; time from t (s); channels temp_c" in page
 
 

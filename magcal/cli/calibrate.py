@@ -44,7 +44,7 @@ def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
     rate = p["samples"] / elapsed if elapsed > 0.5 else 0.0
     need = session.gates_cfg.min_coverage
     head = (f"{p['status']}: {p['samples']} samples ({rate:.0f}/s), {100 * p['coverage']:.0f}% of directions "
-            f"(need {100 * need:.0f}%), {len(kept)} kept{est}  — gives up in {duration(max(0, timeout_s - elapsed))}")
+            f"(need {100 * need:.0f}%), {len(kept)} kept, gives up in {duration(max(0, timeout_s - elapsed))}{est}")
     failing = [g.name for g in session.failing_gates()] if p["status"] == "collecting" else []
     lines = [head]
     if p["status"] == "collecting":

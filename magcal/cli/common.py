@@ -168,6 +168,23 @@ def rate_eta(done: float, total: float | None, elapsed: float, unit: str) -> str
     return text.replace(",", " ")
 
 
+def clip(line: str, width: int) -> str:
+    """``line`` cut to ``width`` visible characters (colour escapes kept, not counted) (pure)."""
+    import re
+
+    out, seen = [], 0
+    for part in re.split(r"(\033\[[0-9;]*m)", line):
+        if part.startswith("\033["):
+            out.append(part)
+            continue
+        room = width - seen
+        if room <= 0:
+            continue
+        out.append(part[:room])
+        seen += min(len(part), room)
+    return "".join(out)
+
+
 class Progress:
     """A live display on stderr, redrawn in place (one or several lines). Silent when stderr is
     not a terminal or with ``quiet``: a log or a pipe gets only the results."""
@@ -193,9 +210,13 @@ class Progress:
         if not force and now - self._last < self.every_s:
             return
         self._last = now
+        import shutil
+
+        width = shutil.get_terminal_size((100, 24)).columns - 1
+        lines = [clip(line, width) for line in text.split("\n")]  # a wrapped line would break the redraw
         up = f"\033[{self._drawn - 1}A" if self._drawn > 1 else ""
-        self.stream.write("\r" + up + "\033[J" + text)
-        self._drawn = text.count("\n") + 1
+        self.stream.write("\r" + up + "\033[J" + "\n".join(lines))
+        self._drawn = len(lines)
         self.stream.flush()
 
     def count(self, label: str, done: float, total: float | None = None, unit: str = "samples") -> None:
@@ -211,6 +232,12 @@ class Progress:
             self.stream.write(text + "\n")
         self.stream.flush()
 
+    def working(self, label: str):
+        """A context manager for work that reports no progress of its own: the display ticks
+        (label, elapsed time) from a thread until the work is done; ``step(i, n, name)`` on
+        what it returns adds the step and an ETA from the steps' pace."""
+        return _Ticker(self, label)
+
     def clear(self) -> None:
         """Remove the display."""
         if self._drawn and self.active:
@@ -218,3 +245,57 @@ class Progress:
             self.stream.write("\r" + up + "\033[J")
             self.stream.flush()
         self._drawn = 0
+
+
+class _Ticker:
+    def __init__(self, progress: Progress, label: str):
+        import threading
+
+        self.progress, self.label = progress, label
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.t0 = progress.clock()
+        self.counted, self.what = "", ""
+        self.total_s = None  # the expected whole, once a share is known
+
+    def step(self, i: int, n: int, name: str) -> None:
+        """Step ``i`` of ``n`` (0-based, steps of like size) begins: ETA from the pace so far."""
+        elapsed = self.progress.clock() - self.t0
+        eta = f", ETA {duration(elapsed * (n - i) / i)}" if i > 0 and elapsed > 1 else ""
+        self.counted = f"  [{i + 1}/{n}{eta}]"
+
+    def doing(self, what: str) -> None:
+        """What the work is doing now (no ETA of its own: its parts are not alike)."""
+        self.what = f"  {what}"
+
+    def share(self, done: float, what: str) -> None:
+        """``done`` (0…1) of the work is behind, by a known share per step: the ETA follows
+        from the pace so far (and counts down while a step runs)."""
+        elapsed = self.progress.clock() - self.t0
+        self.total_s = elapsed / done if done > 0.05 and elapsed > 0.5 else None
+        self.what = f"  {what} ({100 * done:.0f} % done)"
+
+    def _run(self) -> None:
+        spin = "|/-\\"
+        k = 0
+        while not self.stop.wait(0.2):
+            k += 1
+            elapsed = self.progress.clock() - self.t0
+            if elapsed >= 1.0:
+                eta = ""
+                if self.total_s is not None:
+                    left = self.total_s - elapsed
+                    eta = f"  ETA {duration(left)}" if left >= 1 else "  finishing"
+                self.progress.show(f"{spin[k % 4]} {self.label}  {duration(elapsed)}{self.counted}{self.what}{eta}",
+                                   force=True)
+
+    def __enter__(self):
+        if self.progress.active:
+            self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop.set()
+        if self.thread.is_alive():
+            self.thread.join()
+        self.progress.clear()

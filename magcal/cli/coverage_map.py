@@ -14,18 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fit.coverage import cell_centres, side_name
+
 FULL, EMPTY, HERE, NEXT = "██", "··", "◆◆", "◎◎"
 SHADES = ("░░", "▒▒", "▓▓")
 _GREEN, _YELLOW, _DIM, _CYAN, _RESET = "\033[32m", "\033[33m", "\033[2m", "\033[1;36m", "\033[0m"
-
-
-def cell_centres(bands: int, sectors: int) -> np.ndarray:
-    """Unit vectors at the centre of each cell, band-major (pure)."""
-    z = -1.0 + (2 * np.arange(bands) + 1) / bands
-    lon = -np.pi + (2 * np.arange(sectors) + 1) * np.pi / sectors
-    zz, ll = np.meshgrid(z, lon, indexing="ij")
-    r = np.sqrt(1 - zz**2)
-    return np.stack([r * np.cos(ll), r * np.sin(ll), zz], axis=-1).reshape(-1, 3)
 
 
 def cell_of(direction, bands: int, sectors: int) -> int:
@@ -50,15 +43,6 @@ def next_cell(counts, bands: int, sectors: int, direction) -> tuple[int, float] 
     return int(empty[k]), float(np.degrees(np.arccos(cosang[k])))
 
 
-def side_name(direction) -> str:
-    """The board's side a direction points out of: ``−Z``, ``+X/−Z`` (strongest first)."""
-    u = np.asarray(direction, dtype=np.float64)
-    u = u / (np.linalg.norm(u) or 1.0)
-    order = np.argsort(-np.abs(u))
-    parts = [("+" if u[i] >= 0 else "−") + "XYZ"[i] for i in order if abs(u[i]) >= 0.38]
-    return "/".join(parts[:2]) or "+X"
-
-
 def hint(counts, bands: int, sectors: int, direction) -> str:
     """One sentence: which side of the board to aim along the field next, and how far."""
     found = next_cell(counts, bands, sectors, direction)
@@ -66,9 +50,9 @@ def hint(counts, bands: int, sectors: int, direction) -> str:
         return "every direction seen: hold still or keep turning slowly while the fit settles"
     cell, angle = found
     side = side_name(cell_centres(bands, sectors)[cell])
-    turn = f", a turn of about {angle:.0f}°" if np.isfinite(angle) else ""
-    return (f"next: aim the board's {side} side along the Earth's field (magnetic north, dipping down "
-            f"in the northern hemisphere){turn} — ◎ on the map")
+    turn = f", about {angle:.0f}° from now" if np.isfinite(angle) else ""
+    return (f"next: aim the board's {side} side along the field (north, dipping down in the northern "
+            f"hemisphere): ◎ on the map{turn}")
 
 
 def _cell_text(n: int, per_cell: int, colour: bool) -> str:

@@ -29,9 +29,14 @@ def run(args) -> int:
     out = args.output or (os.path.splitext(args.file)[0] + ".csv")
     if os.path.exists(out) and os.path.samefile(out, args.file):
         raise InputError(f"{out}: refusing to overwrite the input; give -o OUT")
-    series = load_series(args.file, table_format(args))
-    reading = reading_report(series, args.file)
-    save_csv(series, out)
+    from .common import Progress
+
+    with Progress(quiet=args.quiet).working(f"export {args.file}") as ticker:
+        ticker.doing("reading")
+        series = load_series(args.file, table_format(args))
+        reading = reading_report(series, args.file)
+        ticker.doing(f"writing {len(series):,} samples to {out}".replace(",", " "))
+        save_csv(series, out)
     summary = document("export", {
         "file": args.file,
         "output": out,

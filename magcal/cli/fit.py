@@ -60,16 +60,18 @@ def format_text(d: dict) -> str:
     return "\n".join(lines)
 
 
-def _fit_file(path: str, args) -> tuple[dict, int]:
+def _fit_file(path: str, args, ticker) -> tuple[dict, int]:
     """(the fit as a dict, exit status OK or GATE) for one file; InputError when it cannot be read."""
     from ..app.load import load_series
     from ..core.errors import InputError
     from ..fit import fit_calibration
 
+    ticker.doing(f"reading {path}")
     series = load_series(path, table_format(args))
     reading = reading_report(series, path)
     if len(series) == 0:
         raise InputError(f"{path}: no samples")
+    ticker.doing(f"fitting {len(series):,} samples of {path}".replace(",", " "))
     result = fit_calibration(
         series, model=args.model, outliers=not args.no_outliers, noise_ut=args.noise_ut, balance=args.balance
     )
@@ -100,18 +102,22 @@ def _fit_each(paths, args) -> tuple[list[dict], int]:
     """Fit each file (one that cannot be read is named and the rest go on): the fits, the worst
     exit status."""
     from ..core.errors import InputError
+    from .common import Progress
 
     fits, worst = [], Exit.OK
-    for path in paths:
-        try:
-            d, code = _fit_file(path, args)
-        except InputError as exc:
-            if len(paths) == 1:
-                raise
-            print(f"magcal fit: {exc}", file=sys.stderr)
-            d, code = {"error": str(exc)}, Exit.INPUT
-        worst = max(worst, code)
-        fits.append({"file": path, **d})
+    with Progress(quiet=args.quiet).working("fit") as ticker:
+        for i, path in enumerate(paths):
+            try:
+                d, code = _fit_file(path, args, ticker)
+            except InputError as exc:
+                if len(paths) == 1:
+                    raise
+                print(f"magcal fit: {exc}", file=sys.stderr)
+                d, code = {"error": str(exc)}, Exit.INPUT
+            worst = max(worst, code)
+            fits.append({"file": path, **d})
+            if len(paths) > 1 and i + 1 < len(paths):
+                ticker.step(i + 1, len(paths), f"session {paths[i + 1]}")
     return fits, worst
 
 

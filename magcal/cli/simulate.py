@@ -13,7 +13,7 @@ import numpy as np
 
 from ..recordings.table import save_csv
 from ..sim.physics import Current, Motion, Physics, Scenario, Temperature
-from .common import document, print_json
+from .common import Progress, document, print_json
 from .options import add, add_alias, floats, non_negative, positive, share
 
 HELP = "write a simulated MPU-9150 recording (CSV, µT) with known physics"
@@ -41,7 +41,7 @@ def add_arguments(p) -> None:
     p.add_argument("--drift", type=floats(3), default="0,0,0", metavar="X,Y,Z", help="offset drift, µT/s")
     p.add_argument("--glitch-rate", type=share, default=0.0, metavar="P",
                    help="share of samples with a 4–15 µT jump (0…1)")
-    add(p, "json")
+    add(p, "json", "quiet")
 
 
 def _quantity(p, flag: str, old: str | None, **kw) -> None:
@@ -70,8 +70,12 @@ def run(args) -> int:
         current=Current(level_a=args.current),
         seed=args.seed,
     )
-    run_ = sc.simulate(int(round(args.seconds * args.rate)), args.rate)
-    save_csv(run_.series, args.output)
+    n = int(round(args.seconds * args.rate))
+    with Progress(quiet=args.quiet).working(f"simulate {args.output}") as ticker:
+        ticker.doing(f"{n:,} samples".replace(",", " "))
+        run_ = sc.simulate(n, args.rate)
+        ticker.doing(f"writing {n:,} samples".replace(",", " "))
+        save_csv(run_.series, args.output)
     truth = {"truth": run_.truth.to_dict(), "glitch_rows": [int(i) for i in run_.glitch_idx],
              "n_samples": len(run_.series), "output": args.output}
     with open(args.output + ".truth.json", "w", encoding="utf-8") as f:

@@ -7,8 +7,9 @@ physics simulator — so tests know the truth. The host then talks to the board 
 serial client (``ProtocolDevice`` over a pyserial port on the pty).
 
 Options (the port string's, ``magcal.devices.port``): ``seed`` (physics seed, default 1),
-``eeprom`` (EEPROM file, kept across restarts; default a temporary file kept while the device
-lives), ``pace=1`` (simulated time follows the wall clock; 0, the default, runs as fast as it
+``eeprom`` (EEPROM file, kept across runs; default one per seed and address in the user's state
+directory, ``$XDG_STATE_HOME/magcal/emu/`` or ``~/.local/state/magcal/emu/``, so a calibration
+written in one run is there in the next, as on a board; ``eeprom=none`` for a throwaway one), ``pace=1`` (simulated time follows the wall clock; 0, the default, runs as fast as it
 can), ``offset``, ``noise``, ``fault`` (the register model's flags by name: ``stuck_drdy`` …),
 ``measure_us`` (AK8975 measurement time), ``addr`` (the MPU-9150's I2C address: 0x68, AD0 low,
 or 0x69, AD0 high). Keyword options: ``scenario=`` (a ``Scenario``, overrides the port string's
@@ -227,6 +228,25 @@ def _harness_connector(board: EmulatedBoard, baud: int):
     return connect
 
 
+def state_dir() -> Path:
+    """The user's state directory for magcal (XDG base directories)."""
+    base = os.environ.get("XDG_STATE_HOME") or os.path.join(os.path.expanduser("~"), ".local", "state")
+    return Path(base) / "magcal"
+
+
+def eeprom_of(port: Port) -> str | None:
+    """The EEPROM file an ``emu://`` port keeps: ``eeprom=PATH``; by default one per seed and
+    address in the user's state directory; None (a throwaway file) for ``eeprom=none``."""
+    given = port.get("eeprom")
+    if given == "none":
+        return None
+    if given:
+        return given
+    folder = state_dir() / "emu"
+    folder.mkdir(parents=True, exist_ok=True)
+    return str(folder / f"eeprom-seed{port.get('seed', 1)}-{port.get('addr', 0x68):#04x}.bin")
+
+
 def open_emulated(port: Port, dialect: str = "native", *, scenario: Scenario | None = None, asa=None,
                   baud: int = 115200, tap=None, reply_timeout_s: float = 1.5, boot_timeout_s: float = 3.0):
     """``emu://[?seed=N&eeprom=PATH&pace=1…]`` → the v1 protocol client on the emulated board.
@@ -241,7 +261,7 @@ def open_emulated(port: Port, dialect: str = "native", *, scenario: Scenario | N
     scenario = scenario or scenario_of(port)
     if asa is not None:
         scenario = scenario.with_physics(asa=tuple(int(a) for a in asa))
-    board = EmulatedBoard(scenario, port.get("eeprom"), pace=port.get("pace", 0) == 1,
+    board = EmulatedBoard(scenario, eeprom_of(port), pace=port.get("pace", 0) == 1,
                           faults=register_flags(port.faults), measure_us=port.get("measure_us"),
                           mpu_addr=port.get("addr", 0x68))
     ensure_built()  # a missing toolchain is named now, not at the first connection

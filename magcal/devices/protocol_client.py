@@ -359,6 +359,12 @@ class ProtocolDevice(Device):
         # v1 records are integers: what was sent must come back bit for bit.
         return stored is not None and record_from_calibration(sent) == record_from_calibration(stored)
 
+    def stored_in(self) -> str | None:
+        """A simulated board's EEPROM file on this host (sim://, emu://); None for a real board."""
+        board = getattr(self, "board", None)
+        path = getattr(board, "eeprom_path", None) or getattr(getattr(board, "eeprom", None), "path", None)
+        return str(path) if path else None
+
     def _read_calibration(self) -> Calibration | None:
         r = self.read_record()
         if r.status != "OK":

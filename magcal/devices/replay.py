@@ -90,6 +90,10 @@ class BytesTransport:
         i = self._i - 1 if self._off == 0 and self._i > 0 else self._i
         return self._chunks[min(i, len(self._chunks) - 1)][0]
 
+    def head(self, chunks: int) -> bytes:
+        """The bytes of the first ``chunks`` recorded chunks (what a recording starts with)."""
+        return b"".join(c for _, c in self._chunks[:chunks])
+
     @property
     def t_first_s(self) -> float:
         """The recorded receive time of the first chunk."""
@@ -150,7 +154,7 @@ class FaultyReplay(WrappedTransport):
 
     def _boot_hello(self) -> bytes:
         """The recording's first hello, as a freshly booted board sends it (seq 0)."""
-        data = b"".join(c for _, c in self.inner._chunks[:50])
+        data = self.inner.head(50)
         start = data.find(b"$H,")
         end = data.find(b"\n", start)
         if start < 0 or end < 0:

@@ -93,6 +93,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     ``screen``: leave out channels that follow the orientation or the reading
     (magcal.diagnose.hygiene); False when the user named the channels."""
     analysed = set_aside_glitches(prepare(series), alpha)
+    step("fit_baseline")
     baseline, base_kept = fit_baseline(analysed)
     analysed, left_out = screen_channels(analysed, base_kept) if screen else (analysed, ())
     reference = fit_reference(analysed, base_kept)
@@ -103,6 +104,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     fold_slices = contiguous_blocks(len(analysed.m), folds)
     chosen = choose_calibration(analysed, baseline, final, fold_slices)
     m_kept, _, chans_kept = analysed.kept
+    step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
     wander = statements.measure_wander(full_model(analysed, reference, final), m_kept, chans_kept)
     floors = statements.channel_floors(selected, wander, chans_kept, alpha, noise_ut)

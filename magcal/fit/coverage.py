@@ -37,6 +37,24 @@ def coverage(directions: np.ndarray, bands: int = DEFAULT_BANDS, sectors: int = 
     return len(np.unique(cell_index(d, bands, sectors))) / float(bands * sectors)
 
 
+def cell_centres(bands: int = DEFAULT_BANDS, sectors: int = DEFAULT_SECTORS) -> np.ndarray:
+    """Unit vectors at the centre of each cell, in ``cell_index`` order (band-major)."""
+    z = -1.0 + (2 * np.arange(bands) + 1) / bands
+    lon = -np.pi + (2 * np.arange(sectors) + 1) * np.pi / sectors
+    zz, ll = np.meshgrid(z, lon, indexing="ij")
+    r = np.sqrt(1 - zz**2)
+    return np.stack([r * np.cos(ll), r * np.sin(ll), zz], axis=-1).reshape(-1, 3)
+
+
+def side_name(direction) -> str:
+    """The side of the sensor a direction points out of: ``−Z``, ``+X/−Z`` (strongest first)."""
+    u = np.asarray(direction, dtype=np.float64)
+    u = u / (np.linalg.norm(u) or 1.0)
+    order = np.argsort(-np.abs(u))
+    parts = [("+" if u[i] >= 0 else "−") + "XYZ"[i] for i in order if abs(u[i]) >= 0.38]
+    return "/".join(parts[:2]) or "+X"
+
+
 class SampleSet:
     """A bounded, direction-balanced set of samples (µT) for the final fit."""
 

@@ -28,6 +28,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..core.calibration import Calibration
@@ -113,6 +115,14 @@ def _bic(fit: geometric.GeometricFit) -> float:
     return n * np.log(mse) + geometric.n_params(fit.kind) * np.log(n)
 
 
+@dataclass(frozen=True)
+class _Limits:
+    outliers: bool
+    alpha: float
+    max_condition: float
+    max_shape_sigma: float
+
+
 def fit_calibration(
     data,
     model: str = "auto",
@@ -129,6 +139,37 @@ def fit_calibration(
     if balance not in BALANCE:
         raise ValueError(f"balance must be one of {', '.join(BALANCE)}, not {balance!r}")
     m, idx = _samples(data)
+    start = _robust_sphere(m, max_condition)
+    if isinstance(start, FitFailure):
+        return start
+    limits = _Limits(outliers, alpha, max_condition, max_shape_sigma)
+    notes: list[str] = []
+    candidates, conds = _candidates(m, model, *start, limits, notes)
+    if not candidates:
+        return FitFailure("no_convergence", "; ".join(notes) or "no model could be fitted")
+    chosen = _choose(model, candidates, notes)
+    g, keep = candidates[chosen]
+    g, weights = _balanced(m[keep], g, balance, notes)
+    u = uncertainty.summarise(g, noise_ut, weights)
+    return FitResult(
+        model=MODEL_NAMES[chosen],
+        calibration=Calibration(offset_ut=g.offset_ut, field_ut=g.field_ut, soft_iron=g.soft_iron),
+        uncertainty={k: u[k] for k in ("offset_ut", "field_ut", "soft_iron", "autocorrelation_factor")},
+        crlb_offset_ut=u["crlb_offset_ut"],
+        rms_ut=g.rms_ut,
+        n_used=int(keep.sum()),
+        outliers=idx[~keep],
+        reason="; ".join(notes),
+        condition=conds[chosen],
+        used=idx[keep],
+        residual_ut=g.residual_ut,
+        alternatives={MODEL_NAMES[k]: f.rms_ut for k, (f, _) in candidates.items()},
+    )
+
+
+def _robust_sphere(m, max_condition: float):
+    """Step 2–3: the algebraic start, the robust ML sphere and its coverage gate — (the robust
+    sphere, its information-matrix condition, the robust residual scale) or a failure."""
     # a permissive start (the accumulator's own gate is for live use); coverage is judged
     # below on the information matrix of the geometric fit, the same test for every model
     start = sphere_start(m, max_condition=100 * max_condition)
@@ -147,38 +188,33 @@ def fit_calibration(
             f"coverage too thin even for a sphere: information-matrix condition {cond_sphere:.3g}"
             f" > {max_condition:.3g} (e.g. flat turns only: tilt the board as well)",
         )
+    return robust, cond_sphere, sigma_r
 
+
+def _candidates(m, model: str, robust, cond_sphere: float, sigma_r: float, limits: _Limits, notes: list):
+    """Step 4–5: each model the coverage can determine, fitted — ({kind: (fit, kept mask)},
+    {kind: condition}); why any was left out goes to ``notes``."""
     kinds = ["sphere"] if model == "sphere" else ["full", "diagonal", "sphere"]
-    notes: list[str] = []
     candidates: dict[str, tuple] = {}
     conds: dict[str, float] = {}
     for kind in kinds:
         if kind == "sphere":
             ok, cond, why = True, cond_sphere, ""
         else:
-            ok, cond, why = _gate(m, robust.theta[:4], kind, max_condition)
+            ok, cond, why = _gate(m, robust.theta[:4], kind, limits.max_condition)
         conds[kind] = cond
         if not ok:
             notes.append(why)
             continue
-        if kind == "sphere":
-            theta0 = robust.theta
-        else:
-            alg = algebraic_start(m, kind)
-            theta0 = alg if not isinstance(alg, FitFailure) else np.concatenate(
-                [robust.theta[:4], np.zeros(geometric.N_SHAPE[kind])]
-            )
-            if isinstance(alg, FitFailure):
-                notes.append(f"algebraic start rejected ({alg.reason}); started from the sphere")
-        f, keep = _fit_kind(m, kind, theta0, sigma_r, outliers, alpha)
+        f, keep = _fit_kind(m, kind, _start_of(m, kind, robust, notes), sigma_r, limits.outliers, limits.alpha)
         if isinstance(f, FitFailure):
             notes.append(f"{MODEL_NAMES[kind]} failed: {f.message}")
             continue
         ss = _shape_sigma(f)
-        if ss > max_shape_sigma:
+        if ss > limits.max_shape_sigma:
             notes.append(
                 f"{MODEL_NAMES[kind]} rejected: the data determine its gains only to ±{100 * ss:.2g} %"
-                f" (limit {100 * max_shape_sigma:.2g} %)"
+                f" (limit {100 * limits.max_shape_sigma:.2g} %)"
             )
             continue
         candidates[kind] = (f, keep)
@@ -186,26 +222,43 @@ def fit_calibration(
             break  # the fullest determinable ellipsoid
         if model == "ellipsoid" and kind == "sphere":
             notes.append("fell back to the sphere")
+    return candidates, conds
 
-    if not candidates:
-        return FitFailure("no_convergence", "; ".join(notes) or "no model could be fitted")
+
+def _start_of(m, kind: str, robust, notes: list) -> np.ndarray:
+    """Where a model's fit starts: the robust sphere, or the algebraic ellipsoid when it exists."""
+    if kind == "sphere":
+        return robust.theta
+    alg = algebraic_start(m, kind)
+    if isinstance(alg, FitFailure):
+        notes.append(f"algebraic start rejected ({alg.reason}); started from the sphere")
+        return np.concatenate([robust.theta[:4], np.zeros(geometric.N_SHAPE[kind])])
+    return alg
+
+
+def _choose(model: str, candidates: dict, notes: list) -> str:
+    """Step 6: the model reported — by BIC for "auto" — and why."""
     if model == "auto" and len(candidates) > 1:
         bics = {k: _bic(f) for k, (f, _) in candidates.items()}
         chosen = min(bics, key=bics.get)
         others = ", ".join(f"{MODEL_NAMES[k]} {bics[k] - bics[chosen]:+.1f}" for k in bics if k != chosen)
         notes.append(f"{MODEL_NAMES[chosen]} has the lowest BIC (ΔBIC: {others})")
-    else:
-        chosen = next(iter(candidates))
-        if model == "sphere":
-            notes.append("sphere requested")
-        elif model == "ellipsoid" and chosen != "sphere":
-            notes.append(f"{MODEL_NAMES[chosen]} is the fullest model the coverage determines")
-        elif model == "auto":
-            notes.append(f"{MODEL_NAMES[chosen]} is the only model the coverage determines")
-    g, keep = candidates[chosen]
+        return chosen
+    chosen = next(iter(candidates))
+    if model == "sphere":
+        notes.append("sphere requested")
+    elif model == "ellipsoid" and chosen != "sphere":
+        notes.append(f"{MODEL_NAMES[chosen]} is the fullest model the coverage determines")
+    elif model == "auto":
+        notes.append(f"{MODEL_NAMES[chosen]} is the only model the coverage determines")
+    return chosen
+
+
+def _balanced(mk, g, balance: str, notes: list):
+    """Step 7: the chosen fit refitted with equal weight per direction cell when asked (or, for
+    "auto", for an ellipsoid) — (the fit, its weights or None)."""
     weights = None
     if balance == "directions" or (balance == "auto" and g.kind != "sphere"):
-        mk = m[keep]
         for _ in range(2):
             w = direction_weights((mk - g.offset_ut) @ g.soft_iron.T)
             gw = geometric.solve(mk, g.kind, g.theta, weights=w)
@@ -214,24 +267,4 @@ def fit_calibration(
             g, weights = gw, w
         if weights is not None:
             notes.append("samples weighted so each direction cell counts equally")
-    u = uncertainty.summarise(g, noise_ut, weights)
-    cal = Calibration(offset_ut=g.offset_ut, field_ut=g.field_ut, soft_iron=g.soft_iron)
-    return FitResult(
-        model=MODEL_NAMES[chosen],
-        calibration=cal,
-        uncertainty={
-            "offset_ut": u["offset_ut"],
-            "field_ut": u["field_ut"],
-            "soft_iron": u["soft_iron"],
-            "autocorrelation_factor": u["autocorrelation_factor"],
-        },
-        crlb_offset_ut=u["crlb_offset_ut"],
-        rms_ut=g.rms_ut,
-        n_used=int(keep.sum()),
-        outliers=idx[~keep],
-        reason="; ".join(notes),
-        condition=conds[chosen],
-        used=idx[keep],
-        residual_ut=g.residual_ut,
-        alternatives={MODEL_NAMES[k]: f.rms_ut for k, (f, _) in candidates.items()},
-    )
+    return g, weights

@@ -1,0 +1,128 @@
+"""Progress as a user sees it: in a real terminal (a pty) the long commands show what they do,
+how fast and how long is left — and during ``calibrate`` a map of the directions seen and
+missing with the next move; in a pipe, or with --quiet, only the results."""
+
+import os
+import pty
+import re
+import select
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from magcal.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
+
+def in_terminal(*argv, timeout=180) -> tuple[int, str]:
+    """Run ``magcal ARGV`` with stdin, stdout and stderr on a pseudo-terminal: (status, all it wrote)."""
+    leader, follower = pty.openpty()
+    env = dict(os.environ, PYTHONPATH=str(REPO), TERM="xterm", COLUMNS="120", LINES="40")
+    p = subprocess.Popen([sys.executable, "-m", "magcal", *argv], stdin=follower, stdout=follower,
+                         stderr=follower, env=env, close_fds=True)
+    os.close(follower)
+    out = bytearray()
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([leader], [], [], 0.2)
+        if ready:
+            try:
+                chunk = os.read(leader, 65536)
+            except OSError:  # the terminal closed: the command has ended
+                break
+            if not chunk:
+                break
+            out += chunk
+        elif p.poll() is not None:
+            break
+    p.wait(timeout=10)
+    os.close(leader)
+    return p.returncode, out.decode("utf-8", "replace")
+
+
+def in_pipe(*argv, timeout=180) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "magcal", *argv], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=timeout, stdin=subprocess.DEVNULL)
+
+
+def test_calibrate_in_a_terminal_maps_the_directions_and_says_where_to_turn(tmp_path):
+    code, out = in_terminal("calibrate", "--port", f"sim://?pace=4&eeprom={tmp_path}/e.bin")
+    assert code == 0, out[-2000:]
+    plain = ANSI.sub("", out)
+    assert "+Z │" in plain and "−Z │" in plain and "−X" in plain and "+Y" in plain  # the map and its axes
+    assert re.search(r"next: aim the board's [+−][XYZ]", plain)  # which way to turn
+    assert "◆◆" in plain and "██" in plain and "··" in plain  # where it points, full and empty cells
+    assert re.search(r"\d+ samples \(\d+/s\)", plain) and "gives up in" in plain  # rate and time left
+    assert "\x1b[" in out and out.count("next: aim") > 3  # redrawn in place as the board turns
+    assert "VERIFIED" in plain
+
+
+def test_calibrate_quiet_or_piped_shows_no_map(tmp_path):
+    code, out = in_terminal("calibrate", "--quiet", "--port", f"sim://?pace=0&eeprom={tmp_path}/e.bin")
+    assert code == 0 and "│" not in out and "next: aim" not in out and "VERIFIED" in out
+    p = in_pipe("calibrate", "--port", f"sim://?pace=0&eeprom={tmp_path}/f.bin")
+    assert p.returncode == 0 and "│" not in p.stderr and "\x1b[" not in p.stderr + p.stdout
+
+
+def test_record_shows_rate_and_time_left_in_a_terminal_only(tmp_path):
+    code, out = in_terminal("record", "--port", "sim://", "--seconds", "3", "-o", str(tmp_path / "a.cap"))
+    plain = ANSI.sub("", out)
+    assert code == 0 and re.search(r"\d+ samples/s", plain) and "left" in plain and "recorded" in plain
+    p = in_pipe("record", "--port", "sim://", "--seconds", "2", "-o", str(tmp_path / "b.cap"))
+    assert p.returncode == 0 and p.stderr == "" and "recorded" in p.stdout
+
+
+@pytest.fixture(scope="module")
+def big(tmp_path_factory):
+    path = tmp_path_factory.mktemp("big") / "big.csv"
+    assert main(["simulate", "-o", str(path), "--seconds", "4000", "--temp-swing", "10", "--quiet"]) == 0
+    return path  # 200 000 samples
+
+
+def test_a_long_fit_says_what_it_is_doing(big):
+    code, out = in_terminal("fit", str(big), "--model", "ellipsoid")
+    plain = ANSI.sub("", out)
+    assert code == 0 and re.search(r"fit  \d+ s  fitting 200 000 samples", plain), plain[-500:]
+    assert "offset_ut" in plain
+    p = in_pipe("fit", str(big), "--model", "ellipsoid")
+    assert p.returncode == 0 and p.stderr == ""
+
+
+def test_a_long_diagnosis_gives_its_step_and_an_eta(big):
+    code, out = in_terminal("diagnose", str(big))
+    plain = ANSI.sub("", out)
+    assert code == 0 and re.search(r"200 000 samples: \w+ \(\d+ % done\)  ETA \d+ s", plain), plain[-600:]
+    p = in_pipe("diagnose", str(big), "--quiet")
+    assert p.returncode == 0 and p.stderr == ""
+
+
+def test_at_a_terminal_with_no_device_named_it_asks_which(tmp_path):
+    """No --port, no MAGCAL_PORT, no config: a terminal user is asked (and may name the simulator)."""
+    leader, follower = pty.openpty()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MAGCAL_")}
+    env.update(PYTHONPATH=str(REPO), TERM="xterm", HOME=str(tmp_path))
+    p = subprocess.Popen([sys.executable, "-m", "magcal", "show"], stdin=follower, stdout=follower,
+                         stderr=follower, env=env, close_fds=True, cwd=tmp_path)
+    os.close(follower)
+    seen = b""
+    deadline = time.monotonic() + 60
+    while b"port to use" not in seen and time.monotonic() < deadline:
+        if select.select([leader], [], [], 0.2)[0]:
+            seen += os.read(leader, 4096)
+    os.write(leader, b"sim://?pace=0\n")
+    while p.poll() is None and time.monotonic() < deadline:
+        if select.select([leader], [], [], 0.2)[0]:
+            try:
+                seen += os.read(leader, 4096)
+            except OSError:
+                break
+    p.wait(timeout=10)
+    os.close(leader)
+    text = seen.decode("utf-8", "replace")
+    assert "port to use" in text and "sim:// for the simulator" in text
+    assert p.returncode == 1 and "none stored" in text  # it went on with the answer

@@ -1,0 +1,140 @@
+"""``diagnose --report``: a page a person can read, looked at as a person would — opened in a
+browser (headless Chromium), its pictures checked for what a reader needs."""
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from magcal.app.report import Figure, Section, save, write_report
+from magcal.diagnose import diagnose
+from magcal.recordings.table import load_table
+
+REPO = Path(__file__).resolve().parents[1]
+IMAGES = ("coverage.png", "magnitude.png", "directions.png", "time.png", "channels.png", "heldout.png")
+
+
+def chromium() -> str:
+    """The browser, or skip — fail under CI, where .ci/run installs it."""
+    found = shutil.which("chromium") or shutil.which("chromium-browser")
+    if found is None:
+        if os.environ.get("CI") == "true":
+            pytest.fail("CI=true but chromium is not installed (apt-get install chromium)")
+        pytest.skip("chromium is not installed (apt-get install chromium)")
+    return found
+
+
+def browse(page: Path, tmp_path: Path, *what: str, height: int = 9000) -> subprocess.CompletedProcess:
+    flags = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+             "--disable-component-update", "--disable-sync", "--no-first-run", "--hide-scrollbars",
+             f"--user-data-dir={tmp_path / 'chromium-profile'}", f"--window-size=1400,{height}"]
+    return subprocess.run([chromium(), *flags, *what, page.as_uri()], capture_output=True, text=True, timeout=120)
+
+
+def magcal(*argv):
+    return subprocess.run([sys.executable, "-m", "magcal", *argv], capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)))
+
+
+@pytest.fixture(scope="module")
+def temperature_report(tmp_path_factory):
+    d = tmp_path_factory.mktemp("report")
+    rec = d / "temp.csv"
+    assert magcal("simulate", "-o", str(rec), "--seconds", "300", "--temp-swing", "20",
+                  "--temp-coef", "0.1,-0.05,0.06").returncode == 0
+    p = magcal("diagnose", str(rec), "--report", str(d / "page"))
+    assert p.returncode == 0, p.stderr
+    return d / "page"
+
+
+def test_the_page_leads_with_the_calibration_and_captions_every_figure(temperature_report):
+    page = (temperature_report / "index.html").read_text()
+    assert page.index("The calibration") < page.index("What was found") < page.index("coverage.png")
+    for words in ("offset (hard iron)", "± ", "field", "soft iron", "temp_c term", "µT per °C", "temperature_drift"):
+        assert words in page
+    for image in IMAGES:
+        assert (temperature_report / image).stat().st_size > 10_000 and f'src="{image}"' in page
+    assert page.count("<figcaption><b>Look for:</b>") == len(IMAGES) and page.count("<b>Found:</b>") == len(IMAGES) + 1
+    # nothing is fetched when the page is viewed: every src and href is inside its folder
+    assert not re.search(r"""(src|href)=["']?(https?:|//)""", page)
+    assert "<canvas" in page and "cloud-data" in page
+
+
+def test_chromium_shows_the_page_with_its_point_cloud_drawn(temperature_report, tmp_path):
+    from PIL import Image
+
+    dom = browse(temperature_report / "index.html", tmp_path, "--dump-dom")
+    drawn = re.search(r'<canvas id="cloud-canvas"[^>]*data-drawn="(\d+)"', dom.stdout)
+    assert drawn and int(drawn.group(1)) > 1000, dom.stdout[-500:]  # the script ran and drew the samples
+    shot = tmp_path / "page.png"
+    browse(temperature_report / "index.html", tmp_path, f"--screenshot={shot}")
+    with Image.open(shot) as im:
+        px = np.asarray(im.convert("L"), dtype=float)
+    assert px.shape == (9000, 1400)
+    top = px[:7000]
+    assert top.std() > 30  # pictures and text, not a blank page
+    rows_with_ink = np.mean(top.min(axis=1) < 128)
+    assert rows_with_ink > 0.5  # the page fills the window: figures, captions, the cloud
+
+
+def test_figures_are_readable_shapes_with_relative_time(tmp_path):
+    """A wide log (many channels, unix time) still gives a grid, and time from its start."""
+    from PIL import Image
+
+    rng = np.random.default_rng(4)
+    rec = tmp_path / "wide.csv"
+    assert magcal("simulate", "-o", str(rec), "--seconds", "120", "--temp-swing", "10").returncode == 0
+    lines = rec.read_text().splitlines()
+    head = lines[0].split(",")
+    t = head.index("t")
+    extra = [f"ch{k}" for k in range(8)]
+    out = [",".join(head + extra)]
+    for ln in lines[1:]:
+        cells = ln.split(",")
+        cells[t] = repr(1739394679.0 + float(cells[t]))  # unix time, as loggers write it
+        out.append(",".join(cells + [f"{v:.4f}" for v in rng.normal(size=len(extra))]))
+    rec.write_text("\n".join(out) + "\n")
+    p = magcal("diagnose", str(rec), "--report", str(tmp_path / "page"))
+    assert p.returncode == 0, p.stderr
+    with Image.open(tmp_path / "page" / "channels.png") as im:
+        w, h = im.size
+    assert w <= 1600 and h >= 800  # 10 panels in rows of 3, not one 9724-px strip
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert "1.739e" not in page and "e+09" not in page
+
+
+def test_a_clipped_title_is_refused_not_saved(tmp_path):
+    from magcal.app.report import _plt
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(3, 2))
+    ax.set_title("a title far too long to fit on a figure only three inches wide, so it runs off both sides")
+    with pytest.raises(ValueError, match="outside the figure"):
+        save(fig, tmp_path, "clipped", plt)
+    assert not (tmp_path / "clipped.png").exists()
+
+
+def test_more_sections_join_the_page_through_the_hook(tmp_path):
+    from magcal.cli import main
+
+    rec = tmp_path / "r.csv"
+    assert main(["simulate", "-o", str(rec), "--seconds", "60", "--quiet"]) == 0
+    diagnosis = diagnose(load_table(rec))
+
+    def twin(diagnosis, directory, plt):
+        fig, ax = plt.subplots(figsize=(6, 3), constrained_layout=True)
+        ax.plot(diagnosis.series.t_s, diagnosis.series.field_ut[:, 0])
+        ax.set_title("a section of its own")
+        return Section("The sensor twin", (Figure(save(fig, directory, "twin", plt), "Twin residual",
+                                                  "what to look for", "what was found"),), key="twin")
+
+    page = write_report(diagnosis, tmp_path / "page", sections=[twin, Section("Notes", html="<p>plain</p>")])
+    text = page.read_text()
+    assert (tmp_path / "page" / "twin.png").exists()
+    assert 'href="#twin"' in text and "The sensor twin" in text and "<p>plain</p>" in text
+    assert text.index("The samples in 3-D") < text.index("The sensor twin") < text.index("Notes")
