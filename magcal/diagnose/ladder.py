@@ -88,24 +88,35 @@ class Selected:
     n_tests: int  # hypotheses in Holm's family
 
 
-def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: bool = True) -> Diagnosis:
+STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare_heldout",
+         "compare_with_simulation", "describe")
+
+
+def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: bool = True, on_step=None) -> Diagnosis:
     """Model discovery on one recording (see the module docstring for the ladder).
     ``screen``: leave out channels that follow the orientation or the reading
-    (magcal.diagnose.hygiene); False when the user named the channels."""
+    (magcal.diagnose.hygiene); False when the user named the channels. ``on_step(name)``, when
+    given, is told as each step begins (``STEPS``: a progress display)."""
+    step = on_step or (lambda name: None)
+    step("set_aside_glitches")
     analysed = set_aside_glitches(prepare(series), alpha)
     step("fit_baseline")
     baseline, base_kept = fit_baseline(analysed)
     analysed, left_out = screen_channels(analysed, base_kept) if screen else (analysed, ())
     reference = fit_reference(analysed, base_kept)
     noise_ut = analysed.glitches.noise_ut
+    step("select_terms")
     selected = select_terms(analysed, base_kept, reference, alpha, noise_ut, folds)
+    step("refit")
     final, accepted = refit(analysed, reference, selected)
     selected = replace(selected, accepted=accepted)
     fold_slices = contiguous_blocks(len(analysed.m), folds)
+    step("compare_heldout")
     chosen = choose_calibration(analysed, baseline, final, fold_slices)
     m_kept, _, chans_kept = analysed.kept
     step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
+    step("describe")
     wander = statements.measure_wander(full_model(analysed, reference, final), m_kept, chans_kept)
     floors = statements.channel_floors(selected, wander, chans_kept, alpha, noise_ut)
     return Diagnosis(
