@@ -112,7 +112,9 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     selected = replace(selected, accepted=accepted)
     fold_slices = contiguous_blocks(len(analysed.m), folds)
     step("compare_heldout")
-    chosen = choose_calibration(analysed, baseline, final, fold_slices)
+    channel_cov = {selected.candidates[g].channel: statements.estimating_test(g, selected).cov
+                   for g in selected.accepted if g in selected.candidates}
+    chosen = choose_calibration(analysed, baseline, final, fold_slices, channel_cov)
     m_kept, _, chans_kept = analysed.kept
     step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
@@ -336,7 +338,7 @@ class Chosen:
         return tuple((b[0], b[col]) for b in self.heldout.per_block)
 
 
-def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_slices: list) -> Chosen:
+def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_slices: list, channel_cov: dict) -> Chosen:
     """Never worse than ``magcal fit --model auto``: its calibration (outlier removal, model
     choice by BIC, direction balance) is the geometry returned; diagnosis adds its channel terms
     to it, fitted the same way on the samples with those terms taken out — and only when that
@@ -344,26 +346,27 @@ def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_sl
     result = fit_calibration(a.m, model="auto")
     if not result:
         return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), ())
-    plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
+    plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty)
     if not final.spec.channels:
         return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices), ())
-    with_channels = _fit_geometry_around_channels(a, final) or final
+    with_channels = _fit_geometry_around_channels(a, final, channel_cov) or final
     heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices)
     limit = never_worse(with_channels, plain, heldout)
     return Chosen(plain, "fit", heldout, (limit,)) if limit else Chosen(with_channels, "fit+channels", heldout, ())
 
 
-def _fit_geometry_around_channels(a: Analysed, final: ModelFit) -> ModelFit | None:
+def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dict) -> ModelFit | None:
     """Offset, soft iron and radius as magcal fit finds them once ``final``'s channel terms
     are taken out of every analysed sample; the channel terms kept as they are."""
     shift = final.calibration().channel_offset_ut(a.chans, len(a.m))
     result = fit_calibration(a.m - shift, model="auto")
     if not result:
         return None
-    geometry = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
+    covs = {c: channel_cov.get(c) for c in final.spec.channels}
+    geometry = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty, covs)
     spec = replace(geometry.spec, channels=final.spec.channels)
     params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in final.spec.channels])
-    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, None)
+    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, geometry.cov)
 
 
 def never_worse(own: ModelFit, fit_auto: ModelFit, heldout: HeldOut) -> dict | None:

@@ -262,9 +262,13 @@ def fit_with_channel_terms(
 _FIT_SOFT_DIRS = {"sphere": (), "ellipsoid_diagonal": ((1.0, 0.0), (0.0, 1.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0)), "ellipsoid": None}
 
 
-def from_calibration(cal: Calibration, model: str, n: int, rms_ut: float) -> ModelFit:
+def from_calibration(cal: Calibration, model: str, n: int, rms_ut: float, uncertainty: Mapping | None = None,
+                     channel_cov: Mapping | None = None) -> ModelFit:
     """A magcal.fit result (``model`` its name, W with det 1) as a ModelFit of the same shape:
-    W rescaled to trace 3 and the radius with it, so |W(m − b)| − r only changes scale."""
+    W rescaled to trace 3 and the radius with it, so |W(m − b)| − r only changes scale. With
+    the fit's ``uncertainty`` (1σ of offset_ut and field_ut) the ModelFit carries a diagonal
+    covariance of those (soft-iron entries unknown: NaN), and ``channel_cov`` (channel → 3×3)
+    adds the blocks of channel terms appended later."""
     dirs = _FIT_SOFT_DIRS[model]
     spec = Spec() if dirs == () else Spec(soft_iron=True, soft_dirs=dirs)
     w = np.asarray(cal.soft_iron, np.float64)
@@ -272,4 +276,19 @@ def from_calibration(cal: Calibration, model: str, n: int, rms_ut: float) -> Mod
     soft = np.einsum("pij,ij->p", SOFT_BASIS, w * scale - np.eye(3))
     coords = np.linalg.lstsq(spec.soft_matrix, soft, rcond=None)[0] if spec.n_soft else np.zeros(0)
     params = np.concatenate([cal.offset_ut, coords, [cal.field_ut * scale]])
-    return ModelFit(spec, params, {}, rms_ut * scale, n, 0, None)
+    return ModelFit(spec, params, {}, rms_ut * scale, n, 0, _covariance(spec, scale, uncertainty, channel_cov))
+
+
+def _covariance(spec: Spec, scale: float, uncertainty: Mapping | None, channel_cov: Mapping | None) -> np.ndarray | None:
+    if uncertainty is None:
+        return None
+    chans = list((channel_cov or {}).items())
+    k = 4 + spec.n_soft
+    cov = np.full((k + 3 * len(chans),) * 2, 0.0)
+    cov[np.diag_indices(k)] = np.nan
+    cov[np.arange(3), np.arange(3)] = np.asarray(uncertainty["offset_ut"], np.float64) ** 2
+    cov[k - 1, k - 1] = (float(uncertainty["field_ut"]) * scale) ** 2
+    for j, (_, c) in enumerate(chans):
+        if c is not None:
+            cov[k + 3 * j : k + 3 * j + 3, k + 3 * j : k + 3 * j + 3] = c
+    return cov
