@@ -138,7 +138,11 @@ def main(argv=None) -> int:
         s0 = seed + 7919 * k
         for effect in (CURRENT, "glitches"):
             for where in ("twin", "real"):
-                row = case_a_b(name, series, model, effect, args.draws, rng, s0, where)
+                try:
+                    row = case_a_b(name, series, model, effect, args.draws, rng, s0, where)
+                except Exception as exc:  # a case the tool cannot analyse is reported, not hidden
+                    print(f"({'a' if where == 'twin' else 'b'}) {name:<38} {effect:<10} FAILED: {exc}")
+                    continue
                 rows.append(row)
                 print(f"({row['proof']}) {name:<38} {effect:<10} diagnose found {row['found']!s:<5} "
                       f"closed {row['closed']!s:<5} ({row['inside']})  removed → named {row['named']}")
