@@ -82,3 +82,25 @@ def test_bad_settings_are_refused(calibrated):
         DriftMonitor(cal, alpha=0.7)
     with pytest.raises(ValueError, match="malformed"):
         DriftMonitor.from_state({"calibration": cal.to_dict()})
+
+
+def test_a_sensor_whose_offset_wanders_raises_about_alpha_alarms(calibrated):
+    """A real sensor's offset wanders slowly (an OU process, as fitted to real recordings): that
+    is the sensor's normal state, not a new hard iron, and must not raise alarms beyond alpha."""
+    import dataclasses
+
+    from magcal.sim.wander import Wander
+
+    sc, cal = calibrated
+    sensor = dataclasses.replace(sc.sensor, calibration=cal, noise_ut=(0.25,) * 3,
+                                 wander=(Wander(0.25, 40.0), Wander(0.1, 4.0)))
+    alarms = tests = 0
+    for seed in (21, 22):
+        mon = DriftMonitor(cal, window=400, alpha=0.01)
+        s = dataclasses.replace(sc, model=sensor, seed=seed).simulate(400 * 108, 100.0, t0_s=50.0).series
+        verdicts = [v for v in mon.add(s.field_ut) if v.phase == "test"]
+        tests += len(verdicts)
+        alarms += sum(v.drifted for v in verdicts)
+    assert tests == 200
+    # 200 tests at α = 1 %: expect 2; Poisson(2) exceeds 7 with probability < 0.2 %
+    assert alarms <= 7, alarms

@@ -1,0 +1,1 @@
+"""The application: what ties values, logic and I/O together for the commands."""

@@ -8,14 +8,21 @@ delimited file read with the table options (``--columns``, ``--unit``, ``--time`
 ``warnings`` (e.g. a fitted field no Earth field could be) and, for a table, ``input`` (how it
 was read). ``--json`` prints ``magcal.diagnose/1``. Exit status: 0 when the recording was
 diagnosed (whatever was found), 6 when it could not be read or analysed.
+
+``--model-out M.yaml`` writes the sensor model learned around the final calibration (noise,
+quantum, offset wander, glitches, nonlinearity …; ``magcal simulate --model M.yaml`` draws from
+it). ``--twin`` compares the recording with ``--draws`` twins of that model, step by step from
+the baseline (hard iron + white noise), in the text, as ``"twin"`` in the JSON and, with
+``--report``, as twin.html beside the report (magcal.diagnose.twin, docs/sensor-model.md).
 """
 
 from __future__ import annotations
 
 import sys
 
+from ..core.errors import ConfigError
 from .common import calibration_lines, field_warning, reading_report
-from .options import add, add_table_options, directory, fraction, table_format
+from .options import add, add_table_options, directory, fraction, output_file, positive_int, table_format
 
 HELP = "find what a sphere calibration leaves out of a recording, model it, show held-out gain"
 
@@ -26,6 +33,11 @@ def add_arguments(p) -> None:
     p.add_argument("--report", metavar="DIR", type=directory,
                    help="write the evidence as an HTML page (index.html) with its pictures into DIR")
     p.add_argument("--alpha", type=fraction, default=0.01, help="family-wise false-alarm level")
+    p.add_argument("--model-out", type=output_file, metavar="M.yaml",
+                   help="write the learned sensor model (YAML, or JSON when the name ends in .json)")
+    p.add_argument("--twin", action="store_true", help="compare the recording with twins of the learned model")
+    p.add_argument("--draws", type=positive_int, default=50, help="twin draws per step with --twin (at least 10)")
+    p.add_argument("--seed", type=int, default=0, help="first seed of the twin draws")
     add_table_options(p)
 
 
@@ -100,6 +112,8 @@ def run(args) -> int:
     from ..diagnose import diagnose
     from .common import Progress
 
+    if args.draws < 10:
+        raise ConfigError(f"--draws must be at least 10 (a 2.5–97.5 % band needs them), got {args.draws}")
     with Progress(quiet=args.quiet).working(f"diagnose {args.file}") as ticker:
         ticker.doing("reading")
         series = load_series(args.file, table_format(args))
@@ -114,11 +128,16 @@ def run(args) -> int:
         if series.source:
             d["input"] = series.source
         d["reading"] = reading
+        twin = _twin(args, series, d, ticker)
         if args.report:
             from ..app.report import write_report
 
             ticker.doing(f"drawing the report in {args.report}")
             write_report(diagnosis, args.report, title=str(args.file))
+            if twin is not None:
+                from ..app.report_twin import write_twin_panels
+
+                write_twin_panels(twin, args.report)
     if args.json:
         from .common import document, print_json
 
@@ -128,7 +147,36 @@ def run(args) -> int:
         hint = many_channels_hint(len(series.channels), d)
         if hint:
             print(f"note        {hint}")
+        if twin is not None:
+            from ..diagnose.twin_text import format_twin
+
+            print(format_twin(d["twin"]))
+        if args.model_out:
+            print(f"model       {args.model_out}")
         if args.report:
             print(f"report      {args.report}/index.html")
     sys.stdout.flush()
     return 0
+
+
+def _twin(args, series, d: dict, ticker):
+    """The sensor model around the final calibration (written with --model-out) and, with
+    --twin, its step-by-step comparison with the recording (added to ``d`` as "twin";
+    magcal.diagnose.twin, docs/sensor-model.md)."""
+    if not (args.model_out or args.twin):
+        return None
+    from ..core.calibration import Calibration
+    from ..diagnose import twin
+
+    ticker.doing("learning the sensor model")
+    model = twin.learn(series, Calibration.from_dict(d["calibration"]), source={"recording": str(args.file)})
+    if args.model_out:
+        from ..app.sensor_file import save_model
+
+        save_model(model, args.model_out)
+    if not args.twin:
+        return None
+    ticker.doing(f"comparing with {args.draws} twins per step")
+    report = twin.ladder(model, series, draws=args.draws, seed=args.seed)
+    d["twin"] = report.to_dict()
+    return report

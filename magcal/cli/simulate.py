@@ -3,6 +3,13 @@
 Handy to try ``fit`` and ``diagnose`` without hardware, and to see what each effect looks
 like. The truth (the calibration that inverts the simulated physics) is written next to the
 CSV as ``FILE.truth.json``; ``--json`` prints it as ``magcal.simulate/1``.
+
+``--model M.yaml`` simulates a sensor model (``magcal diagnose REC --model-out M.yaml`` writes
+one fitted to a real recording; docs/sensor-model.md): on the simulator's own motion, or with
+``--like REC`` on REC's own timing, channels and field directions (recovered through the
+model's inverse) — a twin of REC. ``--seed`` draws another one. The effect options (offset,
+scale, noise …) describe the sensor when no model is given and cannot be combined with one;
+with a model the truth also carries the whole model under ``model``.
 """
 
 from __future__ import annotations
@@ -11,10 +18,12 @@ import json
 
 import numpy as np
 
+from ..core.errors import ConfigError, InputError
+from ..core.series import Series
 from ..recordings.table import save_csv
 from ..sim.physics import Current, Motion, Physics, Scenario, Temperature
 from .common import Progress, document, print_json
-from .options import add, add_alias, floats, non_negative, positive, share
+from .options import add, add_alias, existing_file, floats, non_negative, positive, share
 
 HELP = "write a simulated MPU-9150 recording (CSV, µT) with known physics"
 
@@ -22,7 +31,12 @@ HELP = "write a simulated MPU-9150 recording (CSV, µT) with known physics"
 def add_arguments(p) -> None:
     add(p, "output", required=True, help="the CSV file to write (t, mx, my, mz in µT, temp_c, current_a)")
     p.add_argument("--seconds", type=positive, default=60.0, metavar="S", help="length of the recording")
-    p.add_argument("--rate", type=positive, default=50.0, metavar="HZ", help="samples per second")
+    p.add_argument("--rate", type=positive, default=None, metavar="HZ",
+                   help="samples per second (default: 50, or the model's rate)")
+    p.add_argument("--model", type=existing_file, metavar="M.yaml",
+                   help="simulate this sensor model (YAML or JSON, as diagnose --model-out writes it)")
+    p.add_argument("--like", type=existing_file, metavar="REC",
+                   help="with --model: a twin of REC, on its own times, channels and field directions")
     p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same recording")
     p.add_argument("--motion", choices=("sphere", "tilt", "yaw", "still"), default="sphere",
                    help="how the board is turned: every direction (sphere), ±30° tilts, flat turns (yaw), or held still")
@@ -52,8 +66,24 @@ def _quantity(p, flag: str, old: str | None, **kw) -> None:
         add_alias(p, old, dest=dest, type=kw["type"])
 
 
-def run(args) -> int:
-    physics = Physics(
+_SENSOR = ("offset_ut", "scale", "noise_ut", "field_ut", "temp_coef", "current_coef", "drift", "glitch_rate")
+_DEFAULTS = {"offset_ut": (23.5, -41.2, 12.8), "scale": (1.0, 1.0, 1.0), "noise_ut": 0.4, "field_ut": 50.0,
+             "temp_coef": (0.0, 0.0, 0.0), "current_coef": (0.0, 0.0, 0.0), "drift": (0.0, 0.0, 0.0),
+             "glitch_rate": 0.0}  # the sensor options' defaults (add_arguments): a model replaces them
+
+
+def _check(args) -> None:
+    if args.like and not args.model:
+        raise ConfigError("--like needs --model (the sensor to simulate on REC's motion)")
+    if args.model:
+        given = [k for k in _SENSOR if getattr(args, k) != _DEFAULTS[k]]
+        if given:
+            raise ConfigError("--model describes the sensor; drop " + ", ".join(
+                "--" + k.replace("_", "-") for k in given))
+
+
+def _physics(args) -> Physics:
+    return Physics(
         field_ut=args.field_ut,
         hard_iron_ut=args.offset_ut,
         distortion=tuple(tuple(r) for r in np.diag(args.scale)),
@@ -63,25 +93,67 @@ def run(args) -> int:
         drift_ut_per_s=args.drift,
         glitch_rate=args.glitch_rate,
     )
-    sc = Scenario(
-        physics=physics,
+
+
+def _scenario(args, model=None) -> Scenario:
+    return Scenario(
+        physics=_physics(args) if model is None else Physics(field_ut=model.calibration.field_ut),
         motion=Motion(args.motion),
         temperature=Temperature(base_c=25.0, swing_c=args.temp_swing),
         current=Current(level_a=args.current),
         seed=args.seed,
+        model=model,
     )
-    n = int(round(args.seconds * args.rate))
+
+
+def _like(model, args) -> tuple[Series, dict]:
+    """A twin of the recording ``args.like``: its times, channels and field directions."""
+    from ..app.load import load_series
+
+    rec = load_series(args.like).only_valid()
+    chans = dict(rec.channels)
+    chans.setdefault("t_s", rec.t_s)
+    missing = [c for c in model.calibration.coef_ut_per_unit if c not in chans]
+    if missing:
+        raise InputError(f"{args.like} lacks the channel(s) {', '.join(missing)} the model's terms need")
+    if len(rec) < 2:
+        raise InputError(f"{args.like} has {len(rec)} valid samples; a twin needs at least 2")
+    u = model.directions_of(rec.field_ut, {c: chans[c] for c in model.calibration.coef_ut_per_unit})
+    draws = model.draws(rec.t_s, args.seed)
+    m, valid = model.distort(u, chans, draws)
+    rows = np.flatnonzero(np.any(draws.glitch_ut != 0, axis=1))
+    series = Series(t_s=rec.t_s, field_ut=m, channels=dict(rec.channels), valid=valid)
+    return series, {"glitch_rows": [int(i) for i in rows], "like": args.like}
+
+
+def _simulated(args, model) -> tuple[Series, dict]:
+    if args.like:
+        return _like(model, args)
+    rate = args.rate or (model.rate_hz if model else 50.0)
+    run_ = _scenario(args, model).simulate(int(round(args.seconds * rate)), rate)
+    return run_.series, {"glitch_rows": [int(i) for i in run_.glitch_idx]}
+
+
+def run(args) -> int:
+    _check(args)
+    model = None
+    if args.model:
+        from ..app.sensor_file import load_model
+
+        model = load_model(args.model)
     with Progress(quiet=args.quiet).working(f"simulate {args.output}") as ticker:
-        ticker.doing(f"{n:,} samples".replace(",", " "))
-        run_ = sc.simulate(n, args.rate)
-        ticker.doing(f"writing {n:,} samples".replace(",", " "))
-        save_csv(run_.series, args.output)
-    truth = {"truth": run_.truth.to_dict(), "glitch_rows": [int(i) for i in run_.glitch_idx],
-             "n_samples": len(run_.series), "output": args.output}
+        ticker.doing("a twin of " + args.like if args.like else "simulating")
+        series, truth = _simulated(args, model)
+        ticker.doing(f"writing {len(series):,} samples".replace(",", " "))
+        save_csv(series, args.output)
+    cal = model.calibration if model else _physics(args).truth()
+    truth = {"truth": cal.to_dict(), **truth, "n_samples": len(series), "output": args.output}
+    if model:
+        truth["model"] = model.to_dict()
     with open(args.output + ".truth.json", "w", encoding="utf-8") as f:
         json.dump(truth, f, indent=2)
     if args.json:
         print_json(document("simulate", truth))
     else:
-        print(f"wrote {len(run_.series)} samples to {args.output}; truth in {args.output}.truth.json")
+        print(f"wrote {len(series)} samples to {args.output}; truth in {args.output}.truth.json")
     return 0

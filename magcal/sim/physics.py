@@ -1,17 +1,21 @@
-"""The one physics simulator of an MPU-9150's magnetometer (AK8975) being waved around.
+"""The simulated board: an MPU-9150's magnetometer (AK8975) being waved around.
 
 Everything that simulates the sensor — the ``sim://`` board, the emulated Arduino's TWI bus,
-the fake I2C bus, the tests and the benchmarks — draws its numbers from here.
+the fake I2C bus, the tests and the benchmarks — draws its numbers from here, and the sensor
+itself is one :class:`~magcal.sim.model.SensorModel` (the value diagnosis fits): this module
+adds the motion, the environment (temperature, current) and the chip's registers.
 
 Model, per measurement k at time t (sensor frame, µT)::
 
     h(t)  = R(t)ᵀ h_world                        Earth field seen by the body
-    m_k   = A h(t) + b + β (T(t) − T_ref) + κ I(t) + d·t + g_k + n_k
+    m_k   = SensorModel(h(t)/|h|, channels(t))   A h + b + β (T − T_ref) + κ I + d·t + w(t) + g_k + n_k
     raw_k = clamp(round(m_k / (0.3 · gain)))      gain = (ASA + 128)/256 per axis
     st2_k = HOFL when Σ|m_k| ≥ 2400 µT
 
-A is the soft-iron/scale distortion (``distortion``), b hard iron, β temperature coefficient,
-κ current coefficient, d slow drift, g_k glitches (rare jumps), n_k white noise.
+A is the soft-iron/scale distortion (``distortion``, symmetric: a rotation cannot be told from
+magnitudes), b hard iron, β temperature coefficient, κ current coefficient, d slow drift, w the
+offset wander, g_k glitches (rare jumps), n_k white noise. ``Scenario(model=…)`` replaces the
+sensor part with any SensorModel (one fitted to a real recording, say).
 
 Determinism: every quantity is a function of (seed, t) or (seed, k) only, so a stream can be
 sampled at any time (the emulator asks at its own simulated times) and reproduced exactly.
@@ -27,6 +31,8 @@ import numpy as np
 from ..core.calibration import Calibration
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_HOFL, UT_PER_COUNT, asa_gain, temp_c_to_raw
 from ..core.series import Series
+from . import wander as wander_mod
+from .model import Draws, SensorModel
 
 HOFL_SUM_UT = 2400.0
 _BLOCK = 1024  # noise is drawn in blocks of this many measurements, keyed by (seed, block)
@@ -81,6 +87,7 @@ class Physics:
     drift_ut_per_s: tuple = (0.0, 0.0, 0.0)
     glitch_rate: float = 0.0
     glitch_ut: tuple = (4.0, 15.0)
+    wander: tuple = ()  # magcal.sim.wander.Wander components of the offset
     # what the AK8975's internal self-test coil reads, in ASA-adjusted counts (the datasheet's
     # pass window is X, Y in [-100, 100], Z in [-1000, -300]; a dead coil reads about 0)
     self_test_counts: tuple = (12, -18, -640)
@@ -110,6 +117,14 @@ class Physics:
             reference=ref,
         )
 
+    def sensor_model(self) -> SensorModel:
+        """This board's sensor as the one model (quantisation is the chip's, in to_counts)."""
+        a = np.asarray(self.distortion, dtype=np.float64)
+        if not np.allclose(a, a.T, atol=1e-12):
+            raise ValueError("distortion must be symmetric: a rotation of the sensor is not part of the magnitude model")
+        return SensorModel(calibration=self.truth(), noise_ut=(self.noise_ut,) * 3, wander=self.wander,
+                           glitch_rate=self.glitch_rate, glitch_ut=self.glitch_ut)
+
 
 def _rot(axis: int, ang: np.ndarray) -> np.ndarray:
     c, s = np.cos(ang), np.sin(ang)
@@ -134,6 +149,11 @@ class Scenario:
     temperature: Temperature = field(default_factory=Temperature)
     current: Current = field(default_factory=Current)
     seed: int = 0
+    model: SensorModel | None = None  # the sensor; None: the one ``physics`` describes
+
+    @property
+    def sensor(self) -> SensorModel:
+        return self.model if self.model is not None else _sensor_of(self.physics)
 
     # -- deterministic functions of time --------------------------------------------------
     @property
@@ -194,31 +214,35 @@ class Scenario:
         return np.where(on, cur.level_a * ramp, 0.0)
 
     # -- per-measurement randomness -------------------------------------------------------
-    def _noise_glitch(self, k: np.ndarray):
+    def _noise_glitch(self, k: np.ndarray, sensor: SensorModel):
         k = np.asarray(k, dtype=np.int64)
         blocks = np.unique(k // _BLOCK)
         noise = np.empty((len(k), 3))
         glitch = np.zeros((len(k), 3))
         for b in blocks:
-            nb, gb = _block(self.seed, int(b), self.physics.glitch_rate, tuple(self.physics.glitch_ut))
+            nb, gb = _block(self.seed, int(b), sensor.glitch_rate, tuple(sensor.glitch_ut))
             sel = (k // _BLOCK) == b
             noise[sel] = nb[k[sel] % _BLOCK]
             glitch[sel] = gb[k[sel] % _BLOCK]
         return noise, glitch
 
     # -- measurements ------------------------------------------------------------------------
+    def channels(self, t_s) -> dict[str, np.ndarray]:
+        """The environment at times ``t_s``: die temperature, current, time."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        return {"temp_c": self.temp_c(t), "current_a": self.current_a(t), "t_s": t}
+
     def field_ut(self, t_s, k) -> tuple[np.ndarray, np.ndarray]:
-        """True sensor-frame field before quantisation, (n, 3) µT, and the glitch vectors."""
-        ph = self.physics
+        """The sensor's reading before the chip quantises it, (n, 3) µT, and the glitch
+        vectors: the sensor model driven by this motion and environment."""
+        sensor = self.sensor
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
         h = self.earth_body_ut(t)
-        a = np.asarray(ph.distortion, dtype=np.float64)
-        m = h @ a.T + np.asarray(ph.hard_iron_ut, dtype=np.float64)
-        m = m + np.outer(self.temp_c(t) - ph.temp_ref_c, ph.temp_coef_ut_per_c)
-        m = m + np.outer(self.current_a(t), ph.current_coef_ut_per_a)
-        m = m + np.outer(t, ph.drift_ut_per_s)
-        noise, glitch = self._noise_glitch(k)
-        return m + glitch + ph.noise_ut * noise, glitch
+        u = h / np.linalg.norm(h, axis=1, keepdims=True)
+        noise, glitch = self._noise_glitch(k, sensor)
+        draws = Draws(noise=noise, glitch_ut=glitch, wander_ut=wander_mod.draw(sensor.wander, self.seed, t))
+        m, _ = sensor.distort(u, self.channels(t), draws)
+        return m, glitch
 
     def measure(self, t_s, k) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the chip reports: raw counts (n, 3) int, ST2 (n,), TEMP_OUT raw (n,)."""
@@ -243,6 +267,10 @@ class Scenario:
         raw, st2 = self.to_counts(m)
         lsb = UT_PER_COUNT * np.array([asa_gain(a) for a in self.physics.asa])
         measured = raw * lsb
+        if self.model is not None:  # the modelled sensor's own reading (its quantum, its rails)
+            measured = m
+            if self.model.saturation_ut is not None:
+                st2 = np.where(np.any(np.abs(m) >= self.model.saturation_ut, axis=1), ST2_HOFL, st2)
         channels = {}
         if self.temperature.swing_c or np.any(self.physics.temp_coef_ut_per_c):
             channels["temp_c"] = self.temp_c(t)
@@ -256,7 +284,7 @@ class Scenario:
             st2=st2,
             earth_ut=self.earth_body_ut(t),
             glitch_idx=np.flatnonzero(np.any(glitch != 0, axis=1)),
-            truth=self.physics.truth(),
+            truth=self.sensor.calibration,
         )
 
     def with_physics(self, **changes) -> "Scenario":
@@ -271,6 +299,18 @@ class SimRun:
     earth_ut: np.ndarray
     glitch_idx: np.ndarray
     truth: Calibration
+
+
+def _sensor_of(physics: Physics) -> SensorModel:
+    try:
+        return _cached_sensor(physics)
+    except TypeError:  # a Physics built with lists is not hashable
+        return physics.sensor_model()
+
+
+@lru_cache(maxsize=64)
+def _cached_sensor(physics: Physics) -> SensorModel:
+    return physics.sensor_model()
 
 
 @lru_cache(maxsize=64)

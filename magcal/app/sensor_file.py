@@ -1,0 +1,40 @@
+"""A sensor model on disk: YAML (or JSON, by the file's suffix), the shape of
+``SensorModel.to_dict`` with its schema version. Reading refuses a file that is not one with an
+:class:`~magcal.errors.InputError` naming the file and the problem."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import yaml
+
+from ..core.errors import InputError
+from ..sim.model import SensorModel
+
+
+def load_model(path) -> SensorModel:
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = yaml.safe_load(f)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the sensor model ({exc.strerror})") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not YAML or JSON ({str(exc).splitlines()[0]})") from None
+    try:
+        return SensorModel.from_dict(data)
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def save_model(model: SensorModel, path) -> None:
+    """Write atomically (a temporary file renamed over the target)."""
+    d = model.to_dict()
+    text = json.dumps(d, indent=2) + "\n" if str(path).endswith(".json") else yaml.safe_dump(d, sort_keys=False, default_flow_style=None, allow_unicode=True)
+    tmp = f"{path}.tmp{os.getpid()}"
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write the sensor model ({exc.strerror})") from None

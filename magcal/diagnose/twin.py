@@ -1,0 +1,410 @@
+"""The sensor twin: learn a SensorModel from a recording, draw twins of it, compare, name.
+
+``learn`` turns a calibration (the deterministic part diagnosis or fit found) and the
+recording's residuals into a :class:`~magcal.sim.model.SensorModel`: per-axis noise, the
+quantum, glitch rate and size, degree-3/4 direction nonlinearity and a temperature gain when
+held-out time blocks confirm them, saturation when the readings sit on a rail, and the offset
+wander as a fitted sum of Ornstein–Uhlenbeck components (refined by simulated moments: the
+wander is re-scaled until the twins' residual autocovariance matches the recording's after the
+same refit).
+
+``compare`` is the parametric bootstrap: the recording's own times, channels and field
+directions (recovered through the inverse model) drive ``draws`` twins of the model; each twin
+is refitted with the same calibration model as the recording and the statistics of
+``twin_stats`` computed on both. A statistic whose real value lies outside the 2.5–97.5 % band
+of its twins is a mismatch; each is located (time blocks, direction cells, channel) and named
+in physics words with the effect that would explain it.
+
+``ladder`` runs the comparison for the baseline (hard iron + white noise) and for the model
+with each effect added in turn, ending at the learned model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Mapping
+
+import numpy as np
+
+from ..core.calibration import Calibration
+from ..fit.ellipsoid import fit_ellipsoid
+from ..fit.sphere import fit_sphere
+from ..core.series import Series
+from ..sim import directions
+from ..sim import wander as wander_mod
+from ..sim.model import TEMP, SensorModel, replace_calibration
+from . import twin_stats as ts
+from .twin_names import Mismatch, locate, mismatches
+from .model import Spec, fit_model
+
+DRAWS = 50
+BAND = (2.5, 97.5)
+FOLDS = 5
+BLOCKS = 40
+CV_GAIN = 0.01  # a term must cut the held-out residual energy by at least 1 %
+GLITCH_Z = 5.0
+# channels that follow the orientation or are the magnetometer itself: not offered as couplings
+ORIENTATION_WORDS = ("mag", "acc", "gyro", "quat", "roll", "pitch", "yaw", "bias", "att")
+
+
+@dataclass(frozen=True)
+class Residual:
+    """One recording (real or twin) seen through a refitted calibration."""
+
+    e: np.ndarray
+    u: np.ndarray
+    m: np.ndarray
+    t: np.ndarray
+    channels: Mapping[str, np.ndarray]
+    gain: float | None = None
+
+
+def _isotropic(w: np.ndarray) -> bool:
+    return bool(np.max(np.abs(w / np.cbrt(np.linalg.det(w)) - np.eye(3))) < 1e-9)
+
+
+def refit(model: SensorModel, m, t, channels, free: bool = True) -> Residual | None:
+    """Refit ``model``'s kind of calibration (sphere or ellipsoid, with its channel terms) to
+    the measurements and return their residual; None when the fit fails. ``free=False`` keeps
+    the model's calibration (a recording whose motion cannot determine one, e.g. a still board)
+    and only removes the mean level."""
+    cal = model.calibration
+    if not free:
+        h = cal.correct(m, {c: channels[c] for c in cal.coef_ut_per_unit})
+        norm = np.linalg.norm(h, axis=1)
+        return Residual(e=norm - norm.mean(), u=h / norm[:, None], m=m, t=t, channels=channels, gain=None)
+    soft = not _isotropic(cal.soft_iron)
+    chans = tuple(cal.coef_ut_per_unit)
+    used = {c: channels[c] for c in chans}
+    if chans:
+        f = fit_model(m, used, Spec(soft_iron=soft, channels=chans), cal.reference)
+        if not f:
+            return None
+        fc = f.calibration()
+        h = fc.correct(m, used)
+        gain = ts.gain_of(fc.soft_iron) if soft else None
+    else:
+        f = fit_ellipsoid(m, kind="full") if soft else fit_sphere(m)
+        if not f:
+            return None
+        h = (m - f.offset_ut) @ np.asarray(f.soft_iron).T
+        gain = ts.gain_of(f.soft_iron) if soft else None
+    norm = np.linalg.norm(h, axis=1)
+    e = norm - np.sqrt(np.mean(norm * norm)) if chans else np.asarray(f.residual_ut)
+    return Residual(e=e, u=h / norm[:, None], m=m, t=t, channels=channels, gain=gain)
+
+
+# -- learning ------------------------------------------------------------------------------
+def quantum(m: np.ndarray) -> tuple:
+    """Per axis, the reading's step when the values sit on a lattice, else 0."""
+    out = []
+    for a in range(3):
+        v = np.unique(m[:, a])
+        d = np.diff(v)
+        d = d[d > 1e-12]
+        if len(d) < 10:
+            out.append(0.0)
+            continue
+        q = float(np.percentile(d, 5))
+        on_grid = np.abs(d / q - np.round(d / q)) < 0.02
+        out.append(q if np.mean(on_grid) > 0.95 else 0.0)
+    return tuple(out)
+
+
+def _heldout_gain(e: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
+    """Coefficients of e on the columns of x (all data) and the held-out share of residual
+    energy they remove: FOLDS folds of interleaved time blocks (BLOCKS blocks), so every fold
+    sees most directions while the slow wander stays within a block."""
+    n = len(e)
+    fold = (np.arange(n) * BLOCKS // max(n, 1)) % FOLDS
+    sse0 = sse1 = 0.0
+    for k in range(FOLDS):
+        idx = fold == k
+        train = ~idx
+        c = np.linalg.lstsq(x[train], e[train], rcond=None)[0]
+        r = e[idx] - x[idx] @ c
+        sse0 += float(e[idx] @ e[idx])
+        sse1 += float(r @ r)
+    coef = np.linalg.lstsq(x, e, rcond=None)[0]
+    return coef, (sse0 - sse1) / max(sse0, 1e-300)
+
+
+def _axis_noise(m: np.ndarray, white_var: float, u: np.ndarray, q: tuple) -> tuple:
+    """Per-axis white noise: its shape from the second differences of the trajectory, its
+    level from the white part of the radial residual, less the quantisation's share."""
+    d2 = m[2:] - 2 * m[1:-1] + m[:-2]
+    shape = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) * 1.4826 / np.sqrt(6.0)
+    shape = np.where(shape > 0, shape, max(float(shape.max()), 1e-6))
+    quant = np.asarray(q) ** 2 / 12.0
+    radial_shape = float(np.mean(u * u @ (shape**2)))
+    radial_quant = float(np.mean(u * u @ quant))
+    level = max(white_var - radial_quant, 0.0) / max(radial_shape, 1e-300)
+    return tuple(float(v) for v in shape * np.sqrt(level))
+
+
+def _glitches(m: np.ndarray, e: np.ndarray) -> tuple[float, tuple, np.ndarray]:
+    """Glitches: jumps of the trajectory (``twin_stats.jumps``) that also leave the sphere
+    (radial residual beyond GLITCH_Z robust σ). A jump along the sphere is motion or timing,
+    which a twin driven by the recording's own directions replays anyway. Sizes: twice the
+    radial part (a random direction's mean radial share is one half)."""
+    sigma = 1.4826 * float(np.median(np.abs(e - np.median(e))))
+    hit = ts.jumps(m) & (np.abs(e - np.median(e)) > GLITCH_Z * max(sigma, 1e-9))
+    if not hit.any():
+        return 0.0, (4.0, 15.0), hit
+    size = 2.0 * np.abs(e[hit] - np.median(e))
+    lo, hi = np.quantile(size, [0.1, 0.9]) if len(size) > 2 else (size.min(), size.max())
+    return float(np.mean(hit)), (float(lo), float(max(hi, lo))), hit
+
+
+def _saturation(m: np.ndarray) -> float | None:
+    top = np.max(np.abs(m))
+    at_rail = np.isclose(np.abs(m), top, rtol=0, atol=1e-9 + 1e-6 * top)
+    return float(top) if np.count_nonzero(at_rail) >= max(5, 0.002 * len(m)) else None
+
+
+def learn(series: Series, calibration: Calibration, source: Mapping | None = None, free: bool = True) -> SensorModel:
+    """The SensorModel of ``series`` around ``calibration`` (its deterministic part).
+    ``free=False``: the calibration came from elsewhere and the motion cannot determine one
+    (a still board); direction terms are not sought and the refit only removes the level."""
+    s = series.only_valid()
+    m, t, chans = s.field_ut, s.t_s, with_time(s)
+    q = quantum(m)
+    e_all = np.linalg.norm(calibration.correct(m, {c: chans[c] for c in calibration.coef_ut_per_unit}), axis=1)
+    rate, size, hit = _glitches(m, e_all - calibration.field_ut)
+    keep = ~hit
+    used = {c: chans[c][keep] for c in calibration.coef_ut_per_unit}
+    h = calibration.correct(m[keep], used)
+    r = np.linalg.norm(h, axis=1)
+    u = h / r[:, None]
+    e = r - calibration.field_ut
+    e = e - e.mean()
+    nonlin = np.zeros(len(directions.NAMES))
+    coef, gain = _heldout_gain(e, directions.basis(u)) if free else (nonlin, 0.0)
+    if gain > CV_GAIN:
+        nonlin = coef
+        e = e - directions.basis(u) @ coef
+    temp_gain, temp_ref = 0.0, 25.0
+    if TEMP in chans:
+        temp_ref = float(np.median(chans[TEMP]))
+        x = ((chans[TEMP][keep] - temp_ref) * calibration.field_ut)[:, None]
+        c, g = _heldout_gain(e, x)
+        if g > CV_GAIN:
+            temp_gain, e = float(c[0]), e - x[:, 0] * float(c[0])
+    comps, white = wander_mod.fit(e, u, t[keep], projector(u, used) if free else None)
+    model = SensorModel(
+        calibration=replace_calibration(calibration, field_ut=calibration.field_ut + float(np.mean(r - calibration.field_ut))),
+        noise_ut=_axis_noise(m[keep], white, u, q), quantum_ut=q, wander=comps,
+        glitch_rate=rate, glitch_ut=size, nonlinearity_ut=tuple(nonlin),
+        temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),
+        rate_hz=1.0 / ts.dt_of(t), source=dict(source or {}),
+    )
+    return model
+
+
+def projector(u: np.ndarray, channels: Mapping[str, np.ndarray]):
+    """x ↦ what is left of a radial series x once a calibration is refitted: the residual of
+    its least squares on the linearised model (offset, radius, soft iron: the degree ≤ 2
+    functions of the direction; and x_c·u per channel term)."""
+    cols = [np.ones(len(u)), *u.T, *(u[:, [0, 0, 1]] * u[:, [1, 2, 2]]).T, *(u[:, :2] ** 2).T]  # z² = 1 − x² − y²
+    for x in channels.values():
+        xc = x - np.mean(x)
+        cols += [xc * u[:, a] for a in range(3)]
+    q, _ = np.linalg.qr(np.column_stack(cols))
+
+    def project(x: np.ndarray) -> np.ndarray:
+        return x - q @ (q.T @ x)
+
+    return project
+
+
+# -- the comparison -------------------------------------------------------------------------
+def with_time(series: Series) -> dict:
+    """The recording's channels, plus time (``t_s``) for a model with a drift term."""
+    chans = dict(series.channels)
+    chans.setdefault("t_s", series.t_s)
+    return chans
+
+
+@dataclass(frozen=True)
+class Band:
+    """A statistic of the recording against the spread of its twins."""
+
+    name: str
+    real: float
+    low: float
+    high: float
+    median: float
+
+    @property
+    def inside(self) -> bool:
+        return bool(self.low <= self.real <= self.high) if np.isfinite(self.real) else True
+
+    @property
+    def side(self) -> str:
+        return "inside" if self.inside else ("high" if self.real > self.high else "low")
+
+    def to_dict(self) -> dict:
+        return {"real": _num(self.real), "twin_low": _num(self.low), "twin_high": _num(self.high),
+                "twin_median": _num(self.median), "inside": self.inside}
+
+
+@dataclass(frozen=True)
+class Comparison:
+    step: str
+    effects: tuple
+    bands: tuple
+    mismatches: tuple
+    draws: int
+    located: dict = field(default_factory=dict, repr=False)  # real and twin-band pieces
+    real: Residual | None = field(default=None, repr=False)
+    twin: Residual | None = field(default=None, repr=False)  # one twin draw, for pictures
+
+    @property
+    def inside(self) -> int:
+        return sum(b.inside for b in self.bands)
+
+    def to_dict(self) -> dict:
+        return {"step": self.step, "effects": list(self.effects), "draws": self.draws,
+                "inside": self.inside, "statistics": len(self.bands),
+                "bands": {b.name: b.to_dict() for b in self.bands},
+                "mismatches": [m.to_dict() for m in self.mismatches]}
+
+
+def _num(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def twin_draw(model: SensorModel, series: Series, seed: int, free: bool = True) -> Residual | None:
+    """One twin of ``series`` refitted: the recording's times, channels and directions."""
+    chans = with_time(series)
+    used = {c: chans[c] for c in model.calibration.coef_ut_per_unit}
+    u = model.directions_of(series.field_ut, used)
+    m, valid = model.simulate(u, series.t_s, chans, seed)
+    if not valid.all():
+        m, chans = m[valid], {k: v[valid] for k, v in chans.items()}
+    return refit(model, m, series.t_s[valid], chans, free)
+
+
+def compare(model: SensorModel, series: Series, draws: int = DRAWS, seed: int = 0, step: str = "final",
+            free: bool = True) -> Comparison:
+    """The parametric bootstrap of ``model`` against ``series`` (valid samples). A statistic
+    the recording cannot give (NaN: e.g. direction terms on a still board) is left out."""
+    s = series.only_valid()
+    chans = with_time(s)
+    real = refit(model, s.field_ut, s.t_s, chans, free)
+    if real is None:
+        raise ValueError("the model's calibration cannot be refitted to the recording")
+    shown = {k: v for k, v in s.channels.items() if not any(w in k.lower() for w in ORIENTATION_WORDS)}
+    stats_real, loc_real = ts.battery(real.e, real.u, real.m, real.t, shown, real.gain if free else float("nan"))
+    stats_real = {k: v for k, v in stats_real.items() if np.isfinite(v)}
+    sims, locs, first = [], [], None
+    for i in range(draws):
+        x = twin_draw(model, s, seed + i, free)
+        if x is None:
+            continue
+        first = first or x
+        st, lo = ts.battery(x.e, x.u, x.m, x.t, {k: x.channels[k] for k in shown}, x.gain if free else float("nan"))
+        sims.append(st)
+        locs.append(lo)
+    bands = tuple(_band(k, v, [d.get(k, np.nan) for d in sims]) for k, v in stats_real.items())
+    located = locate(loc_real, locs, s.t_s)
+    return Comparison(step=step, effects=model.effects(), bands=bands,
+                      mismatches=mismatches(bands, located), draws=len(sims), located=located,
+                      real=real, twin=first)
+
+
+def _band(name: str, real: float, values) -> Band:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return Band(name, real, -np.inf, np.inf, float("nan"))
+    lo, mid, hi = np.percentile(v, [BAND[0], 50.0, BAND[1]])
+    return Band(name, float(real), float(lo), float(hi), float(mid))
+
+
+# -- baseline → each effect added → final ---------------------------------------------------
+ORDER = ("calibration", "quantum", "wander", "nonlinearity", "temperature_gain", "glitches", "saturation")
+_LATER = {  # what a step still leaves out
+    "calibration": ("quantum", "wander", "nonlinearity", "temperature_gain", "glitches", "saturation"),
+    "quantum": ("wander", "nonlinearity", "temperature_gain", "glitches", "saturation"),
+    "wander": ("nonlinearity", "temperature_gain", "glitches", "saturation"),
+    "nonlinearity": ("temperature_gain", "glitches", "saturation"),
+    "temperature_gain": ("glitches", "saturation"),
+    "glitches": ("saturation",),
+    "saturation": (),
+}
+
+
+@dataclass(frozen=True)
+class TwinReport:
+    """The comparison of each step, baseline first, the learned model last."""
+
+    model: SensorModel
+    steps: tuple
+
+    @property
+    def final(self) -> Comparison:
+        return self.steps[-1]
+
+    @property
+    def baseline(self) -> Comparison:
+        return self.steps[0]
+
+    def to_dict(self) -> dict:
+        return {"version": 1, "draws": self.final.draws, "band_pct": list(BAND),
+                "steps": [c.to_dict() for c in self.steps], "model": self.model.to_dict()}
+
+
+def baseline_model(model: SensorModel, series: Series, free: bool = True) -> SensorModel:
+    """Hard iron + white noise: the sphere fitted to the recording (or, when the recording
+    cannot determine one, the model's offset and field), its RMS as the noise."""
+    m = series.only_valid().field_ut
+    f = fit_sphere(m) if free else None
+    if free and not f:
+        raise ValueError(f"cannot fit the baseline sphere: {f}")
+    if f:
+        cal, rms = Calibration(offset_ut=f.offset_ut, field_ut=f.field_ut), f.rms_ut
+    else:
+        cal = Calibration(offset_ut=model.calibration.offset_ut, field_ut=model.calibration.field_ut)
+        r = np.linalg.norm(m - cal.offset_ut, axis=1)
+        rms = float(np.std(r))
+    return SensorModel(calibration=cal, noise_ut=(rms,) * 3, rate_hz=model.rate_hz)
+
+
+def _white(model: SensorModel, series: Series, free: bool = True) -> SensorModel:
+    """``model`` with its noise raised to carry all of the residual a model without wander
+    leaves (so the step is judged on its shape, not on a missing variance)."""
+    s = series.only_valid()
+    real = refit(model, s.field_ut, s.t_s, with_time(s), free)
+    if real is None:
+        return model
+    quant = float(np.mean(real.u**2 @ (np.asarray(model.quantum_ut) ** 2 / 12.0)))
+    extra = float(np.var(real.e)) - quant - float(np.mean(directions.radial_ut(real.u, model.nonlinearity_ut) ** 2))
+    return replace(model, noise_ut=(float(np.sqrt(max(extra, 1e-12))),) * 3)
+
+
+def step_models(model: SensorModel, series: Series, free: bool = True) -> list[tuple[str, SensorModel]]:
+    """(name, model) from the baseline through each effect the learned model carries."""
+    has = set(model.effects()) | ({"quantum"} if any(model.quantum_ut) else set())
+    out = [("baseline", baseline_model(model, series, free))]
+    for step in ORDER:
+        present = has & {"soft_iron", *model.calibration.coef_ut_per_unit} if step == "calibration" else has & {step}
+        if not present:
+            continue
+        m = model
+        for later in _LATER[step]:
+            if later in has:
+                m = m.without(later)
+        if "wander" not in m.effects():
+            m = _white(m, series, free)
+        out.append(("+" + step if _LATER[step] and any(x in has for x in _LATER[step]) else "final", m))
+    if out[-1][0] != "final":
+        out.append(("final", model))
+    return out
+
+
+def ladder(model: SensorModel, series: Series, draws: int = DRAWS, seed: int = 0, free: bool = True) -> TwinReport:
+    """Compare each step with the recording on the same seeds."""
+    steps = tuple(compare(m, series, draws, seed, name, free) for name, m in step_models(model, series, free))
+    return TwinReport(model=model, steps=steps)

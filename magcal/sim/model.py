@@ -1,0 +1,247 @@
+"""The sensor model: one value that the simulator draws from and diagnosis fits.
+
+Per sample i at time t_i, true unit field direction u_i (body frame) and channels x_i::
+
+    r_i = field_ut · (1 + γ (T_i − T_ref)) + Σ_j c_j Y_j(u_i)        radial: gain, nonlinearity
+    m_i = W⁻¹ (r_i u_i) + b + Σ_c K_c (x_ci − ref_c)                 the calibration, inverted
+          + w(t_i) + g_i + diag(σ) z_i                               wander, glitches, noise
+    m_i → clipped at ±saturation_ut (then flagged), rounded to quantum_ut per axis
+
+W, b, field, K_c and ref_c are a :class:`~magcal.calibration.Calibration` (the deterministic
+part, shared with every fit); γ the temperature gain; Y_j the degree-3/4 direction basis
+(``magcal.sim.directions``); w a sum of Ornstein–Uhlenbeck components
+(``magcal.sim.wander``); g_i rare jumps of uniform size in ``glitch_ut`` along a random
+direction; z_i standard normal.
+
+The value serialises to a plain dict (YAML or JSON) with units in its keys and a schema
+version; ``from_dict`` refuses a malformed or unknown one with a message naming the key.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Mapping
+
+import numpy as np
+
+from ..core.calibration import Calibration
+from . import directions
+from . import wander as wander_mod
+from .wander import Wander
+
+SCHEMA = "magcal.sensor-model/1"
+TEMP = "temp_c"
+
+
+@dataclass(frozen=True)
+class Draws:
+    """The random parts of one simulated stream, (n, 3) each: standard-normal noise, glitch
+    vectors in µT (zero where no glitch), offset wander in µT."""
+
+    noise: np.ndarray
+    glitch_ut: np.ndarray
+    wander_ut: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SensorModel:
+    calibration: Calibration
+    noise_ut: tuple = (0.4, 0.4, 0.4)
+    quantum_ut: tuple = (0.0, 0.0, 0.0)  # 0: a continuous reading
+    wander: tuple = ()
+    glitch_rate: float = 0.0  # probability per sample
+    glitch_ut: tuple = (4.0, 15.0)
+    nonlinearity_ut: tuple = (0.0,) * len(directions.NAMES)
+    temp_gain_per_c: float = 0.0
+    temp_ref_c: float = 25.0
+    saturation_ut: float | None = None
+    rate_hz: float = 50.0
+    source: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "noise_ut", _triple(self.noise_ut, "noise_ut", lo=0.0))
+        object.__setattr__(self, "quantum_ut", _triple(self.quantum_ut, "quantum_ut", lo=0.0))
+        object.__setattr__(self, "wander", tuple(self.wander))
+        nl = tuple(float(v) for v in np.asarray(self.nonlinearity_ut, dtype=np.float64).reshape(-1))
+        if len(nl) != len(directions.NAMES) or not np.all(np.isfinite(nl)):
+            raise ValueError(f"nonlinearity_ut needs {len(directions.NAMES)} finite numbers")
+        object.__setattr__(self, "nonlinearity_ut", nl)
+        lo, hi = (float(v) for v in self.glitch_ut)
+        if not (0 <= self.glitch_rate < 1) or not (0 <= lo <= hi):
+            raise ValueError("glitch rate must be in [0, 1) and glitch sizes 0 ≤ low ≤ high")
+        object.__setattr__(self, "glitch_ut", (lo, hi))
+        if self.saturation_ut is not None and not self.saturation_ut > 0:
+            raise ValueError("saturation_ut must be positive (or absent)")
+        if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError("rate_hz must be positive")
+
+    # -- the forward model ---------------------------------------------------------------
+    def radius_ut(self, u: np.ndarray, channels: Mapping[str, np.ndarray] | None) -> np.ndarray:
+        """|h| the sensor sees at directions ``u``: field, temperature gain, nonlinearity."""
+        r = np.full(len(u), self.calibration.field_ut)
+        if self.temp_gain_per_c and channels is not None and TEMP in channels:
+            r = r * (1.0 + self.temp_gain_per_c * (np.asarray(channels[TEMP], np.float64) - self.temp_ref_c))
+        if any(self.nonlinearity_ut):
+            r = r + directions.radial_ut(u, self.nonlinearity_ut)
+        return r
+
+    def distort(self, u, channels: Mapping[str, np.ndarray] | None, draws: Draws) -> tuple[np.ndarray, np.ndarray]:
+        """What the sensor reports for unit directions ``u`` (n, 3): (m (n, 3) µT, valid (n,))."""
+        u = np.atleast_2d(np.asarray(u, dtype=np.float64))
+        h = self.radius_ut(u, channels)[:, None] * u
+        m = self.calibration.distort(h, channels)
+        m = m + draws.wander_ut + draws.glitch_ut + np.asarray(self.noise_ut) * draws.noise
+        valid = np.ones(len(m), bool)
+        if self.saturation_ut is not None:
+            valid = np.all(np.abs(m) < self.saturation_ut, axis=1)
+            m = np.clip(m, -self.saturation_ut, self.saturation_ut)
+        return quantize(m, self.quantum_ut), valid
+
+    def draws(self, t_s, seed: int) -> Draws:
+        """Fresh random parts for a stream at times ``t_s``, a function of ``seed`` alone."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x51D])
+        noise = rng.standard_normal((len(t), 3))
+        order = np.argsort(t, kind="stable")
+        path = np.empty((len(t), 3))
+        path[order] = wander_mod.draw_path(self.wander, rng, t[order])
+        return Draws(noise, glitches(rng, len(t), self.glitch_rate, self.glitch_ut), path)
+
+    def simulate(self, u, t_s, channels: Mapping[str, np.ndarray] | None, seed: int):
+        """(m, valid) for directions ``u`` at times ``t_s``: the twin of a recording."""
+        return self.distort(u, channels, self.draws(t_s, seed))
+
+    def directions_of(self, m_ut, channels: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+        """The inverse model: unit field directions (n, 3) behind measurements ``m_ut``."""
+        h = self.calibration.correct(m_ut, channels)
+        return h / np.linalg.norm(h, axis=1, keepdims=True)
+
+    def without(self, effect: str) -> "SensorModel":
+        """This model with one effect removed (``wander``, ``nonlinearity``, ``glitches``,
+        ``soft_iron``, ``temperature_gain``, ``saturation``, ``quantum`` or a channel name)."""
+        cal = self.calibration
+        if effect == "wander":
+            return replace(self, wander=())
+        if effect == "nonlinearity":
+            return replace(self, nonlinearity_ut=(0.0,) * len(directions.NAMES))
+        if effect == "glitches":
+            return replace(self, glitch_rate=0.0)
+        if effect == "temperature_gain":
+            return replace(self, temp_gain_per_c=0.0)
+        if effect == "saturation":
+            return replace(self, saturation_ut=None)
+        if effect == "quantum":
+            return replace(self, quantum_ut=(0.0, 0.0, 0.0))
+        if effect == "soft_iron":
+            w = cal.soft_iron
+            iso = np.eye(3) * float(np.cbrt(np.linalg.det(w)))
+            return replace(self, calibration=replace_calibration(cal, soft_iron=iso))
+        if effect in cal.coef_ut_per_unit:
+            coef = {k: v for k, v in cal.coef_ut_per_unit.items() if k != effect}
+            ref = {k: v for k, v in cal.reference.items() if k != effect}
+            return replace(self, calibration=replace_calibration(cal, coef_ut_per_unit=coef, reference=ref))
+        raise ValueError(f"the model has no effect {effect!r} to remove")
+
+    def effects(self) -> tuple[str, ...]:
+        """The effects this model carries beyond hard iron, field and white noise."""
+        out = []
+        w = self.calibration.soft_iron
+        if np.max(np.abs(w / np.cbrt(np.linalg.det(w)) - np.eye(3))) > 1e-9:
+            out.append("soft_iron")
+        out += list(self.calibration.coef_ut_per_unit)
+        out += ["wander"] if self.wander else []
+        out += ["nonlinearity"] if any(self.nonlinearity_ut) else []
+        out += ["glitches"] if self.glitch_rate > 0 else []
+        out += ["temperature_gain"] if self.temp_gain_per_c else []
+        out += ["saturation"] if self.saturation_ut is not None else []
+        return tuple(out)
+
+    # -- serialisation -------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = {"schema": SCHEMA}
+        d.update(self.calibration.to_dict())
+        d.update({
+            "noise_ut": list(self.noise_ut),
+            "quantum_ut": list(self.quantum_ut),
+            "wander": [c.to_dict() for c in self.wander],
+            "glitches": {"rate_per_sample": float(self.glitch_rate), "size_ut": list(self.glitch_ut)},
+            "nonlinearity_ut": {k: v for k, v in zip(directions.NAMES, self.nonlinearity_ut) if v},
+            "temp_gain_per_c": float(self.temp_gain_per_c),
+            "temp_ref_c": float(self.temp_ref_c),
+            "saturation_ut": None if self.saturation_ut is None else float(self.saturation_ut),
+            "rate_hz": float(self.rate_hz),
+        })
+        if self.source:
+            d["source"] = dict(self.source)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "SensorModel":
+        """The model from ``to_dict``'s shape; ValueError naming the problem otherwise."""
+        if not isinstance(d, Mapping):
+            raise ValueError("a sensor model is a mapping of named values")
+        if d.get("schema") != SCHEMA:
+            raise ValueError(f"unknown sensor model schema {d.get('schema')!r} (this version reads {SCHEMA!r})")
+        try:
+            return cls(
+                calibration=Calibration.from_dict(d),
+                noise_ut=d.get("noise_ut", (0.0, 0.0, 0.0)),
+                quantum_ut=d.get("quantum_ut", (0.0, 0.0, 0.0)),
+                wander=tuple(Wander.from_dict(c) for c in d.get("wander", ())),
+                glitch_rate=float(d.get("glitches", {}).get("rate_per_sample", 0.0)),
+                glitch_ut=tuple(d.get("glitches", {}).get("size_ut", (4.0, 15.0))),
+                nonlinearity_ut=_nonlinearity(d.get("nonlinearity_ut", {})),
+                temp_gain_per_c=float(d.get("temp_gain_per_c", 0.0)),
+                temp_ref_c=float(d.get("temp_ref_c", 25.0)),
+                saturation_ut=None if d.get("saturation_ut") is None else float(d["saturation_ut"]),
+                rate_hz=float(d.get("rate_hz", 50.0)),
+                source=dict(d.get("source", {})),
+            )
+        except KeyError as exc:
+            raise ValueError(f"sensor model lacks {exc.args[0]!r}") from None
+        except (TypeError, AttributeError) as exc:
+            raise ValueError(f"sensor model is malformed: {exc}") from None
+
+
+def replace_calibration(cal: Calibration, **changes) -> Calibration:
+    d = {"offset_ut": cal.offset_ut, "field_ut": cal.field_ut, "soft_iron": cal.soft_iron,
+         "coef_ut_per_unit": cal.coef_ut_per_unit, "reference": cal.reference}
+    d.update(changes)
+    return Calibration(**d)
+
+
+def quantize(m: np.ndarray, quantum_ut) -> np.ndarray:
+    q = np.asarray(quantum_ut, dtype=np.float64)
+    if not np.any(q > 0):
+        return m
+    safe = np.where(q > 0, q, 1.0)
+    return np.where(q > 0, np.round(np.round(m / safe) * safe, 9), m)
+
+
+def glitches(rng: np.random.Generator, n: int, rate: float, size_ut: tuple) -> np.ndarray:
+    """(n, 3) glitch vectors: with probability ``rate`` a jump of uniform size along a random
+    direction, zero elsewhere."""
+    out = np.zeros((n, 3))
+    if rate <= 0 or n == 0:
+        return out
+    hit = np.flatnonzero(rng.random(n) < rate)
+    d = rng.standard_normal((len(hit), 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    out[hit] = d * rng.uniform(size_ut[0], size_ut[1], len(hit))[:, None]
+    return out
+
+
+def _triple(v, name: str, lo: float) -> tuple:
+    a = np.broadcast_to(np.asarray(v, dtype=np.float64), (3,))
+    if not np.all(np.isfinite(a)) or np.any(a < lo):
+        raise ValueError(f"{name} must be three finite numbers ≥ {lo}, got {list(a)}")
+    return tuple(float(x) for x in a)
+
+
+def _nonlinearity(d) -> tuple:
+    if not isinstance(d, Mapping):
+        raise ValueError("nonlinearity_ut maps a direction term (y3_m3 … y4_p4) to µT")
+    unknown = set(d) - set(directions.NAMES)
+    if unknown:
+        raise ValueError(f"nonlinearity_ut has unknown terms {sorted(unknown)} (known: {', '.join(directions.NAMES)})")
+    return tuple(float(d.get(k, 0.0)) for k in directions.NAMES)

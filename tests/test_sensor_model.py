@@ -1,0 +1,139 @@
+"""The sensor model as a value: serialised, drawn, and driving the simulated board."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from magcal.app.sensor_file import load_model, save_model
+from magcal.core.calibration import Calibration
+from magcal.core.errors import InputError
+from magcal.sim import wander
+from magcal.sim.model import SCHEMA, SensorModel
+from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
+from magcal.sim.wander import Wander
+
+
+def _model(**kw):
+    cal = Calibration(offset_ut=[20.0, -30.0, 5.0], field_ut=48.0,
+                      soft_iron=[[1.05, 0.01, 0.0], [0.01, 0.97, 0.0], [0.0, 0.0, 0.98]],
+                      coef_ut_per_unit={"current_a": [0.5, -0.2, 0.1]}, reference={"current_a": 0.0})
+    base = dict(calibration=cal, noise_ut=(0.3, 0.3, 0.4), quantum_ut=(0.15, 0.15, 0.15),
+                wander=(Wander(0.3, 20.0), Wander((0.1, 0.1, 0.2), 0.5)), glitch_rate=0.001,
+                nonlinearity_ut=(0.2,) + (0.0,) * 15, temp_gain_per_c=1e-3, saturation_ut=800.0)
+    base.update(kw)
+    return SensorModel(**base)
+
+
+@pytest.mark.parametrize("suffix", ["yaml", "json"])
+def test_model_file_round_trip_keeps_every_value(tmp_path, suffix):
+    m = _model()
+    path = tmp_path / f"m.{suffix}"
+    save_model(m, path)
+    text = path.read_text()
+    assert SCHEMA in text and "noise_ut" in text and "tau_s" in text
+    back = load_model(path)
+    assert back.to_dict() == m.to_dict()
+
+
+def test_a_malformed_model_file_is_refused_with_the_problem_named(tmp_path):
+    good = _model().to_dict()
+    cases = {
+        "schema": ({**good, "schema": "magcal.sensor-model/99"}, "schema"),
+        "missing": ({k: v for k, v in good.items() if k != "offset_ut"}, "offset_ut"),
+        "negative": ({**good, "noise_ut": [0.1, -1, 0.1]}, "noise_ut"),
+        "tau": ({**good, "wander": [{"sigma_ut": [1, 1, 1], "tau_s": 0}]}, "tau_s"),
+        "term": ({**good, "nonlinearity_ut": {"y9_x": 1.0}}, "y9_x"),
+    }
+    for name, (d, word) in cases.items():
+        p = tmp_path / f"{name}.yaml"
+        p.write_text(yaml.safe_dump(d))
+        with pytest.raises(InputError, match=word):
+            load_model(p)
+    p = tmp_path / "junk.yaml"
+    p.write_text("a: [unclosed")
+    with pytest.raises(InputError, match="junk.yaml"):
+        load_model(p)
+
+
+def test_wander_is_a_function_of_seed_and_time_alone():
+    comps = (Wander(0.5, 3.0),)
+    t = np.linspace(0, 60, 3001)
+    a = wander.draw(comps, 7, t)
+    shuffled = np.random.default_rng(0).permutation(len(t))
+    b = wander.draw(comps, 7, t[shuffled])
+    assert np.allclose(a[shuffled], b)
+    assert not np.allclose(a, wander.draw(comps, 8, t))
+
+
+def test_wander_has_the_ou_variance_and_correlation_time():
+    comps = (Wander(0.5, 3.0),)
+    t = np.array([0.0, 3.0])
+    x = np.array([wander.draw(comps, s, t) for s in range(600)])  # (seeds, 2, 3)
+    var = x[:, 0, :].var()
+    corr = np.mean(x[:, 0, :] * x[:, 1, :]) / var
+    assert 0.25 * 0.85 < var < 0.25 * 1.15
+    assert abs(corr - np.exp(-1.0)) < 0.08
+
+
+def test_the_board_draws_from_the_one_model():
+    sc = demo_scenario(3)
+    sensor = sc.sensor
+    assert sensor.calibration.close_to(sc.physics.truth())
+    run = sc.simulate(500)
+    # the same stream through an explicit model gives the same readings before the chip's counts
+    m1, _ = sc.field_ut(run.series.t_s, np.arange(500))
+    m2, _ = dataclasses.replace(sc, model=sensor).field_ut(run.series.t_s, np.arange(500))
+    assert np.allclose(m1, m2)
+
+
+def test_a_model_with_wander_makes_autocorrelated_residuals_on_the_board():
+    sm = dataclasses.replace(demo_scenario(1).sensor, wander=(Wander(0.6, 10.0),), noise_ut=(0.2,) * 3)
+    sc = Scenario(physics=Physics(), motion=Motion("sphere", period_s=20.0), seed=5, model=sm)
+    s = sc.simulate(3000).series
+    e = np.linalg.norm(sm.calibration.correct(s.field_ut), axis=1) - sm.calibration.field_ut
+    e = e - e.mean()
+    assert (e[:-1] @ e[1:]) / (e @ e) > 0.6
+    still = Scenario(physics=Physics(), seed=5, model=dataclasses.replace(sm, wander=())).simulate(3000).series
+    e0 = np.linalg.norm(sm.calibration.correct(still.field_ut), axis=1) - sm.calibration.field_ut
+    e0 = e0 - e0.mean()
+    assert abs((e0[:-1] @ e0[1:]) / (e0 @ e0)) < 0.1
+
+
+def test_quantum_and_saturation_show_in_the_readings():
+    sm = _model(saturation_ut=60.0, wander=(), glitch_rate=0.0)
+    u = np.random.default_rng(1).standard_normal((400, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    m, valid = sm.simulate(u, np.arange(400) / 50.0, {"current_a": np.zeros(400)}, seed=2)
+    assert np.allclose(m / 0.15, np.round(m / 0.15))
+    assert (~valid).any() and valid.any()
+    assert np.all(np.abs(m[~valid]).max(axis=1) >= 60.0 - 1e-9)
+
+
+def test_removing_an_effect_leaves_the_rest():
+    sm = _model()
+    assert set(sm.effects()) >= {"soft_iron", "current_a", "wander", "nonlinearity", "glitches",
+                                 "temperature_gain", "saturation"}
+    for effect in sm.effects():
+        less = sm.without(effect)
+        assert effect not in less.effects()
+        assert set(less.effects()) == set(sm.effects()) - {effect}
+    with pytest.raises(ValueError, match="no effect"):
+        sm.without("magic")
+
+
+def test_model_dict_is_json_with_units_in_its_keys():
+    d = _model().to_dict()
+    json.dumps(d)
+    assert d["schema"] == SCHEMA
+    for key in ("offset_ut", "field_ut", "noise_ut", "quantum_ut", "temp_gain_per_c", "saturation_ut", "rate_hz"):
+        assert key in d
+    assert d["wander"][0].keys() == {"sigma_ut", "tau_s"}
+    assert d["glitches"].keys() == {"rate_per_sample", "size_ut"}
+
+
+def test_a_model_that_cannot_be_written_is_a_named_error(tmp_path):
+    with pytest.raises(InputError, match="cannot write"):
+        save_model(_model(), tmp_path / "no" / "such" / "m.yaml")

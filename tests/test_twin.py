@@ -1,0 +1,140 @@
+"""The sensor twin: learn a model from a recording, compare the recording with its twins, name
+what a model leaves out, and the commands that carry it (simulate --model/--like, diagnose
+--model-out/--twin)."""
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from magcal.app.load import load_series
+from magcal.app.sensor_file import load_model
+from magcal.core.calibration import Calibration
+from magcal.core.series import Series
+from magcal.diagnose import twin
+from magcal.fit import fit_calibration as fit
+from magcal.sim.model import SensorModel
+from magcal.sim.physics import Motion, Physics, Scenario
+from magcal.sim.wander import Wander
+
+DATA = os.path.join(os.path.dirname(__file__), "data")
+REAL = os.path.join(DATA, "lsm9ds1_ckexplorer_every4th.csv")
+
+
+def _truth():
+    cal = Calibration(offset_ut=[12.0, -20.0, 30.0], field_ut=50.0,
+                      soft_iron=[[1.04, 0.02, 0.0], [0.02, 0.96, 0.01], [0.0, 0.01, 1.0]])
+    return SensorModel(calibration=cal, noise_ut=(0.25, 0.25, 0.3), quantum_ut=(0.1, 0.1, 0.1),
+                       wander=(Wander(0.4, 8.0),))
+
+
+def _recording(model, seed=3, n=4000):
+    sc = Scenario(physics=Physics(), motion=Motion("sphere", period_s=15.0), seed=seed, model=model)
+    return sc.simulate(n).series
+
+
+def _learned(series):
+    cal = fit(series.field_ut, model="ellipsoid").calibration
+    return twin.learn(series, cal)
+
+
+def _wander_2s(components) -> float:
+    """The wander's structure function at 2 s: E|w(t + 2 s) − w(t)|² per axis."""
+    return sum(2 * np.mean(c.sigma_ut) ** 2 * (1 - np.exp(-2.0 / c.tau_s)) for c in components)
+
+
+def test_learn_recovers_noise_quantum_and_wander_of_a_known_sensor():
+    truth = _truth()
+    sm = _learned(_recording(truth, n=8000))
+    assert np.allclose(sm.quantum_ut, 0.1, atol=1e-6)
+    assert 0.2 < np.mean(sm.noise_ut) < 0.35
+    assert 0.5 < _wander_2s(sm.wander) / _wander_2s(truth.wander) < 2.0
+    assert "wander" in sm.effects() and "soft_iron" in sm.effects()
+
+
+def test_learn_finds_no_wander_in_white_noise():
+    sm = _learned(_recording(dataclasses.replace(_truth(), wander=()), n=8000))
+    assert _wander_2s(sm.wander) < 0.1 * np.mean(sm.noise_ut) ** 2
+
+
+def test_a_recording_lies_inside_the_band_of_its_own_models_twins():
+    rec = _recording(_truth(), seed=4)
+    c = twin.compare(_learned(rec), rec, draws=30, seed=100)
+    assert c.draws == 30
+    assert c.inside >= len(c.bands) - 2, [m.summary for m in c.mismatches]
+
+
+def test_a_twin_without_wander_is_named_for_what_it_misses():
+    rec = _recording(_truth(), seed=5)
+    sm = _learned(rec)
+    c = twin.compare(twin._white(sm.without("wander"), rec), rec, draws=30, seed=200)
+    named = {m.effect for m in c.mismatches}
+    assert "wander" in named, [m.summary for m in c.mismatches]
+    assert any("time" in m.summary for m in c.mismatches if m.effect == "wander")
+
+
+def test_a_twin_without_soft_iron_is_named_soft_iron():
+    rec = _recording(_truth(), seed=6)
+    sm = _learned(rec)
+    c = twin.compare(sm.without("soft_iron"), rec, draws=30, seed=300)
+    assert "soft_iron" in {m.effect for m in c.mismatches}
+
+
+def test_real_excerpt_final_model_beats_the_baseline():
+    series = load_series(REAL)
+    sm = _learned(series)
+    rep = twin.ladder(sm, series, draws=30, seed=11)
+    assert rep.steps[0].step == "baseline" and rep.steps[-1].step == "final"
+    assert rep.final.inside >= rep.baseline.inside + 3
+    assert rep.final.inside >= 0.8 * len(rep.final.bands)
+    d = rep.to_dict()
+    json.dumps(d)
+    assert d["steps"][-1]["inside"] == rep.final.inside
+
+
+def _run(*args, cwd):
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    return subprocess.run([sys.executable, "-m", "magcal", *args], cwd=cwd, capture_output=True, text=True, env=env)
+
+
+def test_diagnose_writes_a_model_that_simulate_draws_twins_from(tmp_path):
+    r = _run("diagnose", REAL, "--model-out", "m.yaml", "--twin", "--draws", "20", "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    steps = d["twin"]["steps"]
+    assert steps[0]["step"] == "baseline" and steps[-1]["step"] == "final"
+    assert steps[-1]["inside"] > steps[0]["inside"]
+    sm = load_model(tmp_path / "m.yaml")
+    assert sm.wander and sm.source["recording"] == REAL
+    r = _run("simulate", "--model", "m.yaml", "--like", REAL, "-o", "twin.csv", "--seed", "9", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    real, tw = load_series(REAL), load_series(tmp_path / "twin.csv")
+    assert len(tw) == len(real)
+    assert np.allclose(np.linalg.norm(tw.field_ut - sm.calibration.offset_ut, axis=1).mean(),
+                       np.linalg.norm(real.field_ut - sm.calibration.offset_ut, axis=1).mean(), rtol=0.02)
+    r = _run("simulate", "--model", "m.yaml", "-o", "own.csv", "--seconds", "20", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert len(load_series(tmp_path / "own.csv")) == int(round(20 * sm.rate_hz))
+
+
+def test_diagnose_twin_text_shows_the_steps(tmp_path):
+    r = _run("diagnose", REAL, "--twin", "--draws", "12", "--report", "rep", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "baseline" in r.stdout and "final" in r.stdout and "inside" in r.stdout
+    page = (tmp_path / "rep" / "twin.html").read_text()
+    assert "✓" in page and "twin_time.png" in page
+    assert "twin.html" in (tmp_path / "rep" / "index.html").read_text()
+
+
+def test_simulate_refuses_contradicting_options(tmp_path):
+    r = _run("simulate", "--like", REAL, "-o", "x.csv", cwd=tmp_path)
+    assert r.returncode == 2 and "--like needs --model" in r.stderr
+    (tmp_path / "m.yaml").write_text("schema: magcal.sensor-model/1\noffset_ut: [0, 0, 0]\nfield_ut: 50\n")
+    r = _run("simulate", "--model", "m.yaml", "--noise", "0.1", "-o", "x.csv", cwd=tmp_path)
+    assert r.returncode == 2 and "--noise" in r.stderr
+    r = _run("diagnose", REAL, "--twin", "--draws", "3", cwd=tmp_path)
+    assert r.returncode == 2 and "--draws" in r.stderr  # a usage error
