@@ -1,0 +1,432 @@
+"""The tracker: the calibration in force at every moment, from the samples so far.
+
+A sensor's calibration wanders (the offset follows temperature, current and ageing; a mount's
+soft iron can change), so a calibration fitted once goes stale. ``Tracker`` keeps a full
+ellipsoid up to date as samples arrive, with bounded memory and bounded time per sample:
+
+* **Memory: a coverage-balanced buffer.** The sphere of directions is cut into equal-area cells
+  (``coverage.cell_index``); each cell keeps its ``per_cell`` newest samples with their times.
+  A direction visited again replaces its own oldest samples; a direction not visited for a
+  long time keeps its last ones, so the shape stays pinned in directions the recent motion does
+  not reach. Memory is ``cells × per_cell`` samples, whatever the length of the stream.
+* **Weights: each cell counts the same** (a share floor, as ``select.direction_weights``), so
+  lingering in a few poses cannot bend the ellipsoid; and **older samples count less** at a
+  rate estimated from the data: the radial residual of a sample of age a is modelled as
+  N(0, s² + q·a) (s: noise and shape error; q: how fast the calibration wanders, µT²/s), and
+  (s², q) are the maximum-likelihood values on the buffer's own residuals. A still sensor gives
+  q ≈ 0 and the buffer is one long memory; a wandering one gives q > 0 and weight 1/(1 + q a/s²).
+* **Solve: a few weighted Gauss–Newton steps** of the geometric (ML) residual
+  ``geometric.residual`` every ``refit_every`` samples, started from the previous solution, with
+  Huber weights against spikes. The model grows sphere → diagonal → full ellipsoid when the
+  buffer's coverage determines it (the information-matrix and shape-σ gates of ``pipeline``),
+  checked at most every ``ladder_every`` samples.
+
+Nothing here keeps the whole history or refits it: per sample one cell lookup and one buffer
+write; per refit O(cells × per_cell). ``Tracker.add`` returns a new :class:`Estimate` when the
+calibration in force changed (it holds for the samples after ``Estimate.sample``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.calibration import Calibration
+from . import geometric
+from .ellipsoid import algebraic_start
+from .failure import FitFailure
+from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
+from .result import MODEL_NAMES
+from .sphere import sphere_start
+from .tracker_memory import CellBuffer, Wander
+
+LADDER = ("sphere", "diagonal", "full")
+START_MARGIN = 10.0  # a first solution needs 10× the conditioning a running one needs (hysteresis)
+HUBER_K = 2.5  # Huber threshold in robust σ of the residual (95 % efficiency under Gaussian noise)
+_STATE_KIND = "magcal.tracker"
+_STATE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """How the tracker keeps its memory and how often it solves (see the module docstring)."""
+
+    bands: int = 8
+    sectors: int = 16
+    per_cell: int = 8
+    refit_every: int = 20
+    ladder_every: int = 200
+    min_samples: int = 20
+    min_share: float = 0.1
+    max_condition: float = DEFAULT_MAX_CONDITION
+    max_shape_sigma: float = DEFAULT_MAX_SHAPE_SIGMA
+
+    def __post_init__(self):
+        ints = ("bands", "sectors", "per_cell", "refit_every", "ladder_every", "min_samples")
+        for name in ints:
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"tracker {name} must be ≥ 1, not {getattr(self, name)!r}")
+        if not 0.0 <= self.min_share <= 1.0:
+            raise ValueError(f"tracker min_share must be in [0, 1], not {self.min_share!r}")
+
+    @property
+    def capacity(self) -> int:
+        return self.bands * self.sectors * self.per_cell
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The calibration in force after sample ``sample`` (0-based, samples given to the tracker).
+
+    ``wander_ut2_per_s``: q, the variance growth rate of the radial error with age (0 = the
+    data show no wander); ``noise_ut``: s, the residual scale of fresh samples;
+    ``offset_sigma_ut``: 1σ of the offset from the weighted fit (independent-residual figure);
+    ``buffered``: samples in memory; ``coverage``: share of direction cells holding any.
+    """
+
+    sample: int
+    t_s: float
+    model: str
+    calibration: Calibration
+    wander_ut2_per_s: float
+    noise_ut: float
+    offset_sigma_ut: np.ndarray = field(repr=False)
+    buffered: int
+    coverage: float
+
+    def to_dict(self) -> dict:
+        c = self.calibration
+        return {
+            "sample": self.sample,
+            "t": self.t_s,
+            "model": self.model,
+            "offset_ut": [float(v) for v in c.offset_ut],
+            "soft_iron": [[float(v) for v in row] for row in c.soft_iron],
+            "field_ut": c.field_ut,
+            "offset_sigma_ut": [float(v) for v in self.offset_sigma_ut],
+            "wander_ut2_per_s": self.wander_ut2_per_s,
+            "noise_ut": self.noise_ut,
+            "buffered": self.buffered,
+            "coverage": self.coverage,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Estimate":
+        """The inverse of ``to_dict``."""
+        return cls(
+            sample=int(d["sample"]), t_s=float(d["t"]), model=str(d["model"]),
+            calibration=Calibration(offset_ut=d["offset_ut"], field_ut=d["field_ut"], soft_iron=d["soft_iron"]),
+            wander_ut2_per_s=float(d["wander_ut2_per_s"]), noise_ut=float(d["noise_ut"]),
+            offset_sigma_ut=np.asarray(d["offset_sigma_ut"], dtype=np.float64), buffered=int(d["buffered"]),
+            coverage=float(d["coverage"]),
+        )
+
+
+@dataclass(frozen=True)
+class Withdrawal:
+    """No calibration is in force after sample ``sample`` any more, and why."""
+
+    sample: int
+    t_s: float
+    reason: str
+
+    def to_dict(self) -> dict:
+        return {"sample": self.sample, "t": self.t_s, "model": None, "offset_ut": None, "soft_iron": None,
+                "field_ut": None, "reason": self.reason}
+
+
+def condition(A: np.ndarray) -> float:
+    """Condition number of an information matrix JᵀWJ scaled to unit diagonal (the test of
+    ``uncertainty.information_condition``, from the normal matrix)."""
+    d = np.sqrt(np.diag(A))
+    if np.any(d <= 0) or not np.all(np.isfinite(d)):
+        return float("inf")
+    ev = np.linalg.eigvalsh(A / np.outer(d, d))
+    return float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+
+
+def _robust_scale(e: np.ndarray) -> float:
+    med = float(np.median(e))
+    return max(1.4826 * float(np.median(np.abs(e - med))), 1e-9)
+
+
+def _residual(theta, pts, kind) -> np.ndarray:
+    d = pts - theta[:3]
+    if kind != "sphere":
+        d = d @ geometric.expm_sym(geometric.shape_matrix(kind, theta[4:]))[0].T
+    return np.sqrt(np.einsum("ij,ij->i", d, d)) - theta[3]
+
+
+def _residual_jacobian(theta, pts, kind) -> tuple[np.ndarray, np.ndarray]:
+    """``geometric.residual`` and ``geometric.jacobian`` from one matrix exponential."""
+    d = pts - theta[:3]
+    J = np.empty((len(pts), len(theta)))
+    if kind == "sphere":
+        nh = np.sqrt(np.einsum("ij,ij->i", d, d))
+        J[:, :3] = -d / np.maximum(nh, 1e-300)[:, None]
+    else:
+        W, dWs = geometric.expm_derivatives(kind, theta[4:])
+        h = d @ W.T
+        nh = np.sqrt(np.einsum("ij,ij->i", h, h))
+        u = h / np.maximum(nh, 1e-300)[:, None]
+        J[:, :3] = -(u @ W)
+        P = (d @ np.concatenate(dWs).T).reshape(len(d), len(dWs), 3)  # P[i, k] = dW_k d_i
+        J[:, 4:] = np.einsum("ia,ika->ik", u, P)
+    J[:, 3] = -1.0
+    return nh - theta[3], J
+
+
+def _damped_step(pts, kind, theta, w, e, J, lam: float):
+    """One Levenberg-damped Gauss–Newton step of Σ w e² from θ (residual e, Jacobian J there),
+    raising the damping until the sum falls. Returns (θ, Σ w e², damping, JᵀWJ at the start);
+    θ is unchanged when no step lowers the sum."""
+    cost = float(w @ (e * e))
+    Jw = J * w[:, None]
+    A, g = J.T @ Jw, Jw.T @ e
+    for _ in range(6):
+        try:
+            step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
+        except np.linalg.LinAlgError:
+            lam *= 100.0
+            continue
+        trial = theta + step
+        e2 = _residual(trial, pts, kind)
+        c2 = float(w @ (e2 * e2))
+        if np.isfinite(c2) and c2 <= cost and trial[3] > 0:
+            return trial, c2, max(lam / 10.0, 1e-9), A
+        lam *= 10.0
+    return theta, cost, lam, A
+
+
+def gauss_newton(pts, kind, theta, w, steps: int):
+    """``steps`` damped Gauss–Newton steps (``_damped_step``) from θ. Returns (θ, JᵀWJ at the
+    result, Σ w e²)."""
+    lam = 1e-6
+    e, J = _residual_jacobian(theta, pts, kind)
+    cost = float(w @ (e * e))
+    for _ in range(steps):
+        moved, cost, lam, _ = _damped_step(pts, kind, theta, w, e, J, lam)
+        if moved is theta:
+            break
+        theta = moved
+        e, J = _residual_jacobian(theta, pts, kind)
+    return theta, J.T @ (J * w[:, None]), cost
+
+
+def _extend(theta: np.ndarray, kind: str) -> np.ndarray:
+    """θ of a smaller model as the same ellipsoid in ``kind``'s parameters (the parameter
+    vectors are nested: sphere [b, r] ⊂ diagonal [.., s_xx, s_yy] ⊂ full [.., s_xy, s_xz, s_yz])."""
+    out = np.zeros(geometric.n_params(kind))
+    out[: len(theta)] = theta
+    return out
+
+
+class Tracker:
+    """Follows the calibration of one sensor through a stream of samples (µT, seconds)."""
+
+    def __init__(self, config: TrackerConfig | None = None):
+        self.config = c = config or TrackerConfig()
+        self.memory = CellBuffer(c.bands, c.sectors, c.per_cell, c.min_share)
+        self.wander = Wander()
+        self.n = 0  # samples offered (the index of the next one)
+        self.skipped = 0  # non-finite samples refused
+        self.kind: str | None = None
+        self.theta: np.ndarray | None = None
+        self.estimate: Estimate | None = None
+        self._since_refit = 0
+        self._damping = 1e-6
+        self._seq_at_refit = 0
+        self._last_ladder = -(10**18)
+        self._cells_at_ladder = 0
+        self._t_last = 0.0
+        self._sum = [0.0, 0.0, 0.0]
+        self.n_used = 0
+
+    def coverage(self) -> float:
+        return self.memory.occupied() / len(self.memory.count)
+
+    # -- the stream ----------------------------------------------------------------------
+    def add(self, m_ut, t_s: float) -> Estimate | Withdrawal | None:
+        """Offer one sample (µT, s); returns the new Estimate when the calibration in force
+        changed (a Withdrawal when there is none any more). A non-finite sample is counted in
+        ``skipped`` and otherwise ignored."""
+        x, y, z = (float(v) for v in m_ut)
+        t = float(t_s)
+        self.n += 1
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(t)):
+            self.skipped += 1
+            return None
+        mem = self.memory
+        if mem.centre is None:
+            mem.centre = (x, y, z + 1e-9)
+        mem.add(x, y, z, t)
+        self._t_last = t
+        s = self._sum
+        s[0] += x
+        s[1] += y
+        s[2] += z
+        self.n_used += 1
+        self._since_refit += 1
+        if self._since_refit < self.config.refit_every:
+            return None
+        self._since_refit = 0
+        return self._refit()
+
+    def add_many(self, m_ut, t_s) -> list[Estimate | Withdrawal]:
+        """Offer (n, 3) samples with times (n,); the changes of the calibration in force."""
+        m = np.asarray(m_ut, dtype=np.float64).reshape(-1, 3)
+        t = np.asarray(t_s, dtype=np.float64).reshape(-1)
+        if len(t) != len(m):
+            raise ValueError(f"{len(m)} samples but {len(t)} times")
+        out = []
+        for row, tt in zip(m.tolist(), t.tolist()):
+            e = self.add(row, tt)
+            if e is not None:
+                out.append(e)
+        return out
+
+    # -- solving -------------------------------------------------------------------------
+    def _start(self) -> bool:
+        """First solution: the algebraic sphere of the buffer (filed about the samples' mean)
+        refined to the ML sphere, kept only if the buffer's coverage pins it."""
+        self.memory.rebin(np.array(self._sum) / self.n_used, force=True)
+        _, m, _, wc = self.memory.samples()
+        start = sphere_start(m, max_condition=100 * self.config.max_condition)
+        if isinstance(start, FitFailure):
+            return False
+        theta, A, _ = gauss_newton(m, "sphere", np.asarray(start, dtype=np.float64), wc, 10)
+        if condition(A) > self.config.max_condition / START_MARGIN:
+            return False
+        self.theta, self.kind = theta, "sphere"
+        self.memory.rebin(theta[:3], force=True)
+        self._seq_at_refit = self.memory.seq_count
+        return True
+
+    def _weights(self, idx, t, wc, e) -> tuple[np.ndarray, float, float]:
+        """Cell balance × age × Huber from the residuals e under the calibration in force;
+        returns (w with mean 1, s², q). The wander q is learnt first from the new samples
+        (``Wander``); s is the residual scale of a fresh sample: the robust scale of e/√(1 + q·a/s²),
+        solved by fixed point, since old samples are expected to sit further off."""
+        scale = _robust_scale(e)
+        d, delta, other, dt = self.memory.pairs(idx, e, self._seq_at_refit, self.theta[:3])
+        self.wander.add(np.clip(d, -HUBER_K * scale, HUBER_K * scale), delta, other, dt)
+        self._seq_at_refit = self.memory.seq_count
+        _, q = self.wander.solve()
+        age = np.maximum(self._t_last - t, 0.0)
+        stretch = np.ones(len(e))
+        for _ in range(3 if q > 0 else 0):
+            stretch = np.sqrt(1.0 + (q / (scale * scale)) * age)
+            scale = _robust_scale(e / stretch)
+        s2 = scale * scale
+        self.memory.rho_per_s = q / s2
+        cap = HUBER_K * scale * stretch
+        w = wc * np.minimum(1.0, cap / np.maximum(np.abs(e), 1e-300)) / (1.0 + (q / s2) * age)
+        return w / w.mean(), s2, q
+
+    def _climb(self, m, w) -> None:
+        """Try the fuller models, each from the current one and from the algebraic ellipsoid;
+        kept if determinable (information condition) and its gains pinned (shape σ from its own
+        residual), as ``pipeline`` judges them. A new model starts a new wander record."""
+        c = self.config
+        self._last_ladder, self._cells_at_ladder = self.n, self.memory.occupied()
+        for kind in LADDER[LADDER.index(self.kind) + 1:]:
+            best = None
+            for start in (_extend(self.theta, kind), algebraic_start(m, kind)):
+                if isinstance(start, FitFailure):
+                    continue
+                fitted = gauss_newton(m, kind, np.asarray(start, dtype=np.float64), w, 8)
+                if best is None or fitted[2] < best[2]:
+                    best = fitted
+            theta, A, cost = best
+            if condition(A) > c.max_condition:
+                return
+            cov = (cost / max(len(m) - len(theta), 1)) * np.linalg.pinv(A)
+            if math.sqrt(max(float(np.max(np.diag(cov)[4:])), 0.0)) > c.max_shape_sigma:
+                return
+            self.theta, self.kind = theta, kind
+            self.wander = Wander()
+
+    def _refit(self) -> Estimate | Withdrawal | None:
+        if self.memory.valid.sum() < max(self.config.min_samples, 5):
+            return None
+        if self.theta is None and not self._start():
+            return None
+        idx, m, t, wc = self.memory.samples()
+        e, J = _residual_jacobian(self.theta, m, self.kind)
+        if condition(J.T @ (J * wc[:, None])) > self.config.max_condition:
+            return self._withdraw()
+        w, s2, q = self._weights(idx, t, wc, e)
+        if self.kind != "full" and (self.n - self._last_ladder >= self.config.ladder_every
+                                    or self.memory.occupied() > self._cells_at_ladder):
+            self._climb(m, w)
+            e, J = _residual_jacobian(self.theta, m, self.kind)
+        theta, _, self._damping, A = _damped_step(m, self.kind, self.theta, w, e, J, self._damping)
+        if theta is self.theta or condition(A) > self.config.max_condition:
+            return None  # no better solution, or the weighted buffer no longer pins this model
+        self.theta = theta
+        if np.linalg.norm(theta[:3] - np.array(self.memory.centre)) > 0.1 * theta[3]:
+            self.memory.rebin(theta[:3])
+        return self._publish(A, s2, q, len(m))
+
+    def _withdraw(self) -> Withdrawal | None:
+        """The memory no longer pins the model in force (a first solution that looked pinned
+        on few samples): back to no calibration, said once."""
+        had = self.estimate is not None
+        self.theta, self.kind, self.estimate, self.wander = None, None, None, Wander()
+        reason = "the samples in memory no longer determine the calibration (too few directions)"
+        return Withdrawal(sample=self.n - 1, t_s=self._t_last, reason=reason) if had else None
+
+    def _publish(self, A, s2, q, n_buf) -> Estimate:
+        b, r, W = geometric.unpack(self.theta, self.kind)
+        try:
+            sig = np.sqrt(np.clip(np.diag(s2 * np.linalg.inv(A))[:3], 0.0, None))
+        except np.linalg.LinAlgError:
+            sig = np.full(3, np.inf)
+        self.estimate = Estimate(
+            sample=self.n - 1, t_s=self._t_last, model=MODEL_NAMES[self.kind],
+            calibration=Calibration(offset_ut=b, field_ut=r, soft_iron=W),
+            wander_ut2_per_s=q, noise_ut=math.sqrt(s2), offset_sigma_ut=sig,
+            buffered=n_buf, coverage=self.coverage(),
+        )
+        return self.estimate
+
+    # -- persistence -----------------------------------------------------------------------
+    def to_state(self) -> dict:
+        """JSON-able state; ``Tracker.from_state`` continues exactly where this one stopped."""
+        c = self.config
+        return {
+            "kind": _STATE_KIND, "version": _STATE_VERSION,
+            "config": {f: getattr(c, f) for f in c.__dataclass_fields__},
+            "memory": self.memory.to_state(), "wander": self.wander.to_state(),
+            "n": self.n, "skipped": self.skipped, "n_used": self.n_used, "sum": list(self._sum),
+            "model": self.kind, "theta": None if self.theta is None else self.theta.tolist(),
+            "since_refit": self._since_refit, "damping": self._damping, "seq_at_refit": self._seq_at_refit,
+            "last_ladder": self._last_ladder, "cells_at_ladder": self._cells_at_ladder, "t_last": self._t_last,
+            "estimate": None if self.estimate is None else self.estimate.to_dict(),
+        }
+
+    @classmethod
+    def from_state(cls, d: dict) -> "Tracker":
+        if not isinstance(d, dict) or d.get("kind") != _STATE_KIND:
+            raise ValueError(f"not a tracker state (kind must be {_STATE_KIND!r})")
+        if d.get("version") != _STATE_VERSION:
+            raise ValueError(f"tracker state version {d.get('version')!r} is not {_STATE_VERSION}")
+        try:
+            trk = cls(TrackerConfig(**d["config"]))
+            trk.memory.load_state(d["memory"])
+            trk.wander = Wander.from_state(d["wander"])
+            trk.n, trk.skipped, trk.n_used = int(d["n"]), int(d["skipped"]), int(d["n_used"])
+            trk._sum = [float(v) for v in d["sum"]]
+            trk.kind = d["model"]
+            trk.theta = None if d["theta"] is None else np.asarray(d["theta"], dtype=np.float64)
+            trk._since_refit, trk._damping = int(d["since_refit"]), float(d["damping"])
+            trk._seq_at_refit, trk._last_ladder = int(d["seq_at_refit"]), int(d["last_ladder"])
+            trk._cells_at_ladder, trk._t_last = int(d["cells_at_ladder"]), float(d["t_last"])
+            trk.estimate = None if d["estimate"] is None else Estimate.from_dict(d["estimate"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"tracker state is malformed: {exc}") from None
+        if trk.kind not in (None, *LADDER) or (trk.theta is not None and len(trk.theta) != geometric.n_params(trk.kind)):
+            raise ValueError("tracker state is inconsistent (model and parameters disagree)")
+        return trk

@@ -1,0 +1,111 @@
+"""The tracker: the calibration in force follows the sensor, with bounded memory."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from magcal.fit import fit
+from magcal.fit.tracker import Estimate, Tracker, TrackerConfig, Withdrawal
+from magcal.fit.tracker_memory import Wander
+from magcal.sim.physics import Motion, demo_scenario
+
+DRIFT = np.array([0.01, -0.006, 0.004])  # µT/s
+
+
+def _run(scenario, n, rate=50.0):
+    run = scenario.simulate(n, rate)
+    return run, run.series.field_ut, run.series.t_s
+
+
+def test_converges_to_the_truth_of_a_steady_sensor():
+    run, m, t = _run(demo_scenario(3), 6000)
+    trk = Tracker()
+    events = trk.add_many(m, t)
+    est = trk.estimate
+    assert events and all(isinstance(e, Estimate) for e in events)
+    assert est.model == "ellipsoid"
+    assert np.abs(est.calibration.offset_ut - run.truth.offset_ut).max() < 0.15
+    assert np.abs(est.calibration.soft_iron - run.truth.soft_iron).max() < 0.01
+    assert est.wander_ut2_per_s == 0.0  # a steady sensor shows no wander
+    # each change holds for the samples after it: indices are 0-based rows, increasing
+    assert [e.sample for e in events] == sorted({e.sample for e in events})
+    assert events[-1].sample <= len(m) - 1
+
+
+def test_follows_a_drifting_offset_that_a_static_fit_averages_away():
+    sc = demo_scenario(5).with_physics(drift_ut_per_s=tuple(DRIFT))
+    run, m, t = _run(sc, 30000)
+    trk = Tracker()
+    trk.add_many(m, t)
+    now = run.truth.offset_ut + DRIFT * t[-1]
+    tracked = np.linalg.norm(trk.estimate.calibration.offset_ut - now)
+    static = np.linalg.norm(fit(m).calibration.offset_ut - now)
+    assert trk.estimate.wander_ut2_per_s > 0
+    assert tracked < 0.4 * static
+
+
+def test_memory_is_bounded_whatever_the_length():
+    cfg = TrackerConfig(bands=4, sectors=8, per_cell=4)
+    _, m, t = _run(demo_scenario(2), 8000)
+    trk = Tracker(cfg)
+    trk.add_many(m, t)
+    assert trk.memory.valid.sum() <= cfg.capacity == 128
+    assert trk.n == 8000
+
+
+def test_flat_turns_give_no_calibration():
+    sc = replace(demo_scenario(5), motion=Motion("yaw"))
+    _, m, t = _run(sc, 3000)
+    trk = Tracker()
+    events = trk.add_many(m, t)
+    assert trk.estimate is None
+    if events:  # a first solution on few samples may look pinned; it is then withdrawn
+        assert isinstance(events[-1], Withdrawal)
+        assert events[-1].to_dict()["offset_ut"] is None
+
+
+def test_bad_samples_are_counted_and_do_not_disturb():
+    run, m, t = _run(demo_scenario(4), 4000)
+    bad = m.copy()
+    bad[::97] = np.nan
+    a, b = Tracker(), Tracker()
+    a.add_many(m, t)
+    b.add_many(bad, t)
+    assert b.skipped == len(m[::97]) and b.n == len(m)
+    assert np.abs(b.estimate.calibration.offset_ut - run.truth.offset_ut).max() < 0.2
+    with pytest.raises(ValueError, match="samples but"):
+        b.add_many(m[:10], t[:9])
+
+
+def test_state_round_trip_continues_exactly():
+    _, m, t = _run(demo_scenario(6), 5000)
+    a = Tracker()
+    a.add_many(m[:2500], t[:2500])
+    b = Tracker.from_state(json.loads(json.dumps(a.to_state())))
+    ea, eb = a.add_many(m[2500:], t[2500:]), b.add_many(m[2500:], t[2500:])
+    assert [e.to_dict() for e in ea] == [e.to_dict() for e in eb]
+    with pytest.raises(ValueError, match="not a tracker state"):
+        Tracker.from_state({"kind": "something else"})
+
+
+def test_wander_likelihood_finds_a_random_walk_and_not_a_per_visit_error():
+    rng = np.random.default_rng(1)
+    n = 4000
+    dt = rng.uniform(0, 100, n)
+    delta = rng.uniform(0, 0.1, n)
+    other = rng.random(n) < 0.5
+    s2 = 0.04
+    walk = Wander()
+    walk.add(rng.normal(0, np.sqrt(s2 * 2 + 0.002 * dt)), delta, other, dt)
+    _, q = walk.solve()
+    assert 0.001 < q < 0.004
+    visits = Wander()  # an error shared within a visit, not growing with time
+    visits.add(rng.normal(0, np.sqrt(s2 * (2 + 3 * other))), delta, other, dt)
+    assert visits.solve()[1] == 0.0
+
+
+def test_config_refuses_nonsense():
+    with pytest.raises(ValueError, match="per_cell"):
+        TrackerConfig(per_cell=0)
