@@ -20,6 +20,7 @@ from .exits import Exit, code_for, epilog
 COMMANDS = {
     "calibrate": "calibrate a device end to end and write the result back (verified by read-back)",
     "fit": "fit a sphere or ellipsoid calibration to recordings (captures, logs, tables)",
+    "track": "replay a recording through the tracker: the calibration in force at every sample",
     "diagnose": "find what a sphere calibration leaves out of a recording, model it, show held-out gain",
     "record": "record the raw bytes from a device (with receive times) as a capture file",
     "export": "export a recording as CSV (t, mx, my, mz in µT, temp_c, other channels)",

@@ -40,7 +40,7 @@ def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
     est = ""
     if p["offset_ut"]:
         o = p["offset_ut"]
-        est = f"  offset [{o[0]:.1f} {o[1]:.1f} {o[2]:.1f}] µT  |B| {p['field_ut']:.1f} µT"
+        est = f"  {p['model']} offset [{o[0]:.1f} {o[1]:.1f} {o[2]:.1f}] µT  |B| {p['field_ut']:.1f} µT"
     rate = p["samples"] / elapsed if elapsed > 0.5 else 0.0
     need = session.gates_cfg.min_coverage
     head = (f"{p['status']}: {p['samples']} samples ({rate:.0f}/s), {100 * p['coverage']:.0f}% of directions "

@@ -105,7 +105,7 @@ class Estimate:
             "offset_ut": [float(v) for v in c.offset_ut],
             "soft_iron": [[float(v) for v in row] for row in c.soft_iron],
             "field_ut": c.field_ut,
-            "offset_sigma_ut": [float(v) for v in self.offset_sigma_ut],
+            "offset_sigma_ut": [float(v) if math.isfinite(v) else None for v in self.offset_sigma_ut],
             "wander_ut2_per_s": self.wander_ut2_per_s,
             "noise_ut": self.noise_ut,
             "buffered": self.buffered,
@@ -119,7 +119,8 @@ class Estimate:
             sample=int(d["sample"]), t_s=float(d["t"]), model=str(d["model"]),
             calibration=Calibration(offset_ut=d["offset_ut"], field_ut=d["field_ut"], soft_iron=d["soft_iron"]),
             wander_ut2_per_s=float(d["wander_ut2_per_s"]), noise_ut=float(d["noise_ut"]),
-            offset_sigma_ut=np.asarray(d["offset_sigma_ut"], dtype=np.float64), buffered=int(d["buffered"]),
+            offset_sigma_ut=np.array([np.inf if v is None else v for v in d["offset_sigma_ut"]], dtype=np.float64),
+            buffered=int(d["buffered"]),
             coverage=float(d["coverage"]),
         )
 

@@ -8,10 +8,12 @@ Every change of state goes through ``_set_status``, which refuses transitions th
 not have. Lifecycle (``status``) and failure reasons (``failure``) are separate: a FAILED
 session says *why* in ``failure`` (a short code) and ``failure_message`` (a sentence).
 
-The session takes samples and link events, keeps the streaming sphere accumulator (every valid
-sample, O(1)) for the live estimate, and a bounded direction-balanced ``SampleSet`` for the
-final maximum-likelihood fit. Gates are data (``GateResult``), evaluated on the live estimate
-while collecting and on the final fit before anything is written.
+The session takes samples and link events and keeps three things: the tracker
+(``fit.tracker``: the calibration in force so far, the live estimate shown and judged while
+collecting), the streaming sphere accumulator (every valid sample, O(1): its normal-matrix
+condition is the coverage gate), and a bounded direction-balanced ``SampleSet`` for the final
+maximum-likelihood fit. Gates are data (``GateResult``), evaluated on the live estimate while
+collecting and on the final fit before anything is written.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from ..core.events import Event
 from ..core.sample import Sample
 from ..fit import SphereAccumulator, fit_calibration
 from ..fit.coverage import SampleSet
+from ..fit.tracker import Tracker
 from .gates import Clearance, Evidence, GateResult, Gates, clear_for_write, data_gates, model_gates
 
 ESTIMATE_EVERY = 50  # samples between live re-solves (cheap: a 4×4 solve)
@@ -60,8 +63,9 @@ class Session:
         self.failure_message = ""
         self.counters: Counter = Counter()
         self.accumulator = SphereAccumulator()
+        self.tracker = Tracker()  # the live estimate: the calibration in force so far
         self.kept = SampleSet()
-        self.estimate = None  # SphereFit | FitFailure | None
+        self.estimate = None  # the accumulator's SphereFit | FitFailure | None (the coverage test)
         self.result = None  # the final FitResult once solved
         self.final_gates: list[GateResult] = []  # the gates as judged on the final fit
         self.clearance: Clearance | None = None  # the decision on writing the final fit
@@ -117,6 +121,7 @@ class Session:
             return
         self.accumulator.add(m)
         self.last_field_ut = m
+        self.tracker.add(m, item.t_s)
         aux = {"t_s": item.t_s}
         if item.temp_c is not None:
             aux["temp_c"] = item.temp_c
@@ -149,7 +154,11 @@ class Session:
         if not est:
             why = getattr(est, "message", "no estimate yet")
             return out[:2] + [GateResult("solvable", False, None, None, why)]
-        return out + model_gates(g, est.offset_ut, est.field_ut, est.rms_ut, est.offset_sigma_ut)
+        live = self.tracker.estimate
+        if live is None:
+            return out + [GateResult("solvable", False, None, None, "the tracker has no calibration yet")]
+        c = live.calibration
+        return out + model_gates(g, c.offset_ut, c.field_ut, live.noise_ut, live.offset_sigma_ut)
 
     def ready(self) -> bool:
         return self.status is Status.COLLECTING and self._ready
@@ -158,14 +167,17 @@ class Session:
         return [r for r in self.live_gates() if not r.passed]
 
     def progress(self) -> dict:
-        est = self.estimate
+        """Where collecting stands; the live calibration is the tracker's (``fit.tracker``)."""
+        live = self.tracker.estimate
+        c = live.calibration if live is not None else None
         return {
             "status": self.status.value,
             "samples": int(self.counters["samples_in"]),
             "kept": len(self.kept),
             "coverage": self.kept.coverage(),
-            "offset_ut": [float(v) for v in est.offset_ut] if est else None,
-            "field_ut": float(est.field_ut) if est else None,
+            "model": live.model if live is not None else None,
+            "offset_ut": [float(v) for v in c.offset_ut] if c is not None else None,
+            "field_ut": float(c.field_ut) if c is not None else None,
         }
 
     # -- solving ---------------------------------------------------------------------------------
@@ -227,6 +239,7 @@ class Session:
             "counters": {k: int(v) for k, v in self.counters.items()},
             "accumulator": self.accumulator.to_state(),
             "kept": self.kept.to_state(),
+            "tracker": self.tracker.to_state(),
         }
 
     @classmethod
@@ -237,6 +250,8 @@ class Session:
             s.counters = Counter({str(k): int(v) for k, v in d["counters"].items()})
             s.accumulator = SphereAccumulator.from_state(d["accumulator"])
             s.kept = SampleSet.from_state(d["kept"])
+            if "tracker" in d:  # (states written before the tracker start a fresh one)
+                s.tracker = Tracker.from_state(d["tracker"])
         except (KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"session state is malformed: {exc!r}") from None
         if s.accumulator.n:

@@ -1,0 +1,106 @@
+"""``magcal track FILE [--jsonl | --json]``: replay a recording through the tracker.
+
+The tracker (``magcal.fit.tracker``) keeps the calibration in force as samples arrive: a full
+ellipsoid from a coverage-balanced memory, older samples counting less at the wander rate the
+data show. ``track`` feeds FILE's samples in order and reports each change of the calibration in
+force. A change at ``sample`` k holds for the samples after k (0-based, FILE's data rows)::
+
+    {"sample": k, "t": s, "model": "ellipsoid", "offset_ut": [3], "soft_iron": [[3×3]],
+     "field_ut": r, "offset_sigma_ut": [3], "wander_ut2_per_s": q, "noise_ut": s,
+     "buffered": n, "coverage": c}
+
+(a calibrated sample is ``soft_iron @ (m − offset_ut)``). When the samples in memory stop
+determining a calibration the change says so: ``offset_ut``, ``soft_iron``, ``field_ut`` and
+``model`` null and a ``reason``. ``--jsonl`` prints one such object per line as they happen;
+``--json`` one object ``{"format": "magcal.track", "version": 1, "samples", "skipped", "changes":
+[...], "final": {...} | null, "input"}``; without either, a summary. ``--rate HZ`` times the rows
+at HZ (for a file without a time column, whose rows are otherwise one second apart).
+Exit code 0 when a calibration came into force, 1 when none did, 2 when FILE cannot be read.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from .common import add_table_options, table_format
+
+HELP = "replay a recording through the tracker: the calibration in force at every sample"
+FORMAT, VERSION = "magcal.track", 1
+
+
+def add_arguments(p) -> None:
+    p.add_argument("file", metavar="FILE", help="a capture, a MotionCal log or a table")
+    out = p.add_mutually_exclusive_group()
+    out.add_argument("--jsonl", action="store_true", help="one JSON object per change, one per line, as they happen")
+    out.add_argument("--json", action="store_true", help="one JSON object with every change")
+    p.add_argument("--rate", type=float, metavar="HZ",
+                   help="sample rate: time the rows at HZ instead of the file's time column")
+    add_table_options(p)
+
+
+def _times(series, rate):
+    import numpy as np
+
+    from ..core.errors import InputError
+
+    if rate is None:
+        return series.t_s
+    if not rate > 0:
+        raise InputError(f"--rate must be positive, got {rate}")
+    return np.arange(len(series)) / float(rate)
+
+
+def _summary(changes: list[dict], n: int, skipped: int, source: str | None) -> str:
+    lines = [f"input       {source}"] if source else []
+    good = [c for c in changes if c.get("offset_ut") is not None]
+    lines.append(f"samples     {n} ({skipped} not finite, skipped); {len(changes)} changes of the calibration")
+    if not good:
+        return "\n".join(lines + ["no calibration came into force (the motion never pinned one)"])
+    first, last = good[0], changes[-1]
+    lines.append(f"first       after sample {first['sample']} ({first['model']})")
+    step = max(1, len(good) // 8)
+    for c in good[::step] + ([good[-1]] if (len(good) - 1) % step else []):
+        lines.append(f"  sample {c['sample']:>8}  t {c['t']:10.2f} s  offset_ut "
+                     + " ".join(f"{v:9.3f}" for v in c["offset_ut"]) + f"  field_ut {c['field_ut']:8.3f}")
+    if last.get("offset_ut") is None:
+        return "\n".join(lines + [f"last        withdrawn after sample {last['sample']}: {last['reason']}"])
+    lines.append(f"final       {last['model']}, wander {last['wander_ut2_per_s']:.3g} µT²/s, noise "
+                 f"{last['noise_ut']:.3f} µT, {100 * last['coverage']:.0f} % of directions in memory")
+    for i, row in enumerate(last["soft_iron"]):
+        lines.append(("soft_iron   " if i == 0 else "            ") + " ".join(f"{v:9.5f}" for v in row))
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from ..app.load import load_series
+    from ..core.errors import InputError
+    from ..fit.tracker import Tracker
+    from .common import print_json
+
+    series = load_series(args.file, table_format(args))
+    if len(series) == 0:
+        raise InputError(f"{args.file}: no samples")
+    t = _times(series, args.rate)
+    m = series.field_ut.copy()
+    m[~series.valid] = float("nan")  # a flagged row is offered and skipped, so indices stay rows
+    tracker, changes = Tracker(), []
+    for row, tt in zip(m.tolist(), t.tolist()):
+        ev = tracker.add(row, tt)
+        if ev is None:
+            continue
+        changes.append(ev.to_dict())
+        if args.jsonl:
+            sys.stdout.write(json.dumps(changes[-1], allow_nan=False) + "\n")
+            sys.stdout.flush()
+    code = 0 if any(c.get("offset_ut") is not None for c in changes) else 1
+    if args.json:
+        print_json({"format": FORMAT, "version": VERSION, "input": series.source, "samples": tracker.n,
+                    "skipped": tracker.skipped, "changes": changes,
+                    "final": None if tracker.estimate is None else tracker.estimate.to_dict()})
+    elif not args.jsonl:
+        print(_summary(changes, tracker.n, tracker.skipped, series.source))
+    if code:
+        print("magcal track: no calibration came into force: the samples never pinned one "
+              "(too few, or too few directions)", file=sys.stderr)
+    return code
