@@ -13,7 +13,7 @@ provenance states; the other three have no time and are fed at an assumed 50 Hz.
 Static (70 cells): split points 30, 40, 50, 60, 70 % (fit on the part before, judge the part
 after) and five contiguous folds (judge one fold, fit on the other four, concatenated in time
 order) of each recording. Figure: held-out spread = std/mean of |calibrated field| (%).
-magcal: ``fit(train, model="auto")`` (what ``magcal fit`` does). MotionCal: the calibration it
+magcal: ``fit_calibration(train, model="auto")`` (what ``magcal fit`` does). MotionCal: the calibration it
 would send after the last training sample.
 
 Online (each recording once, judged after each split point): the whole recording is fed in
@@ -46,7 +46,7 @@ sys.path.insert(0, HERE)
 import tracking_peer as peer  # noqa: E402
 from real_data import DATA, load_all  # noqa: E402
 
-from magcal.fit import fit  # noqa: E402
+from magcal.fit import fit_calibration  # noqa: E402
 from magcal.fit.tracker import Estimate, Tracker  # noqa: E402
 
 SEEDS = 10
@@ -176,7 +176,7 @@ def mc_online(figs, name, t, m, seeds, splits=SPLITS) -> dict[str, dict[str, flo
 
 
 def magcal_static(m, train, test) -> float:
-    r = fit(m[train], model="auto")
+    r = fit_calibration(m[train], model="auto")
     return spread_pct(m[test], r.calibration.offset_ut, r.calibration.soft_iron) if r else float("nan")
 
 
@@ -198,7 +198,7 @@ def tracker_trajectory(t, m) -> list[tuple[int, np.ndarray, np.ndarray]]:
 
 def floor_pct(m, k) -> float:
     """The in-sample ellipsoid floor: an ellipsoid fitted to the judged part itself."""
-    c = fit(m[k:], model="ellipsoid").calibration
+    c = fit_calibration(m[k:], model="ellipsoid").calibration
     return spread_pct(m[k:], c.offset_ut, c.soft_iron)
 
 

@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from magcal.fit import fit
+from magcal.fit import fit_calibration
 from magcal.fit.tracker import Estimate, Tracker, TrackerConfig, Withdrawal
 from magcal.fit.tracker_memory import Wander
 from magcal.sim.physics import Motion, demo_scenario
@@ -41,7 +41,7 @@ def test_follows_a_drifting_offset_that_a_static_fit_averages_away():
     trk.add_many(m, t)
     now = run.truth.offset_ut + DRIFT * t[-1]
     tracked = np.linalg.norm(trk.estimate.calibration.offset_ut - now)
-    static = np.linalg.norm(fit(m).calibration.offset_ut - now)
+    static = np.linalg.norm(fit_calibration(m).calibration.offset_ut - now)
     assert trk.estimate.wander_ut2_per_s > 0
     assert tracked < 0.4 * static
 
