@@ -51,8 +51,8 @@ def test_summary_and_failures(tmp_path, capsys):
     assert "final       ellipsoid" in out and "soft_iron" in out
     short = tmp_path / "short.csv"
     short.write_text("mx,my,mz\n" + "\n".join(f"{a},{b},{c}" for a, b, c in _m()[:30]) + "\n")
-    assert main(["track", str(short)]) == 1
+    assert main(["track", str(short)]) == 3
     assert "no calibration came into force" in capsys.readouterr().err
     assert main(["track", LSM, "--rate", "0"]) == 2
     assert "--rate must be positive" in capsys.readouterr().err
-    assert main(["track", str(tmp_path / "missing.csv")]) == 2
+    assert main(["track", str(tmp_path / "missing.csv")]) == 6

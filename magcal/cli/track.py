@@ -15,7 +15,8 @@ determining a calibration the change says so: ``offset_ut``, ``soft_iron``, ``fi
 ``--json`` one object ``{"format": "magcal.track", "version": 1, "samples", "skipped", "changes":
 [...], "final": {...} | null, "input"}``; without either, a summary. ``--rate HZ`` times the rows
 at HZ (for a file without a time column, whose rows are otherwise one second apart).
-Exit code 0 when a calibration came into force, 1 when none did, 2 when FILE cannot be read.
+Exit status (``magcal --help``): 0 when a calibration came into force, 3 when none did (the
+samples never pinned one), 2 for a bad option, 6 when FILE cannot be read.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import json
 import sys
 
 from .common import add_table_options, table_format
+from .exits import Exit
 
 HELP = "replay a recording through the tracker: the calibration in force at every sample"
 FORMAT, VERSION = "magcal.track", 1
@@ -42,12 +44,12 @@ def add_arguments(p) -> None:
 def _times(series, rate):
     import numpy as np
 
-    from ..core.errors import InputError
+    from ..core.errors import ConfigError
 
     if rate is None:
         return series.t_s
     if not rate > 0:
-        raise InputError(f"--rate must be positive, got {rate}")
+        raise ConfigError(f"--rate must be positive, got {rate}")
     return np.arange(len(series)) / float(rate)
 
 
@@ -93,7 +95,7 @@ def run(args) -> int:
         if args.jsonl:
             sys.stdout.write(json.dumps(changes[-1], allow_nan=False) + "\n")
             sys.stdout.flush()
-    code = 0 if any(c.get("offset_ut") is not None for c in changes) else 1
+    code = Exit.OK if any(c.get("offset_ut") is not None for c in changes) else Exit.GATE
     if args.json:
         print_json({"format": FORMAT, "version": VERSION, "input": series.source, "samples": tracker.n,
                     "skipped": tracker.skipped, "changes": changes,
