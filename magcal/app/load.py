@@ -12,6 +12,7 @@ from dataclasses import replace
 from ..core.errors import DeviceError, InputError
 from ..core.series import Series
 from ..recordings.capture import MAX_HEADER, CaptureReader, is_capture, recorded_dialect, series_from_frames
+from ..recordings.logs import HEAD_BYTES, load_log, log_kind
 from ..recordings.table import TableFormat, load_table, looks_like_table
 from ..wire import motioncal
 from ..wire.bulk import parse_stream
@@ -80,10 +81,16 @@ def _foreign_capture(reader: CaptureReader, dialect: str) -> Series:
 
 
 # -- any recording -------------------------------------------------------------------------
-def load_series(path, table: TableFormat | None = None) -> Series:
+def load_series(path, table: TableFormat | None = None, mag: int | None = None) -> Series:
     """A capture, a table (magcal's CSV or other delimited text, read as ``table`` says), a
-    MotionCal log, or a raw protocol-v1 byte dump, told apart by content. InputError (naming
-    file, line and problem) for anything else."""
+    MotionCal log, a raw protocol-v1 byte dump, or a flight log (PX4 ULog, ArduPilot DataFlash:
+    magnetometer ``mag``), told apart by content. InputError (naming file, line and problem) for
+    anything else."""
+    return load_with_warnings(path, table, mag)[0]
+
+
+def load_with_warnings(path, table: TableFormat | None = None, mag: int | None = None) -> tuple[Series, tuple[str, ...]]:
+    """``load_series`` and the warnings of the reading (a damaged flight log read up to the damage)."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(MAX_HEADER)
@@ -97,6 +104,16 @@ def load_series(path, table: TableFormat | None = None) -> Series:
         if explicit:
             raise InputError(f"{path}: is {kind}, not a table; --columns, --unit and --time apply to tables")
 
+    if log_kind(head[:HEAD_BYTES]):
+        not_a_table("a flight log")
+        got = load_log(str(path), mag)
+        return got.series, got.warnings
+    if mag is not None:
+        raise InputError(f"{path}: --mag chooses a magnetometer of a flight log; this file is not one")
+    return _load_recording(path, head, table, explicit, not_a_table), ()
+
+
+def _load_recording(path, head: bytes, table, explicit: bool, not_a_table) -> Series:
     if is_capture(head):
         not_a_table("a magcal capture")
         return load_capture(path)

@@ -26,7 +26,7 @@ from .common import field_warning, reading_report
 from .exits import Exit
 from .options import add, add_table_options, table_format
 
-HELP = "fit a sphere or ellipsoid calibration to recordings (captures, logs, tables)"
+HELP = "fit a sphere or ellipsoid calibration to recordings (captures, logs, tables), or a flight log's magnetometer against the expected field"
 
 
 def add_arguments(p) -> None:
@@ -40,6 +40,10 @@ def add_arguments(p) -> None:
     add(p, "noise_ut", help="white-noise σ per axis, µT, for the Cramér–Rao bound (default: from the residuals)")
     add(p, "json", "quiet")
     add_table_options(p)
+    add(p, "mag")
+    p.add_argument("--term", default="auto",
+                   help="flight logs: the interference term to judge — auto (current_a, else throttle), "
+                   "none, or a channel name (default auto)")
 
 
 def format_text(d: dict) -> str:
@@ -65,9 +69,12 @@ def _fit_file(path: str, args, ticker) -> tuple[dict, int]:
     from ..app.load import load_series
     from ..core.errors import InputError
     from ..fit import fit_calibration
+    from .fitlog import fit_log_file, is_flight_log
 
+    if is_flight_log(path):
+        return fit_log_file(path, args)
     ticker.doing(f"reading {path}")
-    series = load_series(path, table_format(args))
+    series = load_series(path, table_format(args), args.mag)
     reading = reading_report(series, path)
     if len(series) == 0:
         raise InputError(f"{path}: no samples")
@@ -126,15 +133,18 @@ def run(args) -> int:
     from .common import document, print_json
 
     fits, worst = _fit_each(args.file, args)
-    good = [f for f in fits if "calibration" in f and f.get("model")]
+    good = [f for f in fits if "calibration" in f and f.get("model") and "log" not in f]
     comparisons = [
         {"from": a["file"], "to": b["file"], **compare_fits(a, b)} for a, b in zip(good, good[1:])
     ]
     if args.json:
         print_json(document("fit", {"fits": fits, "comparisons": comparisons}))
         return worst
-    for f in good:
-        print(f"== {f['file']}\n{format_text(f)}\n" if len(fits) > 1 else format_text(f))
+    from .fitlog import format_log_text
+
+    for f in (f for f in fits if "calibration" in f and f.get("model")):
+        text = format_log_text(f) if "log" in f else format_text(f)
+        print(f"== {f['file']}\n{text}\n" if len(fits) > 1 else text)
     for c in comparisons:
         print(format_comparison(c["from"], c["to"], c))
     return worst

@@ -43,29 +43,30 @@ def _w_from(p) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Solve:
-    """One fit: W, b, k (zeros when no term), their covariance, the residual scale."""
+    """One fit: W, b, the per-term coefficients K (p, 3), the covariance of (b, K), the scale."""
 
     w: np.ndarray
     b: np.ndarray
-    k: np.ndarray
-    cov_bk: np.ndarray  # (6, 6) for (b, k)
+    k: np.ndarray  # (p, 3), one row per term
+    cov_bk: np.ndarray  # (3 + 3p, 3 + 3p)
     sigma_ut: float
     inflation: float
     model: str
 
 
 def _design(m, x) -> np.ndarray:
-    """Rows of W m + c + d x for the parameter vector (W6, c3, d3), stacked axis by axis."""
-    n = len(m)
-    a = np.zeros((n, 3, 12))
+    """Rows of W m + c + Σ d_j x_j for the parameters (W6, c3, d1 3, d2 3 …), axis by axis."""
+    n, p = len(m), x.shape[1]
+    a = np.zeros((n, 3, 9 + 3 * p))
     for col, (i, j) in enumerate(SYM):
         a[:, i, col] += m[:, j]
         if i != j:
             a[:, j, col] += m[:, i]
     for i in range(3):
         a[:, i, 6 + i] = 1.0
-        a[:, i, 9 + i] = x
-    return a.reshape(3 * n, 12)
+        for t in range(p):
+            a[:, i, 9 + 3 * t + i] = x[:, t]
+    return a.reshape(3 * n, 9 + 3 * p)
 
 
 def _inflation(res: np.ndarray) -> float:
@@ -78,8 +79,9 @@ def _inflation(res: np.ndarray) -> float:
 
 
 def _bk(theta: np.ndarray) -> np.ndarray:
+    """(b, k1, k2 …) from (W6, c, d1, d2 …): b = −W⁻¹c, k = −W⁻¹d."""
     w = _w_from(theta[:6])
-    return np.concatenate([-np.linalg.solve(w, theta[6:9]), -np.linalg.solve(w, theta[9:12])])
+    return -np.linalg.solve(w, theta[6:].reshape(-1, 3).T).T.reshape(-1)
 
 
 def _propagate(theta, cov_theta, f) -> np.ndarray:
@@ -94,11 +96,15 @@ def _propagate(theta, cov_theta, f) -> np.ndarray:
     return jac @ cov_theta @ jac.T
 
 
-def solve_vector(m, x, expected, use_term: bool, iterations: int = 8) -> Solve | FitFailure:
-    a = _design(m, x)
-    if not use_term:
-        a = a[:, :9]
-    y = expected.reshape(-1)
+def _conditioning(jtj: np.ndarray) -> float:
+    """Condition number of a normal matrix with its columns scaled to unit diagonal."""
+    d = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
+    return float(np.linalg.cond(jtj / np.outer(d, d)))
+
+
+def solve_vector(m, x, expected, iterations: int = 8) -> Solve | FitFailure:
+    """Robust linear least squares of W m + c + D x = expected (x (n, p), p ≥ 0 terms)."""
+    a, y = _design(m, x), expected.reshape(-1)
     wts = np.ones(len(m))
     for _ in range(iterations):
         sw = np.repeat(np.sqrt(wts), 3)
@@ -108,91 +114,87 @@ def solve_vector(m, x, expected, use_term: bool, iterations: int = 8) -> Solve |
         scale = 1.4826 * np.median(norm) / np.sqrt(2.0) or 1e-9  # per-axis σ from the 3-D residual
         wts = np.minimum(1.0, HUBER_K * scale * np.sqrt(3) / np.maximum(norm, 1e-12))
     ata = (a * np.repeat(wts, 3)[:, None]).T @ a
-    if np.linalg.cond(ata) > 1e12:
-        return FitFailure("ill_conditioned", "the attitude and field vary too little to pin the calibration")
+    if _conditioning(ata) > 1e10:
+        return FitFailure("ill_conditioned", "the attitude, field and channels vary too little to pin the calibration")
     infl = _inflation(res)
     sigma = float(np.sqrt(np.sum(np.repeat(wts, 3) * res.reshape(-1) ** 2) / max(1, len(y) - a.shape[1])))
     cov = np.linalg.inv(ata) * sigma**2 * infl
-    full = np.concatenate([theta, np.zeros(12 - len(theta))])
-    cov_full = np.zeros((12, 12))
-    cov_full[: len(theta), : len(theta)] = cov
-    w = _w_from(full[:6])
+    w = _w_from(theta[:6])
     if np.any(np.linalg.eigvalsh(w) <= 0):
         return FitFailure("not_positive_definite", "the fitted soft iron is not positive definite")
-    bk = _bk(full)
-    return Solve(w, bk[:3], bk[3:], _propagate(full, cov_full, _bk), sigma, infl, "vector")
+    bk = _bk(theta)
+    return Solve(w, bk[:3], bk[3:].reshape(-1, 3), _propagate(theta, cov, _bk), sigma, infl, "vector")
 
 
-def _mag_residual(p, m, x, f, full_w: bool):
+def _unpack(p, full_w: bool, nterms: int):
     w = _w_from(p[:6]) if full_w else np.eye(3) * p[0]
     o = 6 if full_w else 1
-    b, k = p[o:o + 3], p[o + 3:o + 6]
-    return np.linalg.norm((m - b - np.outer(x, k)) @ w.T, axis=1) - f
+    return w, p[o:o + 3], p[o + 3:o + 3 + 3 * nterms].reshape(nterms, 3)
 
 
-def solve_magnitude(m, x, field_ut: float, use_term: bool, full_w: bool = True) -> Solve | FitFailure:
-    """Robust fit of |W (m − b − k x)| = field_ut; W = s·I when ``full_w`` is False."""
+def _mag_fun_jac(p, m, x, f, full_w: bool):
+    """Residuals |W d| − f, d = m − b − x K, and their analytic Jacobian."""
+    w, b, k = _unpack(p, full_w, x.shape[1])
+    d = m - b - x @ k
+    h = d @ w.T
+    nh = np.maximum(np.linalg.norm(h, axis=1), 1e-12)
+    u = h / nh[:, None]
+    wu = u @ w  # W symmetric: ∂|Wd|/∂d = Wᵀu
+    if full_w:
+        cols = [u[:, i] * d[:, j] + (u[:, j] * d[:, i] if i != j else 0.0) for i, j in SYM]
+    else:
+        cols = [np.sum(u * d, axis=1)]
+    jac = np.column_stack(cols + [-wu[:, i] for i in range(3)]
+                          + [-x[:, t] * wu[:, i] for t in range(x.shape[1]) for i in range(3)])
+    return nh - f, jac
+
+
+def solve_magnitude(m, x, field_ut: float, full_w: bool = True) -> Solve | FitFailure:
+    """Robust fit of |W (m − b − x K)| = field_ut; W = s·I when ``full_w`` is False."""
     b0 = np.median(m, axis=0)
     s0 = field_ut / max(float(np.median(np.linalg.norm(m - b0, axis=1))), 1e-9)
-    p0 = np.concatenate([[s0, 0, 0, s0, 0, s0] if full_w else [s0], b0, np.zeros(3)])
-    mask = np.ones(len(p0), bool)
-    if not use_term:
-        mask[-3:] = False
-
-    def fun(q):
-        p = p0.copy()
-        p[mask] = q
-        return _mag_residual(p, m, x, field_ut, full_w)
-
-    scale = max(0.05 * field_ut, 1e-6)
-    sol = optimize.least_squares(fun, p0[mask], loss="huber", f_scale=scale, x_scale="jac", max_nfev=400)
-    res = sol.fun
+    p0 = np.concatenate([[s0, 0, 0, s0, 0, s0] if full_w else [s0], b0, np.zeros(3 * x.shape[1])])
+    sol = optimize.least_squares(lambda q: _mag_fun_jac(q, m, x, field_ut, full_w)[0], p0,
+                                 jac=lambda q: _mag_fun_jac(q, m, x, field_ut, full_w)[1],
+                                 loss="huber", f_scale=max(0.02 * field_ut, 1e-6), x_scale="jac", max_nfev=200)
     jtj = sol.jac.T @ sol.jac
-    if not sol.success or np.linalg.cond(jtj) > 1e10:
+    if not sol.success or _conditioning(jtj) > 1e8:
         if full_w:
-            return solve_magnitude(m, x, field_ut, use_term, full_w=False)
+            return solve_magnitude(m, x, field_ut, full_w=False)
         return FitFailure("ill_conditioned", "the field magnitude alone does not pin this calibration")
-    p = p0.copy()
-    p[mask] = sol.x
-    o = 6 if full_w else 1
-    w = _w_from(p[:6]) if full_w else np.eye(3) * p[0]
+    w, b, k = _unpack(sol.x, full_w, x.shape[1])
     if np.any(np.linalg.eigvalsh(w) <= 0):
         return FitFailure("not_positive_definite", "the fitted soft iron is not positive definite")
+    res = sol.fun
     infl = _inflation(res[:, None])
     sigma = float(1.4826 * np.median(np.abs(res - np.median(res))))
-    cov = np.linalg.pinv(jtj) * sigma**2 * infl
-    idx = np.flatnonzero(mask)
-    cov_bk = np.zeros((6, 6))
-    sel = [list(idx).index(i) if i in idx else None for i in range(o, o + 6)]
-    for r, sr in enumerate(sel):
-        for c, sc in enumerate(sel):
-            if sr is not None and sc is not None:
-                cov_bk[r, c] = cov[sr, sc]
-    return Solve(w, p[o:o + 3], p[o + 3:o + 6], cov_bk, sigma, infl, "magnitude" if full_w else "magnitude-sphere")
+    o = 6 if full_w else 1
+    cov = (np.linalg.pinv(jtj) * sigma**2 * infl)[o:, o:]
+    return Solve(w, b, k, cov, sigma, infl, "magnitude" if full_w else "magnitude-sphere")
 
 
 def residuals(s: Solve, m, x, expected=None, field_ut=None) -> tuple[np.ndarray | None, np.ndarray]:
     """(vector residual (n, 3) or None, magnitude residual (n,)) of a solve on samples."""
-    h = (m - s.b - np.outer(x, s.k)) @ s.w.T
+    h = (m - s.b - x @ s.k) @ s.w.T
     vec = None if expected is None else h - expected
     f = np.linalg.norm(expected, axis=1) if expected is not None else field_ut
     return vec, np.linalg.norm(h, axis=1) - f
 
 
-def _solve(m, x, expected, field_ut, use_term):
+def _solve(m, x, expected, field_ut):
     if expected is not None:
-        return solve_vector(m, x, expected, use_term)
-    return solve_magnitude(m, x, field_ut, use_term)
+        return solve_vector(m, x, expected)
+    return solve_magnitude(m, x, field_ut)
 
 
-def heldout(m, x, expected, field_ut, use_term: bool, blocks: int) -> dict:
+def heldout(m, x, expected, field_ut, blocks: int) -> dict:
     """Mean over contiguous time blocks of the RMS residual when each is left out of the fit."""
     edges = np.linspace(0, len(m), blocks + 1).round().astype(int)
     vec, mag = [], []
     for lo, hi in zip(edges[:-1], edges[1:]):
         train = np.ones(len(m), bool)
         train[lo:hi] = False
-        s = _solve(m[train], x[train], None if expected is None else expected[train], field_ut, use_term)
+        s = _solve(m[train], x[train], None if expected is None else expected[train], field_ut)
         if not s:
             return {"failure": s.reason}
         rv, rm = residuals(s, m[~train], x[~train], None if expected is None else expected[~train], field_ut)
@@ -207,12 +209,12 @@ def heldout(m, x, expected, field_ut, use_term: bool, blocks: int) -> dict:
 
 @dataclass(frozen=True)
 class VectorFit:
-    """A calibration fitted against the expected field, with the interference-term decision."""
+    """A calibration fitted against the expected field, with the decision on each term."""
 
     mode: str  # "vector", "magnitude" or "magnitude-sphere"
     calibration: Calibration
     sigma_offset_ut: np.ndarray
-    term: dict  # channel, kept, coefficient, σ, floor, p, held-out residuals with and without
+    terms: tuple[dict, ...]  # per candidate: channel, role, kept, coefficient, σ, floor, p, held-out
     heldout: dict
     rms_ut: float
     n_used: int
@@ -222,6 +224,10 @@ class VectorFit:
     def __bool__(self) -> bool:
         return True
 
+    def interference_term(self) -> str | None:
+        """The kept term an autopilot can apply (current or throttle), if any."""
+        return next((t["channel"] for t in self.terms if t["kept"] and t["role"] == "interference"), None)
+
     def to_dict(self) -> dict:
         return {
             "format": "magcal.fit.vector/1",
@@ -229,7 +235,7 @@ class VectorFit:
             "calibration": self.calibration.to_dict(),
             "uncertainty": {"offset_ut": [float(v) for v in self.sigma_offset_ut],
                             "autocorrelation_factor": self.autocorrelation_factor},
-            "term": self.term,
+            "terms": list(self.terms),
             "heldout": self.heldout,
             "rms_ut": self.rms_ut,
             "n_used": self.n_used,
@@ -237,8 +243,9 @@ class VectorFit:
         }
 
 
-def _term_stats(s: Solve) -> dict:
-    k, cov = s.k, s.cov_bk[3:, 3:]
+def _term_stats(s: Solve, j: int) -> dict:
+    """Coefficient of term j, its σ, the χ²(3) p-value against zero and the 3σ floor."""
+    k, cov = s.k[j], s.cov_bk[3 + 3 * j: 6 + 3 * j, 3 + 3 * j: 6 + 3 * j]
     norm = float(np.linalg.norm(k))
     u = k / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
     chi2 = float(k @ np.linalg.pinv(cov) @ k)
@@ -256,47 +263,90 @@ def choose_term(channels: dict, candidates=("current_a", "throttle")) -> str | N
     return None
 
 
+def motors_on(channels: dict, min_fraction: float = 0.05) -> np.ndarray | None:
+    """1 where the motors run (throttle above 2 %, else any motor output above its idle), or None
+    when the recording does not hold both states for at least ``min_fraction`` of its samples."""
+    if "throttle" in channels:
+        on = np.asarray(channels["throttle"]) > 0.02
+    else:
+        motors = [np.asarray(v) for k, v in channels.items() if k.startswith("motor") and k[5:].isdigit()]
+        if not motors:
+            return None
+        on = np.zeros(len(motors[0]), bool)
+        for v in motors:
+            lo, hi = np.percentile(v, 1), np.percentile(v, 99)
+            on |= v > lo + 0.05 * (hi - lo) if hi > lo else False
+    frac = float(on.mean())
+    return on.astype(np.float64) if min_fraction <= frac <= 1 - min_fraction else None
+
+
+def _columns(names, cols, n) -> np.ndarray:
+    return np.column_stack([cols[c] for c in names]) if names else np.zeros((n, 0))
+
+
+def _judge(names, j, cols, m, exp, f, blocks, ho, base_key) -> tuple[dict, Solve | FitFailure]:
+    """Fit with ``names`` (term j the one judged) and say whether it earns its place."""
+    key = "rms_vector_ut" if exp is not None else "rms_magnitude_ut"
+    x = _columns(names, cols, len(m))
+    label = "+".join(names)
+    ho[label] = heldout(m, x, exp, f, blocks)
+    s = _solve(m, x, exp, f)
+    info = {"channel": names[j], "kept": False, "heldout_model": label}
+    if s:
+        info.update(_term_stats(s, j))
+        falls = ho[label].get(key, np.inf) < ho[base_key].get(key, np.inf)
+        info["heldout_falls"] = bool(falls)
+        info["kept"] = bool(falls and info["p_value"] < P_KEEP)
+    return info, s
+
+
 def fit_vector(field_ut, channels: dict, expected_ut=None, earth_field_ut: float | None = None,
                term: str | None = "auto", blocks: int = 5) -> VectorFit | FitFailure:
     """Fit (m, channels) against ``expected_ut`` (n, 3) — or |m| against ``earth_field_ut`` when
-    there is no expected vector. ``term``: "auto" (current, else throttle), None, or a channel."""
+    there is no expected vector. ``term``: "auto" (current, else throttle), None, or a channel.
+    A motors-running step is judged first as a nuisance term, so that the current term is
+    pinned by how the field follows the current, not by the jump between ground and air."""
     m = np.asarray(field_ut, np.float64)
-    ok = np.all(np.isfinite(m), axis=1) & (True if expected_ut is None else np.all(np.isfinite(expected_ut), axis=1))
+    ok = np.all(np.isfinite(m), axis=1)
+    if expected_ut is not None:
+        ok &= np.all(np.isfinite(expected_ut), axis=1)
     if ok.sum() < MIN_SAMPLES:
         return FitFailure("too_few_samples", f"{int(ok.sum())} usable samples, at least {MIN_SAMPLES} needed")
     name = choose_term(channels) if term == "auto" else term
     if name is not None and name not in channels:
         return FitFailure("no_channel", f"no channel {name!r} to fit an interference term to")
-    m = m[ok]
-    exp = None if expected_ut is None else np.asarray(expected_ut, np.float64)[ok]
-    x = np.zeros(len(m)) if name is None else np.asarray(channels[name], np.float64)[ok]
+    m, exp = m[ok], None if expected_ut is None else np.asarray(expected_ut, np.float64)[ok]
+    cols = {k: np.asarray(v, np.float64)[ok] for k, v in channels.items() if k == name}
+    step = motors_on({k: np.asarray(v)[ok] for k, v in channels.items()})
+    if step is not None and name != "throttle":
+        cols["motors_on"] = step
     f = earth_field_ut if earth_field_ut else float(np.median(np.linalg.norm(m - np.median(m, axis=0), axis=1)))
-    key = "rms_vector_ut" if exp is not None else "rms_magnitude_ut"
-    ho = {"blocks": blocks, "without_term": heldout(m, x, exp, f, False, blocks)}
-    base = _solve(m, x, exp, f, False)
-    if not base:
-        return base
-    chosen, info = base, {"channel": name, "kept": False}
+    ho = {"blocks": blocks, "none": heldout(m, np.zeros((len(m), 0)), exp, f, blocks)}
+    chosen, base, terms = _solve(m, np.zeros((len(m), 0)), exp, f), [], []
+    if not chosen:
+        return chosen
+    if "motors_on" in cols:
+        info, s = _judge(["motors_on"], 0, cols, m, exp, f, blocks, ho, "none")
+        terms.append({"role": "nuisance", **info})
+        if info["kept"]:
+            chosen, base = s, ["motors_on"]
     if name is not None:
-        ho["with_term"] = heldout(m, x, exp, f, True, blocks)
-        with_term = _solve(m, x, exp, f, True)
-        if with_term:
-            info.update(_term_stats(with_term))
-            falls = ho["with_term"].get(key, np.inf) < ho["without_term"].get(key, np.inf)
-            info["heldout_falls"] = bool(falls)
-            info["kept"] = bool(falls and info["p_value"] < P_KEEP)
-            chosen = with_term if info["kept"] else base
-    return _result(chosen, name if info["kept"] else None, info, ho, m, x, exp, f)
+        info, s = _judge(base + [name], len(base), cols, m, exp, f, blocks, ho, "+".join(base) or "none")
+        terms.append({"role": "interference", **info})
+        if info["kept"]:
+            chosen, base = s, base + [name]
+    ho["chosen"] = "+".join(base) or "none"
+    return _result(chosen, base, tuple(terms), ho, m, _columns(base, cols, len(m)), exp, f)
 
 
-def _result(s: Solve, name, info, ho, m, x, exp, f) -> VectorFit:
+def _result(s: Solve, names, terms, ho, m, x, exp, f) -> VectorFit:
     cal = Calibration(offset_ut=s.b, field_ut=f, soft_iron=s.w,
-                      coef_ut_per_unit={name: s.k} if name else {}, reference={name: 0.0} if name else {})
+                      coef_ut_per_unit={n: s.k[j] for j, n in enumerate(names)}, reference={n: 0.0 for n in names})
     rv, rm = residuals(s, m, x, exp, f)
     rms = float(np.sqrt(np.mean(np.sum(rv**2, axis=1)))) if rv is not None else float(np.sqrt(np.mean(rm**2)))
     warnings = ()
     if s.model == "magnitude-sphere":
         warnings = ("the recording turned too little to fit soft iron from |m| alone: a sphere was fitted",)
-    return VectorFit(mode=s.model, calibration=cal, sigma_offset_ut=np.sqrt(np.diag(s.cov_bk)[:3]), term=info,
+    return VectorFit(mode=s.model, calibration=cal, sigma_offset_ut=np.sqrt(np.diag(s.cov_bk)[:3]), terms=terms,
                      heldout=ho, rms_ut=rms, n_used=len(m), autocorrelation_factor=float(s.inflation),
                      warnings=warnings)

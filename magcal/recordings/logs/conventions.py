@@ -148,6 +148,7 @@ def to_ardupilot(cal: Calibration, index: int, term: str | None) -> dict[str, fl
     w, b = cal.soft_iron, cal.offset_ut
     k = cal.coef_ut_per_unit.get(term, np.zeros(3)) if term else np.zeros(3)
     ofs, mot = -b * MG_PER_UT, -(w @ k) * MG_PER_UT
+    ofs, mot = ofs + 0.0, mot + 0.0  # no "-0" in the file
     out = {}
     for i, a in enumerate("XYZ"):
         out[f"COMPASS_OFS{ap_suffix(index)}_{a}"] = float(ofs[i])
@@ -219,7 +220,7 @@ def to_px4(cal: Calibration, n: int, sensor_to_body, term: str | None) -> dict[s
     s = r.T @ cal.soft_iron @ r
     off = r.T @ cal.offset_ut * GAUSS_PER_UT
     k = cal.coef_ut_per_unit.get(term, np.zeros(3)) if term else np.zeros(3)
-    comp = -(r.T @ k) * GAUSS_PER_UT * (1000.0 if term == "current_a" else 1.0)
+    comp = -(r.T @ k) * GAUSS_PER_UT * (1000.0 if term == "current_a" else 1.0) + 0.0
     out = {}
     for i, a in enumerate("XYZ"):
         out[f"CAL_MAG{n}_{a}OFF"] = float(off[i])

@@ -104,9 +104,10 @@ def select(log: FlightLog, mag: int | None) -> LogMag:
     field = stream.values
     if log.autopilot == "ardupilot":
         raw, undone = _undo_ardupilot(log, info, field, t)
-        rot = np.eye(3)
+        rot, slot = np.eye(3), info.index
     else:
         raw, rot, undone = _undo_px4(log, info, field, t)
+        slot = cv.px4_cal_index(log.params, info.device_id)
     channels = {name: resample(s, t) for name, s in log.channels.items() if len(s) >= 2}
     earth, earth_f, model, notes = _expected(log, t)
     field_ut = raw * log.field_unit_ut
@@ -116,4 +117,4 @@ def select(log: FlightLog, mag: int | None) -> LogMag:
     series = Series(t_s=t, field_ut=np.where(np.isfinite(field_ut), field_ut, 0.0), channels=channels,
                     valid=valid, source=source)
     return LogMag(log=log, info=info, series=series, earth_body_ut=earth, earth_field_ut=earth_f,
-                  earth_model=model, sensor_to_body=rot, undone=undone, warnings=tuple(log.warnings) + tuple(notes))
+                  earth_model=model, sensor_to_body=rot, undone=undone, slot=slot, warnings=tuple(log.warnings) + tuple(notes))

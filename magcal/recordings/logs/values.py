@@ -101,6 +101,7 @@ class LogMag:
     earth_model: str | None
     sensor_to_body: np.ndarray
     undone: str
+    slot: int | None = None  # the autopilot's calibration slot: compass index, CAL_MAGn
     warnings: tuple[str, ...] = ()
 
     def describe(self) -> dict:
@@ -109,5 +110,5 @@ class LogMag:
             "magnetometer": self.info.to_dict(), "undone": self.undone,
             "channels": sorted(self.series.channels), "attitude": self.earth_body_ut is not None,
             "earth_model": self.earth_model, "earth_field_ut": self.earth_field_ut,
-            "sensor_to_body": np.asarray(self.sensor_to_body).tolist(),
+            "sensor_to_body": np.asarray(self.sensor_to_body).tolist(), "slot": self.slot,
         }
