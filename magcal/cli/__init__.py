@@ -14,6 +14,12 @@ import importlib
 import os
 import sys
 
+# One BLAS thread: magcal's solves are small (tens of unknowns), and a threaded BLAS waits on its
+# threads far longer than it computes — many times over on a busy machine. This must run before
+# numpy is first imported; a caller's own setting wins.
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
 from .. import __version__
 from .exits import Exit, code_for, epilog
 

@@ -39,6 +39,7 @@ def add_arguments(p) -> None:
     p.add_argument("--draws", type=positive_int, default=50, help="twin draws per step with --twin (at least 10)")
     p.add_argument("--seed", type=int, default=0, help="first seed of the twin draws")
     add_table_options(p)
+    add(p, "mag")
 
 
 def format_text(d: dict) -> str:
@@ -108,7 +109,7 @@ def many_channels_hint(n_channels: int, d: dict) -> str | None:
 
 
 def run(args) -> int:
-    from ..app.load import load_series
+    from ..app.load import load_with_warnings
     from ..diagnose import diagnose
     from .common import Progress
 
@@ -116,7 +117,10 @@ def run(args) -> int:
         raise ConfigError(f"--draws must be at least 10 (a 2.5–97.5 % band needs them), got {args.draws}")
     with Progress(quiet=args.quiet).working(f"diagnose {args.file}") as ticker:
         ticker.doing("reading")
-        series = load_series(args.file, table_format(args))
+        series, notes = load_with_warnings(args.file, table_format(args), args.mag)
+        for w in notes:
+            print(f"magcal: warning: {args.file}: {w}", file=sys.stderr)
+        series = series.only_valid()
         reading = reading_report(series, args.file)
         n = f"{len(series):,}".replace(",", " ")
         # channels the user named are tested as named; otherwise those that follow the orientation
@@ -124,7 +128,7 @@ def run(args) -> int:
         diagnosis = diagnose(series, alpha=args.alpha, screen=args.channels is None,
                              on_step=lambda name: ticker.share(_done_before(name), f"{n} samples: {name}"))
         d = diagnosis.to_dict()
-        d["warnings"] = field_warning(d["calibration"]["field_ut"])
+        d["warnings"] = list(notes) + field_warning(d["calibration"]["field_ut"])
         if series.source:
             d["input"] = series.source
         d["reading"] = reading

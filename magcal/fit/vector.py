@@ -6,9 +6,9 @@ Model (body frame, µT), the same as ``magcal.core.calibration``::
 
     h = W (m − b − k·x)        W symmetric soft iron, b offset, k per unit of channel x
 
-Vector mode (``expected_ut`` given) solves ``W m + c + d·x = h_expected`` for the 12 numbers
-(W, c = −W b, d = −W k) by linear least squares, re-weighted (Huber) against outliers; this pins
-offsets, soft iron and k even when the flight is mostly level, which the magnitude cannot.
+Vector mode (``expected_ut`` given) solves the forward model ``m = W⁻¹ h_expected + b + k·x``
+(the sensor's noise is in m) by linear least squares, re-weighted (Huber) against outliers; this
+pins offsets, soft iron and k even when the flight is mostly level, which the magnitude cannot.
 Magnitude mode fits ``|W (m − b − k·x)| = F`` by robust non-linear least squares, F the Earth
 model's magnitude when known; with too little rotation it falls back to W = s·I.
 
@@ -55,7 +55,7 @@ class Solve:
 
 
 def _design(m, x) -> np.ndarray:
-    """Rows of W m + c + Σ d_j x_j for the parameters (W6, c3, d1 3, d2 3 …), axis by axis."""
+    """Rows of A m + c + Σ d_j x_j (A symmetric) for the parameters (A6, c3, d1 3, d2 3 …), axis by axis."""
     n, p = len(m), x.shape[1]
     a = np.zeros((n, 3, 9 + 3 * p))
     for col, (i, j) in enumerate(SYM):
@@ -78,37 +78,28 @@ def _inflation(res: np.ndarray) -> float:
     return (1 + rho) / (1 - rho)
 
 
-def _bk(theta: np.ndarray) -> np.ndarray:
-    """(b, k1, k2 …) from (W6, c, d1, d2 …): b = −W⁻¹c, k = −W⁻¹d."""
-    w = _w_from(theta[:6])
-    return -np.linalg.solve(w, theta[6:].reshape(-1, 3).T).T.reshape(-1)
-
-
-def _propagate(theta, cov_theta, f) -> np.ndarray:
-    """Covariance of f(θ) by a numerical Jacobian."""
-    base = f(theta)
-    jac = np.zeros((len(base), len(theta)))
-    for i in range(len(theta)):
-        h = 1e-6 * max(1.0, abs(theta[i]))
-        t = theta.copy()
-        t[i] += h
-        jac[:, i] = (f(t) - base) / h
-    return jac @ cov_theta @ jac.T
-
-
 def _conditioning(jtj: np.ndarray) -> float:
     """Condition number of a normal matrix with its columns scaled to unit diagonal."""
     d = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
     return float(np.linalg.cond(jtj / np.outer(d, d)))
 
 
+def _weighted_solve(a, y, w) -> np.ndarray:
+    """Weighted least squares by the normal equations, columns scaled to unit diagonal (a few
+    dozen unknowns over thousands of rows: far cheaper than an SVD of the tall matrix)."""
+    aw = a * w[:, None]
+    ata, aty = aw.T @ a, aw.T @ y
+    d = np.sqrt(np.maximum(np.diag(ata), 1e-300))
+    return np.linalg.lstsq(ata / np.outer(d, d), aty / d, rcond=None)[0] / d
+
+
 def solve_vector(m, x, expected, iterations: int = 8) -> Solve | FitFailure:
-    """Robust linear least squares of W m + c + D x = expected (x (n, p), p ≥ 0 terms)."""
-    a, y = _design(m, x), expected.reshape(-1)
+    """Robust linear least squares of the forward model m = A h + b + K x (A = W⁻¹ symmetric,
+    x (n, p) with p ≥ 0 terms): the sensor's noise is in m, so m is the response."""
+    a, y = _design(expected, x), m.reshape(-1)
     wts = np.ones(len(m))
     for _ in range(iterations):
-        sw = np.repeat(np.sqrt(wts), 3)
-        theta, *_ = np.linalg.lstsq(a * sw[:, None], y * sw, rcond=None)
+        theta = _weighted_solve(a, y, np.repeat(wts, 3))
         res = (y - a @ theta).reshape(-1, 3)
         norm = np.linalg.norm(res, axis=1)
         scale = 1.4826 * np.median(norm) / np.sqrt(2.0) or 1e-9  # per-axis σ from the 3-D residual
@@ -119,11 +110,10 @@ def solve_vector(m, x, expected, iterations: int = 8) -> Solve | FitFailure:
     infl = _inflation(res)
     sigma = float(np.sqrt(np.sum(np.repeat(wts, 3) * res.reshape(-1) ** 2) / max(1, len(y) - a.shape[1])))
     cov = np.linalg.inv(ata) * sigma**2 * infl
-    w = _w_from(theta[:6])
-    if np.any(np.linalg.eigvalsh(w) <= 0):
+    inv_w = _w_from(theta[:6])
+    if np.any(np.linalg.eigvalsh(inv_w) <= 0):
         return FitFailure("not_positive_definite", "the fitted soft iron is not positive definite")
-    bk = _bk(theta)
-    return Solve(w, bk[:3], bk[3:].reshape(-1, 3), _propagate(theta, cov, _bk), sigma, infl, "vector")
+    return Solve(np.linalg.inv(inv_w), theta[6:9], theta[9:].reshape(-1, 3), cov[6:, 6:], sigma, infl, "vector")
 
 
 def _unpack(p, full_w: bool, nterms: int):

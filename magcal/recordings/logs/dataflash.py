@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import re
 
 import numpy as np
@@ -73,31 +74,67 @@ def _collect(reader, warnings: list[str]) -> dict:
     rows: dict = {}
     params: dict[str, float] = {}
     texts: list[str] = []
-    err = io.StringIO()
     count = 0
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(err):
-        while True:
-            try:
-                msg = reader.recv_match(type=list(TYPES))
-            except Exception as exc:  # pymavlink raises assorted errors on a damaged tail
-                warnings.append(f"the log is damaged after {count} messages ({type(exc).__name__}: {exc}); "
-                                "read up to there")
-                break
-            if msg is None:
-                break
-            count += 1
-            mtype = msg.get_type()
-            if mtype == "PARM":
-                params[str(msg.Name)] = float(msg.Value)
-            elif mtype == "MSG":
-                texts.append(str(msg.Message))
-            else:
-                base = BASE.get(mtype, mtype)
-                rows.setdefault((base, _instance(msg, mtype)), []).append(msg)
-    skipped = [ln for ln in err.getvalue().splitlines() if "Skipped" in ln or "bad" in ln.lower()]
-    if skipped:
-        warnings.append(f"the log has damaged stretches that were skipped ({len(skipped)}: {skipped[0].strip()})")
+    while True:
+        try:
+            msg = reader.recv_match(type=list(TYPES))
+        except Exception as exc:  # pymavlink raises assorted errors on a damaged tail
+            warnings.append(f"the log is damaged after {count} messages ({type(exc).__name__}: {exc}); "
+                            "read up to there")
+            break
+        if msg is None:
+            break
+        count += 1
+        mtype = msg.get_type()
+        if mtype == "PARM":
+            params[str(msg.Name)] = float(msg.Value)
+        elif mtype == "MSG":
+            texts.append(str(msg.Message))
+        else:
+            rows.setdefault((BASE.get(mtype, mtype), _instance(msg, mtype)), []).append(msg)
     return {"rows": rows, "params": params, "texts": texts}
+
+
+@contextlib.contextmanager
+def _silenced():
+    """pymavlink reports every bad byte on the process's own stdout/stderr (from its compiled
+    indexer too): keep that off the user's terminal while parsing; damage is reported once."""
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        saved = [os.dup(1), os.dup(2)]  # Python's own buffers stay untouched: writes go to the StringIOs
+        try:
+            with open(os.devnull, "wb") as null:
+                os.dup2(null.fileno(), 1)
+                os.dup2(null.fileno(), 2)
+                yield
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+
+
+def _cut_short(reader) -> bool:
+    """The last message header in the file announces more bytes than the file still holds."""
+    tail_start = max(0, reader.data_len - 600)
+    tail = bytes(reader.data_map[tail_start:reader.data_len])
+    at = tail.rfind(b"\xa3\x95")
+    if at < 0 or at + 2 >= len(tail) or tail[at + 2] not in reader.formats:
+        return False
+    return tail_start + at + reader.formats[tail[at + 2]].len > reader.data_len
+
+
+def _damage(reader) -> list[str]:
+    """Bytes the parser could not place in a message: skipped damage, or a stop before the end."""
+    counts, formats = getattr(reader, "counts", None), getattr(reader, "formats", {})
+    data_len = getattr(reader, "data_len", None)
+    if counts is None or data_len is None:
+        return []
+    placed = sum(counts[t] * formats[t].len for t in formats if t < len(counts) and counts[t])
+    lost = data_len - placed
+    if lost <= 528:  # ArduPilot pads the end of a log with up to a page of garbage
+        return ["the log ends inside a message (cut short): read up to there"] if _cut_short(reader) else []
+    return [f"the log is damaged: {lost} of {data_len} bytes are in no readable message; "
+            "read what precedes and follows the damage"]
 
 
 def _column(msgs, name: str) -> np.ndarray | None:
@@ -239,8 +276,10 @@ def _mags(reader, rows, params):
 def read(path: str, head: bytes) -> FlightLog:
     """A DataFlash log as a FlightLog; damage ends the reading with a warning, never a traceback."""
     warnings: list[str] = []
-    reader = _open(path, head)
-    got = _collect(reader, warnings)
+    with _silenced():
+        reader = _open(path, head)
+        got = _collect(reader, warnings)
+    warnings += _damage(reader)
     rows, params, texts = got["rows"], got["params"], got["texts"]
     infos, fields, extra = _mags(reader, rows, params)
     channels = {**_power_channels(reader, rows), **_motor_channels(reader, rows, _motor_count(params, texts)),

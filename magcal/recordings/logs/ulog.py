@@ -161,6 +161,17 @@ def _position_and_date(topics, ulog) -> tuple[Stream | None, float | None]:
     return None, None
 
 
+def _ends_inside_a_message(path: str) -> bool:
+    """Walk the message frames (u16 size, u8 type, payload) after the 16-byte file header: a
+    log cut short (a battery pulled, a copy interrupted) ends inside its last message."""
+    with open(path, "rb") as fh:
+        data = fh.read()
+    pos = 16
+    while pos + 3 <= len(data):
+        pos += 3 + int.from_bytes(data[pos:pos + 2], "little")
+    return pos != len(data)
+
+
 def read(path: str) -> FlightLog:
     """A ULog as a FlightLog; pyulog reads up to damage (then the log says so in warnings)."""
     from pyulog import ULog
@@ -169,6 +180,8 @@ def read(path: str) -> FlightLog:
     warnings = []
     if getattr(ulog, "file_corruption", False):
         warnings.append("the log is damaged; pyulog read what it could up to and around the damage")
+    elif _ends_inside_a_message(path):
+        warnings.append("the log ends inside a message (cut short): read up to there")
     params = {k: float(v) for k, v in ulog.initial_parameters.items()}
     topics = _topics(ulog)
     infos, fields = _mags(topics, params)
