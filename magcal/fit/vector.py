@@ -291,11 +291,12 @@ def _judge(names, j, cols, m, exp, f, blocks, ho, base_key) -> tuple[dict, Solve
 
 
 def fit_vector(field_ut, channels: dict, expected_ut=None, earth_field_ut: float | None = None,
-               term: str | None = "auto", blocks: int = 5) -> VectorFit | FitFailure:
+               term: str | None = "auto", blocks: int = 5, step: bool = True) -> VectorFit | FitFailure:
     """Fit (m, channels) against ``expected_ut`` (n, 3) — or |m| against ``earth_field_ut`` when
     there is no expected vector. ``term``: "auto" (current, else throttle), None, or a channel.
     A motors-running step is judged first as a nuisance term, so that the current term is
-    pinned by how the field follows the current, not by the jump between ground and air."""
+    pinned by how the field follows the current, not by the jump between ground and air
+    (``step=False`` leaves the step out, as tools with only a linear term do)."""
     m = np.asarray(field_ut, np.float64)
     ok = np.all(np.isfinite(m), axis=1)
     if expected_ut is not None:
@@ -307,7 +308,7 @@ def fit_vector(field_ut, channels: dict, expected_ut=None, earth_field_ut: float
         return FitFailure("no_channel", f"no channel {name!r} to fit an interference term to")
     m, exp = m[ok], None if expected_ut is None else np.asarray(expected_ut, np.float64)[ok]
     cols = {k: np.asarray(v, np.float64)[ok] for k, v in channels.items() if k == name}
-    step = motors_on({k: np.asarray(v)[ok] for k, v in channels.items()})
+    step = motors_on({k: np.asarray(v)[ok] for k, v in channels.items()}) if step else None
     if step is not None and name != "throttle":
         cols["motors_on"] = step
     f = earth_field_ut if earth_field_ut else float(np.median(np.linalg.norm(m - np.median(m, axis=0), axis=1)))

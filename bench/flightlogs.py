@@ -1,0 +1,264 @@
+"""magcal beside pymavlink's magfit_WMM.py on an ArduPilot log, judged the same way.
+
+    python bench/flightlogs.py [LOG.bin] [--blocks 5] [--out bench/results/flightlogs.md]
+
+LOG defaults to ``$MAGCAL_REAL_DATA/ardupilot_solo_log171/log171.bin``. For every compass of the
+log, the samples are cut into contiguous time blocks; each block is held out in turn, both tools
+fit the rest, and both are judged on the held-out block against the same expected field (the
+log's attitude with AHRS_TRIM, and the World Magnetic Model at the log's GPS position and date):
+the RMS of the vector residual |h − h_expected| and of the magnitude residual |h| − |h_expected|,
+averaged over the blocks. magfit_WMM.py (installed with pymavlink) runs unmodified as a separate
+process on a copy of the log, its training blocks chosen by its own ``--condition`` option:
+
+* ``magfit --cmot`` as shipped: it reads the current from BAT messages only, so on a log that
+  carries it in CURR (ArduCopter 3.3 and older) its current term stays at zero;
+* ``magfit --cmot (CURR as BAT)``: the same script with CURR presented to it as BAT (amps);
+* ``magfit --cmot --elliptical (CURR as BAT)``: with diagonals and off-diagonals too.
+
+Its parameters are applied the way it defines them (its own raw field: the logged field with the
+log's matrix undone, minus the logged integer offsets; corrected = M·(s·(raw + OFS)) + MOT·I).
+The current coefficients are compared on the whole log: magcal's (with its motors-running step,
+and without it as magfit fits), and magfit's MOT expressed the same way (k = −M⁻¹·MOT, µT/A).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+SHIM = r"""
+import runpy, sys
+from pymavlink import mavutil
+_orig = mavutil.mavlink_connection
+class _Bat:
+    def __init__(self, m):
+        self._m = m
+        self.Curr = m.Curr / 100.0 if isinstance(m.Curr, int) else m.Curr
+    def get_type(self):
+        return "BAT"
+    def __getattr__(self, k):
+        return getattr(self._m, k)
+class _Conn:
+    def __init__(self, c):
+        self._c = c
+    def recv_match(self, type=None, **kw):
+        want = isinstance(type, (list, tuple)) and "BAT" in type
+        if want:
+            type = [t for t in type if t != "BAT"] + ["CURR"]
+        m = self._c.recv_match(type=type, **kw)
+        return _Bat(m) if want and m is not None and m.get_type() == "CURR" else m
+    def __getattr__(self, k):
+        return getattr(self._c, k)
+mavutil.mavlink_connection = lambda *a, **k: _Conn(_orig(*a, **k))
+script = sys.argv[1]
+sys.argv = sys.argv[1:]
+runpy.run_path(script, run_name="__main__")
+"""
+
+VARIANTS = (
+    ("magfit --cmot", ["--cmot"], False),
+    ("magfit --cmot (CURR as BAT)", ["--cmot"], True),
+    ("magfit --cmot --elliptical (CURR as BAT)", ["--cmot", "--elliptical"], True),
+)
+
+
+def magfit_script() -> str:
+    path = shutil.which("magfit_WMM.py") or os.path.join(os.path.dirname(sys.executable), "magfit_WMM.py")
+    if not os.path.exists(path):
+        sys.exit("magfit_WMM.py not found: it is installed with pymavlink (pip install '.[logs]')")
+    return path
+
+
+def run_magfit(log: str, mag_no: int, flags: list[str], shim: bool, condition: str | None) -> dict:
+    """Its printed parameters (name → value), the earth-field strength it used, CPU seconds."""
+    cmd = [magfit_script(), "--mag", str(mag_no), "--att-source", "ATT", *flags]
+    if condition:
+        cmd += ["--condition", condition]
+    cmd.append(log)
+    argv = [sys.executable, "-c", SHIM, *cmd] if shim else [sys.executable, *cmd]
+    env = dict(os.environ, MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1")
+    t0 = os.times()
+    out = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=os.path.dirname(log))
+    t1 = os.times()
+    params = {m.group(1): float(m.group(2)) for m in re.finditer(r"^(COMPASS_\w+) (-?[\d.]+)$", out.stdout, re.M)}
+    strength = re.search(r"strength (\d+)", out.stdout)
+    if not params:
+        raise RuntimeError(f"magfit_WMM.py gave no parameters: {out.stdout[-500:]} {out.stderr[-500:]}")
+    return {"params": params, "strength_mg": float(strength.group(1)) if strength else None,
+            "cpu_s": (t1.children_user + t1.children_system) - (t0.children_user + t0.children_system)}
+
+
+def magfit_correct(p: dict, suffix: str, raw_mg: np.ndarray, current_a: np.ndarray) -> np.ndarray:
+    """magfit_WMM's own correction of its raw field with its printed parameters (mG)."""
+    g = lambda k, a, d: p.get(f"COMPASS_{k}{suffix}_{a}", d)  # noqa: E731
+    ofs = np.array([g("OFS", a, 0.0) for a in "XYZ"])
+    d, o = [g("DIA", a, 1.0) for a in "XYZ"], [g("ODI", a, 0.0) for a in "XYZ"]
+    m = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
+    mot = np.array([g("MOT", a, 0.0) for a in "XYZ"])
+    s = p.get(f"COMPASS_SCALE{suffix}", 1.0)
+    return (s * (raw_mg + ofs)) @ m.T + np.outer(current_a, mot)
+
+
+def magfit_raw(log_path: str, lm, index: int) -> np.ndarray:
+    """magfit's raw field: the logged one with the log's matrix and motor offset undone, minus
+    the integer offsets logged in the MAG message (it uses those, not the parameters)."""
+    from pymavlink import DFReader
+
+    from magcal.recordings.logs import conventions as cv
+
+    name = lm.info.name
+    r = DFReader.DFReader_binary(log_path, zero_time_base=False)
+    ofs = []
+    while (m := r.recv_match(type=name)) is not None:
+        ofs.append((m.OfsX, m.OfsY, m.OfsZ))
+    comp = cv.ap_compass(lm.log.params, index)
+    logged = lm.log.mag_fields[[i.index for i in lm.log.mags].index(index)].values
+    return np.linalg.solve(comp.matrix, logged.T).T / comp.scale - np.asarray(ofs, float)
+
+
+def rms_pair(h: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
+    vec = float(np.sqrt(np.mean(np.sum((h - expected) ** 2, axis=1))))
+    mag = float(np.sqrt(np.mean((np.linalg.norm(h, axis=1) - np.linalg.norm(expected, axis=1)) ** 2)))
+    return vec, mag
+
+
+def magcal_fold(lm, train, test, step=True) -> tuple[float, float]:
+    from magcal.fit.vector import fit_vector, motors_on
+
+    s = lm.series
+    ch = {k: v[train] for k, v in s.channels.items()}
+    r = fit_vector(s.field_ut[train], ch, lm.earth_body_ut[train], lm.earth_field_ut, step=step)
+    test_ch = {k: v[test] for k, v in s.channels.items()}
+    on = motors_on(s.channels, min_fraction=0.0)
+    if on is not None:
+        test_ch["motors_on"] = on[test]
+    return rms_pair(r.calibration.correct(s.field_ut[test], test_ch), lm.earth_body_ut[test])
+
+
+def folds(n: int, blocks: int):
+    edges = np.linspace(0, n, blocks + 1).round().astype(int)
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        test = np.zeros(n, bool)
+        test[lo:hi] = True
+        yield ~test, test
+
+
+def condition_outside(name: str, field: str, t0_s: float, t1_s: float) -> str:
+    """magfit's --condition keeping the messages outside [t0, t1] of this compass's clock."""
+    scale = 1e6 if field == "TimeUS" else 1e3
+    return f"{name}.{field} < {t0_s * scale:.0f} or {name}.{field} > {t1_s * scale:.0f}"
+
+
+def time_field(log_path: str, name: str) -> str:
+    from pymavlink import DFReader
+
+    m = DFReader.DFReader_binary(log_path, zero_time_base=False).recv_match(type=name)
+    return "TimeUS" if "TimeUS" in m._fieldnames else "TimeMS"
+
+
+def coefficient_rows(log_path, lm, index, variants) -> list[tuple[str, np.ndarray, np.ndarray | None]]:
+    """(label, k µT/A, σ or None) on the whole log: magcal with and without its step, magfit."""
+    from magcal.fit.vector import fit_vector
+
+    s, out = lm.series, []
+    for label, step in (("magcal", True), ("magcal (no step)", False)):
+        r = fit_vector(s.field_ut, s.channels, lm.earth_body_ut, lm.earth_field_ut, term="current_a", step=step)
+        t = next(x for x in r.terms if x["channel"] == "current_a")
+        kept = "" if t["kept"] else " (not kept)"
+        out.append((label + kept, np.array(t["coef_ut_per_unit"]), np.array(t["sigma_ut_per_unit"])))
+    suffix = "" if index == 0 else str(index + 1)
+    for label, flags, shim in variants:
+        mf = run_magfit(log_path, index + 1, flags, shim, None)
+        p = mf["params"]
+        d, o = [p.get(f"COMPASS_DIA{suffix}_{a}", 1.0) for a in "XYZ"], [p.get(f"COMPASS_ODI{suffix}_{a}", 0.0) for a in "XYZ"]
+        m = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
+        mot = np.array([p.get(f"COMPASS_MOT{suffix}_{a}", 0.0) for a in "XYZ"])
+        k = -np.linalg.solve(m, mot) / p.get(f"COMPASS_SCALE{suffix}", 1.0) * 0.1
+        out.append((label, k, None))
+    return out
+
+
+def compare_compass(log_path: str, lm, index: int, blocks: int, variants) -> dict:
+    s = lm.series
+    cur = s.channels.get("current_a", np.zeros(len(s)))
+    raw_mf = magfit_raw(log_path, lm, index)
+    field = time_field(log_path, lm.info.name)
+    suffix = "" if index == 0 else str(index + 1)
+    rows: dict[str, list] = {"magcal": [], "magcal (no step)": [], **{v[0]: [] for v in variants}}
+    cpu = {v[0]: 0.0 for v in variants}
+    for train, test in folds(len(s), blocks):
+        rows["magcal"].append(magcal_fold(lm, train, test))
+        rows["magcal (no step)"].append(magcal_fold(lm, train, test, step=False))
+        cond = condition_outside(lm.info.name, field, s.t_s[test][0] - 0.001, s.t_s[test][-1] + 0.001)
+        for label, flags, shim in variants:
+            mf = run_magfit(log_path, index + 1, flags, shim, cond)
+            cpu[label] += mf["cpu_s"]
+            h = magfit_correct(mf["params"], suffix, raw_mf[test], cur[test]) * 0.1
+            rows[label].append(rms_pair(h, lm.earth_body_ut[test]))
+    return {"rows": rows, "cpu": cpu, "coefficients": coefficient_rows(log_path, lm, index, variants),
+            "magfit_strength_mg": mf["strength_mg"]}
+
+
+def format_compass(lm, res: dict) -> list[str]:
+    info = lm.info
+    where = "external" if info.external else "internal"
+    lines = [f"### {info.name} ({where}, {info.device})", "",
+             "| fit | held-out vector RMS µT (mean of blocks) | per block | held-out \|m\| RMS µT |",
+             "|---|---|---|---|"]
+    for label, vals in res["rows"].items():
+        v = np.array(vals)
+        lines.append(f"| {label} | {v[:, 0].mean():.2f} | {' '.join(f'{x:.1f}' for x in v[:, 0])} | {v[:, 1].mean():.2f} |")
+    lines += ["", "| current coefficient, whole log | k µT/A (x, y, z) | σ |", "|---|---|---|"]
+    for label, k, sig in res["coefficients"]:
+        sg = "—" if sig is None else "(" + ", ".join(f"{x:.3f}" for x in sig) + ")"
+        lines.append(f"| {label} | ({', '.join(f'{x:+.3f}' for x in k)}) | {sg} |")
+    strength = res["magfit_strength_mg"]
+    lines += ["", f"Expected field: {lm.earth_model} {lm.earth_field_ut:.2f} µT (magcal); magfit's own table "
+              f"{strength / 10:.2f} µT." if strength else "", ""]
+    return lines
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    default = os.path.join(os.environ.get("MAGCAL_REAL_DATA", ""), "ardupilot_solo_log171", "log171.bin")
+    ap.add_argument("log", nargs="?", default=default, help="an ArduPilot DataFlash .bin log")
+    ap.add_argument("--blocks", type=int, default=5, help="held-out time blocks (default 5)")
+    ap.add_argument("--mags", default=None, help="compasses to compare, e.g. 0,2 (default all)")
+    ap.add_argument("--out", default=None, help="also write the table to this markdown file")
+    args = ap.parse_args(argv)
+    if not os.path.exists(args.log):
+        ap.error(f"no log at {args.log!r}: give LOG or set MAGCAL_REAL_DATA")
+    from magcal.recordings.logs import read_log, select
+
+    t0 = time.process_time()
+    with tempfile.TemporaryDirectory() as tmp:
+        log_path = shutil.copy(args.log, tmp)  # magfit writes beside the log it reads
+        log = read_log(log_path)
+        wanted = [m.index for m in log.mags] if args.mags is None else [int(x) for x in args.mags.split(",")]
+        lines = [f"## magcal vs magfit_WMM.py on {os.path.basename(args.log)} ({log.firmware}), "
+                 f"{args.blocks} held-out time blocks", ""]
+        for index in wanted:
+            lm = select(log, index)
+            res = compare_compass(log_path, lm, index, args.blocks, VARIANTS)
+            lines += format_compass(lm, res)
+            print("\n".join(format_compass(lm, res)), flush=True)
+    lines.append(f"magcal's own CPU (reading, all its fits): {time.process_time() - t0:.1f} s")
+    if args.out:
+        with open(args.out, "w", encoding="utf-8") as fh:
+            fh.write("\n".join(lines) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
