@@ -99,15 +99,12 @@ def run_magfit(log: str, mag_no: int, flags: list[str], shim: bool, condition: s
             "cpu_s": (t1.children_user + t1.children_system) - (t0.children_user + t0.children_system)}
 
 
-def magfit_correct(p: dict, suffix: str, raw_mg: np.ndarray, current_a: np.ndarray) -> np.ndarray:
-    """magfit_WMM's own correction of its raw field with its printed parameters (mG)."""
-    g = lambda k, a, d: p.get(f"COMPASS_{k}{suffix}_{a}", d)  # noqa: E731
-    ofs = np.array([g("OFS", a, 0.0) for a in "XYZ"])
-    d, o = [g("DIA", a, 1.0) for a in "XYZ"], [g("ODI", a, 0.0) for a in "XYZ"]
-    m = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
-    mot = np.array([g("MOT", a, 0.0) for a in "XYZ"])
-    s = p.get(f"COMPASS_SCALE{suffix}", 1.0)
-    return (s * (raw_mg + ofs)) @ m.T + np.outer(current_a, mot)
+def magfit_correct(p: dict, index: int, raw_mg: np.ndarray, current_a: np.ndarray) -> np.ndarray:
+    """magfit_WMM's own correction of its raw field with its printed parameters (mG): ArduPilot's
+    formula with COMPASS_* names, MOT per amp."""
+    from magcal.recordings.logs import conventions as cv
+
+    return cv.ap_correct(raw_mg, cv.ap_compass({**p, "COMPASS_MOTCT": 2}, index), current_a)
 
 
 def magfit_raw(log_path: str, lm, index: int) -> np.ndarray:
@@ -194,7 +191,6 @@ def compare_compass(log_path: str, lm, index: int, blocks: int, variants) -> dic
     cur = s.channels.get("current_a", np.zeros(len(s)))
     raw_mf = magfit_raw(log_path, lm, index)
     field = time_field(log_path, lm.info.name)
-    suffix = "" if index == 0 else str(index + 1)
     rows: dict[str, list] = {"magcal": [], "magcal (no step)": [], **{v[0]: [] for v in variants}}
     cpu = {v[0]: 0.0 for v in variants}
     for train, test in folds(len(s), blocks):
@@ -204,7 +200,7 @@ def compare_compass(log_path: str, lm, index: int, blocks: int, variants) -> dic
         for label, flags, shim in variants:
             mf = run_magfit(log_path, index + 1, flags, shim, cond)
             cpu[label] += mf["cpu_s"]
-            h = magfit_correct(mf["params"], suffix, raw_mf[test], cur[test]) * 0.1
+            h = magfit_correct(mf["params"], index, raw_mf[test], cur[test]) * 0.1
             rows[label].append(rms_pair(h, lm.earth_body_ut[test]))
     return {"rows": rows, "cpu": cpu, "coefficients": coefficient_rows(log_path, lm, index, variants),
             "magfit_strength_mg": mf["strength_mg"]}

@@ -310,3 +310,18 @@ def test_export_refuses_what_is_not_a_fit(tmp_path):
     bad.write_text('{"hello": 1}')
     r = magcal("export", str(bad), "--px4", "0")
     assert r.returncode == 2 and "not the JSON of a successful" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_newer_ulog_takes_the_faster_stream_and_finds_cal_mag_by_device_id():
+    from magcal.recordings.logs import conventions, read_log, select
+
+    log = read_log(os.path.join(DATA, "px4_pyulog_sample_small_mags.ulg"))
+    assert [(m.device_id, m.external) for m in log.mags] == [(589858, False), (592905, True)]
+    fast = log.mags[1]
+    assert fast.name.startswith("vehicle_magnetometer") and fast.calibrated and fast.rate_hz > 20
+    lm = select(log, 1)
+    assert lm.slot == 1 and "CAL_MAG1" in lm.undone
+    raw_ga = lm.series.field_ut @ lm.sensor_to_body / 100.0
+    p = {**log.params, **{f"CAL_MAG1_{a}ODIAG": 0.0 for a in "XYZ"}}
+    again = px4_formula(raw_ga, p, 1, conventions.px4_rotation(0), np.zeros(len(raw_ga)))
+    np.testing.assert_allclose(again, log.mag_fields[1].values, atol=1e-12)

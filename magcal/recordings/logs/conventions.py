@@ -143,21 +143,24 @@ def ap_uncorrect(corrected_mg, c: ArduPilotCompass, motor_offset_mg=None) -> np.
     return np.linalg.solve(c.matrix, v.T).T / c.scale - c.ofs_mg
 
 
+def _param_block(name, offset, matrix, comp) -> dict[str, float]:
+    """The four groups both autopilots write, each X, Y, Z: offsets, the matrix's diagonal, its
+    off-diagonal (xy, xz, yz) and the interference term; ``name(kind, axis)`` names them."""
+    out = {name("OFS", a): float(offset[i]) for i, a in enumerate("XYZ")}
+    out.update({name("DIA", a): float(matrix[i, i]) for i, a in enumerate("XYZ")})
+    out.update({name("ODI", a): float(matrix[r, c]) for a, (r, c) in zip("XYZ", ((0, 1), (0, 2), (1, 2)))})
+    out.update({name("MOT", a): float(comp[i]) for i, a in enumerate("XYZ")})
+    return out
+
+
 def to_ardupilot(cal: Calibration, index: int, term: str | None) -> dict[str, float]:
     """COMPASS_* parameters (mG) that make ArduPilot apply ``cal`` (fitted in the body frame)."""
     w, b = cal.soft_iron, cal.offset_ut
     k = cal.coef_ut_per_unit.get(term, np.zeros(3)) if term else np.zeros(3)
     ofs, mot = -b * MG_PER_UT, -(w @ k) * MG_PER_UT
     ofs, mot = ofs + 0.0, mot + 0.0  # no "-0" in the file
-    out = {}
-    for i, a in enumerate("XYZ"):
-        out[f"COMPASS_OFS{ap_suffix(index)}_{a}"] = float(ofs[i])
-    for i, a in enumerate("XYZ"):
-        out[f"COMPASS_DIA{ap_suffix(index)}_{a}"] = float(w[i, i])
-    for i, (r, c) in enumerate(((0, 1), (0, 2), (1, 2))):
-        out[f"COMPASS_ODI{ap_suffix(index)}_{'XYZ'[i]}"] = float(w[r, c])
-    for i, a in enumerate("XYZ"):
-        out[f"COMPASS_MOT{ap_suffix(index)}_{a}"] = float(mot[i])
+    sfx = ap_suffix(index)
+    out = _param_block(lambda kind, a: f"COMPASS_{kind}{sfx}_{a}", ofs, w, mot)
     out[f"COMPASS_SCALE{ap_suffix(index)}"] = 1.0
     if term:
         out["COMPASS_MOTCT"] = 2.0 if term == "current_a" else 1.0
@@ -221,15 +224,8 @@ def to_px4(cal: Calibration, n: int, sensor_to_body, term: str | None) -> dict[s
     off = r.T @ cal.offset_ut * GAUSS_PER_UT
     k = cal.coef_ut_per_unit.get(term, np.zeros(3)) if term else np.zeros(3)
     comp = -(r.T @ k) * GAUSS_PER_UT * (1000.0 if term == "current_a" else 1.0) + 0.0
-    out = {}
-    for i, a in enumerate("XYZ"):
-        out[f"CAL_MAG{n}_{a}OFF"] = float(off[i])
-    for i, a in enumerate("XYZ"):
-        out[f"CAL_MAG{n}_{a}SCALE"] = float(s[i, i])
-    for i, (rr, cc) in enumerate(((0, 1), (0, 2), (1, 2))):
-        out[f"CAL_MAG{n}_{'XYZ'[i]}ODIAG"] = float(s[rr, cc])
-    for i, a in enumerate("XYZ"):
-        out[f"CAL_MAG{n}_{a}COMP"] = float(comp[i])
+    px4_kind = {"OFS": "OFF", "DIA": "SCALE", "ODI": "ODIAG", "MOT": "COMP"}
+    out = _param_block(lambda kind, a: f"CAL_MAG{n}_{a}{px4_kind[kind]}", off, s, comp)
     out["CAL_MAG_COMP_TYP"] = float({None: 0, "current_a": 2}.get(term, 1))
     return out
 

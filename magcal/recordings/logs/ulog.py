@@ -49,21 +49,43 @@ def _first(topics, name: str, fields: tuple[str, ...], scale: float = 1.0) -> St
     return None
 
 
-def _mags(topics, params):
-    raw = [(k, d) for k, d in topics.items() if k[0] == "sensor_mag"]
-    calibrated = not raw
-    found = raw or [(k, d) for k, d in topics.items() if k[0] == "vehicle_magnetometer"]
-    infos, fields = [], []
-    for index, ((name, multi), data) in enumerate(found):
+def _mag_streams(topics, params) -> list[dict]:
+    """Every magnetometer stream: raw sensor_mag and calibrated vehicle_magnetometer instances."""
+    out = []
+    for (name, multi), data in topics.items():
+        if name not in ("sensor_mag", "vehicle_magnetometer"):
+            continue
         cols = ["x", "y", "z"] if "x" in data else [f"magnetometer_ga[{i}]" for i in range(3)]
-        stream = Stream(_t(data), np.column_stack([np.asarray(data[c], np.float64) for c in cols]))
         dev = int(data["device_id"][0]) if "device_id" in data else None
-        if dev is None and calibrated and multi == 0:
+        if dev is None and name == "vehicle_magnetometer" and multi == 0:
             dev = int(params.get("CAL_MAG_PRIME", 0)) or None  # older logs: the voted primary only
-        ext = bool(data["is_external"][0]) if "is_external" in data else _external_from_params(params, dev)
-        infos.append(MagInfo(index=index, name=f"{name}[{multi}]", device_id=dev, device=describe_device_id(dev),
-                             external=ext, samples=len(stream), rate_hz=stream.rate_hz(), calibrated=calibrated))
-        fields.append(stream)
+        out.append({"name": f"{name}[{multi}]", "raw": name == "sensor_mag", "device_id": dev,
+                    "external": bool(data["is_external"][0]) if "is_external" in data else None,
+                    "stream": Stream(_t(data), np.column_stack([np.asarray(data[c], np.float64) for c in cols]))})
+    return out
+
+
+def _mags(topics, params):
+    """One entry per magnetometer, in the log's order (sensor_mag instances first): the raw
+    stream, or the calibrated one where that was logged more often (PX4's default logging keeps
+    sensor_mag at about 1 Hz and vehicle_magnetometer faster)."""
+    streams = _mag_streams(topics, params)
+    chosen: dict = {}
+    for st in streams:  # sensor_mag sorts before vehicle_magnetometer
+        key = st["device_id"] if st["device_id"] else st["name"]
+        best = chosen.get(key)
+        if best is None or len(st["stream"]) > len(best["stream"]):
+            if best is not None and st["external"] is None:
+                st = {**st, "external": best["external"]}
+            chosen[key] = st
+    infos, fields = [], []
+    for index, st in enumerate(chosen.values()):
+        dev, ext = st["device_id"], st["external"]
+        ext = _external_from_params(params, dev) if ext is None else ext
+        infos.append(MagInfo(index=index, name=st["name"], device_id=dev, device=describe_device_id(dev),
+                             external=ext, samples=len(st["stream"]), rate_hz=st["stream"].rate_hz(),
+                             calibrated=not st["raw"]))
+        fields.append(st["stream"])
     return tuple(infos), tuple(fields)
 
 
