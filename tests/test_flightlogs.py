@@ -39,6 +39,13 @@ def magcal(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "magcal", *args], capture_output=True, text=True, cwd=cwd)
 
 
+def one_fit(r) -> dict:
+    """The single fit of ``magcal fit FILE --json`` (schema magcal.fit/1)."""
+    doc = json.loads(r.stdout)
+    assert doc["schema"] == "magcal.fit/1" and len(doc["fits"]) == 1
+    return doc["fits"][0]
+
+
 def ap_formula(raw_mg, params, suffix, x):
     """ArduPilot's correction, from its parameters by name."""
     g = lambda k, a, d: params.get(f"COMPASS_{k}{suffix}_{a}", d)  # noqa: E731
@@ -79,8 +86,10 @@ def test_dataflash_lists_its_compasses_and_names_channels_physically():
 
 
 def test_several_magnetometers_and_no_choice_lists_them():
+    from magcal.cli.exits import Exit
+
     r = magcal("fit", BIN)
-    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.returncode == Exit.INPUT and "Traceback" not in r.stderr
     for line in ("--mag 0: MAG, device id 73225", "external", "--mag 2: MAG3", "internal", "Hz"):
         assert line in r.stderr
 
@@ -152,23 +161,27 @@ def test_a_damaged_log_is_read_up_to_the_damage(tmp_path, path, damage):
         data[mid: mid + 3000] = rng.integers(0, 256, 3000, dtype=np.uint8).tobytes()
     bad = tmp_path / ("bad" + os.path.splitext(path)[1])
     bad.write_bytes(bytes(data))
+    from magcal.cli.exits import Exit
+
     r = magcal("fit", str(bad), "--mag", "0", "--json")
     assert "Traceback" not in r.stderr
-    assert r.returncode in (0, 1), r.stderr
-    d = json.loads(r.stdout)
+    assert r.returncode in (Exit.OK, Exit.GATE), r.stderr
+    d = one_fit(r)
     assert any("damaged" in w or "cut short" in w for w in d["warnings"])
-    whole = json.loads(magcal("fit", path, "--mag", "0", "--json").stdout)
+    whole = one_fit(magcal("fit", path, "--mag", "0", "--json"))
     n = d["log"]["magnetometer"]["samples"]
     assert 0 < n <= whole["log"]["magnetometer"]["samples"]
-    if r.returncode == 1:  # what survived may be too short to fit: said so, not a crash
+    if r.returncode == Exit.GATE:  # what survived may be too short to fit: said so, not a crash
         assert d["failure"] == "too_few_samples"
 
 
 def test_a_file_that_only_starts_like_a_log_is_a_named_error(tmp_path):
     bad = tmp_path / "x.ulg"
     bad.write_bytes(b"ULog\x01\x12\x35" + b"\x00" * 40)
+    from magcal.cli.exits import Exit
+
     r = magcal("fit", str(bad))
-    assert r.returncode == 2 and "Traceback" not in r.stderr and str(bad) in r.stderr
+    assert r.returncode == Exit.INPUT and "Traceback" not in r.stderr and str(bad) in r.stderr
 
 
 def test_missing_extra_is_named(monkeypatch):
@@ -301,15 +314,17 @@ def test_export_of_a_log_fit_writes_the_logs_compass(tmp_path):
     e = magcal("export", str(res), "--ardupilot", "--json")
     assert e.returncode == 0, e.stderr
     d = json.loads(e.stdout)
-    assert d["slot"] == 3 and "COMPASS_MOT3_Z" in d["parameters"] and d["parameters"]["COMPASS_MOTCT"] == 2
+    assert d["schema"] == "magcal.export-params/1" and d["slot"] == 3 and "COMPASS_MOT3_Z" in d["parameters"] and d["parameters"]["COMPASS_MOTCT"] == 2
     assert any("motors-running step" in n for n in d["notes"])
 
 
 def test_export_refuses_what_is_not_a_fit(tmp_path):
     bad = tmp_path / "x.json"
     bad.write_text('{"hello": 1}')
+    from magcal.cli.exits import Exit
+
     r = magcal("export", str(bad), "--px4", "0")
-    assert r.returncode == 2 and "not the JSON of a successful" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == Exit.INPUT and "not the JSON of a successful" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_newer_ulog_takes_the_faster_stream_and_finds_cal_mag_by_device_id():
