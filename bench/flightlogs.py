@@ -93,8 +93,10 @@ def run_magfit(log: str, mag_no: int, flags: list[str], shim: bool, condition: s
     t1 = os.times()
     params = {m.group(1): float(m.group(2)) for m in re.finditer(r"^(COMPASS_\w+) (-?[\d.]+)$", out.stdout, re.M)}
     strength = re.search(r"strength (\d+)", out.stdout)
-    if not params:
-        raise RuntimeError(f"magfit_WMM.py gave no parameters: {out.stdout[-500:]} {out.stderr[-500:]}")
+    if not params:  # its own optimiser gave up ("Fit failed: Iteration limit reached" …)
+        why = re.search(r"Fit failed: (.*)", out.stdout)
+        return {"params": None, "failure": why.group(1).strip() if why else (out.stderr.strip()[-200:] or "no output"),
+                "strength_mg": None, "cpu_s": 0.0}
     return {"params": params, "strength_mg": float(strength.group(1)) if strength else None,
             "cpu_s": (t1.children_user + t1.children_system) - (t0.children_user + t0.children_system)}
 
@@ -178,6 +180,9 @@ def coefficient_rows(log_path, lm, index, variants) -> list[tuple[str, np.ndarra
     for label, flags, shim in variants:
         mf = run_magfit(log_path, index + 1, flags, shim, None)
         p = mf["params"]
+        if p is None:
+            out.append((f"{label}: failed ({mf['failure']})", np.full(3, np.nan), None))
+            continue
         d, o = [p.get(f"COMPASS_DIA{suffix}_{a}", 1.0) for a in "XYZ"], [p.get(f"COMPASS_ODI{suffix}_{a}", 0.0) for a in "XYZ"]
         m = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
         mot = np.array([p.get(f"COMPASS_MOT{suffix}_{a}", 0.0) for a in "XYZ"])
@@ -200,6 +205,9 @@ def compare_compass(log_path: str, lm, index: int, blocks: int, variants) -> dic
         for label, flags, shim in variants:
             mf = run_magfit(log_path, index + 1, flags, shim, cond)
             cpu[label] += mf["cpu_s"]
+            if mf["params"] is None:
+                rows[label].append((np.nan, np.nan))
+                continue
             h = magfit_correct(mf["params"], index, raw_mf[test], cur[test]) * 0.1
             rows[label].append(rms_pair(h, lm.earth_body_ut[test]))
     return {"rows": rows, "cpu": cpu, "coefficients": coefficient_rows(log_path, lm, index, variants),
@@ -210,11 +218,14 @@ def format_compass(lm, res: dict) -> list[str]:
     info = lm.info
     where = "external" if info.external else "internal"
     lines = [f"### {info.name} ({where}, {info.device})", "",
-             "| fit | held-out vector RMS µT (mean of blocks) | per block | held-out \|m\| RMS µT |",
+             "| fit | held-out vector RMS µT (mean of blocks) | per block | held-out |m| RMS µT |",
              "|---|---|---|---|"]
     for label, vals in res["rows"].items():
         v = np.array(vals)
-        lines.append(f"| {label} | {v[:, 0].mean():.2f} | {' '.join(f'{x:.1f}' for x in v[:, 0])} | {v[:, 1].mean():.2f} |")
+        failed = int(np.isnan(v[:, 0]).sum())
+        note = f" ({failed} of {len(v)} blocks: its optimiser gave up, mean of the rest)" if failed else ""
+        lines.append(f"| {label}{note} | {np.nanmean(v[:, 0]):.2f} | {' '.join(f'{x:.1f}' for x in v[:, 0])} "
+                     f"| {np.nanmean(v[:, 1]):.2f} |")
     lines += ["", "| current coefficient, whole log | k µT/A (x, y, z) | σ |", "|---|---|---|"]
     for label, k, sig in res["coefficients"]:
         sg = "—" if sig is None else "(" + ", ".join(f"{x:.3f}" for x in sig) + ")"
