@@ -15,7 +15,8 @@ model's magnitude when known; with too little rotation it falls back to W = s·I
 Held-out judgement: the samples are cut into ``blocks`` contiguous time blocks; each is predicted
 by a fit to the others. A term is kept when it lowers the held-out residual and its coefficient
 differs from zero at p < 0.001 (χ², 3 dof, σ widened for correlated residuals). Its *floor* is
-three σ along the fitted direction: a coefficient below it cannot be told from none.
+the size along the fitted direction at which that test would just report it (4.03 σ): a
+coefficient below it cannot be told from none.
 """
 
 from __future__ import annotations
@@ -234,13 +235,15 @@ class VectorFit:
 
 
 def _term_stats(s: Solve, j: int) -> dict:
-    """Coefficient of term j, its σ, the χ²(3) p-value against zero and the 3σ floor."""
+    """Coefficient of term j, its σ, the χ²(3) p-value against zero, and its floor: the size
+    along the fitted direction at which the χ² test at P_KEEP would just report it."""
     k, cov = s.k[j], s.cov_bk[3 + 3 * j: 6 + 3 * j, 3 + 3 * j: 6 + 3 * j]
     norm = float(np.linalg.norm(k))
     u = k / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
     chi2 = float(k @ np.linalg.pinv(cov) @ k)
+    reach = float(np.sqrt(stats.chi2.isf(P_KEEP, 3)))  # 4.03σ: where the keep test starts to report
     return {"coef_ut_per_unit": [float(v) for v in k], "sigma_ut_per_unit": [float(v) for v in np.sqrt(np.diag(cov))],
-            "norm_ut_per_unit": norm, "floor_ut_per_unit": float(3 * np.sqrt(max(u @ cov @ u, 0.0))),
+            "norm_ut_per_unit": norm, "floor_ut_per_unit": float(reach * np.sqrt(max(u @ cov @ u, 0.0))),
             "p_value": float(stats.chi2.sf(chi2, 3))}
 
 
