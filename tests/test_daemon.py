@@ -330,3 +330,35 @@ def test_the_daemon_keeps_a_capture_of_a_motioncal_board_that_replays_to_the_sam
     cap = tmp_path / "state" / "capture.cap"
     replayed = [s.field_ut for s in read_to_end(open_device(f"replay://{cap}"))]
     assert len(got) >= 500 and replayed[: len(got)] == got
+
+
+@pytest.mark.parametrize("kind", ["binary", "nested", "int_key", "null_key", "range_3", "directory", "baud_sim",
+                                  "bad_port", "nan"])
+def test_a_bad_config_on_reload_keeps_the_running_settings(tmp_path, kind):
+    """SIGHUP with a bad config killed the daemon (exit 1) for four of these; now each is
+    rejected, counted and logged, and the daemon goes on with what it had."""
+    cfg = tmp_path / "magcal.yaml"
+    cfg.write_text("daemon:\n  monitor_alpha: 0.01\n")
+    settings = config.load(str(cfg), {"port": "sim://?pace=0"}, environ={})
+    d = Daemon(settings, state_dir=tmp_path / "state", config_path=str(cfg), overrides={"port": "sim://?pace=0"})
+    bad = {
+        "binary": bytes(range(256)), "nested": b"gates: " + b"[" * 50_000 + b"]" * 50_000,
+        "int_key": b"1: 2\n", "null_key": b"~: 2\n", "range_3": b"gates:\n  field_range_ut: [1, 2, 3]\n",
+        "baud_sim": b"baud: 9600\ndaemon:\n  monitor_alpha: 0.02\n", "bad_port": b"port: sim://?seed=x\n",
+        "nan": b"daemon:\n  state_every_s: .nan\n",
+    }
+    if kind == "directory":
+        cfg.unlink()
+        cfg.mkdir()
+    elif kind == "bad_port":
+        d.overrides = {}  # the port from the file this time
+        cfg.write_bytes(bad[kind])
+    else:
+        cfg.write_bytes(bad[kind])
+    d.reload()
+    if kind == "baud_sim":  # not an error: a serial-port setting a simulated board has no use for
+        assert d.settings.daemon.monitor_alpha == 0.02 and d.faults["config_rejected"] == 0
+        return
+    assert d.settings is settings and d.faults["config_rejected"] == 1
+    (rejected,) = d.journal.find(Decision.RELOAD_REJECTED)
+    assert (str(cfg) in rejected["error"]) != (kind == "bad_port") and "\n" not in rejected["error"]

@@ -61,9 +61,13 @@ def test_signals_and_status(tmp_path):
         assert code == 0 and s["source"] == "socket"
         assert s["running"] and s["connected"] and s["port"].startswith("sim://")
 
-        cfg.write_text("daemon:\n  monitor_alpha: 7\n")  # invalid: rejected, old settings kept
+        cfg.write_bytes(bytes(range(256)))  # not even text: this one killed the daemon (exit 1)
         proc.send_signal(signal.SIGHUP)
         _wait_for(lambda: (query_socket(state) or {}).get("faults", {}).get("config_rejected") == 1)
+        assert proc.poll() is None
+        cfg.write_text("daemon:\n  monitor_alpha: 7\n")  # invalid: rejected, old settings kept
+        proc.send_signal(signal.SIGHUP)
+        _wait_for(lambda: (query_socket(state) or {}).get("faults", {}).get("config_rejected") == 2)
         cfg.write_text("rate_hz: 50\ndaemon:\n  monitor_alpha: 0.02\n  state_every_s: 0.2\n")
         proc.send_signal(signal.SIGHUP)
         _wait_for(lambda: any(d["decision"] == Decision.RELOADED.value
@@ -81,7 +85,7 @@ def test_signals_and_status(tmp_path):
     code, out, _ = _status(state, "--json")
     s = json.loads(out)
     assert code == 1 and s["source"] == "state file" and s["running"] is False
-    assert s["samples"] > 100 and s["faults"]["config_rejected"] == 1
+    assert s["samples"] > 100 and s["faults"]["config_rejected"] == 2
     code, out, _ = _status(state)
     assert "not running" in out and "samples" in out
 

@@ -273,8 +273,11 @@ class Daemon:
 
     # -- config reload ----------------------------------------------------------------------------------
     def reload(self) -> None:
+        """SIGHUP: the config file again. Anything wrong with it — unreadable, not YAML, a bad
+        value, a port no backend takes — is rejected as a whole and the running settings stay."""
         try:
             new = config.load(self.config_path, self.overrides)
+            self.link.check_port(new)
         except ConfigError as exc:
             self.faults["config_rejected"] += 1
             self.journal.record(Decision.RELOAD_REJECTED, error=str(exc))

@@ -18,7 +18,7 @@ from ...core.calibration import Calibration
 from ...core.errors import DeviceError, PortUnavailable
 from ...core.events import Identity, Item
 from ...devices.base import Device
-from ...devices.port import scheme_of
+from ...devices.port import parse_port, scheme_of
 from ...recordings.capture import CaptureWriteError
 from .journal import Decision, Journal
 
@@ -186,6 +186,11 @@ class LinkSupervisor:
         dev, self.device = self.device, None
         _close_quietly(dev)
         self._journal.record(decision, why=why)
+
+    def check_port(self, settings) -> None:
+        """ConfigError (PortError) when new settings name another port that no backend takes."""
+        if settings.port and settings.port != self.settings.port:
+            parse_port(settings.port)
 
     def retarget(self, new) -> None:
         """New settings: reconnect when the link's own ones changed; another port, dialect or
