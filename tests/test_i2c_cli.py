@@ -118,8 +118,9 @@ def test_show_refuses_an_edited_store_file(rig, capsys):
     (path,) = store.glob("*.json")
     path.write_text(path.read_text().replace('"field_ut": 5', '"field_ut": 6', 1))
     rc = main(["show", "--port", "i2c:1"])
-    err = capsys.readouterr().err
-    assert rc == 6 and "checksum mismatch" in err and "Traceback" not in err
+    out, err = capsys.readouterr()
+    # named as a corrupt record, never applied or shown as the calibration
+    assert rc == 1 and "CORRUPT" in out and "checksum mismatch" in out and "Traceback" not in err
 
 
 def test_calibrate_without_the_bus_device_file_exits_with_the_device_status_and_a_clear_message(monkeypatch, capsys):

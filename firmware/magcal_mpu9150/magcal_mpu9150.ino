@@ -645,7 +645,7 @@ static void handle_command(char cmd, uint16_t tag, const int32_t *args, uint8_t 
 {
     uint8_t want;
     switch (cmd) {
-    case 'I': case 'G': case 'X': case 'K': case 'Z': case 'T': want = 0; break;
+    case 'I': case 'G': case 'X': case 'K': case 'D': case 'Z': case 'T': want = 0; break;
     case 'R': case 'M': case 'F': case 'N': want = 1; break;
     case 'W': want = MAX_ARGS; break;
     default:
@@ -693,6 +693,15 @@ static void handle_command(char cmd, uint16_t tag, const int32_t *args, uint8_t 
         }
         break;
     case 'K':
+        send_record(tag);
+        break;
+    case 'D': // discard the record: the EEPROM is blank again and nothing is applied
+        for (uint8_t i = 0; i < EE_SIZE; i++)
+            EEPROM.update(i, 0xFF);
+        load_record();
+        g_mode = 0;
+        send_ack(tag, cmd);
+        out_end();
         send_record(tag);
         break;
     case 'W': {

@@ -10,7 +10,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from ..core.calibration import Calibration
+from ..core.calibration import Calibration, RecordState, StoredRecord
 from ..core.errors import DeviceError
 from ..core.events import Code, Identity
 from ..devices.base import Device, batches
@@ -45,6 +45,7 @@ class Outcome:
     stored: Calibration | None = None  # what the device read back
     restored: bool | None = None  # after a failed verification: was the old calibration put back?
     link: dict = field(default_factory=dict)
+    discarded: bool = False  # the record that failed verification was discarded (nothing stored)
     collect_s: float = 0.0  # time spent collecting samples (on the caller's clock)
 
     @property
@@ -74,6 +75,7 @@ class Outcome:
             "written": self.written,
             "verified": self.verified,
             "restored_previous": self.restored,
+            "discarded_unverified": self.discarded,
             "device": self.identity.to_dict() if self.identity else None,
             "counters": dict(s.counters),
             "link": self.link,
@@ -166,35 +168,39 @@ class WriteResult:
     written: bool = False  # acknowledged and echoed back equal
     verified: bool = False  # and read back equal
     stored: Calibration | None = None  # what the device read back
-    restored: bool | None = None  # after a mismatch: was the previous calibration put back?
+    restored: bool | None = None  # after a failure: is the store back to what it held before?
     failure: WriteFailure | None = None
     message: str = ""
+    discarded: bool = False  # the record that failed was discarded: the device holds no calibration
+    previous: StoredRecord | None = None  # what the store held before (None: it could not be read)
 
 
 def write_verified(device: Device, cal: Calibration, clearance: Clearance) -> WriteResult:
     """Write, compare the echo, read back, compare again — on any opened device that can store.
-    On a mismatch the calibration that was stored before is put back (best effort) so a bad one
-    is not left on the device. Device errors become failures here, never exceptions.
+    When that fails after the store was touched, what was stored before is put back: the earlier
+    calibration, or nothing when there was none (or none usable) — an unverified record is never
+    left in place to be shown as the calibration. Device errors become failures, never exceptions.
 
     ``clearance`` is the gates' decision on ``cal`` (``logic.gates.clear_for_write``): every
     path that writes comes through here, and nothing is written without one that allows it."""
     if not (clearance.allowed and clearance.covers(cal.offset_ut, cal.field_ut)):
         raise ValueError("refusing to write a calibration the gates did not clear: " + clearance.summary())
-    sent = device.prepare(cal)
-    out = WriteResult(sent=sent)
+    out = WriteResult(sent=device.prepare(cal))
     try:
-        previous = device.read_calibration()
+        out.previous = device.read_stored()
     except DeviceError:
-        previous = None
+        out.previous = None
     try:
-        echoed = device.write_calibration(sent)
-    except DeviceError as exc:  # refused, no reply, port lost
+        echoed = device.write_calibration(out.sent)
+    except DeviceError as exc:  # refused, no reply, port lost, or the store holds no calibration after W
         out.failure, out.message = WriteFailure.WRITE_FAILED, str(exc)
+        if _touched(device, out.previous):
+            _undo(device, out)
         return out
-    if not device.matches(sent, echoed):
+    if not device.matches(out.sent, echoed):
         out.failure = WriteFailure.VERIFY_MISMATCH
         out.message = "the device echoed a different calibration than the one sent"
-        out.restored = _restore(device, previous)
+        _undo(device, out)
         return out
     out.written = True
     try:
@@ -203,13 +209,42 @@ def write_verified(device: Device, cal: Calibration, clearance: Clearance) -> Wr
         out.failure, out.message = WriteFailure.VERIFY_FAILED, f"could not read the calibration back: {exc}"
         return out
     out.stored = readback
-    out.verified = device.matches(sent, readback)
+    out.verified = device.matches(out.sent, readback)
     if not out.verified:
         out.failure = WriteFailure.VERIFY_MISMATCH
         out.message = "the calibration read back from the device differs from the one sent"
         out.written = False
-        out.restored = _restore(device, previous)
+        _undo(device, out)
     return out
+
+
+def _touched(device: Device, previous: StoredRecord | None) -> bool:
+    """After a failed write: does the store hold something other than before (or is it unknown)?"""
+    try:
+        now = device.read_stored()
+    except DeviceError:
+        return False  # the device cannot be asked: nothing more can be done through it
+    if previous is None or now.state is not previous.state:
+        return True
+    return now.calibration is not None and not device.matches(previous.calibration, now.calibration)
+
+
+def _undo(device: Device, out: WriteResult) -> None:
+    """Put back the calibration stored before; when there was none, or it cannot be put back,
+    discard the record that failed so that nothing unverified is left in place."""
+    prev = out.previous
+    if prev is not None and prev.calibration is not None:
+        try:
+            if device.matches(prev.calibration, device.write_calibration(prev.calibration)):
+                out.restored = True
+                return
+        except DeviceError:
+            pass
+    try:
+        out.discarded = device.discard_calibration().state is RecordState.NONE
+    except DeviceError as exc:
+        out.message += f"; the record that failed could not be discarded either: {exc}"
+    out.restored = out.discarded and prev is not None and prev.state is RecordState.NONE
 
 
 def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
@@ -218,6 +253,7 @@ def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
     session.begin_write()
     r = write_verified(device, session.calibration, session.clearance)
     out.written, out.verified, out.stored, out.restored = r.written, r.verified, r.stored, r.restored
+    out.discarded = r.discarded
     out.link = device.stats()
     if r.failure is WriteFailure.WRITE_FAILED or (r.failure is WriteFailure.VERIFY_MISMATCH and r.stored is None):
         session.fail(r.failure, r.message)  # refused, or the echo already differed
@@ -228,12 +264,3 @@ def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
         else:
             session.verified(r.verified, r.message)
     return out
-
-
-def _restore(device: Device, previous: Calibration | None) -> bool:
-    if previous is None:
-        return False
-    try:
-        return device.matches(previous, device.write_calibration(previous))
-    except DeviceError:
-        return False

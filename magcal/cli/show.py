@@ -1,8 +1,10 @@
 """``magcal show [--port URL] [--json]``: print the calibration the device (or its host-side
 store) holds. Works for every backend through the generic Device API: serial boards answer
-from EEPROM, ``i2c:`` devices from the host-side store. Exit status: 0 when a calibration is
-stored, 1 when none is, 5 for the device, 6 for a torn or edited store file (an error, never
-applied).
+from EEPROM, ``i2c:`` devices from the host-side store. A stored record that cannot be used — corrupt
+(it fails its own check) or invalid (its CRC holds but it is no calibration, e.g. a matrix that
+is not positive definite) — is named as such, never shown as the calibration; writing a new one
+(``magcal calibrate`` or ``magcal write``) replaces it. Exit status: 0 when a calibration is
+stored, 1 when none (or no usable one) is, 5 for the device.
 
 ``--self-test`` also runs the AK8975 self-test on backends that can (``i2c:``, the magcal firmware
 over serial, ``sim://``, ``emu://``) and prints each axis against the datasheet window; then the
@@ -31,14 +33,18 @@ def _fmt_vec(v) -> str:
     return " ".join(f"{x:10.4f}" for x in v)
 
 
-def format_text(identity: dict, cal, where: str | None) -> str:
-    """The human-readable report (pure)."""
+def format_text(identity: dict, cal, where: str | None, record=None) -> str:
+    """The human-readable report (pure); ``record``: the StoredRecord when it is not usable."""
     ident = "  ".join(
         f"{k} {identity[k]}" for k in ("transport", "bus", "address", "firmware", "who_am_i", "wia") if identity.get(k)
     )
     lines = [f"device      {ident}  asa {' '.join(str(a) for a in identity.get('asa', []))}"]
     if where:
         lines.append(f"stored in   {where}")
+    if cal is None and record is not None and record.problem:
+        lines.append(f"calibration none usable: the stored record is {record.state.value.upper()} — {record.problem}")
+        lines.append("            (magcal does not use it; `magcal calibrate` or `magcal write FILE` replaces it)")
+        return "\n".join(lines)
     if cal is None:
         lines.append("calibration none stored (run `magcal calibrate` first)")
         return "\n".join(lines)
@@ -72,15 +78,17 @@ def run(args) -> int:
                 raise DeviceError(f"{settings.port}: this backend cannot run the AK8975 self-test "
                                   "(i2c:, the magcal firmware over serial, sim:// and emu:// can)")
             result = dev.self_test()
-        cal = dev.read_calibration()
+        record = dev.read_stored()
+        cal = record.calibration
         where = dev.stored_in()
     if args.json:
         out = {"device": identity.to_dict(), "port": settings.port,
-               "calibration": None if cal is None else cal.to_dict(), "stored_in": where,
+               "calibration": None if cal is None else cal.to_dict(), "record": record.to_dict(),
+               "stored_in": where,
                "self_test": None if result is None else result.to_dict()}
         print_json(document("show", out))
     else:
-        print(format_text(identity.to_dict(), cal, where))
+        print(format_text(identity.to_dict(), cal, where, record))
         if result is not None:
             print(format_self_test(result))
     if result is not None:

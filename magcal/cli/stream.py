@@ -109,10 +109,12 @@ def run(args) -> int:
     try:
         with dev:
             dev.open()
-            cal = dev.read_calibration() if args.calibrated else None
+            record = dev.read_stored() if args.calibrated else None
+            cal = None if record is None else record.calibration
             if args.calibrated and cal is None:
-                print(f"magcal stream: {settings.port}: no calibration stored for this device "
-                      "(run `magcal calibrate` first)", file=sys.stderr)
+                what = (f"no usable calibration (the stored record cannot be used: {record.problem})"
+                        if record.problem else "no calibration stored for this device")
+                print(f"magcal stream: {settings.port}: {what} (run `magcal calibrate` first)", file=sys.stderr)
                 return Exit.NO
             if not args.json:
                 head = "  seq        t_s         x         y         z       |h|  temp_c"

@@ -154,9 +154,21 @@ def evidence_from_json(obj, cal: Calibration, name: str = "<json>") -> Evidence:
     sigma = _number(top.get("uncertainty"), "offset_ut", name, 3)
     samples = next((v for v in (_number(top, "n_used", name), _number(quality, "kept", name),
                                 _number(top, "n_samples", name)) if v is not None), None)
+    coverage = next((v for v in (_number(top, "coverage", name), _number(quality, "coverage", name))
+                     if v is not None), None)
     return Evidence(offset_ut=tuple(float(v) for v in cal.offset_ut), field_ut=float(cal.field_ut), rms_ut=rms,
-                    offset_sigma_ut=sigma, samples=None if samples is None else int(samples),
-                    coverage=_number(quality, "coverage", name))
+                    offset_sigma_ut=sigma, samples=None if samples is None else int(samples), coverage=coverage)
+
+
+def _left(r) -> str:
+    """What the device was left holding after a write that failed (pure)."""
+    if r.restored and r.previous is not None and r.previous.calibration is not None:
+        return "; the previous calibration was put back"
+    if r.discarded:
+        return "; the record that failed was discarded: the device holds no calibration"
+    if r.restored is False:
+        return "; the previous calibration could NOT be put back and the record that failed was not discarded"
+    return ""
 
 
 def _refused(args, clearance) -> int:
@@ -205,6 +217,8 @@ def run(args) -> int:
         "verified": r.verified,
         "stored": None if r.stored is None else r.stored.to_dict(),
         "restored_previous": r.restored,
+        "discarded_unverified": r.discarded,
+        "previous_record": None if r.previous is None else r.previous.to_dict(),
         "failure": r.failure,
         "message": r.message,
         "notes": notes,
@@ -223,6 +237,5 @@ def run(args) -> int:
         if r.verified:
             print(f"written    yes, and VERIFIED by read-back ({settings.port})")
         else:
-            back = {True: "; the previous calibration was put back", False: "; the previous one could NOT be put back"}
-            print(f"not written: {r.message}{back.get(r.restored, '')}")
+            print(f"not written: {r.message}{_left(r)}")
     return Exit.OK if r.verified else Exit.WRITE

@@ -22,6 +22,7 @@ True
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Mapping
 
 import numpy as np
@@ -58,6 +59,8 @@ class Calibration:
         object.__setattr__(self, "reference", {k: float(v) for k, v in dict(self.reference).items()})
         if not np.all(np.isfinite(self.offset_ut)) or not np.isfinite(self.field_ut):
             raise ValueError("calibration offset and field must be finite")
+        if not self.field_ut > 0:
+            raise ValueError(f"the field radius must be positive, got {self.field_ut:g} µT")
         if np.any(np.linalg.eigvalsh(self.soft_iron) <= 0):
             raise ValueError("soft_iron must be positive definite")
 
@@ -123,3 +126,24 @@ class Calibration:
                 for k in keys
             )
         )
+
+
+class RecordState(str, Enum):
+    """What a device's calibration store holds."""
+
+    NONE = "none"  # nothing stored (a blank store)
+    OK = "ok"  # a calibration
+    CORRUPT = "corrupt"  # fails its own check (format, version, CRC): the device does not apply it
+    INVALID = "invalid"  # passes its check but is no calibration (a matrix that is not positive definite …)
+
+
+@dataclass(frozen=True)
+class StoredRecord:
+    """A device's store as read: the calibration, or the state it is in and why it cannot be used."""
+
+    state: RecordState
+    calibration: Calibration | None = None
+    problem: str = ""
+
+    def to_dict(self) -> dict:
+        return {"state": self.state.value, "problem": self.problem or None}

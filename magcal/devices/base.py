@@ -7,7 +7,8 @@ A ``Device`` is built from a port string by ``magcal.devices.open_device`` and t
     for item in dev.read(timeout_s):   # Sample or Event, in arrival order
         ...
     dev.stop()
-    dev.read_calibration()             # → Calibration | None (None: nothing stored)
+    dev.read_calibration()             # → Calibration | None (None: nothing usable stored)
+    dev.read_stored()                  # → StoredRecord: the calibration, or none/corrupt/invalid and why
     dev.write_calibration(cal)         # store; returns the calibration read back from the store
     dev.close()                        # and open() again later: that is how a link reconnects
 
@@ -29,7 +30,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
-from ..core.calibration import Calibration
+from ..core.calibration import Calibration, RecordState, StoredRecord
 from ..core.errors import DeviceError, Unsupported
 from ..core.events import Event, Identity, Item
 from ..core.sample import Sample
@@ -83,8 +84,20 @@ class Device(ABC):
                 return list(items)
 
     def read_calibration(self) -> Calibration | None:
-        """The calibration the device holds (a recording: the last one it showed), or None."""
-        return self._read_calibration()
+        """The calibration the device holds (a recording: the last one it showed), or None
+        (nothing stored, or a record that cannot be used: ``read_stored`` says which)."""
+        return self.read_stored().calibration
+
+    def read_stored(self) -> StoredRecord:
+        """What the device's store holds: a calibration, nothing, or a record that cannot be
+        used (corrupt, or invalid contents behind a valid CRC) and why."""
+        return self._read_stored()
+
+    def discard_calibration(self) -> StoredRecord:
+        """Leave nothing stored (after a write that did not verify, when there is nothing to put
+        back); returns what the store holds afterwards."""
+        self._require(self.abilities.store, "discard a calibration")
+        return self._discard_calibration()
 
     def write_calibration(self, cal: Calibration) -> Calibration:
         """Store ``cal`` and return what the store holds afterwards (read back). The caller
@@ -144,6 +157,13 @@ class Device(ABC):
 
     def _read_calibration(self) -> Calibration | None:
         raise DeviceError(f"{self.url}: this backend cannot store a calibration")
+
+    def _read_stored(self) -> StoredRecord:
+        cal = self._read_calibration()
+        return StoredRecord(RecordState.NONE) if cal is None else StoredRecord(RecordState.OK, cal)
+
+    def _discard_calibration(self) -> StoredRecord:
+        raise Unsupported(f"{self.url}: this device cannot discard its stored calibration")
 
     def _write_calibration(self, cal: Calibration) -> Calibration:
         raise DeviceError(f"{self.url}: this backend cannot store a calibration")

@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass, replace
 from typing import Callable, Iterable
 
-from ..core.calibration import Calibration
+from ..core.calibration import Calibration, StoredRecord
 from ..core.errors import DeviceError, IdentityError, NoReply, PortUnavailable
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, Sample, counts_to_ut, temp_raw_to_c
 from ..core.selftest import SELF_TEST_WINDOW, SelfTestResult  # noqa: F401 (SELF_TEST_WINDOW: re-exported)
@@ -404,9 +404,14 @@ class I2CDevice(Device):
     def stored_in(self) -> str | None:
         return None if self.store_path is None else str(self.store_path)
 
-    def _read_calibration(self) -> Calibration | None:
+    def _read_stored(self) -> StoredRecord:
         self._require_open()
-        return self._store().load(self.identity)
+        return self._store().stored(self.identity)
+
+    def _discard_calibration(self) -> StoredRecord:
+        self._require_open()
+        self._store().discard(self.identity)
+        return self._store().stored(self.identity)
 
     def _write_calibration(self, cal: Calibration) -> Calibration:
         self._require_open()

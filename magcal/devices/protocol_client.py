@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections import deque
+from collections import Counter, deque
 from dataclasses import replace
 from typing import Callable, Iterable
 
-from ..core.calibration import Calibration
+from ..core.calibration import Calibration, RecordState, StoredRecord
 from ..core.errors import CommandRefused, DeviceError, IdentityError, NoReply, PortUnavailable, WriteRejected
 from ..core.sample import Sample, counts_to_ut, temp_raw_to_c
 from ..core.selftest import SelfTestResult
@@ -43,6 +43,7 @@ from ..wire.protocol import (
     quantize_calibration,
     record_crc,
     record_from_calibration,
+    stored_record,
 )
 from .base import RECORDING, Abilities, Device, Event, Identity, Item
 from .port import Port
@@ -174,6 +175,8 @@ class ProtocolDevice(Device):
         self.last_fit: FitReply | None = None
         self._tags = itertools.cycle(range(1, 65536))
         self._initial = initial  # bytes a detection already read from the first connection
+        self.link_totals: Counter = Counter()  # the framer counts of the connections before this one
+        self.inbox: Inbox | None = None
         self._new_link()
 
     @classmethod
@@ -182,7 +185,10 @@ class ProtocolDevice(Device):
         return cls(url, lambda: transport, **options)
 
     def _new_link(self) -> None:
-        """Forget what the previous connection said: a new connection starts from nothing."""
+        """Forget what the previous connection said: a new connection starts from nothing (its
+        framer's counts are kept in ``link_totals``, so ``stats`` counts over every connection)."""
+        if self.inbox is not None:
+            self.link_totals += self.inbox.framer.counters
         self.inbox = Inbox(self.counters, lambda: self.identity.asa if self.identity else (128, 128, 128))
         self._eof = False
 
@@ -366,14 +372,31 @@ class ProtocolDevice(Device):
         return str(path) if path else None
 
     def _read_calibration(self) -> Calibration | None:
-        r = self.read_record()
-        if r.status != "OK":
-            return None
-        if record_crc(r.values) != r.crc:
+        return self._read_stored().calibration
+
+    def _read_stored(self) -> StoredRecord:
+        return self._judge_record(self.read_record())
+
+    def _judge_record(self, r: RecordReply) -> StoredRecord:
+        stored = stored_record(r.status, r.values, r.crc)
+        if stored.state is RecordState.CORRUPT and r.status == "OK":
             self.record_status = "CORRUPT"
             self.counters["record_crc_errors"] += 1
-            return None
-        return calibration_from_record(r.values)
+        elif stored.state is RecordState.INVALID:
+            self.record_status = "INVALID"
+            self.counters["record_invalid"] += 1
+        return stored
+
+    def _discard_calibration(self) -> StoredRecord:
+        tag = self._send("D")
+        r = self._await(lambda r: isinstance(r, (Ack, ErrorReply)) and r.tag == tag, "reply to D")
+        if isinstance(r, ErrorReply):
+            raise CommandRefused(f"{self.url}: device refused D: {r.code}" + (
+                " (its firmware cannot discard a record: flash the current sketch from firmware/)"
+                if r.code == "UNKNOWN" else ""), "D", r.code)
+        rec = self._await(lambda r: isinstance(r, RecordReply) and r.tag == tag, "stored record after D")
+        self.record_status = rec.status
+        return self._judge_record(rec)
 
     def _write_calibration(self, cal: Calibration) -> Calibration:
         values = record_from_calibration(cal)
@@ -384,9 +407,11 @@ class ProtocolDevice(Device):
             raise WriteRejected(f"{self.url}: device rejected the calibration: {r.code}")
         rec = self._await(lambda r: isinstance(r, RecordReply) and r.tag == tag, "stored record after W")
         self.record_status = rec.status
-        if rec.status != "OK" or record_crc(rec.values) != rec.crc:
-            raise WriteRejected(f"{self.url}: device reports its stored record as {rec.status} after W")
-        return calibration_from_record(rec.values)
+        stored = self._judge_record(rec)
+        if stored.calibration is None:
+            raise WriteRejected(f"{self.url}: after W the device holds no calibration: "
+                                f"{stored.problem or stored.state.value}")
+        return stored.calibration
 
     def _self_test(self) -> SelfTestResult:
         """The AK8975 self-test on the board (``T``): the coil's raw reading, judged here
@@ -414,8 +439,9 @@ class ProtocolDevice(Device):
         return r
 
     def stats(self) -> dict:
-        """The framer's counters (lines, defects, gaps) and the client's (bytes, commands …)."""
-        return {**self.framer.counters, **self.counters}
+        """The framer's counters (lines, defects, gaps) over every connection so far, and the
+        client's (bytes, commands …)."""
+        return {**(self.link_totals + self.framer.counters), **self.counters}
 
     def _close(self) -> None:
         if self.transport is not None:

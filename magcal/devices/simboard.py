@@ -403,6 +403,11 @@ class SimBoard(SerialEnd):
             self._emit("A", tag, "M", mode)
         elif cmd == "K":
             self._emit_record(tag)
+        elif cmd == "D":  # discard the stored record: the store is blank again, nothing applied
+            self.eeprom.put(0, b"\xff" * (1 + 4 * RECORD_FIELDS + 2))
+            self._mode = 0
+            self._emit("A", tag, "D")
+            self._emit_record(tag)
         elif cmd == "W":
             if len(args) != RECORD_FIELDS + 1:
                 self._emit("E", tag, "W", "SYNTAX")

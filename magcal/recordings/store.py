@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from ..core.calibration import Calibration
+from ..core.calibration import Calibration, RecordState, StoredRecord
 from ..core.errors import StateError, WriteRejected
 from ..core.events import Identity
 from .atomic import write_atomic
@@ -39,6 +39,11 @@ ENV_DIR = "MAGCAL_STORE_DIR"
 
 class CorruptCalibrationFile(StateError):
     """A stored calibration that is torn, edited, or not a calibration file we can read."""
+
+
+class InvalidCalibrationFile(CorruptCalibrationFile):
+    """A store file whose checksum holds but whose calibration is none (a matrix that is not
+    positive definite, a field that is not positive …)."""
 
 
 def default_dir() -> Path:
@@ -123,6 +128,24 @@ class CalibrationStore:
         rec = self.load_record(identity)
         return None if rec is None else rec.calibration
 
+    def stored(self, identity: Identity) -> StoredRecord:
+        """What is stored for ``identity``: the calibration, nothing, or a file that cannot be
+        used (corrupt: torn, edited, foreign; invalid: its checksum holds but it is no
+        calibration) and why — never raised, never applied."""
+        try:
+            cal = self.load(identity)
+        except CorruptCalibrationFile as exc:
+            state = RecordState.INVALID if isinstance(exc, InvalidCalibrationFile) else RecordState.CORRUPT
+            return StoredRecord(state, problem=str(exc))
+        return StoredRecord(RecordState.NONE) if cal is None else StoredRecord(RecordState.OK, cal)
+
+    def discard(self, identity: Identity) -> None:
+        """Nothing stored for ``identity`` any more (its file removed)."""
+        try:
+            self.path_for(identity).unlink()
+        except FileNotFoundError:
+            pass
+
     # -- writing ---------------------------------------------------------------------------
     def save(self, identity: Identity, cal: Calibration) -> Calibration:
         """Store ``cal`` for ``identity`` atomically, read it back, compare; returns the
@@ -156,6 +179,8 @@ def parse(data: bytes, path: Path | str = "<calibration file>") -> StoredCalibra
         body = json.loads(data.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CorruptCalibrationFile(f"{where}: not valid JSON ({exc}); the file is torn or edited, not applied") from None
+    except RecursionError:
+        raise CorruptCalibrationFile(f"{where}: JSON nested too deeply: not a calibration file, not applied") from None
     if not isinstance(body, dict) or body.get("format") != FORMAT:
         raise CorruptCalibrationFile(f"{where}: not a magcal calibration file (format field missing or wrong)")
     version = body.get("version")
@@ -168,12 +193,9 @@ def parse(data: bytes, path: Path | str = "<calibration file>") -> StoredCalibra
         raise CorruptCalibrationFile(f"{where}: checksum mismatch; the file is torn or was edited, not applied")
     try:
         cal = Calibration.from_dict(body["calibration"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CorruptCalibrationFile(f"{where}: calibration fields invalid ({exc})") from None
-    return StoredCalibration(
-        calibration=cal,
-        path=Path(path),
-        key=str(body.get("key", "")),
-        saved_at=str(body.get("saved_at", "")),
-        device=dict(body.get("device", {})),
-    )
+        device = dict(body.get("device", {}))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise InvalidCalibrationFile(f"{where}: its checksum holds but its calibration is none ({exc}); "
+                                     "not applied") from None
+    return StoredCalibration(calibration=cal, path=Path(path), key=str(body.get("key", "")),
+                             saved_at=str(body.get("saved_at", "")), device=device)

@@ -18,7 +18,7 @@ from typing import Sequence, Union
 
 import numpy as np
 
-from ..core.calibration import Calibration
+from ..core.calibration import Calibration, RecordState, StoredRecord
 
 PROTO_VERSION = 1
 MAX_LINE = 120  # bytes including '$' and '\n'
@@ -545,6 +545,22 @@ def calibration_from_record(values: Sequence[int]) -> Calibration:
         coef_ut_per_unit=coef,
         reference=ref,
     )
+
+
+def stored_record(status: str, values: Sequence[int], crc: int) -> StoredRecord:
+    """A ``C`` line's record → what the store holds: blank, corrupt (as the device or the CRC
+    says), invalid (the record checks out but is no calibration), or the calibration (pure)."""
+    if status == "BLANK":
+        return StoredRecord(RecordState.NONE)
+    if status != "OK":
+        return StoredRecord(RecordState.CORRUPT, problem=f"the device reports its record as {status} "
+                            "(format, version or CRC wrong)")
+    if record_crc(values) != crc:
+        return StoredRecord(RecordState.CORRUPT, problem="the record's CRC does not match its values")
+    try:
+        return StoredRecord(RecordState.OK, calibration_from_record(values))
+    except ValueError as exc:
+        return StoredRecord(RecordState.INVALID, problem=f"the record passes its CRC but is no calibration: {exc}")
 
 
 def quantize_calibration(cal: Calibration) -> Calibration:

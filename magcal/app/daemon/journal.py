@@ -31,6 +31,7 @@ disconnected          info     disconnected
 link_lost             warning  disconnected
 device_reset          warning  device reset itself; restarting the stream
 stored_unreadable     warning  could not read the stored calibration
+stored_unusable       warning  the device's stored record cannot be used; taken as none
 nothing_stored        warning  device holds no calibration; monitoring stops
 calibration_loaded    info     device calibration loaded; monitor learns the noise
 monitor_restarted     info     monitor restarted; monitor learns the noise

@@ -108,7 +108,7 @@ class CalibrationWriter:
             return outcome.stored
         self._faults[session.failure or WriteFailure.WRITE_FAILED.value] += 1
         self._journal.record(Decision.NOT_WRITTEN, failure=session.failure, message=session.failure_message,
-                             previous_restored=outcome.restored)
+                             previous_restored=outcome.restored, discarded_unverified=outcome.discarded)
         return None
 
     def _verified(self, stored: Calibration, session: Session) -> None:

@@ -14,7 +14,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Callable
 
-from ...core.calibration import Calibration
+from ...core.calibration import Calibration, StoredRecord
 from ...core.errors import DeviceError, PortUnavailable
 from ...core.events import Identity, Item
 from ...devices.base import Device
@@ -36,6 +36,13 @@ class Connected:
     knows_record: bool = True
 
 
+# what a link's counters say went wrong on the line, shown among the daemon's faults (gaps and
+# lost lines come as events, and the daemon counts those itself)
+LINE_DEFECTS = ("noise_bytes", "torn_lines", "overlong_lines", "malformed_lines", "bad_checksums", "bad_syntax",
+                "unknown_types", "duplicate_lines", "out_of_sequence_lines", "sequence_resyncs", "hellos_refused",
+                "record_crc_errors", "record_invalid")
+
+
 class LinkSupervisor:
     def __init__(self, settings, journal: Journal, faults: Counter, *, open_device: Callable[..., Device],
                  options: dict | None = None, tap: Callable[[], object] = lambda: None,
@@ -54,6 +61,8 @@ class LinkSupervisor:
         self.ended = False  # a finite source reached its end
         self._retry = 0
         self._last_data = 0.0
+        self._counted: Counter = Counter()  # the built device's line defects already in the faults
+        self.record: StoredRecord | None = None  # what the device's store held at the last connect
 
     @property
     def connected(self) -> bool:
@@ -91,6 +100,7 @@ class LinkSupervisor:
 
     def _build(self) -> Device:
         s = self.settings
+        self._counted = Counter()  # a new device counts from nothing
         options = dict(self._options)
         tap = self._tap()
         if tap is not None and scheme_of(s.port) in TAP_SCHEMES:
@@ -100,20 +110,28 @@ class LinkSupervisor:
         return self._open_device(s.port, dialect=s.dialect, **options)  # PortError: no retry helps
 
     def _read_stored(self, dev: Device, ident: Identity) -> Connected:
+        """The calibration the device holds; a record it holds that cannot be used (corrupt, or
+        invalid behind a valid CRC) is logged and counted, and taken as none (a recalibration,
+        when allowed, replaces it)."""
         if not dev.abilities.store:
             return Connected(ident, None, knows_record=False)
         try:
-            return Connected(ident, dev.read_calibration())
+            self.record = dev.read_stored()
         except PortUnavailable:
             raise
         except DeviceError as exc:
             self._journal.record(Decision.STORED_UNREADABLE, error=str(exc))
             return Connected(ident, None)
+        if self.record.problem:
+            self._faults[f"stored_record_{self.record.state.value}"] += 1
+            self._journal.record(Decision.STORED_UNUSABLE, state=self.record.state.value, problem=self.record.problem)
+        return Connected(ident, self.record.calibration)
 
     # -- reading ---------------------------------------------------------------------------------
     def read(self, timeout_s: float) -> list[Item]:
         """What the device sent; [] when nothing came or the link was lost (then disconnected).
-        At the end of a finite source: [] and ``ended``."""
+        At the end of a finite source: [] and ``ended``. The line defects the device counted
+        meanwhile go into the faults."""
         try:
             return self.device.read(timeout_s)
         except EOFError:
@@ -122,7 +140,18 @@ class LinkSupervisor:
             self._capture_error(exc)
         except (DeviceError, OSError) as exc:
             self.lose(exc)
+        finally:
+            self.count_defects()
         return []
+
+    def count_defects(self) -> None:
+        """Add the line defects the built device counted since the last look to the faults."""
+        dev = self._built
+        if dev is None:
+            return
+        now = Counter({k: v for k, v in dev.stats().items() if k in LINE_DEFECTS})
+        self._faults.update(now - self._counted)
+        self._counted = now
 
     def heard(self) -> None:
         """A sample arrived: the link is alive, and the next loss starts its back-off afresh."""
@@ -184,6 +213,7 @@ class LinkSupervisor:
         if self.device is None:
             return
         dev, self.device = self.device, None
+        self.count_defects()
         _close_quietly(dev)
         self._journal.record(decision, why=why)
 
@@ -207,10 +237,12 @@ class LinkSupervisor:
     # -- reporting -----------------------------------------------------------------------------------
     def status(self) -> dict:
         ident = self.device.identity if self.device is not None else None
-        return {"connected": self.connected, "device": ident.to_dict() if ident else None}
+        return {"connected": self.connected, "device": ident.to_dict() if ident else None,
+                "stored_record": None if self.record is None else self.record.to_dict()}
 
     def stats(self) -> dict:
-        return self.device.stats() if self.device is not None else {}
+        """The counters of the device (over every connection to it, connected now or not)."""
+        return self._built.stats() if self._built is not None else {}
 
     def matches(self, sent: Calibration, stored: Calibration | None) -> bool:
         """The connected device's own comparison of two calibrations (its precision)."""
