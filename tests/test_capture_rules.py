@@ -168,3 +168,37 @@ def test_a_damaged_chunk_header_costs_that_chunk_at_most(tmp_path, lines, byte):
     # a flipped time byte that still reads as a plausible time is no loss and cannot be seen
     assert N - 16 <= len(s) <= N and (s.reading.get("damaged_chunks", 0) == 1 or len(s) == N)
     assert "truncated_bytes" not in s.reading
+
+
+def test_the_daemon_counts_the_same_and_shows_every_defect(tmp_path, lines):
+    """The same damaged stream through the daemon (a replay is read as the live link reads):
+    duplicates never fitted, lost lines as lost, and every framing defect among the faults in
+    its status, its state file and ``magcal status --json`` (24 MiB of garbage left faults {})."""
+    from magcal.app import config
+    from magcal.app.daemon import Daemon
+    from magcal.recordings.state import StateFiles
+
+    samples = [ln for ln in lines if ln.startswith(b"$S,")]
+    out = lines[: lines.index(samples[0])]
+    garbage = np.random.default_rng(3).integers(0, 256, 24 * 1024, dtype=np.uint8).tobytes().replace(b"$", b"#")
+    for k, ln in enumerate(samples):
+        if 1000 <= k < 1040:
+            continue  # 40 lines lost
+        out.append(ln)
+        if k % 100 == 50:
+            out.append(samples[k - 7])  # 31 older lines again
+        if k == 2000:
+            out.append(garbage + ln[:20] + b"\n")  # noise, then a torn line... and a cut line
+            out.append(ln[:-3] + (b"00" if ln[-3:-1] != b"00" else b"11") + b"\n")  # a bad checksum
+    cap = write_capture(tmp_path / "d.cap", _chunked(out, per=64))
+    settings = config.load(overrides={"port": f"replay://{cap}?pace=0"}, environ={})
+    d = Daemon(settings, state_dir=tmp_path / "state")
+    d.run()
+    f = d.faults
+    assert f["duplicate_lines"] == 31 and f["lost_lines"] == 40 and f["gaps"] == 1
+    assert f["noise_bytes"] >= 24 * 1024 and f["bad_checksums"] == 1 and f["malformed_lines"] + f["torn_lines"] >= 1
+    status = d.status()
+    assert status["samples_in"] == N - 40 and status["faults"]["noise_bytes"] == f["noise_bytes"]
+    saved = StateFiles(tmp_path / "state").load()["status"]["faults"]
+    assert saved["duplicate_lines"] == 31 and saved["bad_checksums"] == 1 and saved["noise_bytes"] >= 24 * 1024
+    assert main(["status", "--state-dir", str(tmp_path / "state"), "--json"]) == 1  # stopped: state file
