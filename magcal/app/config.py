@@ -188,7 +188,8 @@ def read_file(path: str) -> dict:
     except yaml.YAMLError as exc:
         where = getattr(exc, "problem_mark", None)
         at = f" (line {where.line + 1})" if where is not None else ""
-        raise ConfigError(f"config file {path} is not valid YAML{at}: {getattr(exc, 'problem', None) or exc}") from None
+        what = " ".join(str(getattr(exc, "problem", None) or exc).split())  # one line
+        raise ConfigError(f"config file {path} is not valid YAML{at}: {what}") from None
     except RecursionError:
         raise ConfigError(f"config file {path}: nested too deeply to be magcal settings") from None
     if data is None:

@@ -108,6 +108,19 @@ def many_channels_hint(n_channels: int, d: dict) -> str | None:
             "temperature with --temp) for a sharper test")
 
 
+def _report_dir(path: str) -> None:
+    import os
+
+    from ..core.errors import InputError
+
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"--report {path}: cannot create the folder: {exc.strerror or exc}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise InputError(f"--report {path}: this user cannot write into the folder")
+
+
 def run(args) -> int:
     from ..app.load import load_with_warnings
     from ..diagnose import diagnose
@@ -115,6 +128,8 @@ def run(args) -> int:
 
     if args.draws < 10:
         raise ConfigError(f"--draws must be at least 10 (a 2.5–97.5 % band needs them), got {args.draws}")
+    if args.report:
+        _report_dir(args.report)  # a folder that cannot be written is said now, not after the work
     with Progress(quiet=args.quiet).working(f"diagnose {args.file}") as ticker:
         ticker.doing("reading")
         series, notes = load_with_warnings(args.file, table_format(args), args.mag)

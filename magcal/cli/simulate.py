@@ -72,7 +72,11 @@ _DEFAULTS = {"offset_ut": (23.5, -41.2, 12.8), "scale": (1.0, 1.0, 1.0), "noise_
              "glitch_rate": 0.0}  # the sensor options' defaults (add_arguments): a model replaces them
 
 
+MAX_SAMPLES = 10_000_000  # 28 h at 100 Hz; the recording is built in memory
+
+
 def _check(args) -> None:
+    """What the options ask for must be a recording that can be made (ConfigError names it)."""
     if args.like and not args.model:
         raise ConfigError("--like needs --model (the sensor to simulate on REC's motion)")
     if args.model:
@@ -80,6 +84,9 @@ def _check(args) -> None:
         if given:
             raise ConfigError("--model describes the sensor; drop " + ", ".join(
                 "--" + k.replace("_", "-") for k in given))
+    if min(args.scale) <= 0:
+        raise ConfigError(f"--scale: every axis gain must be positive (a gain of 0 or less is no sensor), got "
+                          f"{','.join(f'{v:g}' for v in args.scale)}")
 
 
 def _physics(args) -> Physics:
@@ -130,7 +137,11 @@ def _simulated(args, model) -> tuple[Series, dict]:
     if args.like:
         return _like(model, args)
     rate = args.rate or (model.rate_hz if model else 50.0)
-    run_ = _scenario(args, model).simulate(int(round(args.seconds * rate)), rate)
+    n = args.seconds * rate
+    if n > MAX_SAMPLES:
+        raise ConfigError(f"--seconds {args.seconds:g} at {rate:g} Hz is {n:.3g} samples, more than "
+                          f"{MAX_SAMPLES:,}; ask for a shorter or slower recording")
+    run_ = _scenario(args, model).simulate(int(round(n)), rate)
     return run_.series, {"glitch_rows": [int(i) for i in run_.glitch_idx]}
 
 

@@ -8,9 +8,11 @@ run with this state directory); 6 when the state file is unreadable. ``--json`` 
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
+from ..core.errors import StateError
 from ..recordings.state import state_directory
 from .common import document, load_settings, print_json
 from .exits import Exit
@@ -46,9 +48,14 @@ def gather(state_dir) -> tuple[dict, str]:
         return {"running": False, "state_dir": str(store.directory),
                 "note": f"no daemon state in {store.directory}: no `magcal run` has used this state "
                 "directory (give --state-dir DIR, or state_dir: in the config file)"}, "none"
-    status = dict(data.get("status") or {})
-    status["saved_utc"] = data.get("saved_utc")
-    status["age_s"] = round(time.time() - float(data.get("saved_utc") or 0), 1)
+    saved = data.get("saved_utc")
+    if not isinstance(data.get("status"), dict) or isinstance(saved, bool) or not isinstance(saved, (int, float)) \
+            or not math.isfinite(saved):
+        raise StateError(f"{store.current}: holds no daemon status this magcal can show (its checksum holds, but "
+                         "it was not written by `magcal run`)")
+    status = dict(data["status"])
+    status["saved_utc"] = saved
+    status["age_s"] = round(time.time() - float(saved), 1)
     status["generation"] = data.get("generation")
     if status.get("running") and not _pid_alive(status.get("pid")):
         status["running"] = False
@@ -65,7 +72,17 @@ def run(args) -> int:
     elif source == "none":
         print(f"daemon     not running; {status['note']}")
     else:
-        _print_text(status)
+        import contextlib
+        import io
+
+        text = io.StringIO()
+        try:
+            with contextlib.redirect_stdout(text):
+                _print_text(status)
+        except (TypeError, ValueError, KeyError, IndexError, AttributeError):
+            raise StateError(f"{state_dir}: the daemon status it holds is malformed (`magcal status --json` "
+                             "shows it as stored)") from None
+        print(text.getvalue(), end="")
     return Exit.OK if status.get("running") else Exit.NO
 
 

@@ -49,6 +49,8 @@ from .base import RECORDING, Abilities, Device, Event, Identity, Item
 from .port import Port
 from .transport import Connector, SerialPort, tapped
 
+# defects of lines the framer dropped, any of which may have been a reply being waited for
+DROPPED = ("overlong_lines", "torn_lines", "bad_checksums", "malformed_lines", "bad_syntax", "unknown_types")
 WHO_AM_I_MPU9150 = 0x68
 WIA_AK8975 = 0x48
 
@@ -234,6 +236,7 @@ class ProtocolDevice(Device):
 
     def _await(self, pred, what: str, timeout_s: float | None = None):
         deadline = self.clock() + (self.reply_timeout_s if timeout_s is None else timeout_s)
+        before = Counter(self.framer.counters)
         while True:
             r = self.inbox.reply(pred)
             if r is not None:
@@ -241,7 +244,10 @@ class ProtocolDevice(Device):
             left = deadline - self.clock()
             if left <= 0 or self._eof:
                 self.counters["no_reply"] += 1
-                raise NoReply(f"{self.url}: no {what} within {timeout_s or self.reply_timeout_s:.1f} s")
+                seen = self.framer.counters - before  # what the link dropped meanwhile may be the reply
+                bad = ", ".join(f"{seen[k]} {k.replace('_', ' ')}" for k in DROPPED if seen[k])
+                raise NoReply(f"{self.url}: no {what} within {timeout_s or self.reply_timeout_s:.1f} s"
+                              + (f" (meanwhile the link dropped {bad})" if bad else ""))
             self._pump(min(left, 0.05))
 
     def command(self, cmd: str, *args, timeout_s: float | None = None) -> Ack:

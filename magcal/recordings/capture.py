@@ -274,7 +274,7 @@ def is_capture(head: bytes) -> bool:
         return False
     try:
         return json.loads(line.decode("utf-8")).get("format") == FORMAT
-    except (ValueError, AttributeError):
+    except (ValueError, AttributeError, RecursionError):
         return False
 
 
