@@ -166,3 +166,23 @@ def test_a_baud_rate_in_the_config_does_not_break_a_port_without_one(tmp_path, c
     capsys.readouterr()
     assert main(["write", str(cal), "--port", port, "--baud", "9600"]) == 2
     assert "--baud applies to serial ports" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [
+    ["record", "--port", "sim://?pace=0", "-o", "{tmp}/r.cap", "--seconds", "nan"],
+    ["record", "--port", "sim://?pace=0", "-o", "{tmp}/r.cap", "--seconds", "inf"],
+    ["calibrate", "--port", "sim://?pace=0", "--timeout", "nan"],
+    ["stream", "--port", "sim://?pace=0", "--seconds", "inf"],
+    ["simulate", "-o", "{tmp}/s.csv", "--seconds", "nan"],
+    ["simulate", "-o", "{tmp}/s.csv", "--noise-ut", "inf"],
+    ["fit", "{tmp}/none.csv", "--noise-ut", "nan"],
+])
+def test_nan_and_infinity_are_refused_for_every_number_option(tmp_path, capsys, argv):
+    """``record --seconds nan`` hung; ``state_every_s: .nan`` kept the state from ever being saved."""
+    from magcal.cli import main
+
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"argument {argv[-2]}" in err and "finite" in err

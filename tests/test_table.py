@@ -241,3 +241,55 @@ def test_matlab_and_other_binary_files_are_named_as_such(tmp_path):
     blob.write_bytes(b"\x7fELF\x02\x01\x01\x00" + bytes(200))
     with pytest.raises(InputError, match="a binary file"):
         load_series(blob)
+
+
+def test_a_table_wider_than_any_magnetometer_log_is_refused_by_name(tmp_path):
+    """Width was quadratic (80 000 columns: 73 s); now more than 10 000 columns is refused at once."""
+    path = tmp_path / "wide.csv"
+    path.write_text(",".join(f"c{i}" for i in range(12_000)) + "\n" + ",".join("1.5" for _ in range(12_000)) + "\n")
+    with pytest.raises(InputError, match=r"wide.csv line 1: 12000 columns, more than 10000"):
+        load_series(path, TableFormat(columns=("1", "2", "3")))
+
+
+def test_a_line_of_megabytes_is_refused_by_name(tmp_path):
+    path = tmp_path / "one.csv"
+    path.write_text(",".join("1.5" for _ in range(600_000)) + "\n")  # 2.4 MB in one line
+    with pytest.raises(InputError, match=r"one.csv line 1: 2399999 characters in one line"):
+        load_series(path, TableFormat(columns=("1", "2", "3")))
+
+
+def test_a_table_is_read_as_a_stream_of_lines():
+    """The reader takes any iterator of lines and reads it once, in blocks: it never needs the
+    whole file in memory (a 3 M-row file: bench/scale.py)."""
+    from magcal.recordings.table import BLOCK_ROWS, read_table
+
+    n = 2 * BLOCK_ROWS + 7
+    taken = []
+
+    def lines():
+        yield "t,mx,my,mz"
+        for i in range(n):
+            taken.append(i)
+            yield f"{i * 0.01},{i % 50},{-i % 30},{i % 7}"
+
+    s = read_table(lines(), "gen.csv")
+    assert len(s) == n and len(taken) == n and s.field_ut[-1].tolist() == [float((n - 1) % 50), float(-(n - 1) % 30),
+                                                                             float((n - 1) % 7)]
+
+
+def test_a_long_recording_is_fitted_on_every_kth_sample_and_says_so(tmp_path, capsys, monkeypatch):
+    """Memory stays bounded whatever the length (bench/scale.py: 3 M rows); the fit says which
+    samples it used, and its outliers still point at the file's own samples."""
+    import magcal.cli.fit as fit_cli
+
+    monkeypatch.setattr(fit_cli, "MAX_FIT_SAMPLES", 500)
+    m = sphere_ut(2000, seed=5)
+    m[[8, 400, 1204]] += 30.0  # three jumps, on samples the thinning keeps (every 4th)
+    path = tmp_path / "long.csv"
+    path.write_text("mx,my,mz\n" + "".join(f"{a},{b},{c}\n" for a, b, c in m))
+    assert main(["fit", str(path), "--json", "--model", "sphere"]) == 0
+    out, err = capsys.readouterr()
+    (d,) = json.loads(out)["fits"]
+    assert d["reading"]["thinned_every"] == 4 and d["reading"]["samples_read"] == 2000 and d["n_samples"] == 2000
+    assert d["n_used"] <= 500 and {8, 400, 1204} <= set(d["outliers"]) and all(i % 4 == 0 for i in d["outliers"])
+    assert "the fit uses every 4th sample (500 of 2000" in err

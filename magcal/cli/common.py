@@ -120,6 +120,7 @@ _READING_WORDS = {
     "bad_syntax": "lines with bad fields",
     "unknown_types": "lines of unknown type",
 }
+_READING_NOTES = {"thinned_every": "a long recording: the fit uses every {}th sample"}
 
 
 def reading_report(series, path) -> dict:
@@ -129,6 +130,10 @@ def reading_report(series, path) -> dict:
     said = [f"{r[k]} {w}" for k, w in _READING_WORDS.items() if r.get(k)]
     if said:
         print(f"magcal: warning: {path}: " + "; ".join(said), file=sys.stderr)
+    for k, note in _READING_NOTES.items():
+        if r.get(k):
+            print(f"magcal: note: {path}: " + note.format(r[k]) + f" ({len(series)} of {r['samples_read']}; "
+                  "its uncertainty is that of the samples used)", file=sys.stderr)
     return r
 
 

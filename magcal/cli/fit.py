@@ -16,6 +16,11 @@ where a calibrated sample is ``soft_iron @ (m − offset_ut)``; a file that coul
 has ``error`` instead. ``magcal write`` takes this JSON and writes the last fit's calibration.
 Exit status: 0 on a fit of every file, 3 when the data cannot support any model (the reason is
 printed), 6 when a FILE cannot be read.
+
+A recording of more than 250 000 samples (40 min at 100 Hz) is fitted on every k-th sample,
+spread over all of it, so that memory stays bounded whatever the file's length; ``reading`` says
+so (``thinned_every``, ``samples_read``) and the uncertainty is that of the samples used. Each
+fit also has ``reading``: what reading the file met (framing defects, lines left out, damage).
 """
 
 from __future__ import annotations
@@ -64,6 +69,9 @@ def format_text(d: dict) -> str:
     return "\n".join(lines)
 
 
+MAX_FIT_SAMPLES = 250_000  # a longer recording is fitted on every k-th sample (memory stays bounded)
+
+
 def _fit_file(path: str, args, ticker) -> tuple[dict, int]:
     """(the fit as a dict, exit status OK or GATE) for one file; InputError when it cannot be read."""
     from ..app.load import load_series
@@ -75,9 +83,11 @@ def _fit_file(path: str, args, ticker) -> tuple[dict, int]:
         return fit_log_file(path, args)
     ticker.doing(f"reading {path}")
     series = load_series(path, table_format(args), args.mag)
-    reading = reading_report(series, path)
     if len(series) == 0:
         raise InputError(f"{path}: no samples")
+    n_read = len(series)
+    series, every = series.thinned(MAX_FIT_SAMPLES)
+    reading = reading_report(series, path)
     ticker.doing(f"fitting {len(series):,} samples of {path}".replace(",", " "))
     result = fit_calibration(
         series, model=args.model, outliers=not args.no_outliers, noise_ut=args.noise_ut, balance=args.balance
@@ -86,7 +96,8 @@ def _fit_file(path: str, args, ticker) -> tuple[dict, int]:
         print(f"magcal fit: {path}: {result.reason}: {result.message}", file=sys.stderr)
         return result.to_dict(), Exit.GATE
     d = result.to_dict()
-    d["n_samples"] = len(series)
+    d["n_samples"] = n_read
+    d["outliers"] = [int(i) * every for i in d["outliers"]]  # indices into FILE's samples
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
     if series.source:
         d["input"] = series.source

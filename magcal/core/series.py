@@ -11,7 +11,7 @@ chunks, lines left out, by name) so that none of it passes silently.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Iterable, Mapping
 
 import numpy as np
@@ -68,6 +68,15 @@ class Series:
             source=self.source,
             reading=self.reading,
         )
+
+    def thinned(self, max_n: int) -> tuple["Series", int]:
+        """(every k-th sample, k): at most ``max_n`` samples, spread evenly over the whole
+        recording; k = 1 (the series itself) when it is no longer. ``reading`` notes a thinning."""
+        k = -(-len(self) // max_n) if len(self) > max_n else 1
+        if k == 1:
+            return self, 1
+        out = self.take(slice(None, None, k))
+        return replace(out, reading={**self.reading, "thinned_every": k, "samples_read": len(self)}), k
 
     def only_valid(self) -> "Series":
         return self if self.valid.all() else self.take(self.valid)

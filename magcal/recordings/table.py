@@ -285,7 +285,7 @@ def _head(lines) -> tuple[list[str], int]:
 
 def _not_too_long(ln: str, name: str, line_no: int) -> str:
     if len(ln) > MAX_LINE_CHARS:
-        raise InputError(f"{name} line {line_no}: {len(ln)} characters in one line, more than a table of at most "
+        raise InputError(f"{name} line {line_no}: {len(ln.rstrip(chr(13) + chr(10)))} characters in one line, more than a table of at most "
                          f"{MAX_COLUMNS} columns holds ({MAX_LINE_CHARS}); is it a table with one line per sample?")
     return ln
 
