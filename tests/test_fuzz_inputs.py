@@ -161,7 +161,8 @@ def make_files(d) -> dict:
     (d / "r.json").write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48}))
     (d / "b.bin").write_bytes(bytes(range(256)) * 4)
     (d / "dir").mkdir()
-    return {"csv": str(d / "s.csv"), "cap": str(d / "s.cap"), "json": str(d / "r.json"), "bin": str(d / "b.bin"),
+    (d / "scratch").mkdir()
+    return {"scratch": str(d / "scratch"), "csv": str(d / "s.csv"), "cap": str(d / "s.cap"), "json": str(d / "r.json"), "bin": str(d / "b.bin"),
             "dir": str(d / "dir"), "out": str(d / "out.csv"), "state": str(d / "state")}
 
 
@@ -177,6 +178,8 @@ def test_an_option_vector_ends_in_a_documented_status_and_a_named_error(command,
     from magcal.cli.exits import Exit
 
     monkeypatch.setenv("MAGCAL_STORE_DIR", files["state"] + "-store")
+    # a drawn word may be taken as an output path: let it land in a scratch folder, not the checkout
+    monkeypatch.chdir(files["scratch"])
     for k in [k for k in os.environ if k.startswith("MAGCAL_") and k != "MAGCAL_STORE_DIR"]:
         monkeypatch.delenv(k)
     documented = {int(c) for c in Exit}

@@ -30,11 +30,11 @@ def log_kind(head: bytes) -> str | None:
     return None
 
 
-def _need(module: str, kind: str):
+def _need(module: str, kind: str, path: str):
     try:
         __import__(module)
     except ImportError as exc:
-        raise InputError(f"reading a {kind} needs {module}, which comes with the optional extra 'logs': "
+        raise InputError(f"{path}: reading a {kind} needs {module}, which comes with the optional extra 'logs': "
                          f"{EXTRA_HINT}") from exc
 
 
@@ -49,11 +49,11 @@ def read_log(path: str) -> FlightLog:
         raise InputError(f"{path}: not a PX4 ULog or ArduPilot DataFlash log")
     try:
         if kind == "ulog":
-            _need("pyulog", "PX4 ULog")
+            _need("pyulog", "PX4 ULog", path)
             from . import ulog
 
             return ulog.read(path)
-        _need("pymavlink", "DataFlash log")
+        _need("pymavlink", "DataFlash log", path)
         from . import dataflash
 
         return dataflash.read(path, head)
