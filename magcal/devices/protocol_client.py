@@ -394,26 +394,20 @@ class ProtocolDevice(Device):
         return stored
 
     def _discard_calibration(self) -> StoredRecord:
-        tag = self._send("D")
-        r = self._await(lambda r: isinstance(r, (Ack, ErrorReply)) and r.tag == tag, "reply to D")
+        r = _record_after(self, self._send("D"), "D")
         if isinstance(r, ErrorReply):
             raise CommandRefused(f"{self.url}: device refused D: {r.code}" + (
                 " (its firmware cannot discard a record: flash the current sketch from firmware/)"
                 if r.code == "UNKNOWN" else ""), "D", r.code)
-        rec = self._await(lambda r: isinstance(r, RecordReply) and r.tag == tag, "stored record after D")
-        self.record_status = rec.status
-        return self._judge_record(rec)
+        return self._judge_record(r)
 
     def _write_calibration(self, cal: Calibration) -> Calibration:
         values = record_from_calibration(cal)
         crc = record_crc(values)
-        tag = self._send("W", *values, f"{crc:04X}")
-        r = self._await(lambda r: isinstance(r, (Ack, ErrorReply)) and r.tag == tag, "reply to W")
+        r = _record_after(self, self._send("W", *values, f"{crc:04X}"), "W")
         if isinstance(r, ErrorReply):
             raise WriteRejected(f"{self.url}: device rejected the calibration: {r.code}")
-        rec = self._await(lambda r: isinstance(r, RecordReply) and r.tag == tag, "stored record after W")
-        self.record_status = rec.status
-        stored = self._judge_record(rec)
+        stored = self._judge_record(r)
         if stored.calibration is None:
             raise WriteRejected(f"{self.url}: after W the device holds no calibration: "
                                 f"{stored.problem or stored.state.value}")
@@ -429,11 +423,7 @@ class ProtocolDevice(Device):
                 raise DeviceError(f"{self.url}: this firmware has no self-test command (T); flash the current "
                                   "sketch from firmware/") from None
             raise
-        try:
-            raw, st2 = tuple(int(v) for v in ack.result[:3]), int(ack.result[3])
-        except (ValueError, IndexError):
-            raise DeviceError(f"{self.url}: malformed self-test reply {','.join(ack.result)!r}") from None
-        result = SelfTestResult.from_registers(raw, self.identity.asa if self.identity else (128, 128, 128), st2)
+        result = _self_test_result(self.url, ack, self.identity.asa if self.identity else (128, 128, 128))
         self.counters["self_test_pass" if result.passed else "self_test_fail"] += 1
         return result
 
@@ -452,6 +442,25 @@ class ProtocolDevice(Device):
     def _close(self) -> None:
         if self.transport is not None:
             self.transport.close()
+
+
+def _record_after(dev: ProtocolDevice, tag: int, cmd: str) -> ErrorReply | RecordReply:
+    """The device's answer to a store command (W, D): its refusal, or the record it now holds."""
+    r = dev._await(lambda r: isinstance(r, (Ack, ErrorReply)) and r.tag == tag, f"reply to {cmd}")
+    if isinstance(r, ErrorReply):
+        return r
+    rec = dev._await(lambda r: isinstance(r, RecordReply) and r.tag == tag, f"stored record after {cmd}")
+    dev.record_status = rec.status
+    return rec
+
+
+def _self_test_result(url: str, ack: Ack, asa) -> SelfTestResult:
+    """The self-test reply (T: raw x, y, z, ST2) judged against the datasheet window."""
+    try:
+        raw, st2 = tuple(int(v) for v in ack.result[:3]), int(ack.result[3])
+    except (ValueError, IndexError):
+        raise DeviceError(f"{url}: malformed self-test reply {','.join(ack.result)!r}") from None
+    return SelfTestResult.from_registers(raw, asa, st2)
 
 
 def open_serial(port: Port, dialect: str = "native", *, baud: int = 115200, tap=None,
