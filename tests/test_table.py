@@ -293,3 +293,27 @@ def test_a_long_recording_is_fitted_on_every_kth_sample_and_says_so(tmp_path, ca
     assert d["reading"]["thinned_every"] == 4 and d["reading"]["samples_read"] == 2000 and d["n_samples"] == 2000
     assert d["n_used"] <= 500 and {8, 400, 1204} <= set(d["outliers"]) and all(i % 4 == 0 for i in d["outliers"])
     assert "the fit uses every 4th sample (500 of 2000" in err
+    assert main(["fit", str(path), "--model", "sphere"]) == 0  # the text says so too
+    assert "thinned     every 4th sample of 2000" in capsys.readouterr().out
+
+
+def test_a_thinned_fit_reports_the_uncertainty_of_the_samples_it_fitted(tmp_path, capsys, monkeypatch):
+    """Honest ± : a fit of every 4th sample claims the precision of those samples (about twice
+    the 1σ of a fit of all of them), exactly what fitting those samples alone reports."""
+    import magcal.cli.fit as fit_cli
+
+    m = sphere_ut(4000, seed=6)
+    whole, kth = tmp_path / "whole.csv", tmp_path / "kth.csv"
+    whole.write_text("mx,my,mz\n" + "".join(f"{a},{b},{c}\n" for a, b, c in m))
+    kth.write_text("mx,my,mz\n" + "".join(f"{a},{b},{c}\n" for a, b, c in m[::4]))
+
+    def sigma(path) -> np.ndarray:
+        assert main(["fit", str(path), "--json", "--model", "sphere", "--no-outliers"]) == 0
+        (d,) = json.loads(capsys.readouterr().out)["fits"]
+        return np.array(d["uncertainty"]["offset_ut"])
+
+    full = sigma(whole)
+    monkeypatch.setattr(fit_cli, "MAX_FIT_SAMPLES", 1000)
+    thinned = sigma(whole)
+    np.testing.assert_allclose(thinned, sigma(kth), rtol=1e-9)
+    assert np.all((thinned / full > 1.6) & (thinned / full < 2.5)), thinned / full

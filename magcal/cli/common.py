@@ -120,7 +120,13 @@ _READING_WORDS = {
     "bad_syntax": "lines with bad fields",
     "unknown_types": "lines of unknown type",
 }
-_READING_NOTES = {"thinned_every": "a long recording: the fit uses every {}th sample"}
+_READING_NOTES = {"thinned_every": "a long recording: the fit uses every {} sample"}
+
+
+def ordinal(k: int) -> str:
+    """2nd, 3rd, 4th, 11th, 12th, 21st …"""
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
 
 
 def reading_report(series, path) -> dict:
@@ -132,7 +138,7 @@ def reading_report(series, path) -> dict:
         print(f"magcal: warning: {path}: " + "; ".join(said), file=sys.stderr)
     for k, note in _READING_NOTES.items():
         if r.get(k):
-            print(f"magcal: note: {path}: " + note.format(r[k]) + f" ({len(series)} of {r['samples_read']}; "
+            print(f"magcal: note: {path}: " + note.format(ordinal(r[k])) + f" ({len(series)} of {r['samples_read']}; "
                   "its uncertainty is that of the samples used)", file=sys.stderr)
     return r
 

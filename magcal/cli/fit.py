@@ -64,9 +64,18 @@ def format_text(d: dict) -> str:
         f"rms_ut      {d['rms_ut']:9.3f}",
         f"samples     {d.get('n_samples', d['n_used'] + n_out)} read, {d['n_used']} fitted"
         + (f" ({n_out} set aside as outliers by Grubbs' test)" if n_out else " (no outliers)"),
+        *_thinned_line(d.get("reading") or {}),
         f"why         {d['reason']}",
     ]
     return "\n".join(lines)
+
+
+def _thinned_line(reading: dict) -> list[str]:
+    from .common import ordinal
+
+    k = reading.get("thinned_every")
+    return [f"thinned     every {ordinal(k)} sample of {reading['samples_read']} (a recording over "
+            f"{MAX_FIT_SAMPLES:,} samples); the ± are those of the samples fitted".replace(",", " ")] if k else []
 
 
 MAX_FIT_SAMPLES = 250_000  # a longer recording is fitted on every k-th sample (memory stays bounded)
