@@ -93,3 +93,35 @@ def test_signals_and_status(tmp_path):
 def test_status_without_state_says_so(tmp_path):
     code, out, err = _status(tmp_path / "nothing")
     assert code == 1 and "no daemon state" in out  # not running, said plainly
+
+
+def test_a_live_daemon_shows_every_framing_defect_in_status(tmp_path):
+    """Garbage on the line and a board reset (a torn line) while ``magcal run`` is running: the
+    framer's counts are among the faults of ``magcal status`` (text and --json, from the live
+    socket), and stay in the state file after it stopped (24 MiB of garbage once left ``{}``). Of the 3500 random bytes a few
+    start what looks like a line, counted as such, so at least 3000 are noise."""
+    state = tmp_path / "state"
+    port = "sim://?seed=4&pace=20&fault=garbage@1=3000&fault=garbage@2=500&fault=reset@3"
+    proc = subprocess.Popen([sys.executable, "-m", "magcal", "run", "--port", port, "--state-dir", str(state)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+    try:
+        live = _wait_for(lambda: (lambda s: s if s.get("faults", {}).get("device_resets") else None)(
+            query_socket(state) or {}))
+        assert live["faults"]["noise_bytes"] >= 3000 and live["faults"]["torn_lines"] >= 1
+        code, out, _ = _status(state, "--json")
+        s = json.loads(out)
+        assert code == 0 and s["source"] == "socket" and s["faults"]["noise_bytes"] >= 3000
+        assert s["faults"]["torn_lines"] >= 1
+        code, out, _ = _status(state)
+        assert code == 0 and "noise_bytes" in out and "torn_lines" in out
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    code, out, _ = _status(state, "--json")
+    s = json.loads(out)
+    assert code == 1 and s["source"] == "state file"
+    assert s["faults"]["noise_bytes"] >= 3000 and s["faults"]["torn_lines"] >= 1
