@@ -391,3 +391,14 @@ def test_a_daemon_resumes_from_any_state_file_or_starts_fresh(tmp_path, payload)
 def test_errors_are_magcal_errors():
     """The fuzz tests above accept only magcal's own named errors: the families they catch."""
     assert issubclass(ConfigError, MagcalError) and issubclass(InputError, MagcalError)
+
+
+def test_export_of_a_missing_file_over_an_existing_output_names_the_file(tmp_path, capsys):
+    """Found by the option fuzz: ``export /no/such/file -o EXISTING`` was a FileNotFoundError."""
+    from magcal.cli.exits import Exit
+
+    (tmp_path / "out.csv").write_text("x\n")
+    code = _run_main(["export", str(tmp_path / "missing.cap"), "-o", str(tmp_path / "out.csv")])
+    err = capsys.readouterr().err
+    assert code == Exit.INPUT and "Traceback" not in err
+    one_line_naming(err.strip(), "missing.cap")

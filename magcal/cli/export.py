@@ -50,7 +50,7 @@ def run(args) -> int:
 
 def _export_csv(args) -> int:
     out = args.output or (os.path.splitext(args.file)[0] + ".csv")
-    if os.path.exists(out) and os.path.samefile(out, args.file):
+    if os.path.exists(out) and os.path.exists(args.file) and os.path.samefile(out, args.file):
         raise InputError(f"{out}: refusing to overwrite the input; give -o OUT")
     from .common import Progress
 
