@@ -41,6 +41,14 @@ def _wait_for(pred, timeout_s=30.0):
     raise AssertionError("condition not met in time")
 
 
+def _stop(proc) -> str:
+    """SIGTERM: the daemon stops cleanly (exit 0); what it logged."""
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    return err
+
+
 def test_signals_and_status(tmp_path):
     if not hasattr(signal, "SIGHUP"):  # a real platform condition (Windows); never skipped in CI
         if os.environ.get("CI") == "true":
@@ -72,13 +80,11 @@ def test_signals_and_status(tmp_path):
         proc.send_signal(signal.SIGHUP)
         _wait_for(lambda: any(d["decision"] == Decision.RELOADED.value
                               for d in (query_socket(state) or {}).get("decisions", [])))
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
+        err = _stop(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 0, err
     assert Decision.RELOAD_REJECTED.text in err  # the log says it in words
     assert Decision.STOPPED.text in err
     assert not (state / "status.sock").exists()
@@ -114,13 +120,11 @@ def test_a_live_daemon_shows_every_framing_defect_in_status(tmp_path):
         assert s["faults"]["torn_lines"] >= 1
         code, out, _ = _status(state)
         assert code == 0 and "noise_bytes" in out and "torn_lines" in out
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
+        err = _stop(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 0, err
     code, out, _ = _status(state, "--json")
     s = json.loads(out)
     assert code == 1 and s["source"] == "state file"
