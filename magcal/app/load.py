@@ -8,14 +8,15 @@ recorded bytes), so a recording yields the samples the live run saw.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Callable, Iterator
 
 from ..core.errors import DeviceError, InputError
 from ..core.series import Series
-from ..recordings.capture import MAX_HEADER, CaptureReader, is_capture, recorded_dialect, series_from_frames
+from ..recordings.capture import BLOCK_BYTES, MAX_HEADER, CaptureReader, is_capture, recorded_dialect, series_from_frames
 from ..recordings.logs import HEAD_BYTES, load_log, log_kind
 from ..recordings.table import TableFormat, load_table, looks_like_table
 from ..wire import motioncal
-from ..wire.bulk import parse_stream
+from ..wire.bulk import Frames, parse_blocks
 from ..wire.protocol import CalibratedSample, RawSample
 
 
@@ -27,16 +28,28 @@ def load_capture(path) -> Series:
     if dialect != "native":
         series = _foreign_capture(reader, dialect)
     else:
-        series = _native_series(reader.data(), str(path))
+        series = _native_series(reader.frames(), reader.data, str(path))
     return replace(series, reading={**series.reading, **reader.reading()})
 
 
-def _native_series(data: bytes, name: str) -> Series:
-    frames = parse_stream(data)
+def _native_series(frames: Frames, whole: Callable[[], bytes], name: str) -> Series:
+    """The samples of protocol v1 bytes already parsed to ``frames``; ``whole`` gives the
+    bytes again for the rare stream the fast arrays cannot hold."""
     if any(isinstance(m, (RawSample, CalibratedSample)) for _, m in frames.others):
         # a number too large for the fast arrays: take the live client's path instead
-        return _raw_only(_series_via_device(data, name), name)
+        return _raw_only(_series_via_device(whole(), name), name)
     return _raw_only(series_from_frames(frames), name)
+
+
+def _file_blocks(path) -> Iterator[bytes]:
+    with open(path, "rb") as fh:
+        while block := fh.read(BLOCK_BYTES):
+            yield block
+
+
+def _read_all(path) -> bytes:
+    with open(path, "rb") as fh:
+        return fh.read()
 
 
 def _series_via_device(data: bytes, name: str) -> Series:
@@ -126,8 +139,7 @@ def _load_recording(path, head: bytes, table, explicit: bool, not_a_table) -> Se
         return load_table(path, table)
     if sum(1 for ln in first if ln.startswith("$") and "*" in ln) > len(first) // 2:
         not_a_table("a protocol v1 byte dump")
-        with open(path, "rb") as fh:
-            return _native_series(fh.read(), str(path))
+        return _native_series(parse_blocks(_file_blocks(path)), lambda: _read_all(path), str(path))
     # an Adafruit sketch prints ~30 banner lines (sensor details) before its first Raw: line
     if motioncal is not None and motioncal.looks_like_motioncal(_first_lines(head, 200)):
         not_a_table("a MotionCal log")

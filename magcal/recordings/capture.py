@@ -40,9 +40,11 @@ from __future__ import annotations
 
 import json
 import math
+import mmap
 import os
 import struct
 import time
+from array import array
 from datetime import datetime, timezone
 from typing import Callable, Iterator
 
@@ -52,7 +54,7 @@ from .. import __version__
 from ..core.errors import InputError, MagcalError
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
 from ..core.series import Series
-from ..wire.bulk import Frames
+from ..wire.bulk import Frames, parse_blocks
 from ..wire.dialect import dialect_of
 from ..wire.protocol import Hello, Restart, hello_applies
 
@@ -62,6 +64,7 @@ CHUNK_MARK = b"K"
 _CHUNK_HEAD = struct.Struct("<dI")
 CHUNK_OVERHEAD = 1 + _CHUNK_HEAD.size  # 13 bytes per chunk
 MAX_HEADER = 64 * 1024
+BLOCK_BYTES = 1 << 22  # how much of a capture file is read (or held) at once
 
 
 class CaptureWriteError(MagcalError):
@@ -358,31 +361,44 @@ class CaptureReader:
     structure broke (a flipped marker, size or time byte) and ``skipped_bytes`` what was not
     read there. Reading resumes at the next place where two chunks in a row check out (marker,
     a finite receive time not earlier than the last, a size within the file); a chunk whose
-    only defect is its marker byte is kept. ``problem`` says where the first damage was."""
+    only defect is its marker byte is kept. ``problem`` says where the first damage was.
 
-    def __init__(self, path):
+    Memory stays bounded by ``block_bytes`` beyond the chunk table (two numbers per chunk): the
+    chunk structure is read through a memory map whose pages are released behind the reading
+    position every ``block_bytes``, and the payload is read back in blocks of that size
+    (``blocks``, ``frames``) — the whole file is never held."""
+
+    def __init__(self, path, block_bytes: int = BLOCK_BYTES):
         self.path = os.fspath(path)
+        self.block_bytes = max(1, int(block_bytes))
+        self._blob: bytes | None = None
         try:
             with open(self.path, "rb") as fh:
-                blob = fh.read()
+                size = os.fstat(fh.fileno()).st_size
+                if size <= self.block_bytes:
+                    self._blob = fh.read()
+                    self._parse(self._blob)
+                else:
+                    with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                        self._parse(mm)
         except OSError as exc:
             raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
-        self._parse(blob)
 
     @classmethod
     def from_bytes(cls, blob: bytes, name: str = "<capture>") -> "CaptureReader":
         self = cls.__new__(cls)
         self.path = name
-        self._parse(bytes(blob))
+        self.block_bytes = BLOCK_BYTES
+        self._blob = bytes(blob)
+        self._parse(self._blob)
         return self
 
-    def _parse(self, blob: bytes) -> None:
+    def _parse(self, blob) -> None:
         self.header, i = _read_header(blob, self.path)
         self.problem = ""
         self.damaged_chunks = self.skipped_bytes = 0
-        times: list[float] = []
-        spans: list[tuple[int, int]] = []
-        n, last_t = len(blob), -math.inf
+        times, starts, ends = array("d"), array("q"), array("q")
+        n, last_t, released = len(blob), -math.inf, 0
         while i < n:
             h = _header_at(blob, i, -math.inf)  # receive times need not rise where nothing is damaged
             if h is None or not _next_ok(blob, h[1], h[0], strict=False):
@@ -397,14 +413,18 @@ class CaptureReader:
                 h, i = (t, end), j
             last_t = h[0]
             times.append(last_t)
-            spans.append((i + CHUNK_OVERHEAD, h[1]))
+            starts.append(i + CHUNK_OVERHEAD)
+            ends.append(h[1])
             i = h[1]
+            if i - released >= self.block_bytes and isinstance(blob, mmap.mmap):
+                released = i - i % mmap.PAGESIZE  # what lies behind is never looked at again
+                blob.madvise(mmap.MADV_DONTNEED, 0, released)
         self.truncated_bytes = n - i
         if self.truncated_bytes:
             self.problem = self.problem or f"truncated chunk at byte {i} ({self.truncated_bytes} bytes cut)"
-        self._blob = blob
-        self._spans = spans
-        self.t_rx_s = np.array(times, np.float64)
+        self._starts = np.frombuffer(starts, np.int64)
+        self._ends = np.frombuffer(ends, np.int64)
+        self.t_rx_s = np.frombuffer(times, np.float64).copy()
 
     def _damage(self, where: str, skipped: int) -> None:
         self.damaged_chunks += 1
@@ -416,58 +436,110 @@ class CaptureReader:
         return {"damaged_chunks": self.damaged_chunks, "skipped_bytes": self.skipped_bytes,
                 "truncated_bytes": self.truncated_bytes}
 
+    @property
+    def _spans(self) -> list[tuple[int, int]]:
+        """(start, end) of each chunk's bytes in the file."""
+        return list(zip(self._starts.tolist(), self._ends.tolist()))
+
     def __len__(self) -> int:
-        return len(self._spans)
+        return len(self._starts)
 
     def __iter__(self) -> Iterator[tuple[float, bytes]]:
-        for t, (a, b) in zip(self.t_rx_s.tolist(), self._spans):
-            yield t, self._blob[a:b]
+        if self._blob is not None:
+            for t, a, b in zip(self.t_rx_s.tolist(), self._starts.tolist(), self._ends.tolist()):
+                yield t, self._blob[a:b]
+            return
+        with open(self.path, "rb") as fh:
+            window, w0 = b"", 0  # file bytes from offset w0 on, read ahead in blocks
+            for t, a, b in zip(self.t_rx_s.tolist(), self._starts.tolist(), self._ends.tolist()):
+                if b > w0 + len(window):
+                    fh.seek(a)
+                    window, w0 = fh.read(max(self.block_bytes, b - a)), a
+                    if len(window) < b - a:
+                        raise InputError(f"{self.path}: the file shrank while it was read")
+                yield t, window[a - w0 : b - w0]
+
+    def blocks(self) -> Iterator[bytes]:
+        """The recorded bytes in order, joined into blocks of about ``block_bytes``."""
+        parts, size = [], 0
+        for _, chunk in self:
+            parts.append(chunk)
+            size += len(chunk)
+            if size >= self.block_bytes:
+                yield b"".join(parts)
+                parts, size = [], 0
+        if parts:
+            yield b"".join(parts)
+
+    def frames(self) -> Frames:
+        """All recorded bytes parsed as the live link parses them, read block by block."""
+        return parse_blocks(self.blocks())
 
     def data(self) -> bytes:
         """All recorded bytes, concatenated."""
-        return b"".join(self._blob[a:b] for a, b in self._spans)
+        return b"".join(chunk for _, chunk in self)
 
 
 # -- samples from frames, exactly as the live client builds them ---------------------------
 def series_from_frames(frames: Frames) -> Series:
     """The Series a passive ``ProtocolDevice`` reading the same bytes would collect:
     field from the latest hello's ASA (unity before any hello), device time unwrapped per
-    reset epoch, validity by ``Sample.valid``'s rules. Bit-identical (tests hold it)."""
+    reset epoch, validity by ``Sample.valid``'s rules. Bit-identical (tests hold it). Built
+    ``_ROWS`` samples at a time, so the temporaries stay small beside the result."""
     n = len(frames)
-    pos = frames.pos
     hellos, refused = _applied_hellos(frames)
     h_pos = np.array([p for p, _ in hellos], np.int64)
     gains = np.array([[1.0, 1.0, 1.0]] + [[asa_gain(a) for a in m.asa] for _, m in hellos], np.float64)
-    which = np.searchsorted(h_pos, pos)  # 0: before any hello
-    raw_kind = frames.kind == ord("S")
-    vals = frames.values
-    field = np.empty((n, 3), np.float64)
-    # counts_to_ut: raw * (0.3 * gains), element by element
-    field[raw_kind] = vals[raw_kind].astype(np.float64) * (UT_PER_COUNT * gains[which[raw_kind]])
-    field[~raw_kind] = vals[~raw_kind].astype(np.float64) / 1000.0
-    # time: t_k = t_{k-1} + Δ, with Δ = ms/1000 at the start of an epoch (after a reset)
     r_pos = np.array([p for p, e in frames.events if isinstance(e, Restart)], np.int64)
-    epoch = np.searchsorted(r_pos, pos, side="right")
-    inc = np.empty(n, np.float64)
-    if n:
-        first = np.ones(n, bool)
-        first[1:] = epoch[1:] != epoch[:-1]
-        step = np.empty(n, np.int64)
-        step[1:] = (frames.ms[1:] - frames.ms[:-1]) % (1 << 32)
-        step[0] = 0
-        inc[first] = frames.ms[first] / 1000.0
-        inc[~first] = step[~first] / 1000.0
-    t = np.cumsum(inc)
+    field = np.empty((n, 3), np.float64)
+    t = np.empty(n, np.float64)
+    valid = np.empty(n, bool)
+    for a in range(0, n, _ROWS):
+        b = min(n, a + _ROWS)
+        _field_rows(frames, a, b, h_pos, gains, field, valid)
+        _time_rows(frames, a, b, r_pos, t)
     temp_c = frames.temp / 340.0 + 36.53
-    st2_bad = (frames.st2 & (ST2_DERR | ST2_HOFL)) != 0
-    rails = np.any((vals <= COUNT_MIN) | (vals >= COUNT_MAX), axis=1)
-    zero = np.all(vals == 0, axis=1)
-    valid = ~st2_bad & np.where(raw_kind, ~rails & ~zero, True)
+    raw_kind = frames.kind == ord("S")
     channels = {"temp_c": temp_c} if n else {}
     if n and not raw_kind.all():
         channels["calibrated"] = np.where(raw_kind, np.nan, 1.0)
     reading = {**frames.counters, "hellos_refused": refused}
     return Series(t_s=t, field_ut=field, channels=channels, valid=valid, seq=frames.seq.copy(), reading=reading)
+
+
+_ROWS = 1 << 17  # samples per step of series_from_frames
+
+
+def _field_rows(frames: Frames, a: int, b: int, h_pos, gains, field, valid) -> None:
+    """Field (µT) and validity of samples ``a`` … ``b-1``."""
+    which = np.searchsorted(h_pos, frames.pos[a:b])  # 0: before any hello
+    raw_kind = frames.kind[a:b] == ord("S")
+    vals = frames.values[a:b]
+    out = field[a:b]
+    # counts_to_ut: raw * (0.3 * gains), element by element
+    out[raw_kind] = vals[raw_kind].astype(np.float64) * (UT_PER_COUNT * gains[which[raw_kind]])
+    out[~raw_kind] = vals[~raw_kind].astype(np.float64) / 1000.0
+    st2_bad = (frames.st2[a:b] & (ST2_DERR | ST2_HOFL)) != 0
+    rails = np.any((vals <= COUNT_MIN) | (vals >= COUNT_MAX), axis=1)
+    zero = np.all(vals == 0, axis=1)
+    valid[a:b] = ~st2_bad & np.where(raw_kind, ~rails & ~zero, True)
+
+
+def _time_rows(frames: Frames, a: int, b: int, r_pos, t) -> None:
+    """Device time of samples ``a`` … ``b-1``: t_k = t_{k-1} + Δ, with Δ = ms/1000 at the
+    start of an epoch (after a reset), else the ms step (mod 2³²) / 1000; summed in order, so
+    the figures equal one pass over all samples."""
+    p = max(a - 1, 0)  # the sample before, for the step and the epoch
+    epoch = np.searchsorted(r_pos, frames.pos[p:b], side="right")
+    ms = frames.ms[p:b]
+    first = np.ones(len(ms), bool)
+    first[1:] = epoch[1:] != epoch[:-1]
+    step = np.zeros(len(ms), np.int64)
+    step[1:] = (ms[1:] - ms[:-1]) % (1 << 32)
+    inc = np.where(first, ms / 1000.0, step / 1000.0)[a - p :]
+    if a:
+        inc[0] = t[a - 1] + inc[0]
+    t[a:b] = np.cumsum(inc)
 
 
 def _applied_hellos(frames: Frames) -> tuple[list, int]:

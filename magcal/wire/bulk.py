@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
+from typing import Iterable
 
 import numpy as np
 
@@ -251,50 +252,94 @@ def _judged_lines(raw: bytes, ls: np.ndarray, le_: np.ndarray, counters: Counter
 
 def parse_stream(data: bytes) -> Frames:
     """Parse a whole byte stream as a fresh ``Framer`` would (see the module docstring)."""
-    a = np.frombuffer(bytes(data), np.uint8)
-    n = len(a)
-    counters: Counter = Counter()
-    starts, ends, kind = _runs(a)
-    line = kind == 0
-    ls, le_ = starts[line], ends[line]
-    tail = b""
-    tail_len = 0
-    if len(kind) and kind[-1] == 3:
-        tail = bytes(a[starts[-1] :])
-        tail_len = len(tail)
-    counters["torn_lines"] = int(np.sum(kind == 1))
-    counters["overlong_lines"] = int(np.sum(kind == 2))
-    counters["noise_bytes"] = int(n - np.sum(le_ - ls + 1) - tail_len)
+    lines = _Lines()
+    lines.add(bytes(data), 0, last=True)
+    return lines.frames()
 
-    fast_ok, fast_vals = _fast_lines(a, ls, le_)
-    sample_pos, sample_kind, sample_vals, others = _judged_lines(bytes(data), ls[~fast_ok], le_[~fast_ok], counters)
 
-    fi = np.flatnonzero(fast_ok)
-    pos = np.concatenate([ls[fi], np.array(sample_pos, np.int64)])
-    kinds = np.concatenate([a[ls[fi] + 1], np.array(sample_kind, np.uint8)])
-    vals = np.concatenate([fast_vals[fi], np.array(sample_vals, np.int64).reshape(-1, 7)])
-    order = np.argsort(pos, kind="stable")
-    pos, kinds, vals = pos[order], kinds[order], vals[order]
+def parse_blocks(blocks: Iterable[bytes]) -> Frames:
+    """``parse_stream`` of the concatenated ``blocks``, holding one block at a time beside the
+    arrays: each block is cut after its last newline and the rest carried into the next. No
+    line, torn run or stretch of noise crosses such a cut (each ends at the newline), so every
+    count is the one the whole stream gives; sequence rules then run over all lines at once."""
+    lines, carry, at = _Lines(), b"", 0
+    for block in blocks:
+        buf = carry + block
+        cut = buf.rfind(b"\n") + 1
+        if cut:
+            lines.add(buf[:cut], at, last=False)
+            at += cut
+        carry = buf[cut:]
+    lines.add(carry, at, last=True)
+    return lines.frames()
 
-    events, keep_s, keep_o = _sequence(pos, vals[:, 0], others, counters)
-    if not keep_s.all():  # duplicates and out-of-sequence lines are not delivered
-        pos, kinds, vals = pos[keep_s], kinds[keep_s], vals[keep_s]
-    others = [o for o, k in zip(others, keep_o.tolist()) if k]
-    counters["lines"] = len(pos) + len(others)
-    counters = +counters  # drop zero entries, as the incremental framer never creates them
-    return Frames(
-        pos=pos,
-        kind=kinds.astype(np.uint8),
-        seq=vals[:, 0].copy(),
-        ms=vals[:, 1].copy(),
-        values=vals[:, 2:5].copy(),
-        st2=vals[:, 5].copy(),
-        temp=vals[:, 6].copy(),
-        others=sorted(others, key=lambda x: x[0]),
-        events=events,
-        counters=counters,
-        tail=tail,
-    )
+
+class _Lines:
+    """Every line of a stream fed in pieces that end after a newline (and a last piece):
+    sample lines as columns, other messages as objects, framing counters."""
+
+    def __init__(self):
+        self.cols: list[list[np.ndarray]] = [[] for _ in range(9)]  # pos, kind, then 7 values
+        self.others: list[tuple[int, Message]] = []
+        self.counters: Counter = Counter()
+        self.tail = b""
+
+    def add(self, data: bytes, at: int, last: bool) -> None:
+        """Parse ``data``, found at offset ``at`` of the stream; only the ``last`` piece may
+        end inside a line (its unfinished tail)."""
+        a = np.frombuffer(data, np.uint8)
+        starts, ends, kind = _runs(a)
+        line = kind == 0
+        ls, le_ = starts[line], ends[line]
+        tail_len = 0
+        if last and len(kind) and kind[-1] == 3:
+            self.tail = bytes(a[starts[-1] :])
+            tail_len = len(self.tail)
+        self.counters["torn_lines"] += int(np.sum(kind == 1))
+        self.counters["overlong_lines"] += int(np.sum(kind == 2))
+        self.counters["noise_bytes"] += int(len(a) - np.sum(le_ - ls + 1) - tail_len)
+        fast_ok, fast_vals = _fast_lines(a, ls, le_)
+        sample_pos, sample_kind, sample_vals, others = _judged_lines(data, ls[~fast_ok], le_[~fast_ok], self.counters)
+        fi = np.flatnonzero(fast_ok)
+        pos = np.concatenate([ls[fi], np.array(sample_pos, np.int64)])
+        kinds = np.concatenate([a[ls[fi] + 1], np.array(sample_kind, np.uint8)])
+        vals = np.concatenate([fast_vals[fi], np.array(sample_vals, np.int64).reshape(-1, 7)])
+        order = np.argsort(pos, kind="stable")
+        self.cols[0].append(pos[order] + at)
+        self.cols[1].append(kinds[order].astype(np.uint8))
+        vals = vals[order]
+        for j in range(7):
+            self.cols[2 + j].append(vals[:, j].copy())
+        self.others.extend((p + at, m) for p, m in others)
+
+    def _column(self, j: int) -> np.ndarray:
+        """Column ``j`` of all pieces, joined (the pieces are let go)."""
+        parts, self.cols[j] = self.cols[j], []
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def frames(self) -> Frames:
+        pos = self._column(0)
+        cols = [self._column(j) for j in range(1, 9)]
+        counters = self.counters
+        events, keep_s, keep_o = _sequence(pos, cols[1], self.others, counters)
+        if not keep_s.all():  # duplicates and out-of-sequence lines are not delivered
+            pos, cols = pos[keep_s], [c[keep_s] for c in cols]
+        others = [o for o, k in zip(self.others, keep_o.tolist()) if k]
+        counters["lines"] = len(pos) + len(others)
+        kinds, seq, ms, v0, v1, v2, st2, temp = cols
+        return Frames(
+            pos=pos,
+            kind=kinds,
+            seq=seq,
+            ms=ms,
+            values=np.column_stack([v0, v1, v2]),
+            st2=st2,
+            temp=temp,
+            others=sorted(others, key=lambda x: x[0]),
+            events=events,
+            counters=+counters,  # drop zero entries, as the incremental framer never creates them
+            tail=self.tail,
+        )
 
 
 def _fits(msg) -> bool:
