@@ -276,10 +276,15 @@ def parse_blocks(blocks: Iterable[bytes]) -> Frames:
 
 class _Lines:
     """Every line of a stream fed in pieces that end after a newline (and a last piece):
-    sample lines as columns, other messages as objects, framing counters."""
+    sample lines as columns, other messages as objects, framing counters. The columns grow in
+    place (few large allocations, so memory freed between pieces is reused, not scattered)."""
+
+    _COLS = (("pos", np.int64, ()), ("kind", np.uint8, ()), ("seq", np.int64, ()), ("ms", np.int64, ()),
+             ("values", np.int64, (3,)), ("st2", np.int64, ()), ("temp", np.int64, ()))
 
     def __init__(self):
-        self.cols: list[list[np.ndarray]] = [[] for _ in range(9)]  # pos, kind, then 7 values
+        self.cols = {name: np.empty((1024, *shape), dtype) for name, dtype, shape in self._COLS}
+        self.n = 0
         self.others: list[tuple[int, Message]] = []
         self.counters: Counter = Counter()
         self.tail = b""
@@ -305,41 +310,36 @@ class _Lines:
         kinds = np.concatenate([a[ls[fi] + 1], np.array(sample_kind, np.uint8)])
         vals = np.concatenate([fast_vals[fi], np.array(sample_vals, np.int64).reshape(-1, 7)])
         order = np.argsort(pos, kind="stable")
-        self.cols[0].append(pos[order] + at)
-        self.cols[1].append(kinds[order].astype(np.uint8))
         vals = vals[order]
-        for j in range(7):
-            self.cols[2 + j].append(vals[:, j].copy())
+        self._append(pos=pos[order] + at, kind=kinds[order], seq=vals[:, 0], ms=vals[:, 1], values=vals[:, 2:5],
+                     st2=vals[:, 5], temp=vals[:, 6])
         self.others.extend((p + at, m) for p, m in others)
 
-    def _column(self, j: int) -> np.ndarray:
-        """Column ``j`` of all pieces, joined (the pieces are let go)."""
-        parts, self.cols[j] = self.cols[j], []
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+    def _append(self, **rows) -> None:
+        m = len(rows["pos"])
+        cap = len(self.cols["pos"])
+        if self.n + m > cap:
+            cap = max(self.n + m, 2 * cap)
+            for c in self.cols.values():
+                c.resize((cap, *c.shape[1:]), refcheck=False)  # in place: no second copy
+        for name, c in self.cols.items():
+            c[self.n : self.n + m] = rows[name]
+        self.n += m
 
     def frames(self) -> Frames:
-        pos = self._column(0)
-        cols = [self._column(j) for j in range(1, 9)]
+        for c in self.cols.values():
+            c.resize((self.n, *c.shape[1:]), refcheck=False)
+        cols, self.cols = self.cols, {}
         counters = self.counters
-        events, keep_s, keep_o = _sequence(pos, cols[1], self.others, counters)
+        events, keep_s, keep_o = _sequence(cols["pos"], cols["seq"], self.others, counters)
         if not keep_s.all():  # duplicates and out-of-sequence lines are not delivered
-            pos, cols = pos[keep_s], [c[keep_s] for c in cols]
+            for k in list(cols):  # one column at a time: the old one goes as the new one comes
+                cols[k] = cols[k][keep_s]
         others = [o for o, k in zip(self.others, keep_o.tolist()) if k]
-        counters["lines"] = len(pos) + len(others)
-        kinds, seq, ms, v0, v1, v2, st2, temp = cols
-        return Frames(
-            pos=pos,
-            kind=kinds,
-            seq=seq,
-            ms=ms,
-            values=np.column_stack([v0, v1, v2]),
-            st2=st2,
-            temp=temp,
-            others=sorted(others, key=lambda x: x[0]),
-            events=events,
-            counters=+counters,  # drop zero entries, as the incremental framer never creates them
-            tail=self.tail,
-        )
+        counters["lines"] = len(cols["pos"]) + len(others)
+        return Frames(**cols, others=sorted(others, key=lambda x: x[0]), events=events,
+                      counters=+counters,  # drop zero entries, as the incremental framer never creates them
+                      tail=self.tail)
 
 
 def _fits(msg) -> bool:
