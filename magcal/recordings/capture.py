@@ -21,7 +21,9 @@ readable part the same way (reported, with its offset).
 
 Replaying a capture feeds the same bytes through the same parser as the live link, so it
 reproduces the same samples; ``load_series`` uses the bulk parser (``magcal.wire.bulk``),
-which gives the same result as the incremental one (tests hold the two together).
+which gives the same result as the incremental one (tests hold the two together). A capture
+is read block by block (``CaptureReader.frames``): memory beyond the samples stays bounded by
+``BLOCK_BYTES`` however long the recording, and the counts are those of one whole pass.
 
 Writing: ``CaptureWriter`` appends chunks; ``writer.tap(transport)`` (or ``writer(transport)``)
 wraps a pyserial-like transport so that every byte read is also recorded. ``max_bytes`` bounds
@@ -65,6 +67,7 @@ _CHUNK_HEAD = struct.Struct("<dI")
 CHUNK_OVERHEAD = 1 + _CHUNK_HEAD.size  # 13 bytes per chunk
 MAX_HEADER = 64 * 1024
 BLOCK_BYTES = 1 << 22  # how much of a capture file is read (or held) at once
+_RELEASE = getattr(mmap, "MADV_DONTNEED", None)  # let go of mapped pages already read
 
 
 class CaptureWriteError(MagcalError):
@@ -416,9 +419,9 @@ class CaptureReader:
             starts.append(i + CHUNK_OVERHEAD)
             ends.append(h[1])
             i = h[1]
-            if i - released >= self.block_bytes and isinstance(blob, mmap.mmap):
+            if i - released >= self.block_bytes and isinstance(blob, mmap.mmap) and _RELEASE is not None:
                 released = i - i % mmap.PAGESIZE  # what lies behind is never looked at again
-                blob.madvise(mmap.MADV_DONTNEED, 0, released)
+                blob.madvise(_RELEASE, 0, released)
         self.truncated_bytes = n - i
         if self.truncated_bytes:
             self.problem = self.problem or f"truncated chunk at byte {i} ({self.truncated_bytes} bytes cut)"

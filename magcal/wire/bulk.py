@@ -2,7 +2,9 @@
 
 ``parse_stream(data)`` gives exactly what a fresh ``Framer`` gives when fed ``data`` in any
 chunking (items and counters; the property tests hold the two together), but does the work
-with numpy so that replaying an hour of 100 Hz data takes a fraction of a second:
+with numpy so that replaying an hour of 100 Hz data takes a fraction of a second;
+``parse_blocks(blocks)`` gives the same for a stream handed over in blocks, holding one block
+at a time beside the sample arrays (steps 1–3 run per block, cut after a newline; step 4 once):
 
 1. every ``$`` opens a run that ends at the next ``$`` or ``\\n`` (positions by vectorised
    search); runs are sorted into complete lines, torn runs, over-long runs and the unfinished
