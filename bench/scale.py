@@ -4,10 +4,10 @@
 
 For each size it writes a table (``t,mx,my,mz,temp_c``, a simulated sphere with noise) and a
 magcal capture of the same number of protocol-v1 sample lines, then runs ``magcal fit FILE
---json`` on each in a fresh process and prints that process's CPU time and peak resident memory
-(``VmHWM`` of ``/proc/self/status``; ``ru_maxrss`` elsewhere, which on Linux
-also carries over the resident size of the process that started it), and CPU time per million rows. Linear means the per-row figure
-stays flat as the rows grow (the ratio to the smallest size is printed). It also times files a
+--json`` on each in a fresh process and prints that process's CPU time, peak resident memory
+(``VmHWM`` in ``/proc/self/status``; elsewhere ``ru_maxrss``, which on Linux also carries over
+the size of the process that started it) and CPU time per million rows. Linear means the
+per-row figure stays flat as the rows grow (the ratio to the smallest size is printed). It also times files a
 table reader must not choke on: one line of 15 MB (refused by name), and a header of 80 000
 columns (refused by name), each in a fresh process.
 
