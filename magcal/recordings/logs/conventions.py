@@ -112,6 +112,42 @@ def ap_param_name(kind: str, index: int, axis: str | None, params: Mapping[str, 
     return f"COMPASS_{kind}{ap_suffix(index)}{tail}"
 
 
+AP_MAX_SLOTS = 3  # COMPASS_MAX_INSTANCES: the slots that carry a calibration
+
+
+def ap_slot_param(kind: str, slot: int, params: Mapping[str, float]) -> str:
+    """A per-slot parameter without axis: COMPASS_DEV_ID2 (or COMPASS2_DEV_ID); EXTERNAL is
+    COMPASS_EXTERNAL for the first slot and COMPASS_EXTERN2… for the others in the old scheme."""
+    if f"COMPASS{slot + 1}_OFS_X" in params and "COMPASS_OFS_X" not in params:
+        return f"COMPASS{slot + 1}_{'EXTERN' if kind == 'EXTERNAL' else kind}"
+    if kind == "EXTERNAL":
+        return "COMPASS_EXTERNAL" if slot == 0 else f"COMPASS_EXTERN{slot + 1}"
+    return f"COMPASS_{kind}{ap_suffix(slot)}"
+
+
+def ap_instance_slot(params: Mapping[str, float], instance: int) -> tuple[int | None, int | None, str]:
+    """(device id, calibration slot, how it was found) of the compass a log writes as MAG
+    instance ``instance``.
+
+    ArduPilot keeps the calibration (COMPASS_OFS/DIA/ODI/MOT/SCALE/ORIENT/EXTERNAL and the
+    DEV_ID it belongs to) per *slot*, but since the compass priority list (COMPASS_PRIOn_ID)
+    its frontend — and the MAG log message, written by ``Compass::Write_Compass_instance`` for
+    each priority — numbers the compasses by *priority*: MAG instance i is the device whose id is
+    COMPASS_PRIO(i+1)_ID, and its calibration is the slot whose COMPASS_DEV_ID holds that id
+    (``Compass::_get_state_id``). A log without the priority parameters (before that change)
+    numbers both the same way. The slot is None when no slot holds the device's id."""
+    prio = params.get(f"COMPASS_PRIO{instance + 1}_ID")
+    if prio is None:
+        dev = params.get(ap_slot_param("DEV_ID", instance, params))
+        return (int(dev) if dev else None), instance, "the log has no COMPASS_PRIOn_ID: MAG instance = slot"
+    dev = int(prio)
+    for slot in range(AP_MAX_SLOTS):
+        if dev and int(params.get(ap_slot_param("DEV_ID", slot, params), 0)) == dev:
+            return dev, slot, (f"COMPASS_PRIO{instance + 1}_ID = {dev} is {ap_slot_param('DEV_ID', slot, params)}: "
+                               f"slot {slot + 1}")
+    return (dev or None), None, f"COMPASS_PRIO{instance + 1}_ID = {dev} matches no COMPASS_DEV_ID slot"
+
+
 def ap_compass(params: Mapping[str, float], index: int) -> ArduPilotCompass:
     def vec(kind, default):
         return np.array([params.get(ap_param_name(kind, index, a, params), default) for a in "XYZ"], float)

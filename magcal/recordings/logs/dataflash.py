@@ -25,7 +25,7 @@ import re
 
 import numpy as np
 
-from .conventions import describe_device_id, euler_matrix
+from .conventions import ap_instance_slot, ap_slot_param, describe_device_id, euler_matrix
 from .values import FlightLog, MagInfo, Stream
 
 TYPES = ("MAG", "MAG2", "MAG3", "MAG4", "CURR", "BAT", "BAT2", "CTUN", "RCOU", "IMU", "IMU2", "IMU3",
@@ -245,31 +245,42 @@ def _position_and_date(rows) -> tuple[Stream | None, float | None]:
     return _stream(msgs, "GPS", pos), year
 
 
-def _mag_info(params, index: int, name: str, stream: Stream) -> MagInfo:
-    suffix = "" if index == 0 else str(index + 1)
-    dev = params.get(f"COMPASS_DEV_ID{suffix}", params.get(f"COMPASS{index + 1}_DEV_ID"))
-    ext_name = "COMPASS_EXTERNAL" if index == 0 else f"COMPASS_EXTERN{index + 1}"
-    ext = params.get(ext_name)
-    return MagInfo(index=index, name=name, device_id=int(dev) if dev else None, device=describe_device_id(dev),
+def _mag_info(params, instance: int, name: str, stream: Stream) -> MagInfo:
+    dev, slot, how = ap_instance_slot(params, instance)
+    ext = None if slot is None else params.get(ap_slot_param("EXTERNAL", slot, params))
+    return MagInfo(index=instance, name=name, device_id=dev, device=describe_device_id(dev),
                    external=None if ext is None else bool(ext), samples=len(stream), rate_hz=stream.rate_hz(),
-                   calibrated=True)
+                   calibrated=True, slot=slot, slot_how=how)
+
+
+def _sample_times(msgs) -> Stream | None:
+    """When each MAG sample was taken: newer logs carry it (``S``, the compass's last update on
+    the 32-bit microsecond clock) beside the time of writing; older ones only the time of writing."""
+    if "S" not in msgs[0]._fieldnames or "TimeUS" not in msgs[0]._fieldnames:
+        return None
+    written = np.array([int(m.TimeUS) for m in msgs], dtype=np.int64)
+    sus = np.array([int(m.S) for m in msgs], dtype=np.int64)
+    age = (written - sus) % (1 << 32)
+    ok = sus > 0
+    return np.where(ok & (age < 1_000_000), written - age, written) * 1e-6
 
 
 def _mags(reader, rows, params):
     infos, fields, extra = [], [], {}
     keys = sorted(k for k in rows if k[0] == "MAG")
-    for index, key in enumerate(keys):
+    for key in keys:
         msgs = rows[key]
         xyz = np.column_stack([_column(msgs, f"Mag{a}") for a in "XYZ"])
-        stream = _stream(msgs, "MAG", xyz)
+        t = _sample_times(msgs)
+        t = np.array([_time_s(m, "MAG") for m in msgs]) if t is None else t
+        stream = Stream(t, xyz)
         name = msgs[0].get_type() if key[1] == 0 or msgs[0].get_type() != "MAG" else f"MAG[{key[1]}]"
         infos.append(_mag_info(params, key[1], name, stream))
         fields.append(stream)
-        for stem in ("MOfs", "MO"):
+        for stem, what in (("MOfs", "motor_offset"), ("MO", "motor_offset"), ("Ofs", "logged_offset")):
             cols = [_column(msgs, f"{stem}{a}") for a in "XYZ"]
-            if all(c is not None for c in cols):
-                extra[f"motor_offset{key[1]}"] = _stream(msgs, "MAG", np.column_stack(cols))
-                break
+            if all(c is not None for c in cols) and f"{what}{key[1]}" not in extra:
+                extra[f"{what}{key[1]}"] = Stream(t, np.column_stack(cols))
     return tuple(infos), tuple(fields), extra
 
 

@@ -3,6 +3,8 @@ resampled onto the magnetometer's timestamps, and the expected Earth field in th
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ...core.errors import InputError
@@ -49,18 +51,35 @@ def resample_rotations(stream: Stream, t_s: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
+def _applied_offsets(log: FlightLog, info: MagInfo, comp: cv.ArduPilotCompass, t_s) -> tuple[np.ndarray, str]:
+    """The offsets ArduPilot applied: the parameters', unless the offsets it logged with each
+    sample (MAG Ofs, whole mG) say otherwise — learnt in flight, or the parameters of another
+    compass — in which case the logged ones are taken, sample by sample."""
+    logged = log.extra.get(f"logged_offset{info.index}")
+    if logged is None:
+        return comp.ofs_mg, ""
+    got = resample(logged, t_s)
+    if np.all(np.abs(got - np.trunc(comp.ofs_mg)) <= 1.0):
+        return comp.ofs_mg, ""
+    return got, ("; the offsets logged with the samples (MAG Ofs) differ from the parameters' by up to "
+                 f"{np.max(np.abs(got - comp.ofs_mg)):.0f} mG, so the logged ones (whole mG) were undone")
+
+
 def _undo_ardupilot(log: FlightLog, info: MagInfo, field, t_s) -> tuple[np.ndarray, str]:
-    comp = cv.ap_compass(log.params, info.index)
+    if info.slot is None:
+        return field, f"nothing: {info.slot_how}, so the field is taken as logged"
+    if not any(k.startswith("COMPASS") for k in log.params):
+        return field, "nothing: the log holds no COMPASS_* parameters, so the field is taken as logged"
+    comp = cv.ap_compass(log.params, info.slot)
+    ofs, note = _applied_offsets(log, info, comp, t_s)
     mo = log.extra.get(f"motor_offset{info.index}")
     mo_v = None if mo is None else resample(mo, t_s)
-    raw = cv.ap_uncorrect(field, comp, mo_v)
-    s = cv.ap_suffix(info.index)
-    if not any(k.startswith("COMPASS") for k in log.params):
-        return raw, "nothing: the log holds no COMPASS_* parameters, so the field is taken as logged"
+    raw = cv.ap_uncorrect(field, replace(comp, ofs_mg=ofs), mo_v)
+    name = lambda kind: cv.ap_param_name(kind, info.slot, None, log.params)  # noqa: E731
     mot = "" if mo_v is None or not np.any(mo_v) else ", the logged motor offset (MOfs) subtracted"
-    text = (f"ArduPilot compass {info.index}: raw = M⁻¹(MAG − MOfs)/s − OFS with COMPASS_OFS{s} = "
-            f"({', '.join(f'{v:.2f}' for v in comp.ofs_mg)}) mG (added by ArduPilot), M from COMPASS_DIA{s}/ODI{s}, "
-            f"s = {comp.scale:g}{mot}")
+    text = (f"ArduPilot compass slot {info.slot + 1} ({info.slot_how}): raw = M⁻¹(MAG − MOfs)/s − OFS with "
+            f"{name('OFS')} = ({', '.join(f'{v:.2f}' for v in comp.ofs_mg)}) mG (added by ArduPilot), M from "
+            f"{name('DIA')}/{name('ODI')}, s = {comp.scale:g}{mot}{note}")
     return raw, text
 
 
@@ -104,7 +123,7 @@ def select(log: FlightLog, mag: int | None) -> LogMag:
     field = stream.values
     if log.autopilot == "ardupilot":
         raw, undone = _undo_ardupilot(log, info, field, t)
-        rot, slot = np.eye(3), info.index
+        rot, slot = np.eye(3), info.slot
     else:
         raw, rot, undone = _undo_px4(log, info, field, t)
         slot = cv.px4_cal_index(log.params, info.device_id)

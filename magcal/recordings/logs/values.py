@@ -53,11 +53,13 @@ class MagInfo:
     samples: int
     rate_hz: float
     calibrated: bool  # the log holds the autopilot's corrected field (undone on selection)
+    slot: int | None = None  # where the autopilot keeps its calibration (ArduPilot's COMPASS_* slot)
+    slot_how: str = ""  # how that slot was found (by device id, or by order in older logs)
 
     def to_dict(self) -> dict:
         return {"index": self.index, "name": self.name, "device_id": self.device_id, "device": self.device,
                 "external": self.external, "samples": self.samples, "rate_hz": round(self.rate_hz, 3),
-                "calibrated_in_log": self.calibrated}
+                "calibrated_in_log": self.calibrated, "slot": self.slot, "slot_how": self.slot_how}
 
     def describe(self) -> str:
         where = {True: "external", False: "internal", None: "internal/external unknown"}[self.external]
