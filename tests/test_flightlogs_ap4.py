@@ -201,3 +201,21 @@ def test_offsets_learnt_in_flight_are_taken_from_the_log_and_said(tmp_path):
     _, _, _, dia, odi = SLOTS[0]
     again = ap_correct(lm.series.field_ut * 10.0, learnt, dia, odi)
     np.testing.assert_allclose(again, lm.log.mag_fields[1].values, atol=1e-6)
+
+
+def test_newer_numbered_parameter_names_are_read_and_written(tmp_path):
+    """Newer firmware names the per-compass parameters COMPASS2_OFS_X (AP_Compass_Params)."""
+    _need()
+    from magcal.recordings.logs import conventions as cv
+
+    old = {"COMPASS_OFS2_X": 5.0, "COMPASS_DEV_ID2": 97539, "COMPASS_EXTERN2": 1}
+    new = {"COMPASS1_OFS_X": 1.0, "COMPASS2_OFS_X": 5.0, "COMPASS2_DEV_ID": 97539, "COMPASS2_EXTERN": 1}
+    for params in (old, new):
+        assert cv.ap_compass(params, 1).ofs_mg[0] == 5.0
+        assert params[cv.ap_slot_param("DEV_ID", 1, params)] == 97539
+        assert params[cv.ap_slot_param("EXTERNAL", 1, params)] == 1
+    from magcal.core.calibration import Calibration
+
+    cal = Calibration(offset_ut=[1.0, 2.0, 3.0], field_ut=50.0, soft_iron=np.eye(3))
+    assert "COMPASS2_OFS_X" in cv.to_ardupilot(cal, 1, None, numbered=True)
+    assert "COMPASS_OFS2_X" in cv.to_ardupilot(cal, 1, None)

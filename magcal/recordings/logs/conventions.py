@@ -107,7 +107,7 @@ def ap_suffix(index: int) -> str:
 def ap_param_name(kind: str, index: int, axis: str | None, params: Mapping[str, float]) -> str:
     """COMPASS_OFS2_X, or COMPASS2_OFS_X where a log uses that newer scheme."""
     tail = f"_{axis}" if axis else ""
-    if f"COMPASS{index + 1}_OFS_X" in params and "COMPASS_OFS_X" not in params:
+    if ap_numbered_names(params):
         return f"COMPASS{index + 1}_{kind}{tail}"
     return f"COMPASS_{kind}{ap_suffix(index)}{tail}"
 
@@ -118,7 +118,7 @@ AP_MAX_SLOTS = 3  # COMPASS_MAX_INSTANCES: the slots that carry a calibration
 def ap_slot_param(kind: str, slot: int, params: Mapping[str, float]) -> str:
     """A per-slot parameter without axis: COMPASS_DEV_ID2 (or COMPASS2_DEV_ID); EXTERNAL is
     COMPASS_EXTERNAL for the first slot and COMPASS_EXTERN2… for the others in the old scheme."""
-    if f"COMPASS{slot + 1}_OFS_X" in params and "COMPASS_OFS_X" not in params:
+    if ap_numbered_names(params):
         return f"COMPASS{slot + 1}_{'EXTERN' if kind == 'EXTERNAL' else kind}"
     if kind == "EXTERNAL":
         return "COMPASS_EXTERNAL" if slot == 0 else f"COMPASS_EXTERN{slot + 1}"
@@ -189,18 +189,28 @@ def _param_block(name, offset, matrix, comp) -> dict[str, float]:
     return out
 
 
-def to_ardupilot(cal: Calibration, index: int, term: str | None) -> dict[str, float]:
-    """COMPASS_* parameters (mG) that make ArduPilot apply ``cal`` (fitted in the body frame)."""
+def to_ardupilot(cal: Calibration, index: int, term: str | None, numbered: bool = False) -> dict[str, float]:
+    """COMPASS_* parameters (mG) that make ArduPilot apply ``cal`` (fitted in the body frame);
+    ``numbered`` writes the newer per-compass names (COMPASS2_OFS_X for COMPASS_OFS2_X)."""
     w, b = cal.soft_iron, cal.offset_ut
     k = cal.coef_ut_per_unit.get(term, np.zeros(3)) if term else np.zeros(3)
     ofs, mot = -b * MG_PER_UT, -(w @ k) * MG_PER_UT
     ofs, mot = ofs + 0.0, mot + 0.0  # no "-0" in the file
     sfx = ap_suffix(index)
-    out = _param_block(lambda kind, a: f"COMPASS_{kind}{sfx}_{a}", ofs, w, mot)
-    out[f"COMPASS_SCALE{ap_suffix(index)}"] = 1.0
+    if numbered:
+        out = _param_block(lambda kind, a: f"COMPASS{index + 1}_{kind}_{a}", ofs, w, mot)
+        out[f"COMPASS{index + 1}_SCALE"] = 1.0
+    else:
+        out = _param_block(lambda kind, a: f"COMPASS_{kind}{sfx}_{a}", ofs, w, mot)
+        out[f"COMPASS_SCALE{sfx}"] = 1.0
     if term:
         out["COMPASS_MOTCT"] = 2.0 if term == "current_a" else 1.0
     return out
+
+
+def ap_numbered_names(params: Mapping[str, float]) -> bool:
+    """True when a log's parameters use the newer per-compass names (COMPASS1_OFS_X …)."""
+    return "COMPASS1_OFS_X" in params and "COMPASS_OFS_X" not in params
 
 
 # -- PX4 --------------------------------------------------------------------------------------

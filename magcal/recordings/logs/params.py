@@ -67,9 +67,11 @@ def ardupilot(d: Mapping, compass: int | None) -> tuple[dict[str, float], list[s
     notes = notes + _frame_notes(d, "ardupilot")
     if term == "throttle":
         notes.append("throttle compensation (COMPASS_MOTCT 1) expects throttle 0…1")
-    params = cv.to_ardupilot(cal, compass - 1, term)
-    s = cv.ap_suffix(compass - 1)
-    big = [a for a in "XYZ" if abs(params[f"COMPASS_OFS{s}_{a}"]) > AP_OFFSET_LIMIT_MG]
+    numbered = bool(log.get("ardupilot_numbered_names")) and log.get("autopilot") == "ardupilot"
+    params = cv.to_ardupilot(cal, compass - 1, term, numbered)
+    ofs = [params[f"COMPASS{compass}_OFS_{a}" if numbered else f"COMPASS_OFS{cv.ap_suffix(compass - 1)}_{a}"]
+           for a in "XYZ"]
+    big = [a for a, v in zip("XYZ", ofs) if abs(v) > AP_OFFSET_LIMIT_MG]
     if big:
         notes.append(f"offsets beyond {AP_OFFSET_LIMIT_MG:.0f} mG on {''.join(big)}: ArduPilot's pre-arm check "
                      "(COMPASS_OFFS_MAX) may refuse them")

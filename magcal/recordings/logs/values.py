@@ -14,6 +14,7 @@ from typing import Mapping
 import numpy as np
 
 from ...core.series import Series
+from .conventions import ap_numbered_names
 
 
 @dataclass(frozen=True)
@@ -113,4 +114,5 @@ class LogMag:
             "channels": sorted(self.series.channels), "attitude": self.earth_body_ut is not None,
             "earth_model": self.earth_model, "earth_field_ut": self.earth_field_ut,
             "sensor_to_body": np.asarray(self.sensor_to_body).tolist(), "slot": self.slot,
+            "ardupilot_numbered_names": self.log.autopilot == "ardupilot" and ap_numbered_names(self.log.params),
         }
