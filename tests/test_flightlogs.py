@@ -103,10 +103,17 @@ def test_every_stream_is_on_the_magnetometer_clock_and_orientation_is_no_channel
     assert all(len(v) == len(s) for v in s.channels.values())
 
 
-def test_a_log_read_twice_gives_identical_numbers(tmp_path):
-    outs = [magcal("fit", BIN, "--mag", "1", "--json") for _ in range(2)]
+@pytest.mark.parametrize("path, mag", [(BIN, ["--mag", "1"]), (ULG, [])], ids=["dataflash", "ulog"])
+def test_a_log_read_twice_gives_identical_numbers(tmp_path, path, mag):
+    outs = [magcal("fit", path, *mag, "--json") for _ in range(2)]
     assert outs[0].returncode == 0, outs[0].stderr
+    assert one_fit(outs[0])["n_used"] > 100
     assert outs[0].stdout == outs[1].stdout
+    csv = [tmp_path / f"{k}.csv" for k in range(2)]
+    for out in csv:
+        r = magcal("export", path, *mag, "-o", str(out))
+        assert r.returncode == 0, r.stderr
+    assert csv[0].read_bytes() == csv[1].read_bytes()
 
 
 def test_ulog_reads_with_no_option_and_undoes_cal_mag():
@@ -173,6 +180,14 @@ def test_a_damaged_log_is_read_up_to_the_damage(tmp_path, path, damage):
     assert 0 < n <= whole["log"]["magnetometer"]["samples"]
     if r.returncode == Exit.GATE:  # what survived may be too short to fit: said so, not a crash
         assert d["failure"] == "too_few_samples"
+    r = magcal("diagnose", str(bad), "--mag", "0", "--json")
+    assert "Traceback" not in r.stderr
+    assert "damaged" in r.stderr or "cut short" in r.stderr  # the warning, whatever follows
+    assert r.returncode in (Exit.OK, Exit.INPUT), r.stderr
+    if r.returncode == Exit.OK:
+        assert any("damaged" in w or "cut short" in w for w in json.loads(r.stdout)["warnings"])
+    else:  # too little survived to diagnose: a named reason, not a crash
+        assert "magcal diagnose:" in r.stderr
 
 
 def test_a_file_that_only_starts_like_a_log_is_a_named_error(tmp_path):
@@ -210,6 +225,28 @@ def test_internal_compass_gets_a_current_term_the_external_none():
         else:  # MAG, external: no current term, or one under its floor
             assert not cur["kept"] or cur["norm_ut_per_unit"] < cur["floor_ut_per_unit"]
         assert ho[ho["chosen"]]["rms_vector_ut"] < ho["none"]["rms_vector_ut"]
+
+
+def test_diagnose_tests_the_current_against_the_expected_field():
+    """|m| alone cannot test a current term on a flight; diagnose on a log judges it against the
+    expected field vector, and still does so where |m| alone cannot be diagnosed (level flight)."""
+    found = {}
+    for i in (0, 2):
+        r = magcal("diagnose", BIN, "--mag", str(i), "--json")
+        assert r.returncode == 0, r.stderr
+        doc = json.loads(r.stdout)
+        assert doc["schema"] == "magcal.diagnose/1" and ("findings" in doc or "magnitude_failure" in doc)
+        log = doc["flight_log"]
+        assert log["mode"] == "vector" and log["heldout_ut"]["chosen"] < log["heldout_ut"]["none"]
+        found[i] = next(f for f in log["findings"] if f["effect"] == "current_interference")
+        term = next(t for t in log["terms"] if t["channel"] == "current_a")
+        assert found[i]["kept"] == term["kept"]
+        if i == 0:  # external: none, or one under its floor
+            assert not term["kept"] or term["norm_ut_per_unit"] < term["floor_ut_per_unit"]
+        else:
+            assert term["kept"] and term["norm_ut_per_unit"] > 3 * term["floor_ut_per_unit"]
+    text = magcal("diagnose", BIN, "--mag", "2").stdout
+    assert "finding     current_interference: current_a kept" in text
 
 
 def test_vector_fit_recovers_an_injected_calibration_from_level_flight():

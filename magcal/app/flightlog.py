@@ -7,6 +7,7 @@ from ..fit.vector import fit_vector
 from ..recordings.logs import LogMag
 
 FORMAT = "magcal.fit.log/1"
+UNIT = {"current_a": "µT/A", "throttle": "µT per full throttle", "motors_on": "µT step"}
 
 
 def model_name(d: dict) -> str:
@@ -33,3 +34,44 @@ def fit_flight_log(lm: LogMag, term: str | None = "auto", blocks: int = 5) -> tu
         d["warnings"].append("the log has no attitude or position: fitted against |m| only, "
                              "which a mostly level flight cannot pin")
     return d, True
+
+
+DIAGNOSE_FORMAT = "magcal.diagnose.log/1"
+EFFECT = {"current_a": "current_interference", "throttle": "throttle_interference", "motors_on": "motors_running_step"}
+
+
+def term_summary(t: dict, unit: str) -> str:
+    """One sentence on a judged term: kept with its size, or why not (under its floor, or the
+    held-out residual did not fall)."""
+    if "coef_ut_per_unit" not in t:
+        return f"{t['channel']}: could not be fitted"
+    k, floor = t["norm_ut_per_unit"], t["floor_ut_per_unit"]
+    size = (f"|k| {k:.3f} {unit} along (" + ", ".join(f"{v / k if k else 0:+.2f}" for v in t["coef_ut_per_unit"])
+            + f"), σ ({', '.join(f'{v:.3f}' for v in t['sigma_ut_per_unit'])}), floor {floor:.3f}, p {t['p_value']:.2g}")
+    if t["kept"]:
+        return f"{t['channel']} kept: {size}; the held-out residual falls"
+    why = "under its floor" if k < floor else ("the held-out residual does not fall" if not t.get("heldout_falls")
+                                               else f"p above {1e-3:g}")
+    return f"{t['channel']} not kept ({why}): {size}"
+
+
+def diagnose_flight_log(lm: LogMag, blocks: int = 5) -> dict:
+    """What ``diagnose`` adds on a flight log: the interference terms tested against the expected
+    field (vector mode where the log has attitude and a position, else |m|) on held-out time
+    blocks — the same machinery as ``fit`` (``fit.vector``): a motors-running step judged first,
+    then the current (else throttle) term, each kept only when the held-out residual falls and it
+    stands above its floor."""
+    d, ok = fit_flight_log(lm, blocks=blocks)
+    out = {"format": DIAGNOSE_FORMAT, "warnings": d.get("warnings", [])}
+    if not ok:
+        return {**out, "failure": d["failure"], "message": d["message"]}
+    key = "rms_vector_ut" if d["mode"] == "vector" else "rms_magnitude_ut"
+    ho = d["heldout"]
+    findings = [{"effect": EFFECT.get(t["channel"], "covariate:" + t["channel"]), "channel": t["channel"],
+                 "role": t["role"], "kept": t["kept"], "summary": term_summary(t, UNIT.get(t["channel"], "µT per unit"))}
+                for t in d["terms"]]
+    return {**out, "mode": d["mode"], "earth_model": lm.earth_model, "earth_field_ut": lm.earth_field_ut,
+            "model": d["model"], "terms": d["terms"], "findings": findings, "heldout": ho,
+            "heldout_ut": {"none": ho["none"].get(key), "chosen": ho[ho["chosen"]].get(key) if ho["chosen"] != "none"
+                           else ho["none"].get(key), "measure": key},
+            "calibration": d["calibration"], "uncertainty": d["uncertainty"]}

@@ -13,7 +13,7 @@ from typing import Callable, Iterator
 from ..core.errors import DeviceError, InputError
 from ..core.series import Series
 from ..recordings.capture import BLOCK_BYTES, MAX_HEADER, CaptureReader, is_capture, recorded_dialect, series_from_frames
-from ..recordings.logs import HEAD_BYTES, load_log, log_kind
+from ..recordings.logs import HEAD_BYTES, LogMag, load_log, log_kind
 from ..recordings.table import TableFormat, load_table, looks_like_table
 from ..wire import motioncal
 from ..wire.bulk import Frames, parse_blocks
@@ -104,6 +104,12 @@ def load_series(path, table: TableFormat | None = None, mag: int | None = None) 
 
 def load_with_warnings(path, table: TableFormat | None = None, mag: int | None = None) -> tuple[Series, tuple[str, ...]]:
     """``load_series`` and the warnings of the reading (a damaged flight log read up to the damage)."""
+    return load_with_log(path, table, mag)[:2]
+
+
+def load_with_log(path, table: TableFormat | None = None, mag: int | None = None) -> tuple[Series, tuple[str, ...], LogMag | None]:
+    """``load_with_warnings`` and, for a flight log, the magnetometer as read (``LogMag``: the
+    attitude, the expected field and the parameters a log-aware step needs); None otherwise."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(MAX_HEADER)
@@ -120,10 +126,10 @@ def load_with_warnings(path, table: TableFormat | None = None, mag: int | None =
     if log_kind(head[:HEAD_BYTES]):
         not_a_table("a flight log")
         got = load_log(str(path), mag)
-        return got.series, got.warnings
+        return got.series, got.warnings, got
     if mag is not None:
         raise InputError(f"{path}: --mag chooses a magnetometer of a flight log; this file is not one")
-    return _load_recording(path, head, table, explicit, not_a_table), ()
+    return _load_recording(path, head, table, explicit, not_a_table), (), None
 
 
 def _load_recording(path, head: bytes, table, explicit: bool, not_a_table) -> Series:

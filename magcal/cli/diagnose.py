@@ -9,6 +9,15 @@ delimited file read with the table options (``--columns``, ``--unit``, ``--time`
 was read). ``--json`` prints ``magcal.diagnose/1``. Exit status: 0 when the recording was
 diagnosed (whatever was found), 6 when it could not be read or analysed.
 
+FILE may be a flight log (PX4 ULog, ArduPilot DataFlash; ``--mag N``). |m| alone cannot test an
+interference term on a flight (the board turns while the current changes), so the JSON gains
+``"flight_log"`` (``magcal.diagnose.log/1``, ``magcal.app.flightlog.diagnose_flight_log``): the
+motors-running step and the current (else throttle) term judged against the expected field
+vector — the log's attitude and the World Magnetic Model — on held-out time blocks, as ``magcal
+fit`` does, each with its coefficient, σ, floor, p-value and verdict under ``findings``. Where
+|m| alone cannot be diagnosed at all (a mostly level flight) the JSON has ``magnitude_failure``
+(the reason) instead of the |m| diagnosis, and the flight-log section still runs.
+
 ``--model-out M.yaml`` writes the sensor model learned around the final calibration (noise,
 quantum, offset wander, glitches, nonlinearity …; ``magcal simulate --model M.yaml`` draws from
 it). ``--twin`` compares the recording with ``--draws`` twins of that model, step by step from
@@ -28,7 +37,7 @@ HELP = "find what a sphere calibration leaves out of a recording, model it, show
 
 
 def add_arguments(p) -> None:
-    p.add_argument("file", metavar="FILE", help="a capture or a CSV (t, mx, my, mz, optional channels)")
+    p.add_argument("file", metavar="FILE", help="a capture, a CSV (t, mx, my, mz, optional channels) or a flight log (--mag N)")
     add(p, "json", "quiet")
     p.add_argument("--report", metavar="DIR", type=directory,
                    help="write the evidence as an HTML page (index.html) with its pictures into DIR")
@@ -122,8 +131,7 @@ def _report_dir(path: str) -> None:
 
 
 def run(args) -> int:
-    from ..app.load import load_with_warnings
-    from ..diagnose import diagnose
+    from ..app.load import load_with_log
     from .common import Progress
 
     if args.draws < 10:
@@ -132,23 +140,22 @@ def run(args) -> int:
         _report_dir(args.report)  # a folder that cannot be written is said now, not after the work
     with Progress(quiet=args.quiet).working(f"diagnose {args.file}") as ticker:
         ticker.doing("reading")
-        series, notes = load_with_warnings(args.file, table_format(args), args.mag)
+        series, notes, flight_log = load_with_log(args.file, table_format(args), args.mag)
         for w in notes:
             print(f"magcal: warning: {args.file}: {w}", file=sys.stderr)
         series = series.only_valid()
-        reading = reading_report(series, args.file)
-        n = f"{len(series):,}".replace(",", " ")
-        # channels the user named are tested as named; otherwise those that follow the orientation
-        # or the reading are left out (magcal.diagnose.hygiene)
-        diagnosis = diagnose(series, alpha=args.alpha, screen=args.channels is None,
-                             on_step=lambda name: ticker.share(_done_before(name), f"{n} samples: {name}"))
-        d = diagnosis.to_dict()
-        d["warnings"] = list(notes) + field_warning(d["calibration"]["field_ut"])
+        d, diagnosis = _diagnose_magnitude(args, series, flight_log, ticker)
+        d["warnings"] = list(notes) + (field_warning(d["calibration"]["field_ut"]) if diagnosis else [])
         if series.source:
             d["input"] = series.source
-        d["reading"] = reading
-        twin = _twin(args, series, d, ticker)
-        if args.report:
+        d["reading"] = reading_report(series, args.file)
+        if flight_log is not None:  # the terms |m| cannot test, against the expected field
+            from ..app.flightlog import diagnose_flight_log
+
+            ticker.doing("testing the interference terms against the expected field")
+            d["flight_log"] = diagnose_flight_log(flight_log)
+        twin = _twin(args, series, d, ticker) if diagnosis else None
+        if args.report and diagnosis:
             from ..app.report import write_report
 
             ticker.doing(f"drawing the report in {args.report}")
@@ -157,25 +164,67 @@ def run(args) -> int:
                 from ..app.report_twin import write_twin_panels
 
                 write_twin_panels(twin, args.report)
+    _print(args, d, series, twin, written=bool(diagnosis))
+    if diagnosis is None:
+        if args.report or args.model_out or args.twin:
+            print(f"magcal diagnose: {args.file}: no report, sensor model or twin: they need the |m| diagnosis",
+                  file=sys.stderr)
+        if "failure" in d["flight_log"]:
+            from .exits import Exit
+
+            print(f"magcal diagnose: {args.file}: {d['magnitude_failure']}; {d['flight_log']['message']}",
+                  file=sys.stderr)
+            return Exit.INPUT
+    return 0
+
+
+def _diagnose_magnitude(args, series, flight_log, ticker):
+    """(the diagnosis dict, the Diagnosis) — or, on a flight log whose |m| alone cannot be
+    diagnosed (a mostly level flight), (a dict saying why, None): its vector section still runs."""
+    from ..core.errors import InputError
+    from ..diagnose import diagnose
+
+    n = f"{len(series):,}".replace(",", " ")
+    try:
+        # channels the user named are tested as named; otherwise those that follow the orientation
+        # or the reading are left out (magcal.diagnose.hygiene)
+        diagnosis = diagnose(series, alpha=args.alpha, screen=args.channels is None,
+                             on_step=lambda name: ticker.share(_done_before(name), f"{n} samples: {name}"))
+    except InputError as exc:
+        if flight_log is None:
+            raise
+        return {"n_samples": len(series), "magnitude_failure": str(exc)}, None
+    return diagnosis.to_dict(), diagnosis
+
+
+def _print(args, d: dict, series, twin, written: bool) -> None:
     if args.json:
         from .common import document, print_json
 
         print_json(document("diagnose", d))
+        sys.stdout.flush()
+        return
+    if "magnitude_failure" in d:
+        print(f"input       {d.get('input', args.file)}\nsamples     {d['n_samples']}\n"
+              f"|m| alone   not diagnosed: {d['magnitude_failure']}")
     else:
         print(format_text(d))
-        hint = many_channels_hint(len(series.channels), d)
-        if hint:
-            print(f"note        {hint}")
-        if twin is not None:
-            from ..diagnose.twin_text import format_twin
+    if "flight_log" in d:
+        from .fitlog import format_log_diagnosis
 
-            print(format_twin(d["twin"]))
-        if args.model_out:
-            print(f"model       {args.model_out}")
-        if args.report:
-            print(f"report      {args.report}/index.html")
+        print(format_log_diagnosis(d["flight_log"]))
+    hint = many_channels_hint(len(series.channels), d) if "findings" in d else None
+    if hint:
+        print(f"note        {hint}")
+    if twin is not None:
+        from ..diagnose.twin_text import format_twin
+
+        print(format_twin(d["twin"]))
+    if args.model_out and written:
+        print(f"model       {args.model_out}")
+    if args.report and written:
+        print(f"report      {args.report}/index.html")
     sys.stdout.flush()
-    return 0
 
 
 def _twin(args, series, d: dict, ticker):

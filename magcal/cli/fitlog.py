@@ -22,8 +22,6 @@ import sys
 
 from .exits import Exit
 
-UNIT = {"current_a": "µT/A", "throttle": "µT per full throttle", "motors_on": "µT step"}
-
 
 def is_flight_log(path) -> bool:
     """True when the file starts like a PX4 ULog or an ArduPilot DataFlash log."""
@@ -52,6 +50,8 @@ def fit_log_file(path: str, args) -> tuple[dict, int]:
 
 
 def _term_line(t: dict) -> str:
+    from ..app.flightlog import UNIT
+
     unit = UNIT.get(t["channel"], "µT per unit")
     if "coef_ut_per_unit" not in t:
         return f"term        {t['channel']}: could not be fitted"
@@ -82,4 +82,19 @@ def format_log_text(d: dict) -> str:
     lines.append("held-out    " + ", ".join(f"{k} {v[key]:.3f} µT" for k, v in ho.items() if isinstance(v, dict) and key in v)
                  + f" ({ho['blocks']} time blocks; chosen {ho['chosen']})")
     lines.append(f"rms_ut      {d['rms_ut']:.3f} ({d['n_used']} samples)")
+    return "\n".join(lines)
+
+
+def format_log_diagnosis(d: dict) -> str:
+    """The flight-log section of ``magcal diagnose`` (``app.flightlog.diagnose_flight_log``)."""
+    if "failure" in d:
+        return f"log terms   could not be tested: {d['failure']}: {d['message']}"
+    against = (f"the expected field vector ({d['earth_model']}, {d['earth_field_ut']:.2f} µT, and the log's attitude)"
+               if d["mode"] == "vector" else "|m| only (the log has no attitude or position)")
+    h = d["heldout_ut"]
+    lines = [f"log terms   judged against {against} on {d['heldout']['blocks']} held-out time blocks"
+             + (" (what |m| alone could not test):" if d["mode"] == "vector" else ":")]
+    lines += [f"{'finding' if f['kept'] else 'not found':<12}{f['effect']}: {f['summary']}" for f in d["findings"]]
+    lines.append(f"log model   {d['model']}: held-out {h['measure'].split('_')[1]} residual {h['none']:.3f} µT "
+                 f"without terms, {h['chosen']:.3f} µT with ({d['heldout']['chosen']})")
     return "\n".join(lines)
