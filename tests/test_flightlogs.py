@@ -15,24 +15,16 @@ import sys
 import numpy as np
 import pytest
 
+from logs_extra import need
+
 DATA = os.path.join(os.path.dirname(__file__), "data")
 BIN = os.path.join(DATA, "ardupilot_log171_excerpt.bin")
 ULG = os.path.join(DATA, "px4_esc_status_excerpt.ulg")
 
 
-def _need(module):
-    try:
-        __import__(module)
-    except ImportError:
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"{module} (the 'logs' extra) is required in CI")
-        pytest.skip(f"{module} is not installed (pip install '.[logs]')")
-
-
 @pytest.fixture(autouse=True)
 def _logs_extra():
-    for m in ("pymavlink", "pyulog", "pygeomag"):
-        _need(m)
+    need("pymavlink", "pyulog", "pygeomag")
 
 
 def magcal(*args, cwd=None):

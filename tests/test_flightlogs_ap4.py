@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from dataflash_writer import DataFlashWriter
+from logs_extra import need
 
 LAT, LON, ALT_M = 47.397, 8.545, 488.0  # near Zurich
 GPS_WEEK, GPS_MS = 2300, 302_400_000  # 2024-02-07
@@ -37,13 +38,7 @@ TRUE_OFFSET_UT = {0: (12.0, -8.5, 24.0), 1: (-3.5, 6.0, 2.0), 2: (-20.0, -1.0, 1
 
 
 def _need():
-    for m in ("pymavlink", "pygeomag"):
-        try:
-            __import__(m)
-        except ImportError:
-            if os.environ.get("CI") == "true":
-                pytest.fail(f"{m} (the 'logs' extra) is required in CI")
-            pytest.skip(f"{m} is not installed (pip install '.[logs]')")
+    need("pymavlink", "pygeomag")
 
 
 def ap_correct(raw_mg, ofs, dia, odi):
