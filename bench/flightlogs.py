@@ -31,6 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -38,7 +39,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 SHIM = r"""
-import runpy, sys
+import atexit, os, runpy, sys
+atexit.register(lambda: sys.stderr.write("\ncpu_s %.3f\n" % sum(os.times()[:2])))
+script, patch = sys.argv[1], sys.argv[2] == "curr-as-bat"
+sys.argv = sys.argv[1:2] + sys.argv[3:]
 from pymavlink import mavutil
 _orig = mavutil.mavlink_connection
 class _Bat:
@@ -60,9 +64,8 @@ class _Conn:
         return _Bat(m) if want and m is not None and m.get_type() == "CURR" else m
     def __getattr__(self, k):
         return getattr(self._c, k)
-mavutil.mavlink_connection = lambda *a, **k: _Conn(_orig(*a, **k))
-script = sys.argv[1]
-sys.argv = sys.argv[1:]
+if patch:
+    mavutil.mavlink_connection = lambda *a, **k: _Conn(_orig(*a, **k))
 runpy.run_path(script, run_name="__main__")
 """
 
@@ -81,24 +84,24 @@ def magfit_script() -> str:
 
 
 def run_magfit(log: str, mag_no: int, flags: list[str], shim: bool, condition: str | None) -> dict:
-    """Its printed parameters (name → value), the earth-field strength it used, CPU seconds."""
-    cmd = [magfit_script(), "--mag", str(mag_no), "--att-source", "ATT", *flags]
+    """Its printed parameters (name → value), the earth-field strength it used, its CPU seconds.
+    The script runs unmodified (``runpy``); the shim only reports its CPU time and, with
+    ``shim``, presents CURR as BAT to it."""
+    args = ["--mag", str(mag_no), "--att-source", "ATT", *flags]
     if condition:
-        cmd += ["--condition", condition]
-    cmd.append(log)
-    argv = [sys.executable, "-c", SHIM, *cmd] if shim else [sys.executable, *cmd]
+        args += ["--condition", condition]
+    argv = [sys.executable, "-c", SHIM, magfit_script(), "curr-as-bat" if shim else "as-shipped", *args, log]
     env = dict(os.environ, MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1")
-    t0 = os.times()
     out = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=os.path.dirname(log))
-    t1 = os.times()
+    cpu = re.search(r"^cpu_s ([\d.]+)$", out.stderr, re.M)
     params = {m.group(1): float(m.group(2)) for m in re.finditer(r"^(COMPASS_\w+) (-?[\d.]+)$", out.stdout, re.M)}
     strength = re.search(r"strength (\d+)", out.stdout)
     if not params:  # its own optimiser gave up ("Fit failed: Iteration limit reached" …)
         why = re.search(r"Fit failed: (.*)", out.stdout)
         return {"params": None, "failure": why.group(1).strip() if why else (out.stderr.strip()[-200:] or "no output"),
-                "strength_mg": None, "cpu_s": 0.0}
+                "strength_mg": None, "cpu_s": float(cpu.group(1)) if cpu else 0.0}
     return {"params": params, "strength_mg": float(strength.group(1)) if strength else None,
-            "cpu_s": (t1.children_user + t1.children_system) - (t0.children_user + t0.children_system)}
+            "cpu_s": float(cpu.group(1)) if cpu else 0.0}
 
 
 def magfit_correct(p: dict, index: int, raw_mg: np.ndarray, current_a: np.ndarray) -> np.ndarray:
@@ -132,17 +135,20 @@ def rms_pair(h: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
     return vec, mag
 
 
-def magcal_fold(lm, train, test, step=True) -> tuple[float, float]:
+def magcal_fold(lm, train, test, step=True) -> tuple[float, float, np.ndarray]:
+    """Held-out (vector RMS, |m| RMS) of magcal's fit to the training blocks (its own term
+    choice), and the current coefficient of that fit (fitted whether kept or not)."""
     from magcal.fit.vector import fit_vector, motors_on
 
     s = lm.series
     ch = {k: v[train] for k, v in s.channels.items()}
-    r = fit_vector(s.field_ut[train], ch, lm.earth_body_ut[train], lm.earth_field_ut, step=step)
+    r = fit_vector(s.field_ut[train], ch, lm.earth_body_ut[train], lm.earth_field_ut, term="current_a", step=step)
     test_ch = {k: v[test] for k, v in s.channels.items()}
     on = motors_on(s.channels, min_fraction=0.0)
     if on is not None:
         test_ch["motors_on"] = on[test]
-    return rms_pair(r.calibration.correct(s.field_ut[test], test_ch), lm.earth_body_ut[test])
+    k = next(np.array(t["coef_ut_per_unit"]) for t in r.terms if t["channel"] == "current_a")
+    return (*rms_pair(r.calibration.correct(s.field_ut[test], test_ch), lm.earth_body_ut[test]), k)
 
 
 def folds(n: int, blocks: int):
@@ -166,8 +172,25 @@ def time_field(log_path: str, name: str) -> str:
     return "TimeUS" if "TimeUS" in m._fieldnames else "TimeMS"
 
 
-def coefficient_rows(log_path, lm, index, variants) -> list[tuple[str, np.ndarray, np.ndarray | None]]:
-    """(label, k µT/A, σ or None) on the whole log: magcal with and without its step, magfit."""
+def magfit_k(p: dict, index: int) -> np.ndarray:
+    """magfit's COMPASS_MOT as magcal's current coefficient: k = −(s·M)⁻¹·MOT, µT/A."""
+    suffix = "" if index == 0 else str(index + 1)
+    d, o = [p.get(f"COMPASS_DIA{suffix}_{a}", 1.0) for a in "XYZ"], [p.get(f"COMPASS_ODI{suffix}_{a}", 0.0) for a in "XYZ"]
+    m = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
+    mot = np.array([p.get(f"COMPASS_MOT{suffix}_{a}", 0.0) for a in "XYZ"])
+    return -np.linalg.solve(m, mot) / p.get(f"COMPASS_SCALE{suffix}", 1.0) * 0.1
+
+
+def jackknife_sigma(ks: list) -> np.ndarray | None:
+    """Delete-one-block jackknife σ of a coefficient from its fits with each block left out."""
+    k = np.array([x for x in ks if np.all(np.isfinite(x))])
+    if len(k) < 3:
+        return None
+    return np.sqrt((len(k) - 1) / len(k) * np.sum((k - k.mean(axis=0)) ** 2, axis=0))
+
+
+def magcal_whole(lm) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(label, k µT/A, stated σ) of magcal's current term on the whole log, with and without its step."""
     from magcal.fit.vector import fit_vector
 
     s, out = lm.series, []
@@ -176,42 +199,57 @@ def coefficient_rows(log_path, lm, index, variants) -> list[tuple[str, np.ndarra
         t = next(x for x in r.terms if x["channel"] == "current_a")
         kept = "" if t["kept"] else " (not kept)"
         out.append((label + kept, np.array(t["coef_ut_per_unit"]), np.array(t["sigma_ut_per_unit"])))
-    suffix = "" if index == 0 else str(index + 1)
-    for label, flags, shim in variants:
-        mf = run_magfit(log_path, index + 1, flags, shim, None)
-        p = mf["params"]
-        if p is None:
-            out.append((f"{label}: failed ({mf['failure']})", np.full(3, np.nan), None))
-            continue
-        d, o = [p.get(f"COMPASS_DIA{suffix}_{a}", 1.0) for a in "XYZ"], [p.get(f"COMPASS_ODI{suffix}_{a}", 0.0) for a in "XYZ"]
-        m = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
-        mot = np.array([p.get(f"COMPASS_MOT{suffix}_{a}", 0.0) for a in "XYZ"])
-        k = -np.linalg.solve(m, mot) / p.get(f"COMPASS_SCALE{suffix}", 1.0) * 0.1
-        out.append((label, k, None))
     return out
 
 
-def compare_compass(log_path: str, lm, index: int, blocks: int, variants) -> dict:
+def start_compass(pool, log_path: str, lm, index: int, blocks: int, variants) -> dict:
+    """Submit every magfit run of one compass (each held-out block and the whole log, per
+    variant) to ``pool``; magcal's fits run meanwhile."""
     s = lm.series
-    cur = s.channels.get("current_a", np.zeros(len(s)))
-    raw_mf = magfit_raw(log_path, lm, index)
     field = time_field(log_path, lm.info.name)
-    rows: dict[str, list] = {"magcal": [], "magcal (no step)": [], **{v[0]: [] for v in variants}}
-    cpu = {v[0]: 0.0 for v in variants}
-    for train, test in folds(len(s), blocks):
-        rows["magcal"].append(magcal_fold(lm, train, test))
-        rows["magcal (no step)"].append(magcal_fold(lm, train, test, step=False))
+    runs, magcal = {}, {"magcal": [], "magcal (no step)": []}
+    for i, (train, test) in enumerate(folds(len(s), blocks)):
         cond = condition_outside(lm.info.name, field, s.t_s[test][0] - 0.001, s.t_s[test][-1] + 0.001)
         for label, flags, shim in variants:
-            mf = run_magfit(log_path, index + 1, flags, shim, cond)
+            runs[label, i] = pool.submit(run_magfit, log_path, index + 1, flags, shim, cond)
+    for label, flags, shim in variants:
+        runs[label, None] = pool.submit(run_magfit, log_path, index + 1, flags, shim, None)
+    for train, test in folds(len(s), blocks):
+        magcal["magcal"].append(magcal_fold(lm, train, test))
+        magcal["magcal (no step)"].append(magcal_fold(lm, train, test, step=False))
+    return {"lm": lm, "index": index, "blocks": blocks, "variants": variants, "runs": runs, "magcal": magcal,
+            "whole": magcal_whole(lm), "raw_mf": magfit_raw(log_path, lm, index)}
+
+
+def finish_compass(job: dict) -> dict:
+    """The held-out rows and the coefficient rows once the magfit runs are done."""
+    lm, index, s = job["lm"], job["index"], job["lm"].series
+    cur = s.channels.get("current_a", np.zeros(len(s)))
+    rows = {k: [v[:2] for v in vals] for k, vals in job["magcal"].items()}
+    fold_k = {k: [v[2] for v in vals] for k, vals in job["magcal"].items()}
+    cpu, strength = {}, None
+    for label, _, _ in job["variants"]:
+        rows[label], fold_k[label], cpu[label] = [], [], 0.0
+        for i, (_, test) in enumerate(folds(len(s), job["blocks"])):
+            mf = job["runs"][label, i].result()
             cpu[label] += mf["cpu_s"]
             if mf["params"] is None:
                 rows[label].append((np.nan, np.nan))
+                fold_k[label].append(np.full(3, np.nan))
                 continue
-            h = magfit_correct(mf["params"], index, raw_mf[test], cur[test]) * 0.1
+            strength = mf["strength_mg"] or strength
+            h = magfit_correct(mf["params"], index, job["raw_mf"][test], cur[test]) * 0.1
             rows[label].append(rms_pair(h, lm.earth_body_ut[test]))
-    return {"rows": rows, "cpu": cpu, "coefficients": coefficient_rows(log_path, lm, index, variants),
-            "magfit_strength_mg": mf["strength_mg"]}
+            fold_k[label].append(magfit_k(mf["params"], index))
+    coefs = [(label, k, sig, jackknife_sigma(fold_k[label.split(" (not kept)")[0]])) for label, k, sig in job["whole"]]
+    for label, _, _ in job["variants"]:
+        mf = job["runs"][label, None].result()
+        cpu[label] += mf["cpu_s"]
+        if mf["params"] is None:
+            coefs.append((f"{label}: failed ({mf['failure']})", np.full(3, np.nan), None, None))
+        else:
+            coefs.append((label, magfit_k(mf["params"], index), None, jackknife_sigma(fold_k[label])))
+    return {"rows": rows, "cpu": cpu, "coefficients": coefs, "magfit_strength_mg": strength}
 
 
 def format_compass(lm, res: dict) -> list[str]:
@@ -226,10 +264,13 @@ def format_compass(lm, res: dict) -> list[str]:
         note = f" ({failed} of {len(v)} blocks: its optimiser gave up, mean of the rest)" if failed else ""
         lines.append(f"| {label}{note} | {np.nanmean(v[:, 0]):.2f} | {' '.join(f'{x:.1f}' for x in v[:, 0])} "
                      f"| {np.nanmean(v[:, 1]):.2f} |")
-    lines += ["", "| current coefficient, whole log | k µT/A (x, y, z) | σ |", "|---|---|---|"]
-    for label, k, sig in res["coefficients"]:
-        sg = "—" if sig is None else "(" + ", ".join(f"{x:.3f}" for x in sig) + ")"
-        lines.append(f"| {label} | ({', '.join(f'{x:+.3f}' for x in k)}) | {sg} |")
+    lines += ["", "| current coefficient, whole log | k µT/A (x, y, z) | stated σ | jackknife σ (held-out blocks) | CPU s (magfit runs) |",
+              "|---|---|---|---|---|"]
+    fmt = lambda v: "—" if v is None else "(" + ", ".join(f"{x:.3f}" for x in v) + ")"  # noqa: E731
+    for label, k, sig, jack in res["coefficients"]:
+        cpu = res["cpu"].get(label.split(":")[0])
+        lines.append(f"| {label} | ({', '.join(f'{x:+.3f}' for x in k)}) | {fmt(sig)} | {fmt(jack)} | "
+                     + ("—" if cpu is None else f"{cpu:.0f}") + " |")
     strength = res["magfit_strength_mg"]
     lines += ["", f"Expected field: {lm.earth_model} {lm.earth_field_ut:.2f} µT (magcal); magfit's own table "
               f"{strength / 10:.2f} µT." if strength else "", ""]
@@ -243,6 +284,8 @@ def main(argv=None) -> int:
     ap.add_argument("--blocks", type=int, default=5, help="held-out time blocks (default 5)")
     ap.add_argument("--mags", default=None, help="compasses to compare, e.g. 0,2 (default all)")
     ap.add_argument("--out", default=None, help="also write the table to this markdown file")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                    help="magfit runs at once (each a separate process; default: the CPU count)")
     args = ap.parse_args(argv)
     if not os.path.exists(args.log):
         ap.error(f"no log at {args.log!r}: give LOG or set MAGCAL_REAL_DATA")
@@ -255,12 +298,15 @@ def main(argv=None) -> int:
         wanted = [m.index for m in log.mags] if args.mags is None else [int(x) for x in args.mags.split(",")]
         lines = [f"## magcal vs magfit_WMM.py on {os.path.basename(args.log)} ({log.firmware}), "
                  f"{args.blocks} held-out time blocks", ""]
-        for index in wanted:
-            lm = select(log, index)
-            res = compare_compass(log_path, lm, index, args.blocks, VARIANTS)
-            lines += format_compass(lm, res)
-            print("\n".join(format_compass(lm, res)), flush=True)
-    lines.append(f"magcal's own CPU (reading, all its fits): {time.process_time() - t0:.1f} s")
+        with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+            jobs = [start_compass(pool, log_path, select(log, i), i, args.blocks, VARIANTS) for i in wanted]
+            magcal_cpu = time.process_time() - t0
+            for job in jobs:
+                part = format_compass(job["lm"], finish_compass(job))
+                lines += part
+                print("\n".join(part), flush=True)
+    lines.append(f"magcal's own CPU (reading, all its fits): {magcal_cpu:.1f} s")
+    print(lines[-1])
     if args.out:
         with open(args.out, "w", encoding="utf-8") as fh:
             fh.write("\n".join(lines) + "\n")
