@@ -24,6 +24,8 @@ and without it as magfit fits), and magfit's MOT expressed the same way (k = −
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import os
 import re
 import shutil
@@ -83,7 +85,29 @@ def magfit_script() -> str:
     return path
 
 
+CACHE: dict = {"dir": None}
+
+
 def run_magfit(log: str, mag_no: int, flags: list[str], shim: bool, condition: str | None) -> dict:
+    """``run_magfit_now``, its result kept in ``--cache DIR`` (keyed by the log's bytes and the
+    arguments) so that an interrupted bench does not run magfit again."""
+    if CACHE["dir"] is None:
+        return run_magfit_now(log, mag_no, flags, shim, condition)
+    with open(log, "rb") as fh:
+        digest = hashlib.sha1(fh.read()).hexdigest()
+    key = hashlib.sha1(json.dumps([digest, mag_no, flags, shim, condition]).encode()).hexdigest()
+    path = os.path.join(CACHE["dir"], key + ".json")
+    if os.path.exists(path):
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    out = run_magfit_now(log, mag_no, flags, shim, condition)
+    with open(path + ".tmp", "w", encoding="utf-8") as fh:
+        json.dump(out, fh)
+    os.replace(path + ".tmp", path)
+    return out
+
+
+def run_magfit_now(log: str, mag_no: int, flags: list[str], shim: bool, condition: str | None) -> dict:
     """Its printed parameters (name → value), the earth-field strength it used, its CPU seconds.
     The script runs unmodified (``runpy``); the shim only reports its CPU time and, with
     ``shim``, presents CURR as BAT to it."""
@@ -284,6 +308,10 @@ def main(argv=None) -> int:
     ap.add_argument("--blocks", type=int, default=5, help="held-out time blocks (default 5)")
     ap.add_argument("--mags", default=None, help="compasses to compare, e.g. 0,2 (default all)")
     ap.add_argument("--out", default=None, help="also write the table to this markdown file")
+    ap.add_argument("--variants", default=None,
+                    help="magfit variants to run, by number from 0 (" + "; ".join(f"{i}: {v[0]}" for i, v in enumerate(VARIANTS))
+                    + "; default all)")
+    ap.add_argument("--cache", default=None, help="keep each magfit result in this directory (a re-run reuses them)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
                     help="magfit runs at once (each a separate process; default: the CPU count)")
     args = ap.parse_args(argv)
@@ -298,8 +326,12 @@ def main(argv=None) -> int:
         wanted = [m.index for m in log.mags] if args.mags is None else [int(x) for x in args.mags.split(",")]
         lines = [f"## magcal vs magfit_WMM.py on {os.path.basename(args.log)} ({log.firmware}), "
                  f"{args.blocks} held-out time blocks", ""]
+        variants = VARIANTS if args.variants is None else tuple(VARIANTS[int(i)] for i in args.variants.split(","))
+        if args.cache:
+            os.makedirs(args.cache, exist_ok=True)
+            CACHE["dir"] = args.cache
         with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-            jobs = [start_compass(pool, log_path, select(log, i), i, args.blocks, VARIANTS) for i in wanted]
+            jobs = [start_compass(pool, log_path, select(log, i), i, args.blocks, variants) for i in wanted]
             magcal_cpu = time.process_time() - t0
             for job in jobs:
                 part = format_compass(job["lm"], finish_compass(job))

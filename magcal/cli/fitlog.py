@@ -95,6 +95,7 @@ def format_log_diagnosis(d: dict) -> str:
     lines = [f"log terms   judged against {against} on {d['heldout']['blocks']} held-out time blocks"
              + (" (what |m| alone could not test):" if d["mode"] == "vector" else ":")]
     lines += [f"{'finding' if f['kept'] else 'not found':<12}{f['effect']}: {f['summary']}" for f in d["findings"]]
-    lines.append(f"log model   {d['model']}: held-out {h['measure'].split('_')[1]} residual {h['none']:.3f} µT "
-                 f"without terms, {h['chosen']:.3f} µT with ({d['heldout']['chosen']})")
+    what = f"held-out {h['measure'].split('_')[1]} residual"
+    lines.append(f"log model   {d['model']}: " + (f"no term kept; {what} {h['none']:.3f} µT" if d["heldout"]["chosen"] == "none"
+                 else f"{what} {h['none']:.3f} µT without terms, {h['chosen']:.3f} µT with ({d['heldout']['chosen']})"))
     return "\n".join(lines)
