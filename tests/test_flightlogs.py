@@ -241,6 +241,18 @@ def test_diagnose_tests_the_current_against_the_expected_field():
     assert "finding     current_interference: current_a kept" in text
 
 
+def test_export_of_a_log_diagnosis_writes_its_vector_calibration(tmp_path):
+    diag, fit = tmp_path / "diag.json", tmp_path / "fit.json"
+    diag.write_text(magcal("diagnose", BIN, "--mag", "1", "--json").stdout)
+    fit.write_text(magcal("fit", BIN, "--mag", "1", "--json").stdout)
+    outs = [tmp_path / "d.param", tmp_path / "f.param"]
+    for src, out in zip((diag, fit), outs):
+        r = magcal("export", str(src), "--ardupilot", "-o", str(out))
+        assert r.returncode == 0, r.stderr
+    values = [[ln for ln in o.read_text().splitlines() if not ln.startswith("#")] for o in outs]
+    assert values[0] == values[1] and any(v.startswith("COMPASS_MOT2_X") for v in values[0])
+
+
 def test_vector_fit_recovers_an_injected_calibration_from_level_flight():
     from magcal.core.calibration import Calibration
     from magcal.fit.vector import fit_vector

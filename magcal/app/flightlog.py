@@ -70,7 +70,7 @@ def diagnose_flight_log(lm: LogMag, blocks: int = 5) -> dict:
     findings = [{"effect": EFFECT.get(t["channel"], "covariate:" + t["channel"]), "channel": t["channel"],
                  "role": t["role"], "kept": t["kept"], "summary": term_summary(t, UNIT.get(t["channel"], "µT per unit"))}
                 for t in d["terms"]]
-    return {**out, "mode": d["mode"], "earth_model": lm.earth_model, "earth_field_ut": lm.earth_field_ut,
+    return {**out, "log": d["log"], "mode": d["mode"], "earth_model": lm.earth_model, "earth_field_ut": lm.earth_field_ut,
             "model": d["model"], "terms": d["terms"], "findings": findings, "heldout": ho,
             "heldout_ut": {"none": ho["none"].get(key), "chosen": ho[ho["chosen"]].get(key) if ho["chosen"] != "none"
                            else ho["none"].get(key), "measure": key},

@@ -27,7 +27,8 @@ HELP = "export a recording as CSV (t, mx, my, mz in µT, channels), or a fit as 
 
 
 def add_arguments(p) -> None:
-    p.add_argument("file", metavar="FILE", help="a recording (for CSV) or a fit result JSON (for --ardupilot/--px4)")
+    p.add_argument("file", metavar="FILE", help="a recording (for CSV), or the JSON of magcal fit or of magcal "
+                   "diagnose on a flight log (for --ardupilot/--px4)")
     what = p.add_mutually_exclusive_group()
     what.add_argument("--csv", action="store_true", help="write the recording as CSV (the default)")
     what.add_argument("--ardupilot", nargs="?", type=int, const=-1, metavar="N",

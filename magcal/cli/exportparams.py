@@ -26,6 +26,8 @@ def _read_result(path: str) -> dict:
             raise InputError(f"{path}: holds {len(fits)} fits with a calibration; export one "
                              "('magcal fit FILE --json > RESULT.json')")
         d = fits[0]
+    if isinstance(d, dict) and "calibration" in (d.get("flight_log") or {}):  # magcal diagnose LOG --json
+        d = d["flight_log"]  # the calibration against the expected field, with the log's frame and slot
     if not isinstance(d, dict) or "calibration" not in d:
         raise InputError(f"{path}: no 'calibration' in it: not the JSON of a successful 'magcal fit'")
     return d
