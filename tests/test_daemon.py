@@ -113,7 +113,7 @@ def _calibrated_then(tmp_path, faults, samples=12500):
     """Blank board, recalibration on: the daemon calibrates, then a payload adds hard iron at
     t = 50 s together with ``faults``."""
     t = Tracked(f"seed=7&fault=hard_iron@50=30.5,-38.2,14.8{faults}")
-    d = t.run(tmp_path, samples, recalibrate=True)
+    d = t.run(tmp_path, samples, recalibrate=True, keep="alarm")  # the alarm path (the tracker's: test_daemon_keeping)
     t.assert_exactly_once()
     return t, d
 

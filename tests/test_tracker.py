@@ -46,6 +46,18 @@ def test_follows_a_drifting_offset_that_a_static_fit_averages_away():
     assert tracked < 0.4 * static
 
 
+def test_a_sudden_change_is_followed_not_taken_for_outliers():
+    sc = demo_scenario(4)
+    a = sc.simulate(12000, 50.0).series
+    b = sc.with_physics(hard_iron_ut=(30.5, -38.2, 14.8)).simulate(6000, 50.0, t0_s=240.0).series
+    trk = Tracker()
+    trk.add_many(a.field_ut, a.t_s)
+    assert trk.changes == 0  # a steady sensor shows none
+    trk.add_many(b.field_ut[:3000], b.t_s[:3000])
+    assert trk.changes == 1
+    assert np.abs(trk.estimate.calibration.offset_ut - [30.5, -38.2, 14.8]).max() < 0.5
+
+
 def test_memory_is_bounded_whatever_the_length():
     cfg = TrackerConfig(bands=4, sectors=8, per_cell=4)
     _, m, t = _run(demo_scenario(2), 8000)

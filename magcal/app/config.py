@@ -53,9 +53,17 @@ class DaemonSettings:
     state_every_s: float = setting(5.0, lo=0, lo_open=True, hi=86400)  # how often the state file is written
     socket: bool = True  # local UNIX status socket in state_dir
     stall_s: float = setting(5.0, lo=0, lo_open=True, hi=86400)  # no sample for this long on an open link ⇒ reconnect
+    # how a written calibration is kept: "tracker" writes the tracker's when it is significantly
+    # better than the device's (gates and budget permitting); "alarm" only after the monitor rings
+    keep: str = "tracker"
+    # EEPROM writes the keeper may spend (ATmega328P: 100 000 cycles rated): per day, back to back
+    write_budget_per_day: float = setting(24.0, lo=0, lo_open=True, hi=1440)
+    write_burst: int = setting(3, lo=1, hi=100)
 
     def check(self) -> None:
         check_bounds(self, "daemon.")
+        if self.keep not in ("tracker", "alarm"):
+            raise ConfigError(f"daemon.keep must be tracker or alarm, got {self.keep!r}", keys=("daemon.keep",))
         if self.reconnect_max_s < self.reconnect_min_s:
             raise ConfigError(f"daemon.reconnect_max_s ({self.reconnect_max_s:g}) must be ≥ daemon.reconnect_min_s "
                               f"({self.reconnect_min_s:g})", keys=("daemon.reconnect_min_s", "daemon.reconnect_max_s"))

@@ -32,6 +32,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import beta, chi2
 
 from ..core.calibration import Calibration
 from . import geometric
@@ -43,6 +44,9 @@ from .sphere import sphere_start
 from .tracker_memory import CellBuffer, Wander
 
 LADDER = ("sphere", "diagonal", "full")
+CHANGE_ALPHA = 1e-9  # a sudden change is declared at this false-alarm probability per refit
+CHANGE_MIN_PAIRS = 5
+CHANGE_MIN_EVIDENCE = 200  # pairs in the wander record before its model judges a change
 START_MARGIN = 10.0  # a first solution needs 10× the conditioning a running one needs (hysteresis)
 HUBER_K = 2.5  # Huber threshold in robust σ of the residual (95 % efficiency under Gaussian noise)
 _STATE_KIND = "magcal.tracker"
@@ -233,6 +237,9 @@ class Tracker:
         self.wander = Wander()
         self.n = 0  # samples offered (the index of the next one)
         self.skipped = 0  # non-finite samples refused
+        self.changes = 0  # sudden changes seen
+        self._suspect = False  # the last refit's new samples looked like a change
+        self._jumps: dict[int, float] = {}  # epoch → its step squared (µT²)
         self.kind: str | None = None
         self.theta: np.ndarray | None = None
         self.estimate: Estimate | None = None
@@ -312,8 +319,9 @@ class Tracker:
         solved by fixed point, since old samples are expected to sit further off."""
         scale = _robust_scale(e)
         d, delta, other, dt = self.memory.pairs(idx, e, self._seq_at_refit, self.theta[:3])
-        self.wander.add(np.clip(d, -HUBER_K * scale, HUBER_K * scale), delta, other, dt)
         self._seq_at_refit = self.memory.seq_count
+        if not self._changed(d, delta, other, dt, scale):
+            self.wander.add(np.clip(d, -HUBER_K * scale, HUBER_K * scale), delta, other, dt)
         _, q = self.wander.solve()
         age = np.maximum(self._t_last - t, 0.0)
         stretch = np.ones(len(e))
@@ -323,8 +331,45 @@ class Tracker:
         s2 = scale * scale
         self.memory.rho_per_s = q / s2
         cap = HUBER_K * scale * stretch
-        w = wc * np.minimum(1.0, cap / np.maximum(np.abs(e), 1e-300)) / (1.0 + (q / s2) * age)
+        jump = self._jump_ratio(self.memory.epoch_of[idx], s2)
+        w = wc * np.minimum(1.0, cap / np.maximum(np.abs(e), 1e-300)) / (1.0 + (q / s2) * age + jump)
         return w / w.mean(), s2, q
+
+    def _changed(self, d, delta, other, dt, scale) -> bool:
+        """Did the sensor change at once (a payload's magnet, a knock)? Most new samples differ
+        from the older ones of their own cells far beyond what the wander model expects: the
+        median of d²/v above the level that k draws of χ²₁ pass with probability
+        ``CHANGE_ALPHA`` (the median, so that glitches and heavy tails cannot trigger it; a
+        change moves them all). The samples from before then count as far off as the jump
+        (``_jump_ratio``) and pairs no longer reach across it; nothing is thrown away."""
+        v = self.wander.variance(delta, other, dt)
+        k = len(d)
+        if v is None or k < CHANGE_MIN_PAIRS or self.wander.n < CHANGE_MIN_EVIDENCE:
+            return False
+        half = k // 2 + 1
+        level = chi2.isf(beta.ppf(CHANGE_ALPHA, half, k - half + 1), 1)
+        if np.sort(d * d / v)[k - half] <= level:
+            self._suspect = False
+            return False
+        if not self._suspect:  # a change lasts: it must show again in the next samples
+            self._suspect = True
+            return True  # (these pairs stay out of the wander record)
+        self._suspect = False
+        self._jumps[self.memory.epoch] = float(np.median(d * d))  # µT²: the step, squared
+        self.memory.epoch += 1
+        self.changes += 1
+        return True
+
+    def _jump_ratio(self, epochs: np.ndarray, s2: float) -> np.ndarray:
+        """Per sample, the squared steps since it came, in units of s²."""
+        if not self._jumps:
+            return np.zeros(len(epochs))
+        old = int(epochs.min()) if len(epochs) else self.memory.epoch
+        self._jumps = {e: j for e, j in self._jumps.items() if e >= old}  # no sample left from before
+        steps = np.zeros(self.memory.epoch + 1)
+        for e, j in self._jumps.items():
+            steps[: e + 1] += j
+        return steps[epochs] / s2
 
     def _climb(self, m, w) -> None:
         """Try the fuller models, each from the current one and from the algebraic ellipsoid;
@@ -401,7 +446,8 @@ class Tracker:
             "kind": _STATE_KIND, "version": _STATE_VERSION,
             "config": {f: getattr(c, f) for f in c.__dataclass_fields__},
             "memory": self.memory.to_state(), "wander": self.wander.to_state(),
-            "n": self.n, "skipped": self.skipped, "n_used": self.n_used, "sum": list(self._sum),
+            "n": self.n, "skipped": self.skipped, "changes": self.changes,
+            "jumps": [[e, j] for e, j in self._jumps.items()], "suspect": self._suspect, "n_used": self.n_used, "sum": list(self._sum),
             "model": self.kind, "theta": None if self.theta is None else self.theta.tolist(),
             "since_refit": self._since_refit, "damping": self._damping, "seq_at_refit": self._seq_at_refit,
             "last_ladder": self._last_ladder, "cells_at_ladder": self._cells_at_ladder, "t_last": self._t_last,
@@ -419,6 +465,8 @@ class Tracker:
             trk.memory.load_state(d["memory"])
             trk.wander = Wander.from_state(d["wander"])
             trk.n, trk.skipped, trk.n_used = int(d["n"]), int(d["skipped"]), int(d["n_used"])
+            trk.changes, trk._jumps = int(d["changes"]), {int(e): float(j) for e, j in d["jumps"]}
+            trk._suspect = bool(d["suspect"])
             trk._sum = [float(v) for v in d["sum"]]
             trk.kind = d["model"]
             trk.theta = None if d["theta"] is None else np.asarray(d["theta"], dtype=np.float64)
@@ -431,3 +479,58 @@ class Tracker:
         if trk.kind not in (None, *LADDER) or (trk.theta is not None and len(trk.theta) != geometric.n_params(trk.kind)):
             raise ValueError("tracker state is inconsistent (model and parameters disagree)")
         return trk
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """How much better the tracker's calibration fits the samples in memory than another one.
+
+    Both are judged on the same samples with the tracker's own weights (each direction cell the
+    same, older samples less at the wander rate), by the relative radial error e = |h|/mean|h| − 1
+    (scale-free, as the field's spread). ``gain``: mean over cells of e_other² − e_ours²
+    (positive: ours is better); ``sigma``: its standard error from the spread of the per-cell
+    differences (cells are the independent units: a direction's error persists, so samples
+    within a cell do not count as independent); ``z`` = gain / sigma. RMS figures in %."""
+
+    rms_other_pct: float
+    rms_ours_pct: float
+    gain: float
+    sigma: float
+    cells: int
+
+    @property
+    def z(self) -> float:
+        return self.gain / self.sigma if self.sigma > 0 else (math.inf if self.gain > 0 else 0.0)
+
+    def to_dict(self) -> dict:
+        return {"rms_other_pct": self.rms_other_pct, "rms_ours_pct": self.rms_ours_pct, "gain": self.gain,
+                "sigma": self.sigma, "z": self.z if math.isfinite(self.z) else None, "cells": self.cells}
+
+
+def compare(tracker: "Tracker", other: Calibration) -> Comparison | None:
+    """``Comparison`` of the tracker's estimate with ``other`` on its memory (None: no estimate)."""
+    est = tracker.estimate
+    if est is None:
+        return None
+    slots, m, t, wc = tracker.memory.samples()
+    rho = tracker.memory.rho_per_s
+    w = wc / (1.0 + rho * np.maximum(tracker._t_last - t, 0.0))
+
+    def rel_err2(cal: Calibration) -> np.ndarray:
+        h = np.linalg.norm((m - cal.offset_ut) @ cal.soft_iron.T, axis=1)
+        return (h / (w @ h / w.sum()) - 1.0) ** 2
+
+    d = rel_err2(other) - rel_err2(est.calibration)
+    cells = slots // tracker.config.per_cell
+    wsum = np.bincount(cells, weights=w)
+    occ = np.flatnonzero(wsum > 0)
+    d_cell = np.bincount(cells, weights=w * d)[occ] / wsum[occ]
+    W = wsum[occ] / wsum[occ].sum()
+    gain = float(W @ d_cell)
+    k = len(occ)
+    var = float(W**2 @ (d_cell - gain) ** 2) * k / max(k - 1, 1)
+    return Comparison(
+        rms_other_pct=100 * math.sqrt(float(w @ rel_err2(other) / w.sum())),
+        rms_ours_pct=100 * math.sqrt(float(w @ rel_err2(est.calibration) / w.sum())),
+        gain=gain, sigma=math.sqrt(var), cells=k,
+    )

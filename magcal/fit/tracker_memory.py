@@ -7,7 +7,8 @@ cell keeps samples spread over the time it has been visited — the history of e
 direction, thinned, not only its last pass — and memory is ``cells × per_cell`` samples however
 long the stream. When the calibration wanders (ρ = q/s² > 0, from ``Wander``) the times are
 read on the information clock −log(1 + ρ·age), on which a sample's weight falls evenly, so the
-kept samples thin out with age as fast as their weight does. Every sample also records which visit to its cell it came in (a visit ends when
+kept samples thin out with age as fast as their weight does; samples from before a sudden
+change (an *epoch* ago, ``Tracker``) go before any other. Every sample also records which visit to its cell it came in (a visit ends when
 a sample goes to another cell), which ``Wander`` uses.
 
 ``Wander``: how fast the calibration wanders, from the data (see its docstring).
@@ -61,17 +62,30 @@ class Wander:
         self.sum_log += np.log(v).sum(axis=0)
         self.n += len(d)
 
+    def _best(self) -> tuple[float, int, int, int]:
+        """(s², γ index, κ index, ρ index) at the maximum; ρ = 0 unless the test passes."""
+        s2 = np.maximum(self.sum_q / self.n, 1e-300)
+        ll = -0.5 * (self.n * np.log(s2) + self.sum_log)
+        best = np.unravel_index(int(np.argmax(ll)), ll.shape)
+        g0, k0 = np.unravel_index(int(np.argmax(ll[..., 0])), ll.shape[:2])
+        if 2.0 * (ll[best] - ll[g0, k0, 0]) < WANDER_CHI2:
+            return float(s2[g0, k0, 0]), int(g0), int(k0), 0  # no lasting wander the data can show
+        return float(s2[best]), int(best[0]), int(best[1]), int(best[2])
+
     def solve(self) -> tuple[float, float]:
         """(s², q); (nan, 0) before any evidence."""
         if self.n == 0:
             return float("nan"), 0.0
-        s2 = np.maximum(self.sum_q / self.n, 1e-300)
-        ll = -0.5 * (self.n * np.log(s2) + self.sum_log)
-        best = np.unravel_index(int(np.argmax(ll)), ll.shape)
-        best0 = np.unravel_index(int(np.argmax(ll[..., 0])), ll.shape[:2])
-        if 2.0 * (ll[best] - ll[best0][0]) < WANDER_CHI2:
-            return float(s2[best0][0]), 0.0  # no lasting wander the data can show
-        return float(s2[best]), float(RHO_GRID_PER_S[best[2]] * s2[best])
+        s2, _, _, r = self._best()
+        return s2, float(RHO_GRID_PER_S[r] * s2)
+
+    def variance(self, delta_rad, other_visit, dt_s) -> np.ndarray | None:
+        """What the fitted model expects of d² for these pairs (None before any evidence)."""
+        if self.n == 0:
+            return None
+        s2, g, k, r = self._best()
+        return s2 * (2.0 + GAMMA_GRID_PER_RAD2[g] * np.asarray(delta_rad) ** 2
+                     + KAPPA_GRID[k] * np.asarray(other_visit, np.float64) + RHO_GRID_PER_S[r] * np.asarray(dt_s))
 
     def to_state(self) -> dict:
         return {"n": self.n, "sum_q": self.sum_q.tolist(), "sum_log": self.sum_log.tolist()}
@@ -88,7 +102,7 @@ class Wander:
 class CellBuffer:
     """At most ``per_cell`` samples per equal-area direction cell (see the module docstring)."""
 
-    _ARRAYS = ("m", "t", "valid", "seq", "visit_of")
+    _ARRAYS = ("m", "t", "valid", "seq", "visit_of", "epoch_of")
 
     def __init__(self, bands: int, sectors: int, per_cell: int, min_share: float):
         self.bands, self.sectors, self.per_cell, self.min_share = bands, sectors, per_cell, min_share
@@ -99,6 +113,8 @@ class CellBuffer:
         self.valid = np.zeros(cap, bool)
         self.seq = np.zeros(cap, np.int64)  # order of arrival (1, 2, …)
         self.visit_of = np.zeros(cap, np.int64)
+        self.epoch_of = np.zeros(cap, np.int64)  # sudden changes seen before the sample came
+        self.epoch = 0
         self.count = np.zeros(cells, np.int64)
         self.visits = np.zeros(cells, np.int64)
         self.seq_count = 0
@@ -123,6 +139,10 @@ class CellBuffer:
         if n < k:
             slot = lo + n
             self.count[cell] = n + 1
+        elif int(self.epoch_of[lo:lo + k].min()) < self.epoch:  # a sample from before a sudden
+            ep = self.epoch_of[lo:lo + k]                       # change goes first, oldest first
+            old = np.flatnonzero(ep == ep.min())
+            slot = lo + int(old[np.argmin(self.t[lo:lo + k][old])])
         else:  # the older of the two samples closest on the information clock
             rho = self.rho_per_s
             if rho > 0:
@@ -141,6 +161,7 @@ class CellBuffer:
             self.visits[cell] += 1
             self.last_cell = cell
         self.visit_of[slot] = self.visits[cell]
+        self.epoch_of[slot] = self.epoch
 
     def rebin(self, centre, force: bool = False) -> bool:
         """Re-file the kept samples about a new centre (per cell the newest kept). Refused
@@ -179,8 +200,8 @@ class CellBuffer:
 
     def pairs(self, idx: np.ndarray, e: np.ndarray, since: int, offset_ut) -> tuple:
         """For each sample that arrived after ``since`` (a ``seq``), the nearest older sample in
-        its own cell: (e_new − e_old, angle δ rad, another visit?, Δt s). ``idx``, ``e``: the
-        slots in memory and their residuals (as ``samples`` orders them)."""
+        its own cell since the last sudden change: (e_new − e_old, angle δ rad, another visit?,
+        Δt s). ``idx``, ``e``: the slots in memory and their residuals (as ``samples`` orders them)."""
         k = self.per_cell
         pos = np.full(len(self.valid), -1)
         pos[idx] = np.arange(len(idx))
@@ -188,7 +209,7 @@ class CellBuffer:
         if len(new) == 0:
             return (np.zeros(0),) * 4
         cand = (new // k * k)[:, None] + np.arange(k)[None, :]
-        ok = self.valid[cand] & (self.seq[cand] <= since)
+        ok = self.valid[cand] & (self.seq[cand] <= since) & (self.epoch_of[cand] == self.epoch)
         u = self.m - np.asarray(offset_ut)
         u /= np.maximum(np.linalg.norm(u, axis=1), 1e-300)[:, None]
         cos = np.where(ok, np.einsum("ij,ikj->ik", u[new], u[cand]), -np.inf)
@@ -204,6 +225,7 @@ class CellBuffer:
         return {
             "slots": idx.tolist(), "m": self.m[idx].tolist(), "t": self.t[idx].tolist(),
             "seq": self.seq[idx].tolist(), "visit_of": self.visit_of[idx].tolist(),
+            "epoch_of": self.epoch_of[idx].tolist(), "epoch": self.epoch,
             "visits": self.visits.tolist(), "seq_count": self.seq_count, "last_cell": self.last_cell,
             "centre": None if self.centre is None else list(self.centre), "rho_per_s": self.rho_per_s,
         }
@@ -216,6 +238,8 @@ class CellBuffer:
         self.t[idx] = np.asarray(d["t"], dtype=np.float64)
         self.seq[idx] = np.asarray(d["seq"], dtype=np.int64)
         self.visit_of[idx] = np.asarray(d["visit_of"], dtype=np.int64)
+        self.epoch_of[idx] = np.asarray(d["epoch_of"], dtype=np.int64)
+        self.epoch = int(d["epoch"])
         self.valid[idx] = True
         self.count[:] = np.bincount(idx // self.per_cell, minlength=len(self.count))
         self.visits[:] = np.asarray(d["visits"], dtype=np.int64)

@@ -64,6 +64,7 @@ from .persistence import STATE_KIND, Saved, StateDirLock, StateKeeper
 from .recalibrator import CalibrationWriter, Recalibrator
 from .recorder import RollingCapture
 from .supervisor import LinkSupervisor
+from .tracking import TrackingDecider
 
 READ_S = 0.1  # one read's wait
 BATCH_S = 0.1  # a read that brought only a trickle waits out this much, so lines are taken in
@@ -118,6 +119,7 @@ class Daemon:
         # calibrated all along (a tracker) goes beside it, in ``_decide``.
         self.recalibrator = Recalibrator(settings, self.journal, self.faults)
         self.writer = CalibrationWriter(self.journal, self.faults, wall)
+        self.tracking = TrackingDecider(settings, self.journal, self.faults, wall)
         self.keeper = StateKeeper(self.state_dir, self.journal, self.faults, clock)
         self.control = ControlSocket(self.state_dir, self.journal)
         self.started_wall = wall()
@@ -235,6 +237,7 @@ class Daemon:
                     continue
                 self.recalibrator.take(item, collected=take is Take.GOOD)
                 if take is Take.GOOD:
+                    self.tracking.take(item.field_ut, item.t_s)
                     fields.append(item.field_ut)
                     temps.append(np.nan if item.temp_c is None else item.temp_c)
                     if self.on_sample is not None:
@@ -243,6 +246,7 @@ class Daemon:
             self.link.heard()
         if fields and self.drift.add(fields, temps):
             self.recalibrator.drifted(self._may_write())  # what was collected belongs to the old field
+            self.tracking.restart()
 
     def _event(self, ev: Event) -> None:
         if ev.kind == "gap":
@@ -261,6 +265,13 @@ class Daemon:
 
     def _decide(self) -> None:
         """Ask the deciders whether to write a calibration now, and write what they solved."""
+        if self.settings.daemon.keep == "tracker":
+            stored = self.tracking.poll(self.link.device, self.drift.calibration, self._may_write())
+            if stored is not None:
+                self.tracking.record_on(self.writer, stored)
+                self.drift.watch(stored, Decision.NEW_CALIBRATION)
+                self.save()
+            return
         session = self.recalibrator.poll(self._may_write(), self.drift.wants_calibration)
         if session is None:
             return
@@ -287,6 +298,7 @@ class Daemon:
         self.link.retarget(new)
         same_port = old.port == new.port
         self.recalibrator.use(new, keep_samples=same_port)  # another device: nothing collected is its
+        self.tracking.use(new, keep_samples=same_port)
         if not same_port:
             self.drift.forget()
         self.drift.retune(new.daemon)
@@ -303,6 +315,7 @@ class Daemon:
             **self.recalibrator.status(),
             **self.drift.status(),
             **self.writer.status(),
+            **self.tracking.status(),
             "faults": dict(sorted(self.faults.items())),
             "link": self.link.stats(),
             "capture": self.capture.stats(),
@@ -325,6 +338,7 @@ class Daemon:
                 **self.drift.to_state(),
                 **self.writer.status(),
                 **self.recalibrator.to_state(),
+                **self.tracking.to_state(),
                 "decisions": list(self.journal.entries),
             },
         }
@@ -347,6 +361,8 @@ class Daemon:
             self.journal.record(Decision.STATE_OTHER_PORT, state_port=saved.port, port=self.settings.port)
             saved = saved.counters_only(Session(self.settings.gates, self.settings.model))
         self._restore(saved)
+        if saved.port == self.settings.port:
+            self.tracking.resume(data["resume"].get("keeping"))
         self.journal.record(Decision.RESUMED, generation=saved.generation, samples=saved.samples,
                             source=self.keeper.loaded_from, note=self.keeper.load_note)
         if saved.replay_lines and scheme_of(self.settings.port) == "replay":

@@ -44,6 +44,7 @@ reporting_only        info     recalibration disabled (daemon.recalibrate: false
 solving               info     gates pass on the live estimate: solving
 refused               warning  recalibration refused
 written               info     calibration written and verified by read-back
+keeping               info     the tracker's calibration is better than the device's: writing
 not_written           error    calibration NOT written
 record_unreadable     warning  could not re-read the device's calibration
 record_unverified     error    the device holds a record this daemon did not verify; monitoring the verified one

@@ -1,0 +1,128 @@
+"""The tracking decider: keeps the device calibrated all along (``daemon.keep: tracker``).
+
+Every good sample goes to a ``logic.keeper.Keeper`` (the tracker, the gates, the EEPROM
+budget). Every ``READY_EVERY`` samples it is asked whether the tracker's calibration is worth a
+write over the one the device verifiably holds: significantly better, every gate passed
+(``logic.gates.clear_for_write``), budget left. If so it is written the one verified way
+(``procedure.write_verified``: echo, read-back, the previous record put back on a mismatch) and
+every EEPROM cycle it took is charged to the budget. When the drift monitor rings (the field
+changed at once: a payload, a magnet) the tracker starts afresh, since what it remembers
+belongs to the old field. Nothing here reads or writes files.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Callable
+
+from ...core.calibration import Calibration
+from ...devices.base import Device
+from ...fit.accumulator import SphereAccumulator
+from ...logic.gates import Clearance, Evidence, clear_for_write
+from ...logic.keeper import Budget, Keeper, Reason
+from ..procedure import write_verified
+from .journal import Decision, Journal
+
+READY_EVERY = 100  # samples between decisions
+
+
+class TrackingDecider:
+    def __init__(self, settings, journal: Journal, faults: Counter, wall: Callable[[], float]):
+        self._journal, self._faults, self._wall = journal, faults, wall
+        self.settings = settings
+        self.keeper = self._new_keeper(settings)
+        self._since = 0
+        self.last_decision: dict | None = None
+
+    @staticmethod
+    def _new_keeper(settings) -> Keeper:
+        d = settings.daemon
+        return Keeper(settings.gates, Budget(d.write_budget_per_day, d.write_burst), d.monitor_alpha)
+
+    def take(self, field_ut, t_s: float) -> None:
+        """A good sample."""
+        self.keeper.add(field_ut, t_s)
+        self._since += 1
+
+    def restart(self) -> None:
+        """The drift monitor rang: the tracker starts afresh (``Keeper.restart``)."""
+        self.keeper.restart()
+
+    def _clearance(self, cal: Calibration) -> Clearance:
+        """The gates' decision, on the tracker's own evidence (its memory: samples, directions,
+        the sphere condition the session's gate uses; its residual and offset σ)."""
+        trk = self.keeper.tracker
+        est = trk.estimate
+        _, m, _, _ = trk.memory.samples()
+        acc = SphereAccumulator()
+        acc.add_batch(m)
+        sphere = acc.solve(max_condition=float("inf"))
+        ev = Evidence(offset_ut=tuple(cal.offset_ut), field_ut=cal.field_ut, rms_ut=est.noise_ut,
+                      offset_sigma_ut=tuple(est.offset_sigma_ut), samples=len(m), coverage=trk.coverage(),
+                      condition=sphere.condition if sphere else None)
+        return clear_for_write(self.settings.gates, ev)
+
+    def poll(self, device: Device | None, held: Calibration | None, may_write: bool) -> Calibration | None:
+        """Every ``READY_EVERY`` samples, when writing is allowed: write the tracker's calibration
+        if the keeper says so and the gates clear it. What the device then verifiably holds, or
+        None when nothing was written."""
+        if self._since < READY_EVERY or not may_write or device is None:
+            return None
+        self._since = 0
+        now = self._wall()
+        decision = self.keeper.decide(held, now)
+        self.last_decision = decision.to_dict()
+        if decision.reason is Reason.BUDGET:
+            self._faults["write_budget_waits"] += 1
+        if not decision.write:
+            return None
+        clearance = self._clearance(decision.calibration)
+        if not clearance.allowed:
+            self._journal.record(Decision.REFUSED, failure="gate", message=clearance.summary())
+            return None
+        self._journal.record(Decision.KEEPING, reason=decision.reason.value, message=decision.message)
+        result = write_verified(device, decision.calibration, clearance)
+        # a write command may have reached the EEPROM even when it failed; a restore is another
+        self.keeper.spent(now, 1 + int(bool(result.restored)), result.verified)
+        if result.verified:
+            return result.stored
+        self._faults[result.failure.value if result.failure else "write_failed"] += 1
+        self._journal.record(Decision.NOT_WRITTEN, failure=result.failure.value if result.failure else None,
+                             message=result.message, previous_restored=result.restored)
+        return None
+
+    def use(self, settings, keep_samples: bool) -> None:
+        """New settings: new gates, budget and significance; what the tracker remembers stays,
+        unless it belongs to another device."""
+        old, self.settings = self.keeper, settings
+        self.keeper = self._new_keeper(settings)
+        if keep_samples:
+            self.keeper.load_state(old.to_state())
+
+    def record_on(self, writer, stored: Calibration) -> None:
+        """Tell the daemon's writer what was verified, so status and state show it as its own."""
+        est = self.keeper.tracker.estimate
+        writer.count += 1
+        writer.last = {"calibration": stored.to_dict(), "written_utc": round(self._wall(), 3), "verified": True,
+                       "rms_ut": est.noise_ut, "samples": est.buffered, "coverage": round(est.coverage, 4),
+                       "by": "tracker"}
+        self._journal.record(Decision.WRITTEN, offset_ut=[round(x, 3) for x in stored.offset_ut],
+                             field_ut=round(stored.field_ut, 3), rms_ut=round(est.noise_ut, 3))
+
+    def status(self) -> dict:
+        return {"keeping": {**self.keeper.status(), "last_decision": self.last_decision}}
+
+    def to_state(self) -> dict:
+        return {"keeping": self.keeper.to_state()}
+
+    def resume(self, state: dict | None) -> None:
+        """Resume the keeper saved in the state file; a malformed one is counted and dropped
+        (the tracker starts afresh, nothing else is lost)."""
+        if state is None:
+            return
+        try:
+            self.keeper.load_state(state)
+        except ValueError as exc:
+            self.keeper = self._new_keeper(self.settings)
+            self._faults["state_refused"] += 1
+            self._journal.record(Decision.STATE_UNUSABLE, error=f"keeping: {exc}")

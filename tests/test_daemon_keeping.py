@@ -1,0 +1,75 @@
+"""``magcal run`` with ``daemon.keep: tracker``: the device is kept calibrated by the tracker,
+every write verified and charged to the EEPROM budget."""
+
+import numpy as np
+
+from magcal.app.daemon import Daemon, Decision
+from magcal.devices.simboard import SimEeprom
+from magcal.recordings.state import StateFiles
+from magcal.wire.protocol import record_from_calibration
+
+from test_daemon import Tracked, make_settings
+
+PAYLOAD = (30.5, -38.2, 14.8)
+
+
+def _count_eeprom_writes(monkeypatch):
+    saved = []
+    real = SimEeprom.save_record
+
+    def save_record(self, values):
+        saved.append(tuple(values))
+        return real(self, values)
+
+    monkeypatch.setattr(SimEeprom, "save_record", save_record)
+    return saved
+
+
+def _codes(d):
+    return [e["decision"] for e in d.journal.entries]
+
+
+def test_blank_board_then_a_payload_every_write_verified_and_within_budget(tmp_path, monkeypatch):
+    saved = _count_eeprom_writes(monkeypatch)
+    t = Tracked("seed=7&fault=hard_iron@50=30.5,-38.2,14.8")
+    d = t.run(tmp_path, 12500, recalibrate=True, write_burst=3)
+    t.assert_exactly_once()
+    k = d.tracking.keeper
+    assert k.writes >= 2 and k.failed == 0  # the first one, and the payload's
+    assert d.writer.count == k.writes and k.cycles == len(saved) == k.writes
+    assert k.writes <= 3 + 12500 / 100 / 86400 * 24  # the burst, and what 125 s of budget refill
+    np.testing.assert_allclose(d.drift.calibration.offset_ut, PAYLOAD, atol=0.6)
+    status, values = t.board.eeprom.load_record()
+    assert status == "OK" and values == record_from_calibration(d.drift.calibration)
+    codes = _codes(d)
+    assert Decision.KEEPING.value in codes and Decision.DRIFTED.value in codes
+    assert codes.count(Decision.WRITTEN.value) == k.writes
+    st = d.status()["keeping"]
+    assert st["writes"] == k.writes and st["eeprom_cycles"] == len(saved)
+
+
+def test_a_write_that_is_not_verified_is_charged_and_not_reported(tmp_path, monkeypatch):
+    saved = _count_eeprom_writes(monkeypatch)
+    t = Tracked("seed=7&fault=corrupt_write@0")
+    d = t.run(tmp_path, 6000, recalibrate=True)
+    k = d.tracking.keeper
+    assert k.failed >= 1 and d.faults["verify_mismatch"] >= 1
+    assert k.cycles == len(saved)  # the bad write and the restore both counted
+    assert k.writes == d.writer.count  # only verified writes are reported
+    if k.writes:
+        status, values = t.board.eeprom.load_record()
+        assert status == "OK" and values == record_from_calibration(d.drift.calibration)
+
+
+def test_no_write_without_recalibrate_and_the_keeper_resumes(tmp_path):
+    t = Tracked("seed=12")
+    d = t.run(tmp_path, 3000)  # recalibrate is off by default: nothing is written
+    assert d.tracking.keeper.writes == 0 and t.board.eeprom.load_record()[0] == "BLANK"
+    n = d.tracking.keeper.tracker.n
+    assert n == d.intake.samples
+    saved = StateFiles(tmp_path / "state").load()
+    assert saved["resume"]["keeping"]["tracker"]["n"] == n
+    again = Daemon(make_settings(t.url), state_dir=tmp_path / "state", max_samples=200,
+                   device_options=t.options(reply_timeout_s=0.25))
+    again.run()
+    assert again.tracking.keeper.tracker.n > n  # it went on from what it remembered
