@@ -16,8 +16,10 @@ ellipsoid up to date as samples arrive, with bounded memory and bounded time per
   (s², q) are the maximum-likelihood values on the buffer's own residuals. A still sensor gives
   q ≈ 0 and the buffer is one long memory; a wandering one gives q > 0 and weight 1/(1 + q a/s²).
 * **Solve: a few weighted Gauss–Newton steps** of the geometric (ML) residual
-  ``geometric.residual`` every ``refit_every`` samples, started from the previous solution, with
-  Huber weights against spikes. The model grows sphere → diagonal → full ellipsoid when the
+  ``geometric.residual`` every ``refit_every`` samples but at most once per ``refit_min_s`` of
+  sample time (the wander it follows lasts seconds to hours, so a faster sensor does not need
+  more refits a second: the cost per second of stream is bounded whatever the rate), started
+  from the previous solution, with Huber weights against spikes. The model grows sphere → diagonal → full ellipsoid when the
   buffer's coverage determines it (the information-matrix and shape-σ gates of ``pipeline``),
   checked at most every ``ladder_every`` samples.
 
@@ -61,6 +63,7 @@ class TrackerConfig:
     sectors: int = 16
     per_cell: int = 8
     refit_every: int = 20
+    refit_min_s: float = 0.4
     ladder_every: int = 200
     min_samples: int = 20
     min_share: float = 0.1
@@ -72,6 +75,8 @@ class TrackerConfig:
         for name in ints:
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"tracker {name} must be ≥ 1, not {getattr(self, name)!r}")
+        if not (math.isfinite(self.refit_min_s) and self.refit_min_s >= 0.0):
+            raise ValueError(f"tracker refit_min_s must be finite and ≥ 0, not {self.refit_min_s!r}")
         if not 0.0 <= self.min_share <= 1.0:
             raise ValueError(f"tracker min_share must be in [0, 1], not {self.min_share!r}")
 
@@ -249,6 +254,7 @@ class Tracker:
         self._last_ladder = -(10**18)
         self._cells_at_ladder = 0
         self._t_last = 0.0
+        self._t_refit = -math.inf  # sample time of the last refit
         self._sum = [0.0, 0.0, 0.0]
         self.n_used = 0
 
@@ -277,9 +283,9 @@ class Tracker:
         s[2] += z
         self.n_used += 1
         self._since_refit += 1
-        if self._since_refit < self.config.refit_every:
-            return None
-        self._since_refit = 0
+        if self._since_refit < self.config.refit_every or 0.0 <= t - self._t_refit < self.config.refit_min_s - 1e-6:
+            return None  # (times to 1 µs, below any sample clock's step; a clock that went back holds nothing off)
+        self._since_refit, self._t_refit = 0, t
         return self._refit()
 
     def add_many(self, m_ut, t_s) -> list[Estimate | Withdrawal]:
@@ -451,6 +457,7 @@ class Tracker:
             "model": self.kind, "theta": None if self.theta is None else self.theta.tolist(),
             "since_refit": self._since_refit, "damping": self._damping, "seq_at_refit": self._seq_at_refit,
             "last_ladder": self._last_ladder, "cells_at_ladder": self._cells_at_ladder, "t_last": self._t_last,
+            "t_refit": self._t_refit if math.isfinite(self._t_refit) else None,
             "estimate": None if self.estimate is None else self.estimate.to_dict(),
         }
 
@@ -473,6 +480,8 @@ class Tracker:
             trk._since_refit, trk._damping = int(d["since_refit"]), float(d["damping"])
             trk._seq_at_refit, trk._last_ladder = int(d["seq_at_refit"]), int(d["last_ladder"])
             trk._cells_at_ladder, trk._t_last = int(d["cells_at_ladder"]), float(d["t_last"])
+            t_refit = d.get("t_refit")  # (absent from states saved before the refit spacing)
+            trk._t_refit = -math.inf if t_refit is None else float(t_refit)
             trk.estimate = None if d["estimate"] is None else Estimate.from_dict(d["estimate"])
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"tracker state is malformed: {exc}") from None
