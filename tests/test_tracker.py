@@ -118,6 +118,20 @@ def test_wander_likelihood_finds_a_random_walk_and_not_a_per_visit_error():
     assert visits.solve()[1] == 0.0
 
 
+def test_a_faster_stream_is_refitted_no_more_often_in_time():
+    # 200 Hz: changes of the calibration in force come at most every refit_min_s, not every
+    # refit_every samples; at 50 Hz (20 samples = 0.4 s) every refit_every samples as before
+    for rate, gap_s in ((200.0, 0.4), (50.0, 0.4)):
+        _, m, t = _run(demo_scenario(3), int(30 * rate), rate)
+        events = Tracker().add_many(m, t)
+        gaps = np.diff([e.t_s for e in events])
+        assert len(events) > 20 and gaps.min() >= gap_s - 1e-6
+        if rate == 50.0:
+            assert np.all(np.diff([e.sample for e in events]) % 20 == 0)
+
+
 def test_config_refuses_nonsense():
+    with pytest.raises(ValueError, match="refit_min_s"):
+        TrackerConfig(refit_min_s=float("nan"))
     with pytest.raises(ValueError, match="per_cell"):
         TrackerConfig(per_cell=0)
