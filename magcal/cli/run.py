@@ -24,7 +24,8 @@ PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR
 def add_arguments(p) -> None:
     add(p, "port", "baud", "dialect", "config", "state_dir", "rate")
     p.add_argument("--recalibrate", action="store_true", default=None,
-                   help="collect, refit and write back when the calibration no longer fits (daemon.recalibrate)")
+                   help="write calibrations to the device (daemon.recalibrate): the tracker's when significantly "
+                        "better (daemon.keep: tracker), or a refit after the drift monitor rings (keep: alarm)")
     add(p, "count", help="stop after N collected samples (default: run until stopped)")
     add_alias(p, "--samples", dest="count", type=positive_int)
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"),

@@ -266,21 +266,15 @@ class Daemon:
     def _decide(self) -> None:
         """Ask the deciders whether to write a calibration now, and write what they solved."""
         if self.settings.daemon.keep == "tracker":
-            stored = self.tracking.poll(self.link.device, self.drift.calibration, self._may_write())
-            if stored is not None:
-                self.tracking.record_on(self.writer, stored)
-                self.drift.watch(stored, Decision.NEW_CALIBRATION)
-                self.save()
-            return
-        session = self.recalibrator.poll(self._may_write(), self.drift.wants_calibration)
-        if session is None:
-            return
-        stored = self.writer.write(self.link.device, session)
-        if stored is None:
-            self.writer.recheck(self.link.device, self.drift.calibration)
-            return
-        self.drift.watch(stored, Decision.NEW_CALIBRATION)
-        self.save()
+            stored = self.tracking.keep(self.link.device, self.drift.calibration, self._may_write(), self.writer)
+        else:
+            session = self.recalibrator.poll(self._may_write(), self.drift.wants_calibration)
+            stored = None if session is None else self.writer.write(self.link.device, session)
+            if session is not None and stored is None:
+                self.writer.recheck(self.link.device, self.drift.calibration)
+        if stored is not None:
+            self.drift.watch(stored, Decision.NEW_CALIBRATION)
+            self.save()
 
     # -- config reload ----------------------------------------------------------------------------------
     def reload(self) -> None:

@@ -91,6 +91,13 @@ class TrackingDecider:
                              message=result.message, previous_restored=result.restored)
         return None
 
+    def keep(self, device: Device | None, held: Calibration | None, may_write: bool, writer) -> Calibration | None:
+        """``poll``, and what was written recorded on the daemon's ``writer`` (``record_on``)."""
+        stored = self.poll(device, held, may_write)
+        if stored is not None:
+            self.record_on(writer, stored)
+        return stored
+
     def use(self, settings, keep_samples: bool) -> None:
         """New settings: new gates, budget and significance; what the tracker remembers stays,
         unless it belongs to another device."""
