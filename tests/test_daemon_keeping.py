@@ -31,13 +31,15 @@ def _codes(d):
 
 def test_blank_board_then_a_payload_every_write_verified_and_within_budget(tmp_path, monkeypatch):
     saved = _count_eeprom_writes(monkeypatch)
-    t = Tracked("seed=7&fault=hard_iron@50=30.5,-38.2,14.8")
-    d = t.run(tmp_path, 12500, recalibrate=True, write_burst=3)
+    # the payload after the drift monitor has learnt its baseline (about 60 s in), so that both
+    # the monitor's alarm and the tracker's restart are exercised
+    t = Tracked("seed=7&fault=hard_iron@70=30.5,-38.2,14.8")
+    d = t.run(tmp_path, 14000, recalibrate=True, write_burst=3)
     t.assert_exactly_once()
     k = d.tracking.keeper
     assert k.writes >= 2 and k.failed == 0  # the first one, and the payload's
     assert d.writer.count == k.writes and k.cycles == len(saved) == k.writes
-    assert k.writes <= 3 + 12500 / 100 / 86400 * 24  # the burst, and what 125 s of budget refill
+    assert k.writes <= 3 + 14000 / 100 / 86400 * 24  # the burst, and what 140 s of budget refill
     np.testing.assert_allclose(d.drift.calibration.offset_ut, PAYLOAD, atol=0.6)
     status, values = t.board.eeprom.load_record()
     assert status == "OK" and values == record_from_calibration(d.drift.calibration)
