@@ -114,9 +114,8 @@ class Daemon:
                                    options=device_options, tap=lambda: self.capture.writer,
                                    on_capture_error=self.capture.failed, clock=clock)
         self.drift = DriftWatcher(settings.daemon, self.journal, self.faults)
-        # the deciders: each may hand a solved session to the writer. The recalibrator writes
-        # after the calibration held stopped fitting; a decider that keeps the device
-        # calibrated all along (a tracker) goes beside it, in ``_decide``.
+        # the deciders (``daemon.keep``, ``_decide``): the tracker keeps the device calibrated all
+        # along; the recalibrator writes a refit after the calibration held stopped fitting.
         self.recalibrator = Recalibrator(settings, self.journal, self.faults)
         self.writer = CalibrationWriter(self.journal, self.faults, wall)
         self.tracking = TrackingDecider(settings, self.journal, self.faults, wall)
@@ -355,8 +354,7 @@ class Daemon:
             self.journal.record(Decision.STATE_OTHER_PORT, state_port=saved.port, port=self.settings.port)
             saved = saved.counters_only(Session(self.settings.gates, self.settings.model))
         self._restore(saved)
-        if saved.port == self.settings.port:
-            self.tracking.resume(data["resume"].get("keeping"))
+        self.tracking.resume(data["resume"].get("keeping") if saved.port == self.settings.port else None)
         self.journal.record(Decision.RESUMED, generation=saved.generation, samples=saved.samples,
                             source=self.keeper.loaded_from, note=self.keeper.load_note)
         if saved.replay_lines and scheme_of(self.settings.port) == "replay":
