@@ -102,13 +102,13 @@ def daemon(hours: float, seed: int, rate_hz: int) -> None:
     clock = {"t_s": 0.0}  # the board's simulated time of the last sample: the daemon's wall clock
     t0 = 1.8e9  # any epoch: only differences matter to the budget
     saves = []
-    real = SimEeprom.save_record
+    real = SimEeprom.put  # every EEPROM write of the board: a record, or the erase of one
 
-    def counted(self, values):
+    def counted(self, offset, payload):
         saves.append(clock["t_s"])
-        return real(self, values)
+        return real(self, offset, payload)
 
-    SimEeprom.save_record = counted
+    SimEeprom.put = counted
     n = int(hours * HOUR * rate_hz)
     with tempfile.TemporaryDirectory() as state_dir:
         settings = config.load(None, {"port": f"sim://?seed={seed}&pace=0&rate={rate_hz}", "rate_hz": rate_hz,
@@ -119,7 +119,7 @@ def daemon(hours: float, seed: int, rate_hz: int) -> None:
         c0 = cpu_s()
         d.run()
         cpu = cpu_s() - c0
-    SimEeprom.save_record = real
+    SimEeprom.put = real
     report_daemon(d, saves, hours, rate_hz, cpu)
 
 
@@ -129,9 +129,9 @@ def report_daemon(d, saves: list, hours: float, rate_hz: int, cpu: float) -> Non
     per_hour = np.bincount((np.asarray(saves) // HOUR).astype(int), minlength=int(np.ceil(hours)))
     print(f"\ndaemon: {d.intake.samples} samples ({d.intake.samples / rate_hz / HOUR:.2f} h at {rate_hz} Hz, "
           f"simulated), {cpu:.0f} s CPU")
-    print("EEPROM record writes the board counted, hour by hour: " + " ".join(str(int(x)) for x in per_hour))
+    print("EEPROM writes the board counted, hour by hour: " + " ".join(str(int(x)) for x in per_hour))
     print(f"keeper: {k.writes} writes verified by read-back, {k.failed} not verified; {k.cycles} EEPROM cycles "
-          f"charged; the board counted {len(saves)} EEPROM record writes")
+          f"charged; the board counted {len(saves)} EEPROM writes")
     allowed = b.burst + b.per_day * hours / 24
     worst_day = max((sum(1 for s in saves if w <= s < w + 86400) for w in saves), default=0)
     print(f"budget: {b.per_day:g}/day, burst {b.burst}: at most {allowed:.1f} in {hours:g} h; "

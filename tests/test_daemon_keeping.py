@@ -14,14 +14,15 @@ PAYLOAD = (30.5, -38.2, 14.8)
 
 
 def _count_eeprom_writes(monkeypatch):
+    """Every write the board makes to its EEPROM: a record, or the erase that discards one."""
     saved = []
-    real = SimEeprom.save_record
+    real = SimEeprom.put
 
-    def save_record(self, values):
-        saved.append(tuple(values))
-        return real(self, values)
+    def put(self, offset, payload):
+        saved.append(bytes(payload))
+        return real(self, offset, payload)
 
-    monkeypatch.setattr(SimEeprom, "save_record", save_record)
+    monkeypatch.setattr(SimEeprom, "put", put)
     return saved
 
 

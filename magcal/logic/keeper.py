@@ -17,8 +17,8 @@ write/erase cycles per cell. Every write rewrites the same record, so every writ
 keeper spends writes from a token bucket: ``per_day`` on average (default 24, one an hour —
 8 760 a year, 11 years to the rated endurance at the most the budget allows) with at most
 ``burst`` back to back (default 3, so a new payload can be followed by a couple of writes as the
-tracker settles). A write that had to be undone (``procedure.store_verified`` puts the previous
-record back) costs two cycles; the caller reports what it spent.
+tracker settles). A write that had to be undone (``procedure.write_verified`` puts the previous
+record back, or erases the failed one) costs two cycles; the caller reports what it spent.
 """
 
 from __future__ import annotations

@@ -82,8 +82,9 @@ class TrackingDecider:
             return None
         self._journal.record(Decision.KEEPING, reason=decision.reason.value, message=decision.message)
         result = write_verified(device, decision.calibration, clearance)
-        # a write command may have reached the EEPROM even when it failed; a restore is another
-        self.keeper.spent(now, 1 + int(bool(result.restored)), result.verified)
+        # a write command may have reached the EEPROM even when it failed; putting the old record
+        # back, or erasing the failed one, is another
+        self.keeper.spent(now, 1 + int(bool(result.restored) or result.discarded), result.verified)
         if result.verified:
             return result.stored
         self._faults[result.failure.value if result.failure else "write_failed"] += 1
