@@ -41,6 +41,7 @@ class Draws:
     noise: np.ndarray
     glitch_ut: np.ndarray
     wander_ut: np.ndarray
+    field_wander_ut: np.ndarray | None = None  # (n,): the field magnitude's wander
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,9 +77,13 @@ class SensorModel:
             raise ValueError("rate_hz must be positive")
 
     # -- the forward model ---------------------------------------------------------------
-    def radius_ut(self, u: np.ndarray, channels: Mapping[str, np.ndarray] | None) -> np.ndarray:
-        """|h| the sensor sees at directions ``u``: field, temperature gain, nonlinearity."""
+    def radius_ut(self, u: np.ndarray, channels: Mapping[str, np.ndarray] | None,
+                  field_wander_ut: np.ndarray | None = None) -> np.ndarray:
+        """|h| the sensor sees at directions ``u``: field (and its wander), temperature gain,
+        nonlinearity."""
         r = np.full(len(u), self.calibration.field_ut)
+        if field_wander_ut is not None:
+            r = r + field_wander_ut
         if self.temp_gain_per_c and channels is not None and TEMP in channels:
             r = r * (1.0 + self.temp_gain_per_c * (np.asarray(channels[TEMP], np.float64) - self.temp_ref_c))
         if any(self.nonlinearity_ut):
@@ -88,7 +93,7 @@ class SensorModel:
     def distort(self, u, channels: Mapping[str, np.ndarray] | None, draws: Draws) -> tuple[np.ndarray, np.ndarray]:
         """What the sensor reports for unit directions ``u`` (n, 3): (m (n, 3) µT, valid (n,))."""
         u = np.atleast_2d(np.asarray(u, dtype=np.float64))
-        h = self.radius_ut(u, channels)[:, None] * u
+        h = self.radius_ut(u, channels, draws.field_wander_ut)[:, None] * u
         m = self.calibration.distort(h, channels)
         m = m + draws.wander_ut + draws.glitch_ut + np.asarray(self.noise_ut) * draws.noise
         valid = np.ones(len(m), bool)
@@ -103,9 +108,9 @@ class SensorModel:
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x51D])
         noise = rng.standard_normal((len(t), 3))
         order = np.argsort(t, kind="stable")
-        path = np.empty((len(t), 3))
-        path[order] = wander_mod.draw_path(self.wander, rng, t[order])
-        return Draws(noise, glitches(rng, len(t), self.glitch_rate, self.glitch_ut), path)
+        path, field = np.empty((len(t), 3)), np.empty(len(t))
+        path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
+        return Draws(noise, glitches(rng, len(t), self.glitch_rate, self.glitch_ut), path, field)
 
     def simulate(self, u, t_s, channels: Mapping[str, np.ndarray] | None, seed: int):
         """(m, valid) for directions ``u`` at times ``t_s``: the twin of a recording."""
@@ -117,11 +122,12 @@ class SensorModel:
         return h / np.linalg.norm(h, axis=1, keepdims=True)
 
     def without(self, effect: str) -> "SensorModel":
-        """This model with one effect removed (``wander``, ``nonlinearity``, ``glitches``,
+        """This model with one effect removed (``wander``, ``field_wander``, ``nonlinearity``, ``glitches``,
         ``soft_iron``, ``temperature_gain``, ``saturation``, ``quantum`` or a channel name)."""
         cal = self.calibration
-        if effect == "wander":
-            return replace(self, wander=())
+        if effect in ("wander", "field_wander"):
+            frame = wander_mod.OFFSET if effect == "wander" else wander_mod.FIELD
+            return replace(self, wander=tuple(c for c in self.wander if c.frame != frame))
         if effect == "nonlinearity":
             return replace(self, nonlinearity_ut=(0.0,) * len(directions.NAMES))
         if effect == "glitches":
@@ -149,7 +155,9 @@ class SensorModel:
         if np.max(np.abs(w / np.cbrt(np.linalg.det(w)) - np.eye(3))) > 1e-9:
             out.append("soft_iron")
         out += list(self.calibration.coef_ut_per_unit)
-        out += ["wander"] if self.wander else []
+        offset, field = wander_mod.split(self.wander)
+        out += ["wander"] if offset else []
+        out += ["field_wander"] if field else []
         out += ["nonlinearity"] if any(self.nonlinearity_ut) else []
         out += ["glitches"] if self.glitch_rate > 0 else []
         out += ["temperature_gain"] if self.temp_gain_per_c else []

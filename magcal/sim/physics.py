@@ -240,7 +240,8 @@ class Scenario:
         h = self.earth_body_ut(t)
         u = h / np.linalg.norm(h, axis=1, keepdims=True)
         noise, glitch = self._noise_glitch(k, sensor)
-        draws = Draws(noise=noise, glitch_ut=glitch, wander_ut=wander_mod.draw(sensor.wander, self.seed, t))
+        offset, field = wander_mod.draw(sensor.wander, self.seed, t)
+        draws = Draws(noise=noise, glitch_ut=glitch, wander_ut=offset, field_wander_ut=field)
         m, _ = sensor.distort(u, self.channels(t), draws)
         return m, glitch
 

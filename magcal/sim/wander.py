@@ -1,30 +1,41 @@
-"""The offset wander: a sum of Ornstein–Uhlenbeck processes, drawn and fitted.
+"""Slow, correlated departures of the reading: the offset wander and the field wander.
 
-Real residuals are not white (docs/sensor-model.md): the offset moves slowly — temperature
-the sensor does not report, a magnetised part relaxing, the hand's own iron. The model is a sum
-of independent components, each an Ornstein–Uhlenbeck process per sensor axis with stationary
-standard deviation ``sigma_ut`` and correlation time ``tau_s``::
+Real residuals are not white (docs/sensor-model.md). Two processes, each a sum of independent
+stationary Gaussian components:
 
-    cov(w(t), w(t + Δ)) = Σ_k σ_k² exp(−|Δ| / τ_k)
+* the **offset wander** (``frame="offset"``): a vector in the sensor frame added to every
+  reading — temperature the sensor does not report, a magnetised part relaxing. The radial
+  residual sees it through the field direction, u·w(t).
+* the **field wander** (``frame="field"``): a change of the field's magnitude — the board
+  carried through a field gradient, iron moving nearby. The radial residual sees all of it,
+  whatever the direction.
 
-A component with τ far beyond the recording is a random walk there; one with τ near the
-sample period is coloured noise (a sensor's own low-pass filter).
+A component's spectrum is either an Ornstein–Uhlenbeck (Lorentzian) one, correlation time
+``tau_s``::
+
+    cov(w(t), w(t + Δ)) = σ² exp(−|Δ| / τ)
+
+or flat between two frequencies, ``band_hz = (f_lo, f_hi)``::
+
+    cov(w(t), w(t + Δ)) = σ² [sin 2πf_hiΔ − sin 2πf_loΔ] / (2π (f_hi − f_lo) Δ)
+
+A sum of band components over log-spaced bands is a fitted spectrum of any shape (a hump where
+the hand's motion lives, a steep fall above it, a narrow line); that is what ``fit`` learns.
 
 Drawing, two samplers of the one process: ``draw`` synthesises each component from its
-spectrum as a sum of cosines whose angular frequencies are stratified quantiles of the
-Lorentzian (ω = tan(π q / 2) / τ), random phases, equal amplitudes σ·√(2/K) — the covariance is
-exactly the OU covariance in expectation, and every value is a function of (seed, t) alone, so
-the simulated board can be sampled at any time, in any order, and reproduced. ``draw_path``
-runs the exact AR(1) recursion of each component along a whole stream (a twin of a recording,
-whose times are known at once), which is faster for long streams.
+spectrum as a sum of cosines (frequencies at stratified quantiles of the spectrum, random
+phases, equal amplitudes σ·√(2/K)): every value is a function of (seed, t) alone, so the
+simulated board can be sampled at any time, in any order, and reproduced. ``draw_path`` makes
+a whole stream at once (a twin of a recording): the exact AR(1) recursion for an OU component,
+Fourier synthesis on a padded grid for the band components.
 
-Fitting (``fit``): the radial residual e_i = |h_i| − r of a recording sees the offset wander
-through the field direction, e_i ≈ u_i · w(t_i) + white noise, so its autocovariance at lag L is
-
-    c(L) ≈ s_white δ_L + Σ_k σ_k² exp(−Δt_L / τ_k) · g(L),    g(L) = mean(u_i · u_{i+L})
-
-with g measured from the recording's own directions. Non-negative least squares over a fixed
-grid of τ (a fitted spectrum) gives the σ_k; components that carry little variance are dropped.
+Fitting (``fit``): the radial residual e_i of a recording after its calibration is refitted
+is, to first order, u_i·w(t_i) + f(t_i) + white noise, less what the refit absorbs. Each
+candidate component (every band, in each frame) is drawn with unit σ on the recording's own
+times and directions and projected as the refit would; its mean periodogram in log-spaced
+frequency bins is its spectrum as the residual shows it (simulated moments). The variances
+σ_k² ≥ 0 and the white variance maximise the Whittle likelihood of the residual's binned
+periodogram; components carrying little variance are dropped.
 """
 
 from __future__ import annotations
@@ -32,175 +43,258 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
-from scipy.optimize import minimize, nnls
+from scipy import fft as sfft, signal
+from scipy.optimize import nnls
 
-K_COSINES = 48  # cosines per component and axis
-MIN_SHARE = 0.02  # a component carrying less than this share of the fitted variance is dropped
+K_COSINES = 48  # cosines per component and axis (``draw``)
+MIN_SHARE = 0.01  # a component carrying less than this share of the fitted variance is dropped
+MIN_LEFT = 0.25  # a candidate the calibration refit absorbs beyond this share is not identifiable
+OFFSET, FIELD = "offset", "field"
+BANDS_PER_DECADE = 4
+FIELD_TOP = 0.25  # the field wander's highest band ends at this share of the Nyquist frequency
+MAX_GRID = 1 << 22  # points of the Fourier grid of draw_path
 
 
 @dataclass(frozen=True)
 class Wander:
-    """One OU component of the offset: stationary σ per sensor axis (µT), correlation time (s)."""
+    """One component: stationary σ (µT; per sensor axis for the offset, of |field| for the
+    field), and its spectrum — an OU correlation time ``tau_s`` or a flat band ``band_hz``."""
 
     sigma_ut: tuple
-    tau_s: float
+    tau_s: float | None = None
+    band_hz: tuple | None = None
+    frame: str = OFFSET
 
     def __post_init__(self):
         s = tuple(float(v) for v in np.broadcast_to(np.asarray(self.sigma_ut, dtype=np.float64), (3,)))
         object.__setattr__(self, "sigma_ut", s)
-        object.__setattr__(self, "tau_s", float(self.tau_s))
         if not (np.all(np.isfinite(s)) and min(s) >= 0):
             raise ValueError(f"wander sigma_ut must be finite and ≥ 0, got {s}")
-        if not (np.isfinite(self.tau_s) and self.tau_s > 0):
-            raise ValueError(f"wander tau_s must be positive, got {self.tau_s}")
+        if self.frame not in (OFFSET, FIELD):
+            raise ValueError(f"wander frame must be {OFFSET!r} or {FIELD!r}, got {self.frame!r}")
+        if self.frame == FIELD and len(set(s)) != 1:
+            raise ValueError("a field wander has one sigma_ut (the field's magnitude)")
+        if (self.tau_s is None) == (self.band_hz is None):
+            raise ValueError("a wander component has either tau_s (OU) or band_hz (a flat band)")
+        if self.tau_s is not None:
+            object.__setattr__(self, "tau_s", float(self.tau_s))
+            if not (np.isfinite(self.tau_s) and self.tau_s > 0):
+                raise ValueError(f"wander tau_s must be positive, got {self.tau_s}")
+        else:
+            lo, hi = (float(v) for v in self.band_hz)
+            if not (np.isfinite(hi) and 0 <= lo < hi):
+                raise ValueError(f"wander band_hz must be 0 ≤ low < high, got {[lo, hi]}")
+            object.__setattr__(self, "band_hz", (lo, hi))
+
+    @property
+    def variance(self) -> float:
+        """Mean variance per axis (µT²)."""
+        return float(np.mean(np.square(self.sigma_ut)))
+
+    def correlation(self, lag_s) -> np.ndarray:
+        """cov(w(t), w(t + lag)) / σ²."""
+        d = np.abs(np.asarray(lag_s, dtype=np.float64))
+        if self.tau_s is not None:
+            return np.exp(-d / self.tau_s)
+        lo, hi = self.band_hz
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = (np.sin(2 * np.pi * hi * d) - np.sin(2 * np.pi * lo * d)) / (2 * np.pi * (hi - lo) * d)
+        return np.where(d == 0, 1.0, c)
 
     def to_dict(self) -> dict:
-        return {"sigma_ut": list(self.sigma_ut), "tau_s": self.tau_s}
+        d = {"sigma_ut": self.sigma_ut[0] if self.frame == FIELD else list(self.sigma_ut)}
+        d.update({"tau_s": self.tau_s} if self.tau_s is not None else {"band_hz": list(self.band_hz)})
+        if self.frame != OFFSET:
+            d["frame"] = self.frame
+        return d
 
     @classmethod
     def from_dict(cls, d) -> "Wander":
-        return cls(sigma_ut=d["sigma_ut"], tau_s=d["tau_s"])
+        return cls(sigma_ut=d["sigma_ut"], tau_s=d.get("tau_s"), band_hz=d.get("band_hz"),
+                   frame=d.get("frame", OFFSET))
 
 
-def _spectrum(seed: int, index: int, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
+def split(components) -> tuple[tuple, tuple]:
+    """(offset components, field components)."""
+    comps = tuple(components)
+    return tuple(c for c in comps if c.frame == OFFSET), tuple(c for c in comps if c.frame == FIELD)
+
+
+# -- drawing: random access (a function of seed and t) ----------------------------------------
+def _frequencies(seed: int, index: int, c: Wander) -> tuple[np.ndarray, np.ndarray]:
     """(3, K) angular frequencies and phases of one component (a function of seed and index)."""
     rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x3A9D, index])
     q = (np.arange(K_COSINES)[None, :] + rng.random((3, K_COSINES))) / K_COSINES
-    omega = np.tan(0.5 * np.pi * q) / tau_s
+    if c.tau_s is not None:
+        omega = np.tan(0.5 * np.pi * q) / c.tau_s  # quantiles of the Lorentzian
+    else:
+        lo, hi = c.band_hz
+        omega = 2 * np.pi * (lo + (hi - lo) * q)
     phase = rng.uniform(0, 2 * np.pi, (3, K_COSINES))
     return omega, phase
 
 
-def draw(components, seed: int, t_s, chunk: int = 8192) -> np.ndarray:
-    """The wander (n, 3) µT at times ``t_s``: a deterministic function of (seed, t)."""
+def draw(components, seed: int, t_s, chunk: int = 8192) -> tuple[np.ndarray, np.ndarray]:
+    """(offset (n, 3), field (n,)) µT at times ``t_s``: a deterministic function of (seed, t)."""
     t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
     out = np.zeros((len(t), 3))
+    field = np.zeros(len(t))
     for j, c in enumerate(components):
-        omega, phase = _spectrum(seed, j, c.tau_s)
+        omega, phase = _frequencies(seed, j, c)
         amp = np.asarray(c.sigma_ut) * np.sqrt(2.0 / K_COSINES)
-        for a in range(3):
+        for a in range(3 if c.frame == OFFSET else 1):
             if amp[a] == 0:
                 continue
+            target = out[:, a] if c.frame == OFFSET else field
             for s in range(0, len(t), chunk):
                 tt = t[s : s + chunk, None]
-                out[s : s + chunk, a] += amp[a] * np.cos(tt * omega[a] + phase[a]).sum(axis=1)
-    return out
+                target[s : s + chunk] += amp[a] * np.cos(tt * omega[a] + phase[a]).sum(axis=1)
+    return out, field
 
 
-def draw_path(components, rng: np.random.Generator, t_s) -> np.ndarray:
-    """The wander (n, 3) µT along a whole stream at once (times ascending): each component an
-    exact AR(1) recursion on a uniform grid fine enough for its τ, read at ``t_s`` by linear
-    interpolation. Same process as ``draw``, faster for long streams; not random access."""
+# -- drawing: a whole stream ---------------------------------------------------------------
+def draw_path(components, rng: np.random.Generator, t_s) -> tuple[np.ndarray, np.ndarray]:
+    """(offset (n, 3), field (n,)) µT along a whole stream (times ascending): an exact AR(1)
+    recursion per OU component, Fourier synthesis for the band components; read at ``t_s`` by
+    linear interpolation. Same processes as ``draw``, faster for long streams; not random
+    access."""
     t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
-    out = np.zeros((len(t), 3))
+    out = np.zeros((len(t), 4))  # offset x, y, z and the field
     if len(t) == 0 or not components:
-        return out
+        return out[:, :3], out[:, 3]
+    for c in components:
+        if c.tau_s is not None:
+            cols = [0, 1, 2] if c.frame == OFFSET else [3]
+            x = _ou_path(c.tau_s, rng, t, len(cols))
+            out[:, cols] += x * np.asarray(c.sigma_ut)[: len(cols)]
+    bands = [c for c in components if c.band_hz is not None]
+    if bands:
+        out += _band_paths(bands, rng, t)
+    return out[:, :3], out[:, 3]
+
+
+def _ou_path(tau_s: float, rng: np.random.Generator, t: np.ndarray, k: int) -> np.ndarray:
+    """(n, k) unit-variance OU paths at times t."""
     span = float(t[-1] - t[0])
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
-    for c in components:
-        step = max(min(dt, c.tau_s / 4.0), span / 2_000_000, 1e-9)
-        n = int(np.ceil(span / step)) + 2
-        a = np.exp(-step / c.tau_s)
-        z = rng.standard_normal((n, 3)) * np.sqrt(1.0 - a * a)
-        z[0] = rng.standard_normal(3)  # start in the stationary distribution
-        x = signal.lfilter([1.0], [1.0, -a], z, axis=0)
-        grid = t[0] + step * np.arange(n)
-        for k in range(3):
-            out[:, k] += c.sigma_ut[k] * np.interp(t, grid, x[:, k])
-    return out
+    step = max(min(dt, tau_s / 16.0), span / 2_000_000, 1e-9)
+    n = int(np.ceil(span / step)) + 2
+    a = np.exp(-step / tau_s)
+    z = rng.standard_normal((n, k)) * np.sqrt(1.0 - a * a)
+    z[0] = rng.standard_normal(k)  # start in the stationary distribution
+    x = signal.lfilter([1.0], [1.0, -a], z, axis=0)
+    grid = t[0] + step * np.arange(n)
+    return np.column_stack([np.interp(t, grid, x[:, i]) for i in range(k)])
 
 
-def lag_grid(n: int, most: int = 28) -> np.ndarray:
-    """Lags 0, 1, 2, … roughly log-spaced up to n/4."""
-    top = max(2, n // 4)
-    lags = np.unique(np.round(np.geomspace(1, top, most)).astype(np.int64))
-    return np.concatenate([[0], lags])
+def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
+    """(n, 4) the band components' sum (offset x, y, z; field) by Fourier synthesis on a grid
+    twice the stream's span (so the periodic wrap does not correlate its ends)."""
+    span = max(float(t[-1] - t[0]), 1e-6)
+    top = max(c.band_hz[1] for c in bands)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else span
+    # fine enough that reading the grid by linear interpolation keeps the variance (16 points
+    # to the shortest period), and the sample period divided evenly (uniform samples sit on it)
+    step = max(dt / max(1, int(np.ceil(16.0 * top * dt))), 4.0 * span / MAX_GRID)
+    size = int(sfft.next_fast_len(int(np.ceil(2.0 * span / step)) + 2, real=True))
+    freqs = np.fft.rfftfreq(size, step)
+    spec = np.zeros((len(freqs), 4), dtype=complex)
+    for c in bands:
+        lo, hi = c.band_hz
+        idx = np.flatnonzero((freqs >= lo) & (freqs < hi) & (freqs > 0))
+        if not len(idx):  # narrower than the grid resolves: its nearest frequency
+            idx = np.array([max(1, int(np.argmin(np.abs(freqs - 0.5 * (lo + hi)))))])
+        cols = [0, 1, 2] if c.frame == OFFSET else [3]
+        sig = np.asarray(c.sigma_ut)[: len(cols)] / np.sqrt(len(idx))
+        z = rng.standard_normal((len(idx), len(cols))) - 1j * rng.standard_normal((len(idx), len(cols)))
+        spec[np.ix_(idx, cols)] += z * sig * (size / 2.0)
+    grid = np.fft.irfft(spec, n=size, axis=0)
+    x = t[0] + step * np.arange(size)
+    return np.column_stack([np.interp(t, x, grid[:, i]) for i in range(4)])
 
 
-def autocovariance(e: np.ndarray, lags: np.ndarray) -> np.ndarray:
-    e = e - e.mean()
-    n = len(e)
-    return np.array([float(e[: n - k] @ e[k:]) / (n - k) for k in lags])
+# -- fitting -------------------------------------------------------------------------------
+def band_edges(dt_s: float, duration_s: float) -> np.ndarray:
+    """Log-spaced band edges from half a cycle per recording to the Nyquist frequency,
+    BANDS_PER_DECADE to a decade."""
+    lo, hi = 0.5 / max(duration_s, dt_s), 0.5 / dt_s
+    k = max(2, int(np.ceil(BANDS_PER_DECADE * np.log10(hi / lo))))
+    return np.geomspace(lo, hi, k + 1)
 
 
-def direction_overlap(u: np.ndarray, lags: np.ndarray) -> np.ndarray:
-    n = len(u)
-    return np.array([float(np.einsum("ij,ij->", u[: n - k], u[k:])) / (n - k) for k in lags])
-
-
-def tau_grid(dt_s: float, duration_s: float) -> np.ndarray:
-    """Correlation times from two sample periods to three recording lengths."""
-    lo, hi = 2.0 * dt_s, 3.0 * duration_s
-    return np.geomspace(lo, max(hi, 4 * lo), 14)
-
-
-def _binned_periodogram(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+def _binned_periodogram(x: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     p = np.abs(np.fft.rfft(x - x.mean())) ** 2 / len(x)
     k = np.arange(len(p))
-    sums = np.bincount(np.digitize(k, edges), weights=p, minlength=len(edges) + 1)
-    counts = np.bincount(np.digitize(k, edges), minlength=len(edges) + 1)
+    which = np.digitize(k, edges)
+    sums = np.bincount(which, weights=p, minlength=len(edges) + 1)
+    counts = np.bincount(which, minlength=len(edges) + 1)
     return (sums / np.maximum(counts, 1))[1:-1], counts[1:-1]
 
 
-def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 12, 13)) -> tuple[tuple[Wander, ...], float]:
+def candidates(dt_s: float, duration_s: float, frames=(OFFSET, FIELD)) -> list[Wander]:
+    """Unit-σ band components in each frame: the columns of the fit. The offset's bands reach
+    the Nyquist frequency (a sensor's own filter colours its noise there); the field's stop at
+    a quarter of it (the surroundings change slowly)."""
+    e = band_edges(dt_s, duration_s)
+    top = {OFFSET: np.inf, FIELD: FIELD_TOP * 0.5 / dt_s}
+    return [Wander(1.0, band_hz=(lo, hi), frame=f) for f in frames for lo, hi in zip(e[:-1], e[1:])
+            if hi <= top[f] * (1 + 1e-9)]
+
+
+def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 12, 13),
+        frames=(OFFSET, FIELD)) -> tuple[tuple[Wander, ...], float]:
     """Fit the wander components and the white radial variance to a radial residual.
 
     ``project`` maps a raw radial series to what is left of it after the calibration model
-    is refitted (a linear projection). Each candidate component (a grid of τ) is drawn with unit
-    σ on the recording's own times and directions and projected the same way; its mean
-    periodogram, in log-spaced frequency bands, is that component's spectrum as the residual
-    shows it (simulated moments: what the calibration fit absorbs is accounted for). The
-    variances σ_k² ≥ 0 and the white variance minimise the Whittle likelihood of the residual's
-    banded periodogram. Returns (components, white_var_ut2). The components are isotropic:
-    the radial residual sees only u·w, so the split between axes is not observable."""
+    is refitted (a linear projection). Each candidate is drawn with unit σ on the recording's
+    own times and directions and projected the same way; its mean binned periodogram is its
+    spectrum as the residual shows it (what the calibration fit absorbs is accounted for).
+    The variances ≥ 0 maximise the Whittle likelihood of the residual's binned periodogram.
+    Returns (components, white_var_ut2). Offset components are isotropic: the radial residual
+    sees only u·w, so the split between axes is not observable."""
     n = len(e)
     project = project or (lambda x: x - x.mean())
     dt = float(np.median(np.diff(t_s))) if n > 1 else 1.0
-    taus = tau_grid(dt, float(t_s[-1] - t_s[0]) if n > 1 else dt)
-    edges = np.unique(np.round(np.geomspace(1, n // 2 + 1, 40)).astype(np.int64))
-    target, counts = _binned_periodogram(e, edges)
-    cols = []
-    for j, tau in enumerate([None, *taus]):
-        spec = []
+    cands = candidates(dt, float(t_s[-1] - t_s[0]) if n > 1 else dt, frames)
+    bins = np.unique(np.round(np.geomspace(1, n // 2 + 1, 48)).astype(np.int64))
+    target, counts = _binned_periodogram(e, bins)
+    cols, kept = [], []
+    for j, c in enumerate([None, *cands]):
+        spec, left = [], []
         for s in seeds:
             rng = np.random.default_rng([s, j])
-            x = rng.standard_normal(n) if tau is None else np.einsum("ij,ij->i", u, draw_path((Wander(1.0, tau),), rng, t_s))
-            spec.append(_binned_periodogram(project(x), edges)[0])
-        cols.append(np.mean(spec, axis=0))
+            if c is None:
+                x = rng.standard_normal(n)
+            else:
+                off, fld = draw_path((c,), rng, t_s)
+                x = np.einsum("ij,ij->i", u, off) if c.frame == OFFSET else fld
+            px = project(x)
+            left.append(float(px @ px) / max(float(x @ x), 1e-300))
+            spec.append(_binned_periodogram(px, bins)[0])
+        if c is None or np.mean(left) >= MIN_LEFT:
+            cols.append(np.mean(spec, axis=0))
+            kept.append(c)
+    cands = kept[1:]
     design = np.column_stack(cols)
-    ok = (counts > 0) & np.all(design > 0, axis=1) & (target > 0)
+    ok = (counts > 0) & (design[:, 0] > 0) & (target > 0)
     coef = _whittle(design[ok], target[ok], counts[ok])
     white, var = float(coef[0]), coef[1:]
-    total = var.sum()
-    comps = tuple(Wander(sigma_ut=np.sqrt(v), tau_s=tau) for v, tau in zip(var, taus)
+    total = var.sum() + white
+    comps = tuple(Wander(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c in zip(var, cands)
                   if total > 0 and v > MIN_SHARE * total)
     return comps, white
 
 
-def _whittle(design: np.ndarray, target: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Non-negative weights w minimising Σ_b m_b (log S_b + Ī_b / S_b), S = design @ w."""
-    start, _ = nnls(design / target[:, None], np.ones(len(target)))
-    start = np.maximum(start, 1e-6 * max(start.max(), 1e-12))
-
-    def cost(z):
-        w = np.exp(z)
-        spec = design @ w
-        r = target / spec
-        grad = design.T @ (counts * (1.0 - r) / spec) * w
-        return float(np.sum(counts * (np.log(spec) + r))), grad
-
-    white = np.full(len(start), 1e-6 * max(start.max(), 1e-12))
-    white[0] = float(np.mean(target / design[:, 0]))
-    best = None
-    for z0 in (np.log(start), np.log(white)):  # two starts: the linear fit, and white noise alone
-        res = minimize(cost, z0, jac=True, method="L-BFGS-B", bounds=[(-60.0, 60.0)] * len(start))
-        if best is None or res.fun < best.fun:
-            best = res
-    return np.exp(best.x)
-
-
-def scaled(components, factors) -> tuple[Wander, ...]:
-    """The components with each σ² multiplied by the matching factor."""
-    return tuple(Wander(sigma_ut=np.asarray(c.sigma_ut) * np.sqrt(max(f, 0.0)), tau_s=c.tau_s)
-                 for c, f in zip(components, factors))
+def _whittle(design: np.ndarray, target: np.ndarray, counts: np.ndarray, rounds: int = 30) -> np.ndarray:
+    """Non-negative weights w maximising the Whittle likelihood Σ_b m_b (log S_b + Ī_b / S_b),
+    S = design @ w: Fisher scoring (iteratively reweighted non-negative least squares, weights
+    √m_b / S_b), started from the fit in relative error."""
+    w = nnls(design * (np.sqrt(counts) / target)[:, None], np.sqrt(counts))[0]
+    for _ in range(rounds):
+        spec = np.maximum(design @ w, 1e-12 * float(np.max(target)))
+        wt = np.sqrt(counts) / spec
+        new = nnls(design * wt[:, None], target * wt)[0]
+        if np.allclose(new, w, rtol=1e-6, atol=1e-12 * max(float(new.max()), 1e-300)):
+            return new
+        w = new
+    return w
