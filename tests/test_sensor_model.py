@@ -61,17 +61,17 @@ def test_a_malformed_model_file_is_refused_with_the_problem_named(tmp_path):
 def test_wander_is_a_function_of_seed_and_time_alone():
     comps = (Wander(0.5, 3.0),)
     t = np.linspace(0, 60, 3001)
-    a = wander.draw(comps, 7, t)
+    a = wander.draw(comps, 7, t)[0]
     shuffled = np.random.default_rng(0).permutation(len(t))
-    b = wander.draw(comps, 7, t[shuffled])
+    b = wander.draw(comps, 7, t[shuffled])[0]
     assert np.allclose(a[shuffled], b)
-    assert not np.allclose(a, wander.draw(comps, 8, t))
+    assert not np.allclose(a, wander.draw(comps, 8, t)[0])
 
 
 def test_wander_has_the_ou_variance_and_correlation_time():
     comps = (Wander(0.5, 3.0),)
     t = np.array([0.0, 3.0])
-    x = np.array([wander.draw(comps, s, t) for s in range(600)])  # (seeds, 2, 3)
+    x = np.array([wander.draw(comps, s, t)[0] for s in range(600)])  # (seeds, 2, 3)
     var = x[:, 0, :].var()
     corr = np.mean(x[:, 0, :] * x[:, 1, :]) / var
     assert 0.25 * 0.85 < var < 0.25 * 1.15
@@ -131,7 +131,7 @@ def test_model_dict_is_json_with_units_in_its_keys():
     for key in ("offset_ut", "field_ut", "noise_ut", "quantum_ut", "temp_gain_per_c", "saturation_ut", "rate_hz"):
         assert key in d
     assert d["wander"][0].keys() == {"sigma_ut", "tau_s"}
-    assert d["glitches"].keys() == {"rate_per_sample", "size_ut"}
+    assert d["glitches"].keys() == {"rate_per_sample", "size_ut", "axis_share"}
 
 
 def test_a_model_that_cannot_be_written_is_a_named_error(tmp_path):

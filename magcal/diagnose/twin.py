@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
+from scipy import ndimage
 
 from ..core.calibration import Calibration
 from ..fit.ellipsoid import fit_ellipsoid
@@ -42,7 +43,8 @@ BAND = (2.5, 97.5)
 FOLDS = 5
 BLOCKS = 40
 CV_GAIN = 0.01  # a term must cut the held-out residual energy by at least 1 %
-GLITCH_Z = 5.0
+GLITCH_Z = 4.5  # a glitch departs from its neighbours by this many local noise σ
+P0_AXIS = 0.15  # chance that a random direction puts ≥ 90 % of its square on one axis (3 × (1 − √0.9))
 # channels that follow the orientation or are the magnetometer itself: not offered as couplings
 ORIENTATION_WORDS = ("mag", "acc", "gyro", "quat", "roll", "pitch", "yaw", "bias", "att")
 
@@ -142,18 +144,56 @@ def _axis_noise(m: np.ndarray, white_var: float, u: np.ndarray, q: tuple) -> tup
     return tuple(float(v) for v in shape * np.sqrt(level))
 
 
-def _glitches(m: np.ndarray, e: np.ndarray) -> tuple[float, tuple, np.ndarray]:
-    """Glitches: jumps of the trajectory (``twin_stats.jumps``) that also leave the sphere
-    (radial residual beyond GLITCH_Z robust σ). A jump along the sphere is motion or timing,
-    which a twin driven by the recording's own directions replays anyway. Sizes: twice the
-    radial part (a random direction's mean radial share is one half)."""
-    sigma = 1.4826 * float(np.median(np.abs(e - np.median(e))))
-    hit = ts.jumps(m) & (np.abs(e - np.median(e)) > GLITCH_Z * max(sigma, 1e-9))
-    if not hit.any():
-        return 0.0, (4.0, 15.0), hit
-    size = 2.0 * np.abs(e[hit] - np.median(e))
-    lo, hi = np.quantile(size, [0.1, 0.9]) if len(size) > 2 else (size.min(), size.max())
-    return float(np.mean(hit)), (float(lo), float(max(hi, lo))), hit
+def spikes(m: np.ndarray, z: float | None = None) -> np.ndarray:
+    """One-sample glitches: samples that depart from their neighbours' mean by more than
+    ``z`` (GLITCH_Z) times the local noise on some axis (a running median of the departures
+    over ±LOCAL samples, so fast motion raises the bar), the largest of a run, and after which
+    the trajectory comes back — the neighbours agree with each other better than the sample
+    agrees with them. A kink that does not come back is the motion's own (a twin driven by the
+    recording's directions replays it)."""
+    z = GLITCH_Z if z is None else z
+    hit = np.zeros(len(m), bool)
+    if len(m) < 5:
+        return hit
+    g = m[1:-1] - 0.5 * (m[:-2] + m[2:])
+    a = np.abs(g - np.median(g, axis=0))
+    local = ndimage.median_filter(a, size=(2 * ts.LOCAL + 1, 1), mode="nearest") / 0.6745
+    floor = np.maximum(np.median(a, axis=0) / 0.6745, 1e-9)
+    score = np.max(a / np.maximum(local, 0.25 * floor), axis=1)
+    peak = (score > z) & (score >= np.roll(score, 1)) & (score >= np.roll(score, -1))
+    back = np.linalg.norm(m[2:] - m[:-2], axis=1) < np.linalg.norm(g, axis=1)
+    hit[1:-1] = peak & back
+    return hit
+
+
+def _glitches(m: np.ndarray) -> tuple[float, tuple, float, np.ndarray]:
+    """(rate per sample, size range µT, share along one sensor axis, the samples): the spikes
+    of the trajectory, each glitch the sample's departure from its neighbours' mean. Sizes:
+    the 10–90 % range of those seen (drawn log-uniform between). Axis share: the share of glitches with ≥ 90 % of their
+    square on one axis, less the share a random direction would put there (P0_AXIS)."""
+    hit = spikes(m)
+    k = np.flatnonzero(hit)
+    if not len(k):
+        return 0.0, (4.0, 15.0), 0.0, hit
+    g = m[k] - 0.5 * (m[k - 1] + m[k + 1])
+    size = np.linalg.norm(g, axis=1)
+    lo, hi = np.quantile(size, [0.05, 0.95]) if len(size) > 4 else (size.min(), size.max())
+    one_axis = float(np.mean(np.max(g * g, axis=1) >= 0.9 * size**2))
+    share = float(np.clip((one_axis - P0_AXIS) / (1.0 - P0_AXIS), 0.0, 1.0))
+    return float(np.mean(hit)), (float(lo), float(max(hi, lo))), share, hit
+
+
+def twin_directions(model: SensorModel, series: Series) -> np.ndarray:
+    """The field directions (n, 3) behind a recording, through the model's inverse, with each
+    glitch sample replaced by its neighbours' mean direction (the twin draws its own glitches)."""
+    chans = with_time(series)
+    m = series.field_ut
+    u = model.directions_of(m, {c: chans[c] for c in model.calibration.coef_ut_per_unit})
+    k = np.flatnonzero(spikes(m))
+    if len(k):
+        v = u[k - 1] + u[k + 1]
+        u[k] = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+    return u
 
 
 def _saturation(m: np.ndarray) -> float | None:
@@ -169,8 +209,7 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     s = series.only_valid()
     m, t, chans = s.field_ut, s.t_s, with_time(s)
     q = quantum(m)
-    e_all = np.linalg.norm(calibration.correct(m, {c: chans[c] for c in calibration.coef_ut_per_unit}), axis=1)
-    rate, size, hit = _glitches(m, e_all - calibration.field_ut)
+    rate, size, axis_share, hit = _glitches(m)
     keep = ~hit
     used = {c: chans[c][keep] for c in calibration.coef_ut_per_unit}
     h = calibration.correct(m[keep], used)
@@ -194,7 +233,7 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     model = SensorModel(
         calibration=replace_calibration(calibration, field_ut=calibration.field_ut + float(np.mean(r - calibration.field_ut))),
         noise_ut=_axis_noise(m[keep], white, u, q), quantum_ut=q, wander=comps,
-        glitch_rate=rate, glitch_ut=size, nonlinearity_ut=tuple(nonlin),
+        glitch_rate=rate, glitch_ut=size, glitch_axis_share=axis_share, nonlinearity_ut=tuple(nonlin),
         temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),
         rate_hz=1.0 / ts.dt_of(t), source=dict(source or {}),
     )
@@ -275,11 +314,11 @@ def _num(x):
     return x if np.isfinite(x) else None
 
 
-def twin_draw(model: SensorModel, series: Series, seed: int, free: bool = True) -> Residual | None:
-    """One twin of ``series`` refitted: the recording's times, channels and directions."""
+def twin_draw(model: SensorModel, series: Series, seed: int, free: bool = True, u=None) -> Residual | None:
+    """One twin of ``series`` refitted: the recording's times, channels and directions
+    (``twin_directions``, or ``u`` when given)."""
     chans = with_time(series)
-    used = {c: chans[c] for c in model.calibration.coef_ut_per_unit}
-    u = model.directions_of(series.field_ut, used)
+    u = twin_directions(model, series) if u is None else u
     m, valid = model.simulate(u, series.t_s, chans, seed)
     if not valid.all():
         m, chans = m[valid], {k: v[valid] for k, v in chans.items()}
@@ -299,8 +338,9 @@ def compare(model: SensorModel, series: Series, draws: int = DRAWS, seed: int = 
     stats_real, loc_real = ts.battery(real.e, real.u, real.m, real.t, shown, real.gain if free else float("nan"))
     stats_real = {k: v for k, v in stats_real.items() if np.isfinite(v)}
     sims, locs, first = [], [], None
+    u = twin_directions(model, s)
     for i in range(draws):
-        x = twin_draw(model, s, seed + i, free)
+        x = twin_draw(model, s, seed + i, free, u)
         if x is None:
             continue
         first = first or x
@@ -324,16 +364,9 @@ def _band(name: str, real: float, values) -> Band:
 
 
 # -- baseline → each effect added → final ---------------------------------------------------
-ORDER = ("calibration", "quantum", "wander", "nonlinearity", "temperature_gain", "glitches", "saturation")
-_LATER = {  # what a step still leaves out
-    "calibration": ("quantum", "wander", "nonlinearity", "temperature_gain", "glitches", "saturation"),
-    "quantum": ("wander", "nonlinearity", "temperature_gain", "glitches", "saturation"),
-    "wander": ("nonlinearity", "temperature_gain", "glitches", "saturation"),
-    "nonlinearity": ("temperature_gain", "glitches", "saturation"),
-    "temperature_gain": ("glitches", "saturation"),
-    "glitches": ("saturation",),
-    "saturation": (),
-}
+ORDER = ("calibration", "quantum", "wander", "field_wander", "nonlinearity", "temperature_gain", "glitches",
+         "saturation")
+_LATER = {step: ORDER[i + 1:] for i, step in enumerate(ORDER)}  # what a step still leaves out
 
 
 @dataclass(frozen=True)
@@ -396,7 +429,7 @@ def step_models(model: SensorModel, series: Series, free: bool = True) -> list[t
         for later in _LATER[step]:
             if later in has:
                 m = m.without(later)
-        if "wander" not in m.effects():
+        if not {"wander", "field_wander"} & set(m.effects()):
             m = _white(m, series, free)
         out.append(("+" + step if _LATER[step] and any(x in has for x in _LATER[step]) else "final", m))
     if out[-1][0] != "final":

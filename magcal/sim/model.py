@@ -52,6 +52,7 @@ class SensorModel:
     wander: tuple = ()
     glitch_rate: float = 0.0  # probability per sample
     glitch_ut: tuple = (4.0, 15.0)
+    glitch_axis_share: float = 0.0  # share of glitches along one sensor axis (else any direction)
     nonlinearity_ut: tuple = (0.0,) * len(directions.NAMES)
     temp_gain_per_c: float = 0.0
     temp_ref_c: float = 25.0
@@ -68,8 +69,8 @@ class SensorModel:
             raise ValueError(f"nonlinearity_ut needs {len(directions.NAMES)} finite numbers")
         object.__setattr__(self, "nonlinearity_ut", nl)
         lo, hi = (float(v) for v in self.glitch_ut)
-        if not (0 <= self.glitch_rate < 1) or not (0 <= lo <= hi):
-            raise ValueError("glitch rate must be in [0, 1) and glitch sizes 0 ≤ low ≤ high")
+        if not (0 <= self.glitch_rate < 1) or not (0 <= lo <= hi) or not (0 <= self.glitch_axis_share <= 1):
+            raise ValueError("glitch rate and axis share must be in [0, 1) and [0, 1], glitch sizes 0 ≤ low ≤ high")
         object.__setattr__(self, "glitch_ut", (lo, hi))
         if self.saturation_ut is not None and not self.saturation_ut > 0:
             raise ValueError("saturation_ut must be positive (or absent)")
@@ -110,7 +111,7 @@ class SensorModel:
         order = np.argsort(t, kind="stable")
         path, field = np.empty((len(t), 3)), np.empty(len(t))
         path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
-        return Draws(noise, glitches(rng, len(t), self.glitch_rate, self.glitch_ut), path, field)
+        return Draws(noise, glitches(rng, len(t), self.glitch_rate, self.glitch_ut, self.glitch_axis_share), path, field)
 
     def simulate(self, u, t_s, channels: Mapping[str, np.ndarray] | None, seed: int):
         """(m, valid) for directions ``u`` at times ``t_s``: the twin of a recording."""
@@ -172,7 +173,8 @@ class SensorModel:
             "noise_ut": list(self.noise_ut),
             "quantum_ut": list(self.quantum_ut),
             "wander": [c.to_dict() for c in self.wander],
-            "glitches": {"rate_per_sample": float(self.glitch_rate), "size_ut": list(self.glitch_ut)},
+            "glitches": {"rate_per_sample": float(self.glitch_rate), "size_ut": list(self.glitch_ut),
+                         "axis_share": float(self.glitch_axis_share)},
             "nonlinearity_ut": {k: v for k, v in zip(directions.NAMES, self.nonlinearity_ut) if v},
             "temp_gain_per_c": float(self.temp_gain_per_c),
             "temp_ref_c": float(self.temp_ref_c),
@@ -198,6 +200,7 @@ class SensorModel:
                 wander=tuple(Wander.from_dict(c) for c in d.get("wander", ())),
                 glitch_rate=float(d.get("glitches", {}).get("rate_per_sample", 0.0)),
                 glitch_ut=tuple(d.get("glitches", {}).get("size_ut", (4.0, 15.0))),
+                glitch_axis_share=float(d.get("glitches", {}).get("axis_share", 0.0)),
                 nonlinearity_ut=_nonlinearity(d.get("nonlinearity_ut", {})),
                 temp_gain_per_c=float(d.get("temp_gain_per_c", 0.0)),
                 temp_ref_c=float(d.get("temp_ref_c", 25.0)),
@@ -226,16 +229,24 @@ def quantize(m: np.ndarray, quantum_ut) -> np.ndarray:
     return np.where(q > 0, np.round(np.round(m / safe) * safe, 9), m)
 
 
-def glitches(rng: np.random.Generator, n: int, rate: float, size_ut: tuple) -> np.ndarray:
-    """(n, 3) glitch vectors: with probability ``rate`` a jump of uniform size along a random
-    direction, zero elsewhere."""
+def glitches(rng: np.random.Generator, n: int, rate: float, size_ut: tuple, axis_share: float = 0.0) -> np.ndarray:
+    """(n, 3) glitch vectors: with probability ``rate`` a one-sample jump of a size drawn
+    log-uniform in ``size_ut`` (as many between 1 and 2 µT as between 2 and 4) — along one sensor axis (either sign) with probability ``axis_share`` (a
+    corrupted register), else along a random direction; zero elsewhere. The draws consumed
+    depend on n alone, so a block of samples is reproducible whatever the rate."""
     out = np.zeros((n, 3))
     if rate <= 0 or n == 0:
         return out
-    hit = np.flatnonzero(rng.random(n) < rate)
-    d = rng.standard_normal((len(hit), 3))
+    hit = rng.random(n) < rate
+    d = rng.standard_normal((n, 3))
+    lo, hi = np.log(max(size_ut[0], 1e-9)), np.log(max(size_ut[1], 1e-9))
+    mag = np.exp(rng.uniform(lo, hi, n))
+    if axis_share > 0:
+        along = rng.random(n) < axis_share
+        axis = rng.integers(0, 3, n)
+        d[along] = np.eye(3)[axis[along]] * np.sign(d[along, 0])[:, None]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    out[hit] = d * rng.uniform(size_ut[0], size_ut[1], len(hit))[:, None]
+    out[hit] = d[hit] * mag[hit, None]
     return out
 
 

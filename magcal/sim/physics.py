@@ -32,7 +32,7 @@ from ..core.calibration import Calibration
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_HOFL, UT_PER_COUNT, asa_gain, temp_c_to_raw
 from ..core.series import Series
 from . import wander as wander_mod
-from .model import Draws, SensorModel
+from .model import Draws, SensorModel, glitches
 
 HOFL_SUM_UT = 2400.0
 _BLOCK = 1024  # noise is drawn in blocks of this many measurements, keyed by (seed, block)
@@ -220,7 +220,7 @@ class Scenario:
         noise = np.empty((len(k), 3))
         glitch = np.zeros((len(k), 3))
         for b in blocks:
-            nb, gb = _block(self.seed, int(b), sensor.glitch_rate, tuple(sensor.glitch_ut))
+            nb, gb = _block(self.seed, int(b), sensor.glitch_rate, tuple(sensor.glitch_ut), sensor.glitch_axis_share)
             sel = (k // _BLOCK) == b
             noise[sel] = nb[k[sel] % _BLOCK]
             glitch[sel] = gb[k[sel] % _BLOCK]
@@ -323,16 +323,10 @@ def _phases(seed: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=256)
-def _block(seed: int, block: int, glitch_rate: float, glitch_ut: tuple):
+def _block(seed: int, block: int, glitch_rate: float, glitch_ut: tuple, axis_share: float = 0.0):
     rng = np.random.default_rng([int(seed), 0xA8975, block])
     noise = rng.standard_normal((_BLOCK, 3))
-    glitch = np.zeros((_BLOCK, 3))
-    if glitch_rate > 0:
-        hit = rng.random(_BLOCK) < glitch_rate
-        d = rng.standard_normal((_BLOCK, 3))
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        mag = rng.uniform(glitch_ut[0], glitch_ut[1], _BLOCK)
-        glitch[hit] = d[hit] * mag[hit, None]
+    glitch = glitches(rng, _BLOCK, glitch_rate, glitch_ut, axis_share)
     noise.setflags(write=False)
     glitch.setflags(write=False)
     return noise, glitch

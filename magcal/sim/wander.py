@@ -215,11 +215,17 @@ def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
 
 # -- fitting -------------------------------------------------------------------------------
 def band_edges(dt_s: float, duration_s: float) -> np.ndarray:
-    """Log-spaced band edges from half a cycle per recording to the Nyquist frequency,
-    BANDS_PER_DECADE to a decade."""
-    lo, hi = 0.5 / max(duration_s, dt_s), 0.5 / dt_s
-    k = max(2, int(np.ceil(BANDS_PER_DECADE * np.log10(hi / lo))))
-    return np.geomspace(lo, hi, k + 1)
+    """Band edges from half a cycle per recording to the Nyquist frequency: log-spaced
+    (BANDS_PER_DECADE to a decade) up to a quarter of Nyquist, then in equal steps of an
+    eighth of it — near Nyquist the spectrum's shape (a sensor's own filter) sets how rough
+    the reading is from sample to sample, which a log-spaced band would smear."""
+    nyq = 0.5 / dt_s
+    lo, knee = 0.5 / max(duration_s, dt_s), 0.25 * nyq
+    top = knee + np.arange(1, 7) * nyq / 8.0
+    if lo >= knee:
+        return np.concatenate([[lo], top[top > lo]])
+    k = max(1, int(np.ceil(BANDS_PER_DECADE * np.log10(knee / lo))))
+    return np.concatenate([np.geomspace(lo, knee, k + 1), top])
 
 
 def _binned_periodogram(x: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -278,11 +284,38 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     design = np.column_stack(cols)
     ok = (counts > 0) & (design[:, 0] > 0) & (target > 0)
     coef = _whittle(design[ok], target[ok], counts[ok])
-    white, var = float(coef[0]), coef[1:]
+    white, var = _white_floor(float(coef[0]), coef[1:], cands, dt)
     total = var.sum() + white
     comps = tuple(Wander(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c in zip(var, cands)
                   if total > 0 and v > MIN_SHARE * total)
     return comps, white
+
+
+def _white_floor(white: float, var: np.ndarray, cands, dt_s: float) -> tuple[float, np.ndarray]:
+    """(white variance, band variances) with the spectrum's flat floor given to the white
+    noise. Offset bands that reach the Nyquist frequency and white noise make the same radial
+    spectrum, so the Whittle fit may split them either way. White noise is the floor of the
+    fitted density over the bands above a quarter of the Nyquist frequency (where a wander has
+    died away and the many periodogram bins pin the level); every band gives up that floor,
+    or what it has when it has less."""
+    nyq = 0.5 / dt_s
+    var = np.asarray(var, dtype=np.float64).copy()
+    if not len(var):
+        return white, var
+    width = np.array([c.band_hz[1] - c.band_hz[0] for c in cands])
+    keys = sorted({c.band_hz for c in cands})
+    which = np.array([keys.index(c.band_hz) for c in cands])
+    dens = np.bincount(which, weights=var / width, minlength=len(keys))
+    high = np.array([lo >= 0.25 * nyq * (1 - 1e-9) for lo, _ in keys])
+    floor = float(np.min(dens[high])) if high.any() and high.sum() * 0.125 * nyq >= 0.5 * nyq else 0.0
+    if floor <= 0:
+        return white, var
+    left = np.full(len(keys), floor)
+    for j in np.argsort([c.frame != OFFSET for c in cands], kind="stable"):  # offset bands first
+        take = min(var[j] / width[j], left[which[j]])
+        var[j] -= take * width[j]
+        left[which[j]] -= take
+    return white + floor * nyq, var
 
 
 def _whittle(design: np.ndarray, target: np.ndarray, counts: np.ndarray, rounds: int = 30) -> np.ndarray:
