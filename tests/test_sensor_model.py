@@ -11,6 +11,7 @@ from magcal.app.sensor_file import load_model, save_model
 from magcal.core.calibration import Calibration
 from magcal.core.errors import InputError
 from magcal.sim import wander
+from magcal.sim.disturbance import Disturbances
 from magcal.sim.model import SCHEMA, SensorModel
 from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
 from magcal.sim.wander import Wander
@@ -22,7 +23,8 @@ def _model(**kw):
                       coef_ut_per_unit={"current_a": [0.5, -0.2, 0.1]}, reference={"current_a": 0.0})
     base = dict(calibration=cal, noise_ut=(0.3, 0.3, 0.4), quantum_ut=(0.15, 0.15, 0.15),
                 wander=(Wander(0.3, 20.0), Wander((0.1, 0.1, 0.2), 0.5)), glitch_rate=0.001,
-                nonlinearity_ut=(0.2,) + (0.0,) * 15, temp_gain_per_c=1e-3, saturation_ut=800.0)
+                nonlinearity_ut=(0.2,) + (0.0,) * 15, temp_gain_per_c=1e-3, saturation_ut=800.0,
+                disturbances=Disturbances(0.05, (2.0, 6.0), (0.2, 3.0), 0.7))
     base.update(kw)
     return SensorModel(**base)
 
@@ -137,3 +139,38 @@ def test_model_dict_is_json_with_units_in_its_keys():
 def test_a_model_that_cannot_be_written_is_a_named_error(tmp_path):
     with pytest.raises(InputError, match="cannot write"):
         save_model(_model(), tmp_path / "no" / "such" / "m.yaml")
+
+
+def test_disturbances_are_a_function_of_seed_and_time_and_hold_their_rate_size_and_sign():
+    d = Disturbances(rate_per_s=0.1, size_ut=(2.0, 8.0), duration_s=(0.5, 2.0), up_share=0.75)
+    t = np.arange(0, 4000, 0.1)
+    x = d.draw(3, t)
+    shuffled = np.random.default_rng(0).permutation(len(t))
+    assert np.allclose(d.draw(3, t[shuffled]), x[shuffled])
+    assert not np.allclose(d.draw(4, t), x)
+    on = x != 0
+    starts = np.count_nonzero(np.diff(on.astype(int)) == 1)
+    assert 0.08 * 4000 < starts < 0.12 * 4000  # about rate × span (overlaps merge a few)
+    assert 2.0 <= np.median(np.abs(x[on])) <= 8.0 and np.max(np.abs(x)) < 2 * 8.0  # overlaps add
+    assert 0.65 < np.mean(x[on] > 0) < 0.85
+    with pytest.raises(ValueError, match="up_share"):
+        Disturbances(0.1, (1.0, 2.0), (0.5, 1.0), 1.5)
+
+
+def test_disturbances_learned_from_a_recording_that_has_them_and_not_from_one_without():
+    from magcal.diagnose import twin
+
+    cal = Calibration(offset_ut=[20.0, -30.0, 5.0], field_ut=48.0)
+    truth = Disturbances(rate_per_s=0.05, size_ut=(3.0, 6.0), duration_s=(0.5, 1.5), up_share=0.5)
+    sm = SensorModel(calibration=cal, noise_ut=(0.3, 0.3, 0.3), disturbances=truth)
+
+    def learned(model):
+        s = Scenario(physics=Physics(field_ut=48.0), motion=Motion("sphere", period_s=20.0), seed=8,
+                     model=model).simulate(30000).series
+        return twin.learn(s, cal)
+
+    d = learned(sm).disturbances
+    assert d is not None
+    assert 0.5 < d.rate_per_s / truth.rate_per_s < 2.0
+    assert 2.0 < d.size_ut[1] < 9.0
+    assert learned(sm.without("disturbances")).disturbances is None

@@ -26,6 +26,7 @@ from typing import Mapping
 
 import numpy as np
 from scipy import ndimage
+from scipy.special import ndtr
 
 from ..core.calibration import Calibration
 from ..fit.ellipsoid import fit_ellipsoid
@@ -33,6 +34,7 @@ from ..fit.sphere import fit_sphere
 from ..core.series import Series
 from ..sim import directions
 from ..sim import wander as wander_mod
+from ..sim.disturbance import Disturbances
 from ..sim.model import TEMP, SensorModel, replace_calibration
 from . import twin_stats as ts
 from .twin_names import Mismatch, locate, mismatches
@@ -44,6 +46,9 @@ FOLDS = 5
 BLOCKS = 40
 CV_GAIN = 0.01  # a term must cut the held-out residual energy by at least 1 %
 GLITCH_Z = 4.5  # a glitch departs from its neighbours by this many local noise σ
+EVENT_Z = 4.5  # a disturbance departs from the median radius by this many robust σ at its peak
+EVENT_EDGE = 2.0  # and lasts while it stays beyond this many
+EVENT_MIN = 1  # and more than twice what a Gaussian residual would make
 P0_AXIS = 0.15  # chance that a random direction puts ≥ 90 % of its square on one axis (3 × (1 − √0.9))
 # channels that follow the orientation or are the magnetometer itself: not offered as couplings
 ORIENTATION_WORDS = ("mag", "acc", "gyro", "quat", "roll", "pitch", "yaw", "bias", "att")
@@ -196,6 +201,39 @@ def twin_directions(model: SensorModel, series: Series) -> np.ndarray:
     return u
 
 
+def disturbances(e: np.ndarray, t: np.ndarray) -> tuple[Disturbances | None, np.ndarray]:
+    """(the disturbance process, the samples it covers) of a radial residual: stretches whose
+    peak departs from the median by more than EVENT_Z robust σ, each extended while it stays
+    beyond EVENT_EDGE σ. None unless there are at least EVENT_MIN and more than twice what a
+    Gaussian residual of that σ would make (at 4.5σ, one in 150 000 samples); one event is
+    enough to estimate a rate (1 per recording), and the twins then differ in how many they
+    draw, as recordings of the same sensor would. Sizes: the 5–95 % range of the peaks' departures; durations likewise, from the
+    stretches' lengths in samples × the sample period."""
+    n = len(e)
+    hit = np.zeros(n, bool)
+    if n < 50:
+        return None, hit
+    a = e - np.median(e)
+    sigma = max(1.4826 * float(np.median(np.abs(a))), 1e-12)
+    edge = np.abs(a) > EVENT_EDGE * sigma
+    d = np.diff(np.concatenate([[0], edge.astype(np.int8), [0]]))
+    lo, hi = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    peaks = np.array([a[i:j][np.argmax(np.abs(a[i:j]))] for i, j in zip(lo, hi)]) if len(lo) else np.zeros(0)
+    big = np.abs(peaks) > EVENT_Z * sigma
+    expected = n * 2 * float(ndtr(-EVENT_Z))
+    if big.sum() < max(EVENT_MIN, 2 * expected):
+        return None, hit
+    lo, hi, peaks = lo[big], hi[big], peaks[big]
+    for i, j in zip(lo, hi):
+        hit[i:j] = True
+    dt = ts.dt_of(t)
+    size = np.quantile(np.abs(peaks), [0.05, 0.95])
+    dur = np.quantile((hi - lo) * dt, [0.05, 0.95])
+    span = max(float(t[-1] - t[0]) + dt, dt)
+    return Disturbances(rate_per_s=len(peaks) / span, size_ut=(float(size[0]), float(size[1])),
+                        duration_s=(float(dur[0]), float(dur[1])), up_share=float(np.mean(peaks > 0))), hit
+
+
 def _saturation(m: np.ndarray) -> float | None:
     top = np.max(np.abs(m))
     at_rail = np.isclose(np.abs(m), top, rtol=0, atol=1e-9 + 1e-6 * top)
@@ -229,11 +267,14 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
         c, g = _heldout_gain(e, x)
         if g > CV_GAIN:
             temp_gain, e = float(c[0]), e - x[:, 0] * float(c[0])
+    dist, covered = disturbances(e, t[keep])
+    e = np.where(covered, 0.0, e - np.mean(e[~covered]))  # the wander is fitted around them
     comps, white = wander_mod.fit(e, u, t[keep], projector(u, used) if free else None)
     model = SensorModel(
         calibration=replace_calibration(calibration, field_ut=calibration.field_ut + float(np.mean(r - calibration.field_ut))),
         noise_ut=_axis_noise(m[keep], white, u, q), quantum_ut=q, wander=comps,
-        glitch_rate=rate, glitch_ut=size, glitch_axis_share=axis_share, nonlinearity_ut=tuple(nonlin),
+        glitch_rate=rate, glitch_ut=size, glitch_axis_share=axis_share,
+        disturbances=dist, nonlinearity_ut=tuple(nonlin),
         temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),
         rate_hz=1.0 / ts.dt_of(t), source=dict(source or {}),
     )
@@ -365,7 +406,7 @@ def _band(name: str, real: float, values) -> Band:
 
 # -- baseline → each effect added → final ---------------------------------------------------
 ORDER = ("calibration", "quantum", "wander", "field_wander", "nonlinearity", "temperature_gain", "glitches",
-         "saturation")
+         "disturbances", "saturation")
 _LATER = {step: ORDER[i + 1:] for i, step in enumerate(ORDER)}  # what a step still leaves out
 
 

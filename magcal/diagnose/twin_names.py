@@ -28,8 +28,9 @@ class Mismatch:
 _NAMES = {
     "rms_ut": ("noise", "the |field| spreads more than the model's noise and terms explain",
                "the |field| spreads less than modelled: the model's noise or wander is too large"),
-    "tail_ratio": ("glitches", "heavier tails than the model: glitches or intermittent disturbances "
-                   "(moving iron, a switched current)", "lighter tails than the model's glitches give"),
+    "tail_ratio": ("disturbances", "heavier tails than the model: intermittent disturbances of the field "
+                   "(moving iron, a switched current) or glitches",
+                   "lighter tails than the model's disturbances and glitches give"),
     "lag1": ("wander", "the residual is smoother sample to sample than the model's: slow offset wander "
              "or the sensor's own low-pass filter", "the residual is rougher than modelled: less slow wander"),
     "slow_share": ("wander", "more of the residual lives at periods of a second and longer: slow offset "

@@ -2,16 +2,19 @@
 
 Per sample i at time t_i, true unit field direction u_i (body frame) and channels x_i::
 
-    r_i = field_ut · (1 + γ (T_i − T_ref)) + Σ_j c_j Y_j(u_i)        radial: gain, nonlinearity
+    r_i = (field_ut + f(t_i) + d(t_i)) · (1 + γ (T_i − T_ref))
+          + Σ_j c_j Y_j(u_i)                                         radial: field wander,
+                                                                     disturbances, gain, nonlinearity
     m_i = W⁻¹ (r_i u_i) + b + Σ_c K_c (x_ci − ref_c)                 the calibration, inverted
           + w(t_i) + g_i + diag(σ) z_i                               wander, glitches, noise
     m_i → clipped at ±saturation_ut (then flagged), rounded to quantum_ut per axis
 
 W, b, field, K_c and ref_c are a :class:`~magcal.calibration.Calibration` (the deterministic
 part, shared with every fit); γ the temperature gain; Y_j the degree-3/4 direction basis
-(``magcal.sim.directions``); w a sum of Ornstein–Uhlenbeck components
-(``magcal.sim.wander``); g_i rare jumps of uniform size in ``glitch_ut`` along a random
-direction; z_i standard normal.
+(``magcal.sim.directions``); w and f the offset and field wander, sums of stationary Gaussian
+components (``magcal.sim.wander``); d intermittent disturbances of the field's magnitude
+(``magcal.sim.disturbance``); g_i rare one-sample glitches of a size in ``glitch_ut``;
+z_i standard normal.
 
 The value serialises to a plain dict (YAML or JSON) with units in its keys and a schema
 version; ``from_dict`` refuses a malformed or unknown one with a message naming the key.
@@ -27,6 +30,7 @@ import numpy as np
 from ..core.calibration import Calibration
 from . import directions
 from . import wander as wander_mod
+from .disturbance import Disturbances
 from .wander import Wander
 
 SCHEMA = "magcal.sensor-model/1"
@@ -53,6 +57,7 @@ class SensorModel:
     glitch_rate: float = 0.0  # probability per sample
     glitch_ut: tuple = (4.0, 15.0)
     glitch_axis_share: float = 0.0  # share of glitches along one sensor axis (else any direction)
+    disturbances: Disturbances | None = None  # intermittent departures of the field's magnitude
     nonlinearity_ut: tuple = (0.0,) * len(directions.NAMES)
     temp_gain_per_c: float = 0.0
     temp_ref_c: float = 25.0
@@ -111,6 +116,8 @@ class SensorModel:
         order = np.argsort(t, kind="stable")
         path, field = np.empty((len(t), 3)), np.empty(len(t))
         path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
+        if self.disturbances is not None:
+            field = field + self.disturbances.draw(seed, t)
         return Draws(noise, glitches(rng, len(t), self.glitch_rate, self.glitch_ut, self.glitch_axis_share), path, field)
 
     def simulate(self, u, t_s, channels: Mapping[str, np.ndarray] | None, seed: int):
@@ -124,11 +131,13 @@ class SensorModel:
 
     def without(self, effect: str) -> "SensorModel":
         """This model with one effect removed (``wander``, ``field_wander``, ``nonlinearity``, ``glitches``,
-        ``soft_iron``, ``temperature_gain``, ``saturation``, ``quantum`` or a channel name)."""
+        ``disturbances``, ``soft_iron``, ``temperature_gain``, ``saturation``, ``quantum`` or a channel name)."""
         cal = self.calibration
         if effect in ("wander", "field_wander"):
             frame = wander_mod.OFFSET if effect == "wander" else wander_mod.FIELD
             return replace(self, wander=tuple(c for c in self.wander if c.frame != frame))
+        if effect == "disturbances":
+            return replace(self, disturbances=None)
         if effect == "nonlinearity":
             return replace(self, nonlinearity_ut=(0.0,) * len(directions.NAMES))
         if effect == "glitches":
@@ -161,6 +170,7 @@ class SensorModel:
         out += ["field_wander"] if field else []
         out += ["nonlinearity"] if any(self.nonlinearity_ut) else []
         out += ["glitches"] if self.glitch_rate > 0 else []
+        out += ["disturbances"] if self.disturbances is not None and self.disturbances.rate_per_s > 0 else []
         out += ["temperature_gain"] if self.temp_gain_per_c else []
         out += ["saturation"] if self.saturation_ut is not None else []
         return tuple(out)
@@ -175,6 +185,7 @@ class SensorModel:
             "wander": [c.to_dict() for c in self.wander],
             "glitches": {"rate_per_sample": float(self.glitch_rate), "size_ut": list(self.glitch_ut),
                          "axis_share": float(self.glitch_axis_share)},
+            "disturbances": None if self.disturbances is None else self.disturbances.to_dict(),
             "nonlinearity_ut": {k: v for k, v in zip(directions.NAMES, self.nonlinearity_ut) if v},
             "temp_gain_per_c": float(self.temp_gain_per_c),
             "temp_ref_c": float(self.temp_ref_c),
@@ -201,6 +212,7 @@ class SensorModel:
                 glitch_rate=float(d.get("glitches", {}).get("rate_per_sample", 0.0)),
                 glitch_ut=tuple(d.get("glitches", {}).get("size_ut", (4.0, 15.0))),
                 glitch_axis_share=float(d.get("glitches", {}).get("axis_share", 0.0)),
+                disturbances=None if d.get("disturbances") is None else Disturbances.from_dict(d["disturbances"]),
                 nonlinearity_ut=_nonlinearity(d.get("nonlinearity_ut", {})),
                 temp_gain_per_c=float(d.get("temp_gain_per_c", 0.0)),
                 temp_ref_c=float(d.get("temp_ref_c", 25.0)),

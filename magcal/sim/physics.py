@@ -241,6 +241,8 @@ class Scenario:
         u = h / np.linalg.norm(h, axis=1, keepdims=True)
         noise, glitch = self._noise_glitch(k, sensor)
         offset, field = wander_mod.draw(sensor.wander, self.seed, t)
+        if sensor.disturbances is not None:
+            field = field + sensor.disturbances.draw(self.seed, t)
         draws = Draws(noise=noise, glitch_ut=glitch, wander_ut=offset, field_wander_ut=field)
         m, _ = sensor.distort(u, self.channels(t), draws)
         return m, glitch

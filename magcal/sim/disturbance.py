@@ -1,0 +1,88 @@
+"""Intermittent disturbances of the field's magnitude: iron moved near the sensor and away, a
+current switched on for a while, a passing vehicle.
+
+Real residuals have heavier tails than any stationary Gaussian wander makes (docs/sensor-model.md):
+stretches of a few samples to several seconds where |field| departs by many times the noise,
+then comes back. The model: events arrive at random (Poisson, ``rate_per_s``); each holds the
+field's magnitude away by a size drawn log-uniform in ``size_ut`` (up with probability
+``up_share``, else down) for a duration drawn log-uniform in ``duration_s``, then lets go.
+
+``draw`` is a deterministic function of (seed, t): time is cut into cells as long as the
+longest event, each cell's events are drawn from a generator keyed by (seed, cell), and a time
+sees the events of its own cell and the one before — so the simulated board can be sampled at
+any time, in any order, and reproduced, and a twin of a recording draws the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+_KEY = 0xD157
+_CELL_OFFSET = 1 << 40  # cells before t = 0 still key a non-negative seed
+
+
+@dataclass(frozen=True)
+class Disturbances:
+    rate_per_s: float
+    size_ut: tuple
+    duration_s: tuple
+    up_share: float = 0.5
+
+    def __post_init__(self):
+        s = tuple(float(v) for v in self.size_ut)
+        d = tuple(float(v) for v in self.duration_s)
+        if len(s) != 2 or len(d) != 2:
+            raise ValueError("disturbance size_ut and duration_s are (low, high) pairs")
+        if not (np.isfinite(self.rate_per_s) and self.rate_per_s >= 0):
+            raise ValueError(f"disturbance rate_per_s must be ≥ 0, got {self.rate_per_s}")
+        if not (0 < s[0] <= s[1] < np.inf) or not (0 < d[0] <= d[1] < np.inf):
+            raise ValueError(f"disturbance sizes and durations must be 0 < low ≤ high, got {list(s)}, {list(d)}")
+        if not (0 <= self.up_share <= 1):
+            raise ValueError(f"disturbance up_share must be in [0, 1], got {self.up_share}")
+        object.__setattr__(self, "size_ut", s)
+        object.__setattr__(self, "duration_s", d)
+        object.__setattr__(self, "rate_per_s", float(self.rate_per_s))
+        object.__setattr__(self, "up_share", float(self.up_share))
+
+    def to_dict(self) -> dict:
+        return {"rate_per_s": self.rate_per_s, "size_ut": list(self.size_ut),
+                "duration_s": list(self.duration_s), "up_share": self.up_share}
+
+    @classmethod
+    def from_dict(cls, d) -> "Disturbances":
+        return cls(rate_per_s=d["rate_per_s"], size_ut=tuple(d["size_ut"]), duration_s=tuple(d["duration_s"]),
+                   up_share=d.get("up_share", 0.5))
+
+    def _cell_events(self, seed: int, cell: int, width: float) -> np.ndarray:
+        """(k, 3): start, duration and signed size of the events starting in one cell."""
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, _KEY, cell + _CELL_OFFSET])
+        k = rng.poisson(self.rate_per_s * width)
+        start = (cell + rng.random(k)) * width
+        dur = np.exp(rng.uniform(*np.log(self.duration_s), k))
+        size = np.exp(rng.uniform(*np.log(self.size_ut), k)) * np.where(rng.random(k) < self.up_share, 1.0, -1.0)
+        return np.column_stack([start, dur, size])
+
+    def draw(self, seed: int, t_s) -> np.ndarray:
+        """(n,) µT added to the field's magnitude at times ``t_s``."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        out = np.zeros(len(t))
+        if self.rate_per_s <= 0 or not len(t):
+            return out
+        width = self.duration_s[1]
+        order = np.argsort(t, kind="stable")
+        ts = t[order]
+        cells = np.unique(np.floor(ts / width).astype(np.int64))
+        cells = np.unique(np.concatenate([cells - 1, cells]))
+        ev = [self._cell_events(seed, int(c), width) for c in cells]
+        ev = np.concatenate(ev) if ev else np.zeros((0, 3))
+        lo = np.searchsorted(ts, ev[:, 0], side="left")
+        hi = np.searchsorted(ts, ev[:, 0] + ev[:, 1], side="left")
+        step = np.zeros(len(ts) + 1)
+        np.add.at(step, lo, ev[:, 2])
+        np.add.at(step, hi, -ev[:, 2])
+        level = np.cumsum(step)[:-1]
+        level[np.abs(level) < 1e-9 * self.size_ut[0]] = 0.0  # where every event has ended: exactly none
+        out[order] = level
+        return out
