@@ -147,3 +147,20 @@ def test_simulate_refuses_contradicting_options(tmp_path):
     assert r.returncode == 2 and "--noise" in r.stderr
     r = _run("diagnose", REAL, "--twin", "--draws", "3", cwd=tmp_path)
     assert r.returncode == 2 and "--draws" in r.stderr  # a usage error
+
+
+def test_twin_page_heads_with_the_counts_and_leaves_out_statistics_a_constant_channel_gives():
+    from magcal.app.report_twin import headline, table_html, constant_statistics
+
+    def band(real, lo, hi):
+        return {"real": real, "twin_low": lo, "twin_high": hi, "twin_median": real, "inside": lo <= real <= hi}
+
+    steps = [{"step": "baseline", "inside": 1, "statistics": 3,
+              "bands": {"lag1": band(0.6, 0.0, 0.1), "rms_ut": band(1.0, 0.9, 1.1), "xcorr:motor0": band(0.0, 0.0, 0.0)}},
+             {"step": "final", "inside": 3, "statistics": 3,
+              "bands": {"lag1": band(0.6, 0.5, 0.7), "rms_ut": band(1.0, 0.9, 1.1), "xcorr:motor0": band(0.0, 0.0, 0.0)}}]
+    d = {"steps": steps}
+    assert constant_statistics(d) == ["xcorr:motor0"]
+    table = table_html(d)
+    assert "lag1" in table and "motor0" not in table and "✗ 0.6" in table and "✓ 0.6" in table
+    assert "<b>3 of 3</b>" in headline(d) and "1 of 3" in headline(d)

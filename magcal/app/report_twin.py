@@ -118,7 +118,7 @@ def _save(fig, path: Path, plt) -> str:
 def table_html(d: dict) -> str:
     """Statistics down, steps across: the recording's value, ✓ inside its twins' band, ✗ not."""
     steps = d["steps"]
-    names = list(steps[-1]["bands"])
+    names = [n for n in steps[-1]["bands"] if n not in constant_statistics(d)]
     head = "".join(f"<th>{html.escape(s['step'])}</th>" for s in steps)
     rows = []
     for n in names:
@@ -138,8 +138,35 @@ def table_html(d: dict) -> str:
             f"<tr><th>inside the band</th>{total}</tr></table>")
 
 
+def constant_statistics(d: dict) -> list[str]:
+    """Statistics that cannot tell anything: the recording and every twin give the same value
+    at every step (a channel that stays constant through the recording)."""
+    out = []
+    for n in d["steps"][-1]["bands"]:
+        bands = [s["bands"][n] for s in d["steps"] if n in s["bands"]]
+        if all(b["real"] == b["twin_low"] == b["twin_high"] for b in bands):
+            out.append(n)
+    return out
+
+
+def headline(d: dict) -> str:
+    """One sentence: how many statistics the final model's twins hold, against the baseline."""
+    first, last = d["steps"][0], d["steps"][-1]
+    return (f"<p style=\"font-size:130%\">Final model: <b>{last['inside']} of {last['statistics']}</b> statistics "
+            f"of the recording inside its twins' band; baseline (hard iron + white noise): "
+            f"{first['inside']} of {first['statistics']}.</p>")
+
+
 def _fmt(x) -> str:
     return "—" if x is None else f"{x:.3g}"
+
+
+def _constant_note(d: dict) -> str:
+    same = constant_statistics(d)
+    if not same:
+        return ""
+    return (f"<p><small>Not shown (the recording and every twin give the same value: a constant channel): "
+            f"{html.escape(', '.join(same))}.</small></p>")
 
 
 def write_twin_panels(report, directory) -> Path:
@@ -157,7 +184,8 @@ def write_twin_panels(report, directory) -> Path:
 </head><body><h1>The recording against its twin</h1>
 <p>{d['draws']} twins per step, each on the recording's own times, channels and field directions,
 refitted like the recording. ✓: the recording's statistic lies in its twins' {d['band_pct'][0]}–{d['band_pct'][1]} % band.</p>
-{table_html(d)}
+{headline(d)}
+{table_html(d)}{_constant_note(d)}
 <h2>What the final model still misses</h2><ul>{mism}</ul>
 {imgs}</body></html>
 """

@@ -2,11 +2,11 @@
 
 ``learn`` turns a calibration (the deterministic part diagnosis or fit found) and the
 recording's residuals into a :class:`~magcal.sim.model.SensorModel`: per-axis noise, the
-quantum, glitch rate and size, degree-3/4 direction nonlinearity and a temperature gain when
-held-out time blocks confirm them, saturation when the readings sit on a rail, and the offset
-wander as a fitted sum of Ornstein–Uhlenbeck components (refined by simulated moments: the
-wander is re-scaled until the twins' residual autocovariance matches the recording's after the
-same refit).
+quantum, one-sample glitches, degree-3/4 direction nonlinearity and a temperature gain when
+held-out time blocks confirm them, intermittent disturbances of the field's magnitude,
+saturation when the readings sit on a rail, and the offset and field wander as a fitted
+spectrum (``magcal.sim.wander.fit``: a Whittle fit of band components, each seen through the
+same calibration refit as the recording).
 
 ``compare`` is the parametric bootstrap: the recording's own times, channels and field
 directions (recovered through the inverse model) drive ``draws`` twins of the model; each twin
