@@ -37,10 +37,11 @@ BASELINE_WINDOWS = 8
 
 
 def white_twin(model):
-    """The same sensor with its wander folded into white noise of the same variance."""
+    """The same sensor with its wander (offset and field) folded into white noise of the same
+    variance, and no disturbances: the white-noise simulator."""
     extra = sum(np.asarray(c.sigma_ut) ** 2 for c in model.wander)
     noise = np.sqrt(np.asarray(model.noise_ut) ** 2 + extra)
-    return dataclasses.replace(model, wander=(), noise_ut=tuple(noise))
+    return dataclasses.replace(model, wander=(), disturbances=None, noise_ut=tuple(noise))
 
 
 def run_stream(model, seed, minutes, window, alpha):
