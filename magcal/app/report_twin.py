@@ -140,7 +140,7 @@ def table_html(d: dict) -> str:
 
 def constant_statistics(d: dict) -> list[str]:
     """Statistics that cannot tell anything: the recording and every twin give the same value
-    at every step (a channel that stays constant through the recording)."""
+    at every step (a channel that stays constant through the recording, no jumps anywhere)."""
     out = []
     for n in d["steps"][-1]["bands"]:
         bands = [s["bands"][n] for s in d["steps"] if n in s["bands"]]
@@ -165,7 +165,8 @@ def _constant_note(d: dict) -> str:
     same = constant_statistics(d)
     if not same:
         return ""
-    return (f"<p><small>Not shown (the recording and every twin give the same value: a constant channel): "
+    return (f"<p><small>Not shown (the recording and every twin give the same value at every step, so it "
+            f"cannot tell them apart — e.g. a channel that stays constant): "
             f"{html.escape(', '.join(same))}.</small></p>")
 
 
