@@ -147,6 +147,8 @@ def test_simulate_refuses_contradicting_options(tmp_path):
     assert r.returncode == 2 and "--noise" in r.stderr
     r = _run("diagnose", REAL, "--twin", "--draws", "3", cwd=tmp_path)
     assert r.returncode == 2 and "--draws" in r.stderr  # a usage error
+    r = _run("simulate", "--glitch-rate", "1", "-o", "x.csv", cwd=tmp_path)
+    assert r.returncode == 2 and "--glitch-rate" in r.stderr and "below 1" in r.stderr
 
 
 def test_twin_page_heads_with_the_counts_and_leaves_out_statistics_a_constant_channel_gives():

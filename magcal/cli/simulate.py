@@ -54,7 +54,7 @@ def add_arguments(p) -> None:
                    help="offset change per A of current, µT/A")
     p.add_argument("--drift", type=floats(3), default="0,0,0", metavar="X,Y,Z", help="offset drift, µT/s")
     p.add_argument("--glitch-rate", type=share, default=0.0, metavar="P",
-                   help="share of samples with a 4–15 µT jump (0…1)")
+                   help="share of samples with a 4–15 µT jump (0 ≤ P < 1)")
     add(p, "json", "quiet")
 
 
@@ -87,6 +87,9 @@ def _check(args) -> None:
     if min(args.scale) <= 0:
         raise ConfigError(f"--scale: every axis gain must be positive (a gain of 0 or less is no sensor), got "
                           f"{','.join(f'{v:g}' for v in args.scale)}")
+    if args.glitch_rate >= 1:
+        raise ConfigError(f"--glitch-rate is the share of samples with a jump and must be below 1 (every sample "
+                          f"a jump is no reading), got {args.glitch_rate:g}")
 
 
 def _physics(args) -> Physics:
