@@ -87,7 +87,7 @@ def cost(hours: float, seed: int) -> None:
         trk.add_many(m, t)
         dc = cpu_s() - c0
         total_cpu, total_n = total_cpu + dc, total_n + len(t)
-        w_now = wander.draw(sc.sensor.wander, sc.seed, t[-1:])[0]
+        w_now = wander.draw(sc.sensor.wander, sc.seed, t[-1:])[0][0]  # (offset (n, 3), field (n,)): the offset now
         w_first = w_first if h else w_now
         err = f"{np.linalg.norm(trk.estimate.calibration.offset_ut - (offset0 + w_now)):.3f}"
         stale = f"{np.linalg.norm(w_now - w_first):.3f}"
