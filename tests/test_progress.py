@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[1]
 ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
-def in_terminal(*argv, timeout=180) -> tuple[int, str]:
+def in_terminal(*argv, timeout=600) -> tuple[int, str]:
     """Run ``magcal ARGV`` with stdin, stdout and stderr on a pseudo-terminal: (status, all it wrote)."""
     leader, follower = pty.openpty()
     env = dict(os.environ, PYTHONPATH=str(REPO), TERM="xterm", COLUMNS="120", LINES="40")
@@ -45,7 +45,7 @@ def in_terminal(*argv, timeout=180) -> tuple[int, str]:
     return p.returncode, out.decode("utf-8", "replace")
 
 
-def in_pipe(*argv, timeout=180) -> subprocess.CompletedProcess:
+def in_pipe(*argv, timeout=600) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "magcal", *argv], capture_output=True, text=True,
                           env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=timeout, stdin=subprocess.DEVNULL)
 

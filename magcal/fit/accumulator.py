@@ -43,6 +43,14 @@ _STATE_KIND = "magcal.sphere_accumulator"
 _STATE_VERSION = 1
 
 
+def check_state(d, kind: str, version: int, what: str) -> None:
+    """Raise ValueError naming ``what`` unless ``d`` is a saved state of this kind and version."""
+    if not isinstance(d, dict) or d.get("kind") != kind:
+        raise ValueError(f"not a {what} state (kind must be {kind!r})")
+    if d.get("version") != version:
+        raise ValueError(f"{what} state version {d.get('version')!r} is not {version}")
+
+
 @dataclass(frozen=True)
 class SphereFit:
     """An algebraic sphere: centre ``offset_ut`` (3,), radius ``field_ut``.
@@ -270,10 +278,7 @@ class SphereAccumulator:
 
     @classmethod
     def from_state(cls, d: dict) -> "SphereAccumulator":
-        if not isinstance(d, dict) or d.get("kind") != _STATE_KIND:
-            raise ValueError(f"not a sphere-accumulator state (kind must be {_STATE_KIND!r})")
-        if d.get("version") != _STATE_VERSION:
-            raise ValueError(f"sphere-accumulator state version {d.get('version')!r} is not {_STATE_VERSION}")
+        check_state(d, _STATE_KIND, _STATE_VERSION, "sphere-accumulator")
         try:
             acc = cls(d["reference_ut"])
             acc.n = int(d["n"])

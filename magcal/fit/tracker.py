@@ -38,6 +38,7 @@ from scipy.stats import beta, chi2
 
 from ..core.calibration import Calibration
 from . import geometric
+from .accumulator import check_state
 from .ellipsoid import algebraic_start
 from .failure import FitFailure
 from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
@@ -463,10 +464,7 @@ class Tracker:
 
     @classmethod
     def from_state(cls, d: dict) -> "Tracker":
-        if not isinstance(d, dict) or d.get("kind") != _STATE_KIND:
-            raise ValueError(f"not a tracker state (kind must be {_STATE_KIND!r})")
-        if d.get("version") != _STATE_VERSION:
-            raise ValueError(f"tracker state version {d.get('version')!r} is not {_STATE_VERSION}")
+        check_state(d, _STATE_KIND, _STATE_VERSION, "tracker")
         try:
             trk = cls(TrackerConfig(**d["config"]))
             trk.memory.load_state(d["memory"])
