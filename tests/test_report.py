@@ -138,3 +138,23 @@ def test_more_sections_join_the_page_through_the_hook(tmp_path):
     assert (tmp_path / "page" / "twin.png").exists()
     assert 'href="#twin"' in text and "The sensor twin" in text and "<p>plain</p>" in text
     assert text.index("The samples in 3-D") < text.index("The sensor twin") < text.index("Notes")
+
+
+def test_a_channel_left_out_of_the_tests_is_said_so_not_drawn_as_tested(tmp_path):
+    """The same field in raw counts is screened out of the candidates; the channel figure must not
+    show it as a panel saying 'nothing found' (it was never tested) and must say why."""
+    rec = tmp_path / "sim.csv"
+    assert magcal("simulate", "-o", str(rec), "--seconds", "60", "--scale", "1.04,0.97,1.0").returncode == 0
+    lines = rec.read_text().splitlines()
+    head = lines[0].split(",")
+    mx = head.index("mx")
+    rows = [line.split(",") for line in lines[1:]]
+    with_counts = [",".join(lines[0].split(",") + ["mag_x_counts"])]
+    with_counts += [",".join(r + [str(round(float(r[mx]) / 0.3))]) for r in rows]
+    rec.write_text("\n".join(with_counts) + "\n")
+    p = magcal("diagnose", str(rec), "--report", str(tmp_path / "page"))
+    assert p.returncode == 0, p.stderr
+    assert "left out    mag_x_counts" in p.stdout
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert "Not tested, so not drawn: mag_x_counts: a magnetometer reading" in page
+    assert "mag_x_counts: nothing found" not in page

@@ -190,7 +190,9 @@ def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
 
 def channels(diagnosis, v, plt, out) -> Figure:
     """The offset left in the residual against each channel (and time), in a grid."""
-    names = [c for c in diagnosis.series.channels if np.all(np.isfinite(diagnosis.series.channels[c]))] + [ch.TIME]
+    left = {x["channel"]: x["reason"] for x in diagnosis.limits if x.get("left_out")}
+    names = [c for c in diagnosis.series.channels
+             if c not in left and np.all(np.isfinite(diagnosis.series.channels[c]))] + [ch.TIME]
     cols = min(3, len(names))
     rows = -(-len(names) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.9 * rows), squeeze=False, constrained_layout=True)
@@ -200,13 +202,17 @@ def channels(diagnosis, v, plt, out) -> Figure:
         ax.set_visible(False)
     name = save(fig, out, "channels", plt)
     hits = [x for x in verdicts if "FOUND" in x]
+    found_text = ("; ".join(hits) + f"; nothing in the other {len(names) - len(hits)}." if hits
+                  else f"no channel of the {len(names)} ({', '.join(names)}) carries an offset of its own.")
+    by_reason: dict = {}
+    for c, why in left.items():
+        by_reason.setdefault(why, []).append(c)
+    not_tested = "".join(f" Not tested, so not drawn: {', '.join(cs)}: {why}." for why, cs in by_reason.items())
     return Figure(name, "Offset against each logged channel",
                   "a brown line (the residual without the channel's term) with a slope: the offset "
                   "follows that channel (a temperature coefficient, a current); the navy line (with the "
                   "final model) flat at 0 once the model includes it. t_s is time: a slope is a drift.",
-                  "; ".join(hits) + f"; nothing in the other {len(names) - len(hits)}." if hits
-                  else f"no channel of the {len(names)} ({', '.join(names)}) carries an offset of its own.",
-                  "offset against each channel")
+                  found_text + not_tested, "offset against each channel")
 
 
 def heldout(diagnosis, v, plt, out) -> Figure:
