@@ -45,6 +45,7 @@ class Design:
     directions: np.ndarray  # (n, 3) unit field directions (calibrated by the reference)
     offset_directions: np.ndarray  # (n, 3) W·u: how an offset change shows in the residual
     reference: ModelFit  # the model the columns were built at
+    soft_dirs: np.ndarray  # (5, k) the soft-iron directions of the soft-iron group, in SOFT_BASIS coordinates
 
     @property
     def wander_cols(self) -> np.ndarray:
@@ -67,26 +68,34 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
 
     Soft iron is tested as a Wald test of the reference's own soft-iron coordinates: the
     residual is the reference's with its soft iron taken back out to first order, so the test
-    is linearised where the model fits, not at a sphere that may be far off. The direction
-    harmonics are made orthogonal to offset, radius and all five soft-iron columns on the data's
-    own directions, so that on a band or any non-uniform coverage they cannot soak up soft iron."""
+    is linearised where the model fits, not at a sphere that may be far off. Its columns are
+    only the directions the data determine (the reference's, softiron.determined_directions):
+    along a direction they do not determine (on a band of directions, the vertical gain trades
+    with the vertical offset) a linear regression slides far along a valley the nonlinear model
+    does not have, and its linearisation error — slow, following the motion — is left in the
+    residual of every test, whose block covariance it inflates (a 2 % soft iron on a ±15–30°
+    band went from F ≈ 5 to F ≈ 120–380 once those columns were left out). The direction
+    harmonics are made orthogonal to every polynomial of degree ≤ 2 on the data's own
+    directions, so that on a band or any non-uniform coverage they cannot soak up soft iron."""
     spec = Spec(soft_iron=True, channels=tuple(c.channel for c in candidates))
     params = np.concatenate([ref.offset_ut, ref.soft, [ref.field_ut], np.zeros(3 * len(candidates))])
     residual, jac = residual_jacobian(params, spec, m, [chans[c.channel] - c.reference for c in candidates])
     offset_radius = np.concatenate([jac[:, 0:3], jac[:, 8:9]], axis=1)
-    soft = jac[:, 3:8]
-    residual = residual - soft @ ref.soft  # the soft iron taken back out, to first order
-    groups = {softiron.EFFECT: np.arange(4, 9)}
+    residual = residual - jac[:, 3:8] @ ref.soft  # the soft iron taken back out, to first order
+    soft_dirs = ref.spec.soft_matrix
+    soft = jac[:, 3:8] @ soft_dirs  # only the directions the data determine (see above)
+    k = soft.shape[1]
+    groups = {softiron.EFFECT: np.arange(4, 4 + k)}
     by_effect = {c.effect: c for c in candidates}
     for j, c in enumerate(candidates):
-        groups[c.effect] = np.arange(9 + 3 * j, 12 + 3 * j)
+        groups[c.effect] = np.arange(4 + k + 3 * j, 7 + k + 3 * j)
     h = ref.calibration().correct(m)
     u = h / np.linalg.norm(h, axis=1, keepdims=True)
     wu = -jac[:, 0:3]
     harm = harmonics.on_data(u)
     cols = [offset_radius, soft, jac[:, 9:], harm, wander.regressors(t, wu, WANDER_DEGREE)]
     x = np.concatenate(cols, axis=1)
-    return Design(x, residual, groups, by_effect, 4, 9 + 3 * len(candidates) + harm.shape[1], u, wu, ref)
+    return Design(x, residual, groups, by_effect, 4, 4 + k + 3 * len(candidates) + harm.shape[1], u, wu, ref, soft_dirs)
 
 
 @dataclass(frozen=True)

@@ -143,7 +143,7 @@ def block_wald(
     e: np.ndarray,
     groups: dict[str, np.ndarray],
     n_blocks: int | None = None,
-    min_unique: float = 0.2,
+    min_unique: float | dict = 0.2,
     bootstrap: bool = True,
 ) -> dict[str, WaldResult]:
     """For each named column group of x: regress e on all columns and test, with a block-HAC
@@ -152,7 +152,8 @@ def block_wald(
     Only the group's *identifiable* directions are tested: those whose part not explained by
     the other columns keeps at least ``min_unique`` of its norm (a coverage gate — with
     yaw-only motion most soft-iron directions trade with offset and radius, and their
-    second-order residue would otherwise pass for a signal); its other directions are
+    second-order residue would otherwise pass for a signal; a dict gives it per group, 0.2 for
+    a group it does not name); its other directions are
     nuisances of the test. ``bootstrap``: also check a test that could pass against the wild
     block bootstrap (False where the statistic is calibrated another way)."""
     n, p = x.shape
@@ -168,7 +169,7 @@ def block_wald(
         xc = xs[:, cols]
         xp = nuis.project_out(xc)
         ev, vec = np.linalg.eigh(xp.T @ xp)  # singular values² and right singular vectors
-        keep = np.sqrt(np.maximum(ev, 0.0)) >= min_unique
+        keep = np.sqrt(np.maximum(ev, 0.0)) >= (min_unique.get(name, 0.2) if isinstance(min_unique, dict) else min_unique)
         basis = vec[:, keep] / scale[cols, None]
         out[name] = _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, scale[cols], bootstrap)
     return out

@@ -212,20 +212,16 @@ def fit_reference(a: Analysed, base: ModelFit) -> ModelFit:
     return base if isinstance(ref, FitFailure) else ref
 
 
-def test_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float) -> tuple[design.Design, dict, design.RichTests, list]:
-    """Build the candidate design and test every term (magcal.diagnose.design): soft iron at
-    the sphere (a score test: no fitted soft iron can slide along a weakly determined
-    direction and come back as a signal), every channel at the reference model (so that the
-    soft iron a sphere leaves cannot pass for a channel). Returns the design at the reference,
-    the tests against the quadratic wander, the rich-wander tests of the channels and the
-    channels skipped as constant or incomplete."""
+def test_terms(a: Analysed, ref: ModelFit, alpha: float) -> tuple[design.Design, dict, design.RichTests, list]:
+    """Build the candidate design at the reference model and test every term
+    (magcal.diagnose.design): soft iron along the directions the data determine, every channel
+    with soft iron in place (so that the soft iron a sphere leaves cannot pass for a channel).
+    Returns the design, the tests against the quadratic wander, the rich-wander tests of the
+    channels and the channels skipped as constant or incomplete."""
     m_kept, t_kept, chans_kept = a.kept
     candidates, skipped = channels.candidates(a.t, a.logged)
     dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
-    at_sphere = dsg if ref is sphere else design.build(m_kept, t_kept, chans_kept, sphere, candidates)
-    soft = {softiron.EFFECT: at_sphere.groups[softiron.EFFECT]}
-    tests = design.block_wald(at_sphere.x, at_sphere.residual_ut, soft)
-    tests.update(design.block_wald(dsg.x, dsg.residual_ut, {g: c for g, c in dsg.groups.items() if g not in soft}))
+    tests = design.block_wald(dsg.x, dsg.residual_ut, dsg.groups, min_unique={softiron.EFFECT: softiron.MIN_UNIQUE})
     rich = design.test_against_rich_wander(dsg, t_kept, chans_kept, alpha)
     return dsg, tests, rich, skipped
 
@@ -233,10 +229,11 @@ def test_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float) -> tu
 def select_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float, noise_ut: float, folds: int) -> Selected:
     """Which tested terms earn a place (magcal.diagnose.selection): significant, above the
     practical floor, past the wander gate, and helping the held-out residual."""
-    dsg, tests, rich, skipped = test_terms(a, sphere, ref, alpha)
+    dsg, tests, rich, skipped = test_terms(a, ref, alpha)
     floor_ut = selection.practical_floor_ut(noise_ut)
     verdict = selection.significant(tests, rich.results, alpha, floor_ut)
-    survivors = selection.above_floor(tests, verdict, floor_ut)
+    soft_size = softiron.fitted_size(dsg.x[:, dsg.groups[softiron.EFFECT]], dsg.soft_dirs, ref)
+    survivors = selection.above_floor(tests, verdict, floor_ut, soft_size)
     _, _, chans_kept = a.kept
     survivors, wander = selection.wander_gate(dsg, chans_kept, survivors, verdict.fast)
     survivors, surrogate_p = selection.surrogate_gate(dsg, chans_kept, survivors, verdict.fast, alpha)

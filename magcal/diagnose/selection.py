@@ -52,20 +52,26 @@ def significant(tests: dict, rich: dict, alpha: float, floor_ut: float) -> Signi
     return Significant({g: rejected_all[g] for g in tests}, fast)
 
 
-def above_floor(tests: dict, verdict: Significant, floor_ut: float) -> list:
-    """Terms that are significant and large enough to matter (fast channels pass as they are)."""
+def above_floor(tests: dict, verdict: Significant, floor_ut: float, soft_size: tuple[float, float]) -> list:
+    """Terms that are significant and large enough to matter (fast channels pass as they are).
+    Soft iron is judged by the size of what the model would carry — the reference's soft iron
+    along every direction the data determine (``soft_size``: RMS of its radial signature in µT
+    and its largest gain deviation, softiron.fitted_size) — not by the part its test could tell
+    apart from the nuisances."""
     out = []
     for g, r in tests.items():
         if g in verdict.fast:
             out.append(g)
             continue
-        if not verdict.rejected[g] or r.effect_rms_ut < floor_ut:
+        if not verdict.rejected[g]:
             continue
         if g == softiron.EFFECT:
-            w_lin = np.eye(3) - np.tensordot(r.beta, softiron.SOFT_BASIS, axes=1)
-            if np.any(np.linalg.eigvalsh(w_lin) <= 0) or softiron.max_deviation(w_lin) < softiron.MIN_GAIN_DEVIATION:
-                continue
-        out.append(g)
+            rms_ut, deviation = soft_size
+            if rms_ut >= floor_ut and deviation >= softiron.MIN_GAIN_DEVIATION:
+                out.append(g)
+            continue
+        if r.effect_rms_ut >= floor_ut:
+            out.append(g)
     return out
 
 

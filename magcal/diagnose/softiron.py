@@ -46,6 +46,16 @@ def determined_directions(m: np.ndarray, offset_ut: np.ndarray, sigma_ut: float)
     return vec[:, ok]
 
 
+def fitted_size(x_soft: np.ndarray, soft_dirs: np.ndarray, ref) -> tuple[float, float]:
+    """The size of the soft iron ``ref`` carries (a ModelFit): the RMS of its radial signature
+    (µT) through the soft-iron columns ``x_soft`` (n, k) along ``soft_dirs`` (5, k), and its
+    largest relative gain deviation. (0, 0) when it carries none."""
+    if not ref.spec.soft_iron or x_soft.shape[1] == 0:
+        return 0.0, 0.0
+    coords = np.linalg.lstsq(soft_dirs, ref.soft, rcond=None)[0]
+    return float(np.sqrt(np.mean((x_soft @ coords) ** 2))), max_deviation(ref.soft_iron)
+
+
 def gains(soft_iron: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The sensor's relative gains along its principal axes (eigen-decomposition of W⁻¹,
     normalised to a mean of 1) and those axes as columns."""
