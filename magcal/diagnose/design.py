@@ -14,13 +14,13 @@ magcal.diagnose.inference, and a channel group a second time against a rich wand
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.calibration import Calibration
 from . import channels, harmonics, softiron, wander
-from .distributions import f_sf
-from .inference import WaldResult, block_wald, shift_inflation
+from .inference import block_wald, calibrated
 from .model import ModelFit, Spec, residual_jacobian
 
 # the slow wander as a nuisance: Legendre degrees 2..WANDER_DEGREE of the offset versus time, in
@@ -29,7 +29,6 @@ WANDER_DEGREE = 2
 # the second test of each channel: against a wander up to this degree, on at most RICH_MAX rows
 RICH_DEGREE = 12
 RICH_MAX = 50_000
-SHIFTS = 63  # circular shifts calibrating the rich-wander test of a channel (shift_inflation)
 
 
 @dataclass(frozen=True)
@@ -98,50 +97,36 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
     return Design(x, residual, groups, by_effect, 4, 4 + k + 3 * len(candidates) + harm.shape[1], u, wu, ref, soft_dirs)
 
 
-@dataclass(frozen=True)
-class RichTests:
-    """Each channel tested against the rich wander, calibrated by its own circular shifts."""
-
-    results: dict  # effect → WaldResult
-    inflation: dict  # effect → λ (only for channels that could pass)
-
-
-def test_against_rich_wander(design: Design, t: np.ndarray, chans: dict, alpha: float) -> RichTests:
+def test_against_rich_wander(design: Design, t: np.ndarray, null: np.ndarray | None) -> dict:
     """Each channel tested a second time against a rich wander nuisance (Legendre degrees
     2..RICH_DEGREE of the offset vs time). A channel that varies faster than the wander (an
     intermittent current) keeps most of its variation and needs no wander gate; a slow one (a
-    temperature cycle) is absorbed and left to the first test and the gate. The statistic of a
-    channel that could pass is divided by how much its circularly shifted copies run above the
-    F distribution on this recording (inference.shift_inflation)."""
+    temperature cycle) is absorbed and left to the first test and the gate. Each test is run on
+    the twin's draws ``null`` (n, K) too and judged against them (inference.calibrated).
+    Returns effect → WaldResult."""
     groups = design.channel_groups
     if not groups:
-        return RichTests({}, {})
+        return {}
     # on a systematic subsample of at most RICH_MAX rows: the wide design stays small in memory
     sel = slice(None, None, max(1, -(-len(design.residual_ut) // RICH_MAX)))
     x_rich = np.concatenate(
         [design.x[sel, : design.n_before_wander], wander.regressors(t[sel], design.directions[sel], RICH_DEGREE)], axis=1
     )
-    e_sel = design.residual_ut[sel]
-    # calibrated by the channel's own circular shifts (below), not by the bootstrap
-    results = block_wald(x_rich, e_sel, groups, bootstrap=False)
-    inflation = {}
-    for g in groups:
-        if results[g].p > alpha:
-            continue
-        cand = design.candidates[g]
-        x_g = chans[cand.channel][sel]
-        lags = np.unique((np.linspace(0.05, 0.95, SHIFTS) * len(x_g)).round().astype(int))
-        shifted = (design.channel_columns(np.roll(x_g, lag), cand.reference, sel) for lag in lags)
-        # the aligned columns stay in the design: the shifted copies are judged on the residual
-        # the channel leaves, so an effect that is there does not inflate its own null
-        inflation[g] = shift_inflation(x_rich, e_sel, shifted)
-        results[g] = calibrated(results[g], inflation[g])
-    return RichTests(results, inflation)
+    results = block_wald(x_rich, design.residual_ut[sel], groups, null=None if null is None else null[sel])
+    return {g: calibrated(r) for g, r in results.items()}
 
 
-def calibrated(result: WaldResult, inflation: float) -> WaldResult:
-    """The test with its F statistic divided by the shift inflation λ (p never lowered)."""
-    if inflation <= 1.0:
-        return result
-    p_cal = float(f_sf(result.f / inflation, result.df1, result.df2))
-    return replace(result, p=max(result.p, p_cal))
+def full_candidate_calibration(design: Design):
+    """The reference calibration with every candidate channel term added, each coefficient from
+    the one regression on all of the design's columns: the model the recording's twin is
+    learned around (magcal.diagnose.null), so that an effect that is there is not taken for
+    wander."""
+    beta = np.linalg.lstsq(design.x, design.residual_ut, rcond=None)[0]
+    cal = design.reference.calibration()
+    coef = dict(cal.coef_ut_per_unit)
+    ref = dict(cal.reference)
+    for g, cand in design.candidates.items():
+        coef[cand.channel] = -beta[design.groups[g]]
+        ref[cand.channel] = cand.reference
+    return Calibration(offset_ut=cal.offset_ut, field_ut=cal.field_ut, soft_iron=cal.soft_iron,
+                       coef_ut_per_unit=coef, reference=ref)

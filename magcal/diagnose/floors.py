@@ -42,14 +42,15 @@ def directions() -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
-def wald_floor(result: WaldResult | None, alpha_each: float, inflation: float = 1.0) -> np.ndarray:
-    """Per direction: the size at which the test's noncentrality reaches its critical value
-    (inf where the test cannot see the direction, or when there was no test)."""
+def wald_floor(result: WaldResult | None, alpha_each: float) -> np.ndarray:
+    """Per direction: the size at which the test's noncentrality reaches its critical value,
+    raised by the test's calibration against the twin (λ, inference.calibrated) (inf where the
+    test cannot see the direction, or when there was no test)."""
     dirs = directions()
     if result is None or result.cov is None or result.untestable:
         return np.full(len(dirs), np.inf)
     k, df2, nu = result.df1, float(result.df2), float(result.nu)
-    w_crit = k * nu / df2 * float(f_isf(alpha_each, k, df2)) * max(inflation, 1.0)
+    w_crit = k * nu / df2 * float(f_isf(alpha_each, k, df2)) * max(result.inflation, 1.0)
     prec = np.linalg.pinv(result.cov, rcond=1e-10, hermitian=True)
     q = np.einsum("di,ij,dj->d", dirs, prec, dirs)
     with np.errstate(divide="ignore"):

@@ -32,9 +32,9 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.series import Series
-from . import channels, design, glitches, hygiene, selection, softiron, statements
+from . import channels, design, glitches, hygiene, null, selection, softiron, statements
 from .diagnosis import Diagnosis
-from .inference import contiguous_blocks
+from .inference import block_wald, calibrated, contiguous_blocks
 from ..fit import fit_calibration
 from .diagnosis import model_name
 from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms, from_calibration
@@ -74,18 +74,18 @@ class Analysed:
 class Selected:
     """What survived each stage of selection, for the findings and the JSON's ``tests``."""
 
-    tests: dict  # effect → WaldResult against the quadratic wander
-    rich: design.RichTests
+    tests: dict  # effect → WaldResult against the quadratic wander, judged against the twin
+    rich: dict  # channel effect → WaldResult against the rich wander, judged against the twin
     fast: set
     survivors: list
     wander: dict  # effect → (explained, unexplained) block-offset mean squares
-    surrogate: dict  # slow channel effect → p against phase-randomised copies of the channel
     accepted: list
     heldout: dict
     skipped: list  # channels that could not be candidates (constant, missing values)
     candidates: dict  # channel effect → ChannelCandidate
     design: design.Design  # the columns every channel was tested with
     n_tests: int  # hypotheses in Holm's family
+    null: null.NullDraws  # the twin's draws every test was judged against
 
 
 STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare_heldout",
@@ -106,7 +106,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     reference = fit_reference(analysed, base_kept)
     noise_ut = analysed.glitches.noise_ut
     step("select_terms")
-    selected = select_terms(analysed, base_kept, reference, alpha, noise_ut, folds)
+    selected = select_terms(analysed, reference, alpha, noise_ut, folds)
     step("refit")
     final, accepted = refit(analysed, reference, selected)
     selected = replace(selected, accepted=accepted)
@@ -212,34 +212,59 @@ def fit_reference(a: Analysed, base: ModelFit) -> ModelFit:
     return base if isinstance(ref, FitFailure) else ref
 
 
-def test_terms(a: Analysed, ref: ModelFit, alpha: float) -> tuple[design.Design, dict, design.RichTests, list]:
+def test_terms(a: Analysed, ref: ModelFit) -> tuple[design.Design, dict, dict, list, null.NullDraws]:
     """Build the candidate design at the reference model and test every term
     (magcal.diagnose.design): soft iron along the directions the data determine, every channel
-    with soft iron in place (so that the soft iron a sphere leaves cannot pass for a channel).
-    Returns the design, the tests against the quadratic wander, the rich-wander tests of the
-    channels and the channels skipped as constant or incomplete."""
+    with soft iron in place (so that the soft iron a sphere leaves cannot pass for a channel),
+    each test judged against the recording's twin (magcal.diagnose.null). Returns the design,
+    the tests against the quadratic wander, the rich-wander tests of the channels, the channels
+    skipped as constant or incomplete, and the twin's draws."""
     m_kept, t_kept, chans_kept = a.kept
     candidates, skipped = channels.candidates(a.t, a.logged)
     dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
-    tests = design.block_wald(dsg.x, dsg.residual_ut, dsg.groups, min_unique={softiron.EFFECT: softiron.MIN_UNIQUE})
-    rich = design.test_against_rich_wander(dsg, t_kept, chans_kept, alpha)
-    return dsg, tests, rich, skipped
+    draws = draw_null(a, dsg)
+    e_null = draws.e if draws.count else None
+    tests = block_wald(dsg.x, dsg.residual_ut, dsg.groups, min_unique={softiron.EFFECT: softiron.MIN_UNIQUE},
+                              null=e_null)
+    tests = {g: calibrated(r) for g, r in tests.items()}
+    rich = design.test_against_rich_wander(dsg, t_kept, e_null)
+    return dsg, tests, rich, skipped, draws
 
 
-def select_terms(a: Analysed, sphere: ModelFit, ref: ModelFit, alpha: float, noise_ut: float, folds: int) -> Selected:
+def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
+    """The recording's twin, learned from the residual the tests see (every column of the
+    design but the wander fitted out, around the full candidate model), and its draws with no
+    candidate term (magcal.diagnose.null)."""
+    m_kept, t_kept, chans_kept = a.kept
+    x = dsg.x[:, : dsg.n_before_wander]
+    q, rr = np.linalg.qr(x / np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300)))
+    q = q[:, np.abs(np.diag(rr)) > 1e-10 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)]
+
+    def project(v):
+        return v - q @ (q.T @ v)
+
+    try:
+        model = null.learn(project(dsg.residual_ut), project, m_kept, t_kept, dsg.directions,
+                           design.full_candidate_calibration(dsg))
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return null.none(len(m_kept), f"no twin could be learned ({exc})")
+    return null.draws(model, dsg.directions, t_kept, chans_kept)
+
+
+def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, folds: int) -> Selected:
     """Which tested terms earn a place (magcal.diagnose.selection): significant, above the
     practical floor, past the wander gate, and helping the held-out residual."""
-    dsg, tests, rich, skipped = test_terms(a, ref, alpha)
+    dsg, tests, rich, skipped, draws = test_terms(a, ref)
     floor_ut = selection.practical_floor_ut(noise_ut)
-    verdict = selection.significant(tests, rich.results, alpha, floor_ut)
+    verdict = selection.significant(tests, rich, alpha, floor_ut)
     soft_size = softiron.fitted_size(dsg.x[:, dsg.groups[softiron.EFFECT]], dsg.soft_dirs, ref)
     survivors = selection.above_floor(tests, verdict, floor_ut, soft_size)
     _, _, chans_kept = a.kept
     survivors, wander = selection.wander_gate(dsg, chans_kept, survivors, verdict.fast)
-    survivors, surrogate_p = selection.surrogate_gate(dsg, chans_kept, survivors, verdict.fast, alpha)
     accepted, heldout = selection.drop_by_heldout(dsg, survivors, folds)
-    n_tests = len(tests) + len(rich.results)
-    return Selected(tests, rich, verdict.fast, survivors, wander, surrogate_p, accepted, heldout, skipped, dsg.candidates, dsg, n_tests)
+    n_tests = len(tests) + len(rich)
+    return Selected(tests, rich, verdict.fast, survivors, wander, accepted, heldout, skipped, dsg.candidates, dsg, n_tests,
+                    draws)
 
 
 def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, list]:
@@ -346,17 +371,19 @@ def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_sl
     plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty)
     if not final.spec.channels:
         return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices), ())
-    with_channels = _fit_geometry_around_channels(a, final, channel_cov) or final
+    with_channels = _fit_geometry_around_channels(a, final, channel_cov, result.model) or final
     heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices)
     limit = never_worse(with_channels, plain, heldout)
     return Chosen(plain, "fit", heldout, (limit,)) if limit else Chosen(with_channels, "fit+channels", heldout, ())
 
 
-def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dict) -> ModelFit | None:
+def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dict, chosen: str) -> ModelFit | None:
     """Offset, soft iron and radius as magcal fit finds them once ``final``'s channel terms
-    are taken out of every analysed sample; the channel terms kept as they are."""
+    are taken out of every analysed sample, with the model fit chose on the samples as they
+    are (``chosen``: its name; the sphere or the full ellipsoid are fitted alone, the diagonal
+    one by fit's own choice again); the channel terms kept as they are."""
     shift = final.calibration().channel_offset_ut(a.chans, len(a.m))
-    result = fit_calibration(a.m - shift, model="auto")
+    result = fit_calibration(a.m - shift, model={"sphere": "sphere", "ellipsoid": "ellipsoid"}.get(chosen, "auto"))
     if not result:
         return None
     covs = {c: channel_cov.get(c) for c in final.spec.channels}

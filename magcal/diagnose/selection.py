@@ -15,14 +15,13 @@
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import channels, softiron
 from .design import Design
-from .inference import heldout_sse, holm, pinv_sym, surrogate_p
+from .inference import heldout_sse, holm, pinv_sym
 
 HELDOUT_INTERLEAVE = 4
 
@@ -102,28 +101,6 @@ def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tupl
     shares_of = {g: (shares[g], v_rem) for g in judged}
     passed = [g for g in survivors if g == softiron.EFFECT or g in fast or shares[g] >= channels.WANDER_RATIO * v_rem]
     return passed, shares_of
-
-
-SURROGATES = 199
-
-
-def surrogate_gate(design: Design, chans: dict, survivors: list, fast: set, alpha: float) -> tuple[list, dict]:
-    """A slow channel term (one that passed by the quadratic-wander test and the wander gate)
-    must also line up with the residual better than phase-randomised copies of the channel
-    (inference.surrogate_p at ``alpha``): the quadratic wander leaves real wander behind, and
-    one slow channel cycle matches it by chance more often than the F distribution says. Time
-    is not judged here (a straight line has no surrogates). Returns the survivors that pass and
-    each judged channel's p."""
-    judged = [g for g in survivors if g != softiron.EFFECT and g not in fast and design.candidates[g].channel != channels.TIME]
-    p_of = {}
-    for g in judged:
-        cand = design.candidates[g]
-        cols = design.groups[g]
-        other = np.setdiff1d(np.arange(design.x.shape[1]), cols)
-        seed = zlib.crc32(cand.channel.encode())
-        p_of[g] = surrogate_p(design.x[:, other], design.residual_ut, lambda v: design.channel_columns(v, cand.reference),
-                              chans[cand.channel], SURROGATES, seed)
-    return [g for g in survivors if g not in p_of or p_of[g] <= alpha], p_of
 
 
 def drop_by_heldout(design: Design, survivors: list, folds: int) -> tuple[list, dict]:

@@ -13,7 +13,6 @@ import numpy as np
 from . import channels, design, floors, glitches, limits as limits_, selection, softiron
 from .distributions import f_isf, t_isf
 from .finding import Finding
-from .inference import shifted_spread
 from .model import ModelFit
 
 WANDER_BLOCKS = limits_.WANDER_BLOCKS
@@ -38,11 +37,9 @@ def measure_wander(model: ModelFit, m: np.ndarray, chans: dict) -> Wander:
     return Wander(rms, p, u)
 
 
-def accepting_test(g: str, selected) -> tuple:
-    """(the test that accepted term g, its shift inflation λ)."""
-    if g in selected.fast:
-        return selected.rich.results[g], max(selected.rich.inflation.get(g, 1.0), 1.0)
-    return selected.tests[g], 1.0
+def accepting_test(g: str, selected):
+    """The test that accepted term g (the rich-wander one for a fast channel)."""
+    return selected.rich[g] if g in selected.fast else selected.tests[g]
 
 
 def estimating_test(g: str, selected):
@@ -50,17 +47,6 @@ def estimating_test(g: str, selected):
     the quadratic wander as nuisance, whichever test accepted the term (against the rich
     wander a fast channel is tested well but its coefficient shares more with the nuisance)."""
     return selected.tests[g]
-
-
-def spread_of(g: str, selected, chans: dict, shifts: int = design.SHIFTS) -> np.ndarray | None:
-    """inference.shifted_spread of term g's coefficient in the regression it is estimated in
-    (the quadratic-wander design), over ``shifts`` circular shifts of its channel."""
-    dsg = selected.design
-    cand = selected.candidates[g]
-    x = chans[cand.channel]
-    lags = np.unique((np.linspace(0.05, 0.95, shifts) * len(x)).round().astype(int))
-    shifted = (dsg.channel_columns(np.roll(x, lag), cand.reference) for lag in lags)
-    return shifted_spread(dsg.x, dsg.residual_ut, shifted)
 
 
 def widened(cov: np.ndarray, spread: np.ndarray | None) -> tuple[np.ndarray, float]:
@@ -73,17 +59,16 @@ def widened(cov: np.ndarray, spread: np.ndarray | None) -> tuple[np.ndarray, flo
     return cov * factor, factor
 
 
-def interval(coef: np.ndarray, result, inflation: float, spread: np.ndarray | None = None) -> dict:
-    """The 95 % uncertainty of a channel coefficient from the block-HAC covariance of its test
-    (× the shift inflation λ of a rich-wander test), widened to the spread of the coefficient
-    over shifted copies of the channel where that is larger (``spread``, see ``widened``): per
-    axis (Student t with ν, the effective number of blocks, as degrees of freedom) and as a
-    joint region (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
+def interval(coef: np.ndarray, result) -> dict:
+    """The 95 % uncertainty of a channel coefficient from the block-HAC covariance of its test,
+    widened to the coefficient's spread over the twin's draws where that is larger (see
+    ``widened``: the draws carry the recording's own wander, which a covariance estimated from
+    a few blocks can miss): per axis (Student t with ν, the effective number of blocks, as
+    degrees of freedom) and as a joint region (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
     if result.cov is None:
         return {}
-    cov = result.cov * inflation
     nu = float(result.nu)
-    cov, factor = widened(cov, spread)
+    cov, factor = widened(result.cov, result.null_spread)
     half = float(t_isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
     k, df2 = result.df1, float(result.df2)
     return {
@@ -97,12 +82,13 @@ def interval(coef: np.ndarray, result, inflation: float, spread: np.ndarray | No
 
 def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
     """The statistics behind one accepted term (a finding's ``evidence``)."""
-    r, _ = accepting_test(g, selected)
+    r = accepting_test(g, selected)
     fast = g in selected.fast
     nuisance = f"slow offset wander up to degree {design.RICH_DEGREE} in time" if fast else "quadratic offset wander in time"
     ev = {
         "test": "Wald, block-HAC (batch means over contiguous time blocks, bias-corrected for the fitted "
-        "nuisance columns), Holm-controlled, with a " + nuisance + " as a nuisance",
+        "nuisance columns), Holm-controlled, with a " + nuisance + " as a nuisance, judged against "
+        f"{selected.null.count} draws of the recording's twin",
         "F": r.f,
         "df": [r.df1, r.df2],
         "p_value": r.p,
@@ -112,12 +98,9 @@ def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
         "heldout_rms_ut_with": selected.heldout.get("_all"),
         "heldout_rms_ut_without": selected.heldout.get(g),
     }
-    if fast:
-        ev["shift_inflation"] = selected.rich.inflation.get(g, 1.0)
+    ev["twin_inflation"] = r.inflation
     if r.fallback:
         ev["test_fallback"] = r.fallback
-    if g in selected.surrogate:
-        ev["surrogate_p"] = selected.surrogate[g]
     if g in selected.wander:
         ev["block_offset_rms_ut_explained"] = float(np.sqrt(selected.wander[g][0]))
         ev["block_offset_rms_ut_unexplained"] = float(np.sqrt(selected.wander[g][1]))
@@ -140,7 +123,7 @@ def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_u
         cand = selected.candidates[g]
         coef = final.coef_ut_per_unit[cand.channel]
         _, _, chans_kept = a.kept
-        ev.update(interval(coef, estimating_test(g, selected), 1.0, spread_of(g, selected, chans_kept)))
+        ev.update(interval(coef, estimating_test(g, selected)))
         out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP)))
     return tuple(out)
 
@@ -159,12 +142,11 @@ def channel_floors(selected, wander: Wander, chans: dict, alpha: float, noise_ut
         practical = floors.practical_floor(x, dsg.offset_directions, floor_ut)
         energy = channels.slow_block_energy(chans[cand.channel], wander.directions, WANDER_BLOCKS)
         gate = floors.gate_floor(energy, wander.rms_ut, channels.WANDER_RATIO) if wander.rms_ut > 0 else practical * 0
-        slow = [floors.wald_floor(selected.tests.get(g), alpha_each), practical, gate]
+        test = selected.tests.get(g)
+        slow = [floors.wald_floor(test, alpha_each), practical, gate]
         fast = []
-        if g in selected.rich.results:
-            rich = selected.rich.results[g]
-            fast = [floors.wald_floor(rich, alpha_each, selected.rich.inflation.get(g, 1.0)), practical,
-                    floors.wald_floor(selected.tests.get(g), alpha)]
+        if g in selected.rich:
+            fast = [floors.wald_floor(selected.rich[g], alpha_each), practical, floors.wald_floor(test, alpha)]
         out[cand.channel] = floors.combine(fast, slow)
     return out
 
@@ -204,11 +186,12 @@ def tests_record(selected) -> dict:
     """The intermediate statistics (``Diagnosis.tests``; not part of the JSON)."""
     rich = {
         g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "accepted_as_fast": g in selected.fast,
-            "shift_inflation": selected.rich.inflation.get(g)}
-        for g, r in selected.rich.results.items()
+            "twin_inflation": r.inflation}
+        for g, r in selected.rich.items()
     }
     candidates = {
-        g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "coef_ut_per_unit": -r.beta if g != softiron.EFFECT else None}
+        g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "twin_inflation": r.inflation,
+            "coef_ut_per_unit": -r.beta if g != softiron.EFFECT else None}
         for g, r in selected.tests.items()
     }
     return {"skipped_channels": selected.skipped, "against_rich_wander": rich, "survivors": list(selected.survivors),

@@ -1,0 +1,100 @@
+"""The twin as the null: residuals drawn from the recording's own sensor twin, with no term.
+
+A test of a candidate term (soft iron, an offset following a channel) asks how often a residual
+with *no* such term would give a statistic as large. Referred to white noise (the F
+distribution), a slow channel on a real recording is credited with the recording's own wander
+whenever the two happen to line up. Here the question is put to the recording's twin instead:
+
+1. the twin is learned from the residual the tests themselves see — the reference model's,
+   with every candidate term and every nuisance of the design fitted out except the wander
+   (``learn``): the offset wander as the sensor model's fitted process (magcal.sim.wander.fit,
+   by simulated moments through the same projection), the white noise and the quantum
+   (magcal.diagnose.twin.quantum). With the candidate terms fitted, an effect that is there is
+   not taken for wander (a simulated temperature cycle would otherwise come back as wander of
+   its own size); with the design's direction terms fitted, soft iron along a direction the
+   data do not determine is not taken for wander either;
+2. ``draws``: the twin (a magcal.sim.model.SensorModel), driven by the recording's own
+   directions, times and channels and without any candidate term, is drawn ``count`` times;
+   each draw's radial residual about the twin's own calibration is what the recording's
+   residual would be with no term and with its wander, to first order (the design's columns
+   are linear in the same way);
+3. every test runs on those residuals too (inference.block_wald ``null=``), and is judged
+   against them (inference.calibrated): one set of draws serves every test of the recording.
+
+On a simulated recording without wander the twin is white and the tests keep the F
+distribution's power; on a real one the twin wanders as the recording does and a chance
+alignment is judged as such.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from ..core.calibration import Calibration
+
+DRAWS = 24
+SEED = 0x7E1
+FIT_SEEDS = (11,)
+
+
+@dataclass(frozen=True)
+class NullDraws:
+    """Residuals of the recording's twin with no candidate term."""
+
+    e: np.ndarray  # (n, K) radial residual draws (µT), one column per draw
+    model: object | None  # the SensorModel they were drawn from (None: none could be learned)
+    why_not: str = ""  # when no twin could be learned: why (the tests are then referred to F alone)
+
+    @property
+    def count(self) -> int:
+        return self.e.shape[1]
+
+    def to_dict(self) -> dict:
+        """What the tests were judged against, for the JSON."""
+        if self.model is None:
+            return {"draws": 0, "why_not": self.why_not}
+        return {"draws": self.count, "noise_ut": self.model.noise_ut[0], "quantum_ut": list(self.model.quantum_ut),
+                "wander": [c.to_dict() for c in self.model.wander]}
+
+
+def learn(residual_ut: np.ndarray, project, m: np.ndarray, t: np.ndarray, u: np.ndarray, calibration: Calibration):
+    """The twin of the residual the tests see: ``residual_ut`` (n,) with the design's columns
+    other than the wander fitted out, ``project`` the same projection for any radial series
+    (what the design's fit absorbs), on directions ``u`` at times ``t``; ``m`` the samples
+    (µT) for the quantum; ``calibration`` the deterministic part. A SensorModel."""
+    from ..sim import wander
+    from ..sim.model import SensorModel
+    from .twin import quantum
+
+    # one seed of simulated moments per candidate: a binned periodogram over many frequencies
+    # is already an average, and the test only needs the wander's spectrum roughly
+    components, white = wander.fit(residual_ut, u, t, project, seeds=FIT_SEEDS)
+    q = quantum(m)
+    white -= float(np.mean(u**2 @ (np.square(q) / 12.0)))  # what the quantum adds to the white part
+    sigma = float(np.sqrt(max(white, 1e-12)))
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    return SensorModel(calibration=calibration, noise_ut=(sigma,) * 3, quantum_ut=q, wander=components,
+                       rate_hz=1.0 / dt if dt > 0 else 50.0)
+
+
+def draws(model, u: np.ndarray, t: np.ndarray, chans: Mapping[str, np.ndarray], count: int = DRAWS,
+          seed: int = SEED) -> NullDraws:
+    """``count`` radial residual draws of ``model`` (a SensorModel) without its channel terms
+    (the null: no candidate term) on directions ``u`` at times ``t`` with channels ``chans``,
+    each about the model's own calibration."""
+    for c in model.calibration.coef_ut_per_unit:
+        model = model.without(c)
+    used = {c: chans[c] for c in chans if c != "t_s"}
+    radius = model.radius_ut(u, used)
+    out = np.empty((len(u), count))
+    for k in range(count):
+        sim, _ = model.simulate(u, t, used, seed + k)
+        out[:, k] = np.linalg.norm(model.calibration.correct(sim, used), axis=1) - radius
+    return NullDraws(out, model)
+
+
+def none(n: int, why: str) -> NullDraws:
+    return NullDraws(np.zeros((n, 0)), None, why)
