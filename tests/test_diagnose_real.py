@@ -45,9 +45,14 @@ def test_an_unrelated_current_column_is_not_credited_with_real_residual_structur
 
 
 def test_a_current_that_acts_on_the_real_recording_is_found_with_its_coefficient(tilt_sphere):
+    """Placed against the floor diagnosis states on the plain recording with the same channel:
+    twice its upper end (its largest over directions) is found, within 30 %."""
     t, h = tilt_sphere
-    coef = np.array([0.3, -0.4, 0.2])  # µT/A, 0.54 µT/A in all
     cur = _current(t, 7)
+    plain = diagnose(Series(t_s=t, field_ut=h, channels={"current_a": cur}))
+    upper = plain.floors["current_a"]["range_ut_per_unit"][1]
+    assert 0.0 < upper < 5.0  # µT/A: a current of a few amperes is testable on this recording
+    coef = 2.0 * upper * np.array([0.3, -0.4, 0.2]) / np.linalg.norm([0.3, -0.4, 0.2])
     d = diagnose(Series(t_s=t, field_ut=h + np.outer(cur, coef), channels={"current_a": cur}))
     assert "current_interference" in d.effects
     (f,) = [f for f in d.findings if f.effect == "current_interference"]

@@ -97,12 +97,12 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
     return Design(x, residual, groups, by_effect, 4, 4 + k + 3 * len(candidates) + harm.shape[1], u, wu, ref, soft_dirs)
 
 
-def test_against_rich_wander(design: Design, t: np.ndarray, null: np.ndarray | None) -> dict:
+def test_against_rich_wander(design: Design, t: np.ndarray, null: tuple | None) -> dict:
     """Each channel tested a second time against a rich wander nuisance (Legendre degrees
     2..RICH_DEGREE of the offset vs time). A channel that varies faster than the wander (an
     intermittent current) keeps most of its variation and needs no wander gate; a slow one (a
     temperature cycle) is absorbed and left to the first test and the gate. Each test is run on
-    the twin's draws ``null`` (n, K) too and judged against them (inference.calibrated).
+    the twin's draws ``null`` ((n, K) with and without its wander) too and judged against them (inference.calibrated).
     Returns effect → WaldResult."""
     groups = design.channel_groups
     if not groups:
@@ -112,7 +112,7 @@ def test_against_rich_wander(design: Design, t: np.ndarray, null: np.ndarray | N
     x_rich = np.concatenate(
         [design.x[sel, : design.n_before_wander], wander.regressors(t[sel], design.directions[sel], RICH_DEGREE)], axis=1
     )
-    results = block_wald(x_rich, design.residual_ut[sel], groups, null=None if null is None else null[sel])
+    results = block_wald(x_rich, design.residual_ut[sel], groups, null=None if null is None else tuple(v[sel] for v in null))
     return {g: calibrated(r) for g, r in results.items()}
 
 

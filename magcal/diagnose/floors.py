@@ -6,14 +6,14 @@ it passes every gate of magcal.diagnose.selection. Each gate gives a smallest |K
 * the test: its Wald statistic must reach the critical value of Holm's first step (α / m for m
   tests). With the test's covariance V of the coefficient (bias-corrected block-HAC, with the
   full model and the nuisances in place), a term of size a along k̂ has noncentrality
-  a²·k̂ᵀV⁻¹k̂, so a = √(W_crit / k̂ᵀV⁻¹k̂) (× the shift inflation λ for the rich-wander test);
+  a²·k̂ᵀV⁻¹k̂, so a = √(W_crit / k̂ᵀV⁻¹k̂) (× the test's twin inflation λ, inference.calibrated);
 * the practical floor: the term's radial signature must reach max(0.03 µT, 0.1 × noise);
 * the wander gate (slow channels and time): the term's block offsets must carry
   channels.WANDER_RATIO × the recording's own offset wander (channels.slow_term_floor_range).
 
 A channel can be reported by the fast route (the rich-wander test at Holm's level, and the
 quadratic-wander test at α) or the slow one (the quadratic-wander test at Holm's level, the
-wander gate and a phase-surrogate check, which at the gate's size a term passes); its floor along k̂ is the smaller of the two, each
+wander gate); its floor along k̂ is the smaller of the two, each
 the largest of its gates. The floor is stated over 256 directions k̂: its median, and the best-
 and worst-pinned ends (None when some direction is never pinned). At the floor a term's test
 statistic sits at the critical value on average: a term of twice the floor is found with high

@@ -48,6 +48,7 @@ class WaldResult:
     untestable: str = ""  # why the group could not be tested: "directions", "blocks", or ""
     fallback: str = ""  # when the block covariance could not carry the test, what was used instead
     null_f: np.ndarray | None = field(default=None, repr=False)  # (K,) F of the same test on twin draws
+    null_f_white: np.ndarray | None = field(default=None, repr=False)  # (K,) the same draws without wander
     null_beta: np.ndarray | None = field(default=None, repr=False)  # (K, n_cols) their coefficients
     inflation: float = 1.0  # λ: how far the twin draws' F runs above the F distribution (calibrated)
 
@@ -61,13 +62,20 @@ class WaldResult:
 
 
 def calibrated(result: WaldResult) -> WaldResult:
-    """The test judged against its twin draws: its F statistic divided by λ, the median of the
-    draws' F over the median of the F distribution (λ ≥ 1: p is never lowered). The twin keeps
-    the recording's own wander, so a slow channel that lines up with it by chance is judged
-    against how often such lining up happens here, not against white noise."""
+    """The test judged against its twin draws: its F statistic divided by λ ≥ 1 (p is never
+    lowered), how far the draws' F runs above the same draws' F without the twin's wander (the
+    mean over the mean: paired draws share their white noise, so λ is exactly 1 for a twin
+    without wander and its estimate is not a chance excess of two dozen draws over the F
+    distribution). The twin keeps the recording's own wander, so a slow channel that lines up
+    with it by chance is judged against how often such lining up happens here, not against
+    white noise."""
     if result.null_f is None or not len(result.null_f) or result.untestable:
         return result
-    lam = max(1.0, float(np.median(result.null_f)) / float(f_isf(0.5, result.df1, result.df2)))
+    if result.null_f_white is not None and len(result.null_f_white):
+        lam = float(np.mean(result.null_f)) / max(float(np.mean(result.null_f_white)), 1e-300)
+    else:
+        lam = float(np.median(result.null_f)) / float(f_isf(0.5, result.df1, result.df2))
+    lam = max(1.0, lam)
     p = float(f_sf(result.f / lam, result.df1, result.df2))
     return replace(result, p=max(result.p, p), inflation=lam)
 
@@ -204,7 +212,7 @@ def block_wald(
     groups: dict[str, np.ndarray],
     n_blocks: int | None = None,
     min_unique: float | dict = 0.2,
-    null: np.ndarray | None = None,
+    null: tuple | None = None,
 ) -> dict[str, WaldResult]:
     """For each named column group of x: regress e on all columns and test, with a block-HAC
     Wald statistic, that the group's coefficients are zero.
@@ -215,9 +223,10 @@ def block_wald(
     second-order residue would otherwise pass for a signal; a dict gives it per group, 0.2 for
     a group it does not name); its other directions are nuisances of the test.
 
-    ``null`` (n, K): residuals drawn under the null hypothesis (the recording's twin without
-    the tested terms, magcal.diagnose.null); the same test is run on each and the result
-    carries their F statistics and coefficients, against which ``calibrated`` judges it."""
+    ``null``: (with_wander, white), each (n, K): residuals drawn under the null hypothesis
+    (the recording's twin without the tested terms, magcal.diagnose.null), and the same draws
+    without the twin's wander; the same test is run on each and the result carries their F
+    statistics and the coefficients of the first, against which ``calibrated`` judges it."""
     n, p = x.shape
     scale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
     xs = x / scale
@@ -250,21 +259,23 @@ def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale, null) -> W
     z = xp @ vec[:, keep]  # the identifiable part, orthogonal to the other columns
     z = nuis.project_out(z) if k < ncols else z
     h = _hac(z, blocks, nuis)
-    r0 = nuis.project_out(e[:, None] if null is None else np.column_stack([e, null]))
+    r0 = nuis.project_out(e[:, None] if null is None else np.column_stack([e, *null]))
     bz, cov, wald, lam = _hac_wald(h, r0)
     df2 = h.df2
-    f = float(wald[0]) * df2 / (k * (len(blocks) - 1 if h.fallback else h.nu))
+    f_of = wald * df2 / (k * (len(blocks) - 1 if h.fallback else h.nu))
+    f = float(f_of[0])
     to_group = vec[:, keep] / col_scale[:, None]  # tested coordinates → the group's column units
     fallback = _fallback_text(h, float(lam[0])) if h.fallback else ""
     # the effect's size is that of the whole term (not only of its part the other columns
     # cannot mimic: a nuisance that shares part of a slow channel must not shrink it)
     size = float(np.sqrt(np.mean((xc @ (vec[:, keep] @ bz[:, 0])) ** 2)))
-    null_f = null_beta = None
+    nulls = {}
     if null is not None:
-        null_f = wald[1:] * df2 / (k * (len(blocks) - 1 if h.fallback else h.nu))
-        null_beta = (to_group @ bz[:, 1:]).T
+        count = null[0].shape[1]
+        nulls = {"null_f": f_of[1 : 1 + count], "null_f_white": f_of[1 + count :],
+                 "null_beta": (to_group @ bz[:, 1 : 1 + count]).T}
     return WaldResult(f, k, int(round(df2)), float(f_sf(f, k, df2)), to_group @ bz[:, 0], size, basis,
-                      cov=to_group @ cov[0] @ to_group.T, nu=h.nu, fallback=fallback, null_f=null_f, null_beta=null_beta)
+                      cov=to_group @ cov[0] @ to_group.T, nu=h.nu, fallback=fallback, **nulls)
 
 
 def holm(pvals: dict[str, float], alpha: float) -> dict[str, bool]:

@@ -12,7 +12,8 @@
 4. ``test_terms`` — every candidate term at the baseline (magcal.diagnose.design): soft iron and
    one offset-versus-channel term per channel and for time, block-HAC Wald tests with the
    direction harmonics and a quadratic offset wander as nuisances, and each channel again
-   against a rich wander, calibrated by its own circular shifts;
+   against a rich wander; every test judged against draws of the recording's own twin
+   (magcal.diagnose.null: the false-alarm rate set on data that wander as the recording does);
 5. ``select_terms`` — Holm, the practical floor, the wander gate and the held-out gain
    (magcal.diagnose.selection);
 6. ``refit`` — the accepted terms fitted jointly (nonlinear least squares on the radial
@@ -34,7 +35,7 @@ from ..core.errors import InputError
 from ..core.series import Series
 from . import channels, design, glitches, hygiene, null, selection, softiron, statements
 from .diagnosis import Diagnosis
-from .inference import block_wald, calibrated, contiguous_blocks
+from .inference import block_wald, calibrated, contiguous_blocks, n_test_blocks
 from ..fit import fit_calibration
 from .diagnosis import model_name
 from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms, from_calibration
@@ -223,7 +224,7 @@ def test_terms(a: Analysed, ref: ModelFit) -> tuple[design.Design, dict, dict, l
     candidates, skipped = channels.candidates(a.t, a.logged)
     dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
     draws = draw_null(a, dsg)
-    e_null = draws.e if draws.count else None
+    e_null = (draws.e, draws.white) if draws.count else None
     tests = block_wald(dsg.x, dsg.residual_ut, dsg.groups, min_unique={softiron.EFFECT: softiron.MIN_UNIQUE},
                               null=e_null)
     tests = {g: calibrated(r) for g, r in tests.items()}
@@ -243,9 +244,13 @@ def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
     def project(v):
         return v - q @ (q.T @ v)
 
+    residual = project(dsg.residual_ut)
+    p_white = null.white_p(residual, contiguous_blocks(len(residual), n_test_blocks(len(residual))))
+    if p_white > null.WHITE_LEVEL:
+        return null.none(len(m_kept), f"the residual is consistent with white noise (p = {p_white:.2g} for its "
+                                      "block sums): the F distribution is its null")
     try:
-        model = null.learn(project(dsg.residual_ut), project, m_kept, t_kept, dsg.directions,
-                           design.full_candidate_calibration(dsg))
+        model = null.learn(residual, project, m_kept, t_kept, dsg.directions, design.full_candidate_calibration(dsg))
     except (ValueError, np.linalg.LinAlgError) as exc:
         return null.none(len(m_kept), f"no twin could be learned ({exc})")
     return null.draws(model, dsg.directions, t_kept, chans_kept)

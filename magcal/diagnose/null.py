@@ -36,6 +36,7 @@ import numpy as np
 from ..core.calibration import Calibration
 
 DRAWS = 24
+WHITE_LEVEL = 0.05  # a residual whose block sums are consistent with white noise at this level gets no twin
 SEED = 0x7E1
 FIT_SEEDS = (11,)
 
@@ -45,8 +46,9 @@ class NullDraws:
     """Residuals of the recording's twin with no candidate term."""
 
     e: np.ndarray  # (n, K) radial residual draws (µT), one column per draw
+    white: np.ndarray  # (n, K) the same draws without the twin's wander (the white noise and quantum alone)
     model: object | None  # the SensorModel they were drawn from (None: none could be learned)
-    why_not: str = ""  # when no twin could be learned: why (the tests are then referred to F alone)
+    why_not: str = ""  # when no draws were made: why (the tests are then referred to F alone)
 
     @property
     def count(self) -> int:
@@ -54,10 +56,25 @@ class NullDraws:
 
     def to_dict(self) -> dict:
         """What the tests were judged against, for the JSON."""
-        if self.model is None:
+        if self.model is None or not self.count:
             return {"draws": 0, "why_not": self.why_not}
         return {"draws": self.count, "noise_ut": self.model.noise_ut[0], "quantum_ut": list(self.model.quantum_ut),
                 "wander": [c.to_dict() for c in self.model.wander]}
+
+
+def white_p(residual_ut: np.ndarray, blocks: list) -> float:
+    """p of the residual's block sums under white noise: Σ_b S_b² / (σ² n_b) against χ² with
+    one degree of freedom per block less one (the level is fitted). A residual with no sign
+    of wander gets no twin: a wander fitted to chance structure would only cost the tests
+    power, and the bias-corrected block covariance keeps the F distribution for white noise."""
+    from .distributions import chi2_sf
+
+    r = np.asarray(residual_ut, np.float64)
+    var = float(r @ r) / max(len(r), 1)
+    if var <= 0 or len(blocks) < 3:
+        return 1.0
+    q = sum(float(r[b].sum()) ** 2 / (b.stop - b.start) for b in blocks) / var
+    return chi2_sf(q, len(blocks) - 1)
 
 
 def learn(residual_ut: np.ndarray, project, m: np.ndarray, t: np.ndarray, u: np.ndarray, calibration: Calibration):
@@ -83,18 +100,30 @@ def learn(residual_ut: np.ndarray, project, m: np.ndarray, t: np.ndarray, u: np.
 def draws(model, u: np.ndarray, t: np.ndarray, chans: Mapping[str, np.ndarray], count: int = DRAWS,
           seed: int = SEED) -> NullDraws:
     """``count`` radial residual draws of ``model`` (a SensorModel) without its channel terms
-    (the null: no candidate term) on directions ``u`` at times ``t`` with channels ``chans``,
-    each about the model's own calibration."""
+    (the null: no candidate term) on directions ``u`` at times ``t``, each about the model's
+    own calibration. To first order in the random parts (as the design's columns are linear),
+    the radial residual of a draw is the twin's own random parts (SensorModel.draws: the offset
+    wander's path and the white noise) and the quantum's rounding error, each along the field
+    direction: that, not the full distort-and-correct round trip, is what is drawn."""
     for c in model.calibration.coef_ut_per_unit:
         model = model.without(c)
-    used = {c: chans[c] for c in chans if c != "t_s"}
-    radius = model.radius_ut(u, used)
+    if not any(np.any(np.asarray(c.sigma_ut) > 0) for c in model.wander):
+        # a white twin: every draw equals its own wander-free copy, λ = 1, the F distribution holds
+        return NullDraws(np.zeros((len(u), 0)), np.zeros((len(u), 0)), model, "the twin has no wander")
+    u = np.asarray(u, np.float64)
+    q = np.asarray(model.quantum_ut, np.float64)
+    noise = np.asarray(model.noise_ut, np.float64)
     out = np.empty((len(u), count))
+    white = np.empty((len(u), count))
     for k in range(count):
-        sim, _ = model.simulate(u, t, used, seed + k)
-        out[:, k] = np.linalg.norm(model.calibration.correct(sim, used), axis=1) - radius
-    return NullDraws(out, model)
+        parts = model.draws(t, seed + k)
+        v = noise * parts.noise
+        if np.any(q > 0):  # rounding to the quantum: uniform within ±q/2 on each axis
+            v = v + q * (np.random.default_rng([seed + k, 0x9A]).random(v.shape) - 0.5)
+        white[:, k] = np.einsum("ij,ij->i", u, v)
+        out[:, k] = white[:, k] + np.einsum("ij,ij->i", u, parts.wander_ut)
+    return NullDraws(out, white, model)
 
 
 def none(n: int, why: str) -> NullDraws:
-    return NullDraws(np.zeros((n, 0)), None, why)
+    return NullDraws(np.zeros((n, 0)), np.zeros((n, 0)), None, why)

@@ -7,8 +7,8 @@
 2. The practical floor: an effect smaller than max(0.03 µT, 0.1 × noise) is not worth a term;
    soft iron must also move some gain by at least softiron.MIN_GAIN_DEVIATION.
 3. The wander gate: a slow channel term (significant only against the quadratic wander) must
-   explain at least channels.WANDER_RATIO × the slow offset wander it leaves unexplained, and
-   line up with the residual better than phase-randomised copies of itself (surrogate gate).
+   explain at least channels.WANDER_RATIO × the slow offset wander it leaves unexplained.
+   Every p-value here is already judged against the recording's twin (magcal.diagnose.null).
 4. Held-out: drop, one at a time, any term whose removal does not hurt the held-out residual of
    the linearised model (interleaved time blocks, both models carrying the wander nuisance).
 """

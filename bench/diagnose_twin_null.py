@@ -1,0 +1,112 @@
+"""``diagnose``'s false alarms on twins of real recordings, beside the white-noise simulator.
+
+    python3 bench/diagnose_twin_null.py [--draws N] [--first-seed S] [--max-samples M] [--only NAME]
+
+For every real recording with motion (bench/twin_recordings.py: at least 1000 samples; the still
+takes are left out, they determine no calibration): its sensor twin is learned around fit's
+calibration (``magcal.diagnose.twin.learn``, what ``diagnose --model-out`` writes), without
+its channel terms and temperature gain, and drawn ``--draws`` times on the recording's own
+times and field directions (recovered through the inverse model: ``simulate --like``). Each draw
+gets fresh synthetic channels unrelated to it (a temperature swing, an intermittent current and
+a phase-randomised copy of one of them, as bench/diagnose_raw.py draws them) and is diagnosed
+with the defaults. Nothing in a draw follows any channel or time, so every channel or drift
+finding is a false alarm; ``diagnose`` states a family-wise false-alarm rate of alpha = 0.01
+per recording.
+
+Beside each twin, the same model with its offset wander folded into white noise of the same
+variance (the white-noise simulator that the tests' F distributions assume). Printed per
+recording: draws and false alarms for the twin and for the white-noise simulator, the twin's
+wander, and the overall rates against alpha. A new ``--first-seed`` gives draws never seen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import warnings
+
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, ".."))
+sys.path.insert(0, HERE)
+
+import numpy as np  # noqa: E402
+
+import twin_recordings as tr  # noqa: E402
+from diagnose_raw import EFFECT, channels_for  # noqa: E402
+from magcal.core.series import Series  # noqa: E402
+from magcal.diagnose import diagnose, twin  # noqa: E402
+from magcal.diagnose.ladder import ALPHA  # noqa: E402
+from magcal.fit import fit_calibration  # noqa: E402
+from twin_monitor import white_twin  # noqa: E402
+
+
+def bare(model):
+    """The twin without its channel terms and temperature gain: nothing in a draw follows a
+    channel, whatever channels it is diagnosed with."""
+    for c in list(model.calibration.coef_ut_per_unit):
+        model = model.without(c)
+    return model.without("temperature_gain")
+
+
+def false_alarms(model, u, t, seed: int) -> list:
+    """Channel or drift findings on one draw of ``model`` with fresh unrelated channels."""
+    rng = np.random.default_rng([seed, 0x7E1])
+    m, valid = model.simulate(u, t, None, seed)
+    chans = channels_for(t, rng, seed, "current_a" if rng.uniform() < 0.5 else "temp_c")
+    s = Series(t_s=t[valid], field_ut=m[valid], channels={c: v[valid] for c, v in chans.items()})
+    return [f.effect for f in diagnose(s).findings if f.effect in EFFECT.values()]
+
+
+def recordings(only: str | None, max_samples: int):
+    """(name, model, u, t) for every recording with motion that fit can calibrate."""
+    for name in tr.RECORDINGS:
+        if (only and only not in name) or "still" in name:
+            continue
+        series, fixed = tr.load(name)
+        if fixed is not None:
+            continue
+        s = series.only_valid()
+        s = Series(t_s=s.t_s[:max_samples] - s.t_s[0], field_ut=s.field_ut[:max_samples])
+        r = fit_calibration(s.field_ut, model="auto")
+        if not r:
+            continue
+        model = bare(twin.learn(s, r.calibration))
+        yield name, model, model.directions_of(s.field_ut), s.t_s
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--draws", type=int, default=8, help="twin draws per recording (default 8)")
+    ap.add_argument("--first-seed", type=int, default=None, help="default: fresh from the OS")
+    ap.add_argument("--max-samples", type=int, default=8000)
+    ap.add_argument("--only", default=None)
+    args = ap.parse_args(argv)
+    warnings.filterwarnings("ignore")
+    seed0 = args.first_seed if args.first_seed is not None else int.from_bytes(os.urandom(4), "little")
+    print(f"diagnose on twins of real recordings: {args.draws} draws each, first seed {seed0}, alpha {ALPHA} "
+          "(family-wise, per recording)")
+    print(f"{'recording':<44}{'n':>6}{'wander µT (τ s)':>28}{'twin FA':>10}{'white FA':>10}{'CPU s':>7}")
+    totals = {"twin": [0, 0], "white": [0, 0]}
+    for k, (name, model, u, t) in enumerate(recordings(args.only, args.max_samples)):
+        c0 = time.process_time()
+        line = {}
+        for label, mdl in (("twin", model), ("white", white_twin(model))):
+            hits = [bool(false_alarms(mdl, u, t, seed0 + 1000 * k + j)) for j in range(args.draws)]
+            totals[label][0] += sum(hits)
+            totals[label][1] += len(hits)
+            line[label] = f"{sum(hits)}/{len(hits)}"
+        wander = ", ".join(f"{np.sqrt(np.mean(np.square(c.sigma_ut))):.2f} ({c.tau_s:.3g})" for c in model.wander) or "none"
+        per = (time.process_time() - c0) / (2 * args.draws)
+        print(f"{name[:43]:<44}{len(t):>6}{wander[:27]:>28}{line['twin']:>10}{line['white']:>10}{per:>7.2f}", flush=True)
+    for label, (fa, n) in totals.items():
+        rate = fa / n if n else float("nan")
+        print(f"all {label:>5}: {fa}/{n} draws with a false alarm ({100 * rate:.1f} %; stated alpha {100 * ALPHA:.0f} %)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
