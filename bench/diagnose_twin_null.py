@@ -13,10 +13,12 @@ with the defaults. Nothing in a draw follows any channel or time, so every chann
 finding is a false alarm; ``diagnose`` states a family-wise false-alarm rate of alpha = 0.01
 per recording.
 
-Beside each twin, the same model with its offset wander folded into white noise of the same
-variance (the white-noise simulator that the tests' F distributions assume). Printed per
-recording: draws and false alarms for the twin and for the white-noise simulator, the twin's
-wander, and the overall rates against alpha. A new ``--first-seed`` gives draws never seen.
+Beside each twin: the same draws diagnosed with the tests referred to the F distribution alone
+(``diagnose(..., twin_null=False)``, white noise as the null: what the twin changes), and the
+same model with its offset wander folded into white noise of the same variance (the white-noise
+simulator), diagnosed as usual. Printed per recording: the twin's wander and the draws with a
+false alarm in each of the three, then the overall rates against alpha. A new ``--first-seed``
+gives draws never seen.
 """
 
 from __future__ import annotations
@@ -52,13 +54,14 @@ def bare(model):
     return model.without("temperature_gain")
 
 
-def false_alarms(model, u, t, seed: int) -> list:
-    """Channel or drift findings on one draw of ``model`` with fresh unrelated channels."""
+def false_alarms(model, u, t, seed: int, twin_null: bool = True) -> list:
+    """Channel or drift findings on one draw of ``model`` with fresh unrelated channels
+    (``twin_null``: diagnose's own; False: its tests referred to the F distribution alone)."""
     rng = np.random.default_rng([seed, 0x7E1])
     m, valid = model.simulate(u, t, None, seed)
     chans = channels_for(t, rng, seed, "current_a" if rng.uniform() < 0.5 else "temp_c")
     s = Series(t_s=t[valid], field_ut=m[valid], channels={c: v[valid] for c, v in chans.items()})
-    return [f.effect for f in diagnose(s).findings if f.effect in EFFECT.values()]
+    return [f.effect for f in diagnose(s, twin_null=twin_null).findings if f.effect in EFFECT.values()]
 
 
 def recordings(only: str | None, max_samples: int):
@@ -89,22 +92,23 @@ def main(argv=None) -> int:
     seed0 = args.first_seed if args.first_seed is not None else int.from_bytes(os.urandom(4), "little")
     print(f"diagnose on twins of real recordings: {args.draws} draws each, first seed {seed0}, alpha {ALPHA} "
           "(family-wise, per recording)")
-    print(f"{'recording':<44}{'n':>6}{'wander µT (τ s)':>28}{'twin FA':>10}{'white FA':>10}{'CPU s':>7}")
-    totals = {"twin": [0, 0], "white": [0, 0]}
+    print(f"{'recording':<44}{'n':>6}{'wander µT (τ s)':>28}{'twin FA':>10}{'F alone':>10}{'white FA':>10}{'CPU s':>7}")
+    totals = {"twin": [0, 0], "F alone": [0, 0], "white": [0, 0]}
     for k, (name, model, u, t) in enumerate(recordings(args.only, args.max_samples)):
         c0 = time.process_time()
         line = {}
-        for label, mdl in (("twin", model), ("white", white_twin(model))):
-            hits = [bool(false_alarms(mdl, u, t, seed0 + 1000 * k + j)) for j in range(args.draws)]
+        for label, mdl, own in (("twin", model, True), ("F alone", model, False), ("white", white_twin(model), True)):
+            hits = [bool(false_alarms(mdl, u, t, seed0 + 1000 * k + j, own)) for j in range(args.draws)]
             totals[label][0] += sum(hits)
             totals[label][1] += len(hits)
             line[label] = f"{sum(hits)}/{len(hits)}"
         wander = ", ".join(f"{np.sqrt(np.mean(np.square(c.sigma_ut))):.2f} ({c.tau_s:.3g})" for c in model.wander) or "none"
-        per = (time.process_time() - c0) / (2 * args.draws)
-        print(f"{name[:43]:<44}{len(t):>6}{wander[:27]:>28}{line['twin']:>10}{line['white']:>10}{per:>7.2f}", flush=True)
+        per = (time.process_time() - c0) / (3 * args.draws)
+        print(f"{name[:43]:<44}{len(t):>6}{wander[:27]:>28}{line['twin']:>10}{line['F alone']:>10}{line['white']:>10}{per:>7.2f}",
+              flush=True)
     for label, (fa, n) in totals.items():
         rate = fa / n if n else float("nan")
-        print(f"all {label:>5}: {fa}/{n} draws with a false alarm ({100 * rate:.1f} %; stated alpha {100 * ALPHA:.0f} %)")
+        print(f"all {label:>7}: {fa}/{n} draws with a false alarm ({100 * rate:.1f} %; stated alpha {100 * ALPHA:.0f} %)")
     return 0
 
 

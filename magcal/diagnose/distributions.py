@@ -26,7 +26,10 @@ _EPS = 1e-15
 
 
 def _log_beta_cf(x: float, a: float, b: float) -> float:
-    """ln of the continued fraction of I_x(a, b) (converges fast for x < (a + 1)/(a + b + 2))."""
+    """ln of the continued fraction of I_x(a, b) (converges fast for x < (a + 1)/(a + b + 2)).
+    The same fraction as fit.outliers._beta_cf, kept here in scalar Python on purpose: the
+    quantiles below evaluate it inside a bisection, where numpy's per-call cost on 0-d arrays
+    made them 20× slower (1.6 s against 0.085 s for 400 quantiles and tails)."""
     f = c = _TINY
     d = 0.0
     log_f = math.log(_TINY)

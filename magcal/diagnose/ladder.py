@@ -93,11 +93,14 @@ STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare
          "compare_with_simulation", "describe")
 
 
-def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: bool = True, on_step=None) -> Diagnosis:
+def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: bool = True, on_step=None,
+             twin_null: bool = True) -> Diagnosis:
     """Model discovery on one recording (see the module docstring for the ladder).
     ``screen``: leave out channels that follow the orientation or the reading
     (magcal.diagnose.hygiene); False when the user named the channels. ``on_step(name)``, when
-    given, is told as each step begins (``STEPS``: a progress display)."""
+    given, is told as each step begins (``STEPS``: a progress display). ``twin_null``: judge
+    every test against the recording's twin (magcal.diagnose.null); False refers them to the F
+    distribution alone, white noise as the null (to measure what the twin changes)."""
     step = on_step or (lambda name: None)
     step("set_aside_glitches")
     analysed = set_aside_glitches(prepare(series), alpha)
@@ -107,7 +110,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     reference = fit_reference(analysed, base_kept)
     noise_ut = analysed.glitches.noise_ut
     step("select_terms")
-    selected = select_terms(analysed, reference, alpha, noise_ut, folds)
+    selected = select_terms(analysed, reference, alpha, noise_ut, folds, twin_null)
     step("refit")
     final, accepted = refit(analysed, reference, selected)
     selected = replace(selected, accepted=accepted)
@@ -213,7 +216,7 @@ def fit_reference(a: Analysed, base: ModelFit) -> ModelFit:
     return base if isinstance(ref, FitFailure) else ref
 
 
-def test_terms(a: Analysed, ref: ModelFit) -> tuple[design.Design, dict, dict, list, null.NullDraws]:
+def test_terms(a: Analysed, ref: ModelFit, twin_null: bool = True) -> tuple[design.Design, dict, dict, list, null.NullDraws]:
     """Build the candidate design at the reference model and test every term
     (magcal.diagnose.design): soft iron along the directions the data determine, every channel
     with soft iron in place (so that the soft iron a sphere leaves cannot pass for a channel),
@@ -223,7 +226,7 @@ def test_terms(a: Analysed, ref: ModelFit) -> tuple[design.Design, dict, dict, l
     m_kept, t_kept, chans_kept = a.kept
     candidates, skipped = channels.candidates(a.t, a.logged)
     dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
-    draws = draw_null(a, dsg)
+    draws = draw_null(a, dsg) if twin_null else null.none(len(m_kept), "the twin as the null was switched off")
     e_null = (draws.e, draws.white) if draws.count else None
     tests = block_wald(dsg.x, dsg.residual_ut, dsg.groups, min_unique={softiron.EFFECT: softiron.MIN_UNIQUE},
                               null=e_null)
@@ -256,10 +259,10 @@ def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
     return null.draws(model, dsg.directions, t_kept, chans_kept)
 
 
-def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, folds: int) -> Selected:
+def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, folds: int, twin_null: bool = True) -> Selected:
     """Which tested terms earn a place (magcal.diagnose.selection): significant, above the
     practical floor, past the wander gate, and helping the held-out residual."""
-    dsg, tests, rich, skipped, draws = test_terms(a, ref)
+    dsg, tests, rich, skipped, draws = test_terms(a, ref, twin_null)
     floor_ut = selection.practical_floor_ut(noise_ut)
     verdict = selection.significant(tests, rich, alpha, floor_ut)
     soft_size = softiron.fitted_size(dsg.x[:, dsg.groups[softiron.EFFECT]], dsg.soft_dirs, ref)

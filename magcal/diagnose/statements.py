@@ -87,8 +87,9 @@ def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
     nuisance = f"slow offset wander up to degree {design.RICH_DEGREE} in time" if fast else "quadratic offset wander in time"
     ev = {
         "test": "Wald, block-HAC (batch means over contiguous time blocks, bias-corrected for the fitted "
-        "nuisance columns), Holm-controlled, with a " + nuisance + " as a nuisance, judged against "
-        f"{selected.null.count} draws of the recording's twin",
+        "nuisance columns), Holm-controlled, with a " + nuisance + " as a nuisance, "
+        + (f"judged against {selected.null.count} draws of the recording's twin" if selected.null.count
+           else f"referred to the F distribution ({selected.null.why_not})"),
         "F": r.f,
         "df": [r.df1, r.df2],
         "p_value": r.p,
@@ -194,5 +195,5 @@ def tests_record(selected) -> dict:
             "coef_ut_per_unit": -r.beta if g != softiron.EFFECT else None}
         for g, r in selected.tests.items()
     }
-    return {"skipped_channels": selected.skipped, "against_rich_wander": rich, "survivors": list(selected.survivors),
+    return {"skipped_channels": selected.skipped, "twin_null": selected.null.to_dict(), "against_rich_wander": rich, "survivors": list(selected.survivors),
             "heldout": dict(selected.heldout), "candidates": candidates}
