@@ -49,26 +49,28 @@ def estimating_test(g: str, selected):
     return selected.tests[g]
 
 
-def widened(cov: np.ndarray, spread: np.ndarray | None) -> tuple[np.ndarray, float]:
-    """The test's covariance scaled up, when the shifted copies spread wider, by their mean
-    ratio tr(V⁻¹ S) / k (never down): (covariance, factor)."""
-    if spread is None:
-        return cov, 1.0
-    k = cov.shape[0]
-    factor = max(1.0, float(np.trace(np.linalg.pinv(cov, rcond=1e-10, hermitian=True) @ spread)) / k)
+def widened(cov: np.ndarray, spread: np.ndarray | None, inflation: float = 1.0) -> tuple[np.ndarray, float]:
+    """The test's covariance scaled up (never down) by the larger of the test's twin inflation λ
+    (inference.calibrated: the test's statistic is divided by it and its floor raised by it, so
+    the region, the same test inverted, carries it too) and the draws' own coefficient spread
+    over it, tr(V⁻¹ S) / k: (covariance, factor)."""
+    factor = max(1.0, float(inflation))
+    if spread is not None:
+        k = cov.shape[0]
+        factor = max(factor, float(np.trace(np.linalg.pinv(cov, rcond=1e-10, hermitian=True) @ spread)) / k)
     return cov * factor, factor
 
 
 def interval(coef: np.ndarray, result) -> dict:
     """The 95 % uncertainty of a channel coefficient from the block-HAC covariance of its test,
-    widened to the coefficient's spread over the twin's draws where that is larger (see
-    ``widened``: the draws carry the recording's own wander, which a covariance estimated from
-    a few blocks can miss): per axis (Student t with ν, the effective number of blocks, as
-    degrees of freedom) and as a joint region (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
+    widened by the test's twin inflation λ, or to the coefficient's spread over the twin's draws
+    where that is larger (see ``widened``: the draws carry the recording's own wander, which a
+    covariance estimated from a few blocks can miss): per axis (Student t with ν, the effective
+    number of blocks, as degrees of freedom) and as a joint region (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
     if result.cov is None:
         return {}
     nu = float(result.nu)
-    cov, factor = widened(result.cov, result.null_spread)
+    cov, factor = widened(result.cov, result.null_spread, result.inflation)
     half = float(t_isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
     k, df2 = result.df1, float(result.df2)
     return {
