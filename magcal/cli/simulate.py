@@ -23,7 +23,7 @@ from ..core.series import Series
 from ..recordings.table import save_csv
 from ..sim.physics import Current, Motion, Physics, Scenario, Temperature
 from .common import Progress, document, print_json
-from .options import add, add_alias, existing_file, floats, non_negative, positive, share
+from .options import add, add_alias, existing_file, floats, non_negative, non_negative_int, positive, share
 
 HELP = "write a simulated MPU-9150 recording (CSV, µT) with known physics"
 
@@ -37,7 +37,7 @@ def add_arguments(p) -> None:
                    help="simulate this sensor model (YAML or JSON, as diagnose --model-out writes it)")
     p.add_argument("--like", type=existing_file, metavar="REC",
                    help="with --model: a twin of REC, on its own times, channels and field directions")
-    p.add_argument("--seed", type=int, default=1, help="random seed: the same seed gives the same recording")
+    p.add_argument("--seed", type=non_negative_int, default=1, help="random seed: the same seed gives the same recording")
     p.add_argument("--motion", choices=("sphere", "tilt", "yaw", "still"), default="sphere",
                    help="how the board is turned: every direction (sphere), ±30° tilts, flat turns (yaw), or held still")
     _quantity(p, "--offset-ut", "--offset", default="23.5,-41.2,12.8", type=floats(3), metavar="X,Y,Z",
