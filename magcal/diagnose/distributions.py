@@ -21,27 +21,22 @@ from __future__ import annotations
 
 import math
 
+from ..fit.outliers import beta_cf_numerator
+
 _TINY = 1e-300
 _EPS = 1e-15
 
 
 def _log_beta_cf(x: float, a: float, b: float) -> float:
     """ln of the continued fraction of I_x(a, b) (converges fast for x < (a + 1)/(a + b + 2)).
-    The same fraction as fit.outliers._beta_cf, kept here in scalar Python on purpose: the
-    quantiles below evaluate it inside a bisection, where numpy's per-call cost on 0-d arrays
+    The same fraction (the same terms) as fit.outliers._beta_cf, iterated here in scalar Python on
+    purpose: the quantiles below evaluate it inside a bisection, where numpy's per-call cost on 0-d arrays
     made them 20× slower (1.6 s against 0.085 s for 400 quantiles and tails)."""
     f = c = _TINY
     d = 0.0
     log_f = math.log(_TINY)
     for k in range(2000):
-        if k == 0:
-            num = 1.0
-        elif k % 2:
-            m = (k - 1) // 2
-            num = -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))
-        else:
-            m = k // 2
-            num = m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m))
+        num = beta_cf_numerator(k, x, a, b)
         d = 1.0 + num * d
         d = 1.0 / (d if abs(d) > _TINY else _TINY)
         c = 1.0 + num / c

@@ -26,6 +26,18 @@ def _ln_gamma(x) -> np.ndarray:
     return np.asarray(_lgamma(np.asarray(x, dtype=np.float64)), dtype=np.float64)
 
 
+def beta_cf_numerator(k: int, x, a, b):
+    """d_k of the continued fraction of the regularised incomplete beta function I_x(a, b)
+    (DLMF 8.17.22), d_0 = 1; for a float or an array ``x`` alike."""
+    if k == 0:
+        return 1.0 + 0.0 * x
+    if k % 2:
+        m = (k - 1) // 2
+        return -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))
+    m = k // 2
+    return m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m))
+
+
 def _beta_cf(x, a, b, iterations: int = 500) -> np.ndarray:
     """1/(1 + d₁/(1 + d₂/(1 + …))), the continued fraction of the regularised incomplete beta
     function (DLMF 8.17.22), by the modified Lentz method; converges fast for
@@ -34,15 +46,7 @@ def _beta_cf(x, a, b, iterations: int = 500) -> np.ndarray:
     f = np.full_like(x, tiny)
     c, d = f.copy(), np.zeros_like(x)
     for j in range(iterations):
-        k = j  # the numerator d_k (d_0 = 1)
-        if k == 0:
-            num = np.ones_like(x)
-        elif k % 2:
-            m = (k - 1) // 2
-            num = -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))
-        else:
-            m = k // 2
-            num = m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m))
+        num = beta_cf_numerator(j, x, a, b)
         d = 1.0 + num * d
         d = 1.0 / np.where(np.abs(d) < tiny, tiny, d)
         c = 1.0 + num / c
