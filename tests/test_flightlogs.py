@@ -239,6 +239,10 @@ def test_diagnose_tests_the_current_against_the_expected_field():
             assert term["kept"] and term["norm_ut_per_unit"] > 3 * term["floor_ut_per_unit"]
     text = magcal("diagnose", BIN, "--mag", "2").stdout
     assert "finding     current_interference: current_a kept" in text
+    # where |m| alone could not test the current, its line points at the test below it
+    text = magcal("diagnose", BIN, "--mag", "1").stdout
+    said = [ln for ln in text.splitlines() if ln.startswith("limit       current_interference")]
+    assert said and all("tested against the expected field below" in ln for ln in said)
 
 
 def test_export_of_a_log_diagnosis_writes_its_vector_calibration(tmp_path):

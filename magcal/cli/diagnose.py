@@ -52,7 +52,8 @@ def add_arguments(p) -> None:
 
 
 def format_text(d: dict) -> str:
-    """The human-readable summary of a diagnosis dict (pure)."""
+    """The human-readable summary of a diagnosis dict (pure). On a flight log, a limit on a
+    channel that the log section below tests against the expected field says so."""
     b, f = d["baseline"], d["final"]
     lines = [f"input       {d['input']}"] if d.get("input") else []
     lines += [
@@ -69,9 +70,11 @@ def format_text(d: dict) -> str:
     for k in d["findings"]:
         lines.append(f"finding     {k['effect']}: {k['summary']}")
     lines += left_out_lines(d.get("limits", []))
+    tested_below = {f["channel"] for f in (d.get("flight_log") or {}).get("findings", [])}
     for k in d.get("limits", []):
         if not k.get("left_out"):
-            lines.append(f"limit       {k['effect']}: {k['summary']}")
+            below = " (from |m| alone; tested against the expected field below)" if k.get("channel") in tested_below else ""
+            lines.append(f"limit       {k['effect']}{below}: {k['summary']}")
     source = {"fit": "   (magcal fit's calibration)", "fit+channels": "   (magcal fit's, with the channel terms)"}
     lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT"
                  + source.get(f.get("from", ""), ""))
