@@ -46,6 +46,9 @@ def test_blank_board_then_a_payload_every_write_verified_and_within_budget(tmp_p
     assert status == "OK" and values == record_from_calibration(d.drift.calibration)
     codes = _codes(d)
     assert Decision.KEEPING.value in codes and Decision.DRIFTED.value in codes
+    # the alarm says the tracker starts afresh, not that a session collects (it is not the writer)
+    after = codes[codes.index(Decision.DRIFTED.value):]
+    assert Decision.TRACKER_RESTARTED.value in after and Decision.COLLECTING.value not in codes
     assert codes.count(Decision.WRITTEN.value) == k.writes
     st = d.status()["keeping"]
     assert st["writes"] == k.writes and st["eeprom_cycles"] == len(saved)

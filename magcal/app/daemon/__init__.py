@@ -123,8 +123,7 @@ class Daemon:
         self.control = ControlSocket(self.state_dir, self.journal)
         self.started_wall = wall()
         self.stopped_by: Stop | None = None
-        self._stop = threading.Event()
-        self._reload = threading.Event()
+        self._stop, self._reload = threading.Event(), threading.Event()
 
     def request_stop(self) -> None:
         self._stop.set()
@@ -243,9 +242,10 @@ class Daemon:
                         self.on_sample(self.intake.epoch, item)
         if heard:
             self.link.heard()
-        if fields and self.drift.add(fields, temps):
-            self.recalibrator.drifted(self._may_write())  # what was collected belongs to the old field
-            self.tracking.restart()
+        if fields and self.drift.add(fields, temps):  # what was collected belongs to the old field
+            tracker_keeps = self.settings.daemon.keep == "tracker"  # then it says what happens next
+            self.recalibrator.drifted(self._may_write(), say=not tracker_keeps)
+            self.tracking.restart(self._may_write() if tracker_keeps else None)
 
     def _event(self, ev: Event) -> None:
         if ev.kind == "gap":

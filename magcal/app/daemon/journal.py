@@ -40,6 +40,7 @@ monitor_retuned       info     monitor settings changed; monitor learns the nois
 baseline_done         info     monitor baseline done
 drifted               warning  calibration no longer fits the data
 collecting            info     collecting for a recalibration
+tracker_restarted     info     the tracker starts afresh on the new field; it writes once the gates pass
 reporting_only        info     recalibration disabled (daemon.recalibrate: false); reporting only
 solving               info     gates pass on the live estimate: solving
 refused               warning  recalibration refused

@@ -43,10 +43,12 @@ class Recalibrator:
         self.session = Session(self.settings.gates, self.settings.model)
         self._since_ready = 0
 
-    def drifted(self, may_write: bool) -> None:
-        """The calibration held stopped fitting: collect for a new one (when writing is allowed)."""
+    def drifted(self, may_write: bool, say: bool = True) -> None:
+        """The calibration held stopped fitting: collect for a new one (when writing is allowed);
+        ``say``: this decider writes, so the journal says it collects."""
         self.restart()
-        self._journal.record(Decision.COLLECTING if may_write else Decision.REPORTING_ONLY)
+        if say:
+            self._journal.record(Decision.COLLECTING if may_write else Decision.REPORTING_ONLY)
 
     def poll(self, may_write: bool, wanted: bool) -> Session | None:
         """Every ``READY_EVERY`` collected samples, when a calibration is wanted and may be

@@ -44,9 +44,12 @@ class TrackingDecider:
         self.keeper.add(field_ut, t_s)
         self._since += 1
 
-    def restart(self) -> None:
-        """The drift monitor rang: the tracker starts afresh (``Keeper.restart``)."""
+    def restart(self, may_write: bool | None = None) -> None:
+        """The drift monitor rang: the tracker starts afresh (``Keeper.restart``). ``may_write``
+        given: this decider keeps the device, and the journal says what happens next."""
         self.keeper.restart()
+        if may_write is not None:
+            self._journal.record(Decision.TRACKER_RESTARTED if may_write else Decision.REPORTING_ONLY)
 
     def _clearance(self, cal: Calibration) -> Clearance:
         """The gates' decision, on the tracker's own evidence (its memory: samples, directions,
