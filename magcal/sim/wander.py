@@ -43,7 +43,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import fft as sfft, signal
 from scipy.optimize import nnls
 
 K_COSINES = 48  # cosines per component and axis (``draw``)
@@ -154,10 +153,9 @@ def draw(components, seed: int, t_s, chunk: int = 8192) -> tuple[np.ndarray, np.
 
 # -- drawing: a whole stream ---------------------------------------------------------------
 def draw_path(components, rng: np.random.Generator, t_s) -> tuple[np.ndarray, np.ndarray]:
-    """(offset (n, 3), field (n,)) µT along a whole stream (times ascending): an exact AR(1)
-    recursion per OU component, Fourier synthesis for the band components; read at ``t_s`` by
-    linear interpolation. Same processes as ``draw``, faster for long streams; not random
-    access."""
+    """(offset (n, 3), field (n,)) µT along a whole stream (times ascending): the exact AR(1)
+    recursion at the stream's own times per OU component, Fourier synthesis for the band
+    components. Same processes as ``draw``, faster for long streams; not random access."""
     t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
     out = np.zeros((len(t), 4))  # offset x, y, z and the field
     if len(t) == 0 or not components:
@@ -173,30 +171,77 @@ def draw_path(components, rng: np.random.Generator, t_s) -> tuple[np.ndarray, np
     return out[:, :3], out[:, 3]
 
 
+OU_CHUNK = 600.0  # correlation times per chunk of the OU recursion (e^600 is well inside float64)
+
+
 def _ou_path(tau_s: float, rng: np.random.Generator, t: np.ndarray, k: int) -> np.ndarray:
-    """(n, k) unit-variance OU paths at times t."""
-    span = float(t[-1] - t[0])
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
-    step = max(min(dt, tau_s / 16.0), span / 2_000_000, 1e-9)
-    n = int(np.ceil(span / step)) + 2
-    a = np.exp(-step / tau_s)
-    z = rng.standard_normal((n, k)) * np.sqrt(1.0 - a * a)
-    z[0] = rng.standard_normal(k)  # start in the stationary distribution
-    x = signal.lfilter([1.0], [1.0, -a], z, axis=0)
-    grid = t[0] + step * np.arange(n)
-    return np.column_stack([np.interp(t, grid, x[:, i]) for i in range(k)])
+    """(n, k) unit-variance OU paths at times t: x_i = a_i x_(i-1) + √(1 − a_i²) z_i with
+    a_i = exp(−(t_i − t_(i-1))/τ), the process's own transition (exact at any spacing, no grid),
+    started in the stationary distribution. The linear recursion is solved in closed form,
+    x_i = e^(−s_i) (a_c x_c + Σ_(j≤i) e^(s_j) b_j) with s the time since the chunk's first
+    sample in units of τ, chunk by chunk so that e^s stays finite."""
+    z = rng.standard_normal((len(t), k))
+    a = np.exp(-np.diff(t) / tau_s)
+    z[1:] *= np.sqrt(1.0 - a * a)[:, None]
+    x = np.empty_like(z)
+    x[0] = z[0]
+    start = 1
+    while start < len(t):
+        stop = max(start + 1, int(np.searchsorted(t, t[start] + OU_CHUNK * tau_s, side="right")))
+        s = (t[start:stop] - t[start]) / tau_s
+        acc = np.cumsum(np.exp(s)[:, None] * z[start:stop], axis=0)
+        acc += a[start - 1] * x[start - 1]
+        x[start:stop] = np.exp(-s)[:, None] * acc
+        start = stop
+    return x
+
+
+def _fast_len(n: int) -> int:
+    """The smallest 2^a 3^b 5^c ≥ n (a length numpy's FFT transforms fast)."""
+    best, p5 = 1 << max(0, int(n - 1).bit_length()), 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            p = p35
+            while p < n:
+                p *= 2
+            best = min(best, p)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+UNIFORM = 1e-3  # times within this share of a sample period of a uniform grid are read on it
 
 
 def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
     """(n, 4) the band components' sum (offset x, y, z; field) by Fourier synthesis on a grid
-    twice the stream's span (so the periodic wrap does not correlate its ends)."""
+    twice the stream's span (so the periodic wrap does not correlate its ends). Uniform times
+    are read on the grid of their own period (each sample a grid point: nothing interpolated);
+    other times on a finer grid by linear interpolation."""
+    n = len(t)
     span = max(float(t[-1] - t[0]), 1e-6)
-    top = max(c.band_hz[1] for c in bands)
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else span
-    # fine enough that reading the grid by linear interpolation keeps the variance (16 points
-    # to the shortest period), and the sample period divided evenly (uniform samples sit on it)
-    step = max(dt / max(1, int(np.ceil(16.0 * top * dt))), 4.0 * span / MAX_GRID)
-    size = int(sfft.next_fast_len(int(np.ceil(2.0 * span / step)) + 2, real=True))
+    uniform = n > 1 and np.max(np.abs(t - np.linspace(t[0], t[-1], n))) <= UNIFORM * span / (n - 1)
+    if uniform:
+        step = span / (n - 1)
+    else:
+        dt = float(np.median(np.diff(t))) if n > 1 else span
+        top = max(c.band_hz[1] for c in bands)
+        # fine enough that reading the grid by linear interpolation keeps the variance (16
+        # points to the shortest period), and the sample period divided evenly
+        step = max(dt / max(1, int(np.ceil(16.0 * top * dt))), 4.0 * span / MAX_GRID)
+    size = _fast_len(int(np.ceil(2.0 * span / step)) + 2)
+    grid = np.fft.irfft(_band_spectrum(bands, rng, size, step), n=size, axis=0)
+    if uniform:
+        return grid[:n]
+    x = t[0] + step * np.arange(size)
+    return np.column_stack([np.interp(t, x, grid[:, i]) for i in range(4)])
+
+
+def _band_spectrum(bands, rng: np.random.Generator, size: int, step: float) -> np.ndarray:
+    """(size // 2 + 1, 4) the random Fourier coefficients of the band components on a grid of
+    ``size`` points ``step`` apart: each band's σ² spread evenly over the grid frequencies
+    inside it, random phases."""
     freqs = np.fft.rfftfreq(size, step)
     spec = np.zeros((len(freqs), 4), dtype=complex)
     for c in bands:
@@ -208,9 +253,7 @@ def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
         sig = np.asarray(c.sigma_ut)[: len(cols)] / np.sqrt(len(idx))
         z = rng.standard_normal((len(idx), len(cols))) - 1j * rng.standard_normal((len(idx), len(cols)))
         spec[np.ix_(idx, cols)] += z * sig * (size / 2.0)
-    grid = np.fft.irfft(spec, n=size, axis=0)
-    x = t[0] + step * np.arange(size)
-    return np.column_stack([np.interp(t, x, grid[:, i]) for i in range(4)])
+    return spec
 
 
 # -- fitting -------------------------------------------------------------------------------
