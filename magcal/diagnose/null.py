@@ -9,7 +9,7 @@ whenever the two happen to line up. Here the question is put to the recording's 
    with every candidate term and every nuisance of the design fitted out except the wander
    (``learn``): the offset wander as the sensor model's fitted process (magcal.sim.wander.fit,
    by simulated moments through the same projection), the white noise and the quantum
-   (magcal.diagnose.twin.quantum). With the candidate terms fitted, an effect that is there is
+   (magcal.diagnose.lattice.quantum). With the candidate terms fitted, an effect that is there is
    not taken for wander (a simulated temperature cycle would otherwise come back as wander of
    its own size); with the design's direction terms fitted, soft iron along a direction the
    data do not determine is not taken for wander either;
@@ -84,7 +84,7 @@ def learn(residual_ut: np.ndarray, project, m: np.ndarray, t: np.ndarray, u: np.
     (µT) for the quantum; ``calibration`` the deterministic part. A SensorModel."""
     from ..sim import wander
     from ..sim.model import SensorModel
-    from .twin import quantum
+    from .lattice import quantum
 
     # one seed of simulated moments per candidate: a binned periodogram over many frequencies
     # is already an average, and the test only needs the wander's spectrum roughly

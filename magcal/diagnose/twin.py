@@ -38,6 +38,7 @@ from ..sim.disturbance import Disturbances
 from ..sim.model import TEMP, SensorModel, replace_calibration
 from . import twin_stats as ts
 from .twin_names import Mismatch, locate, mismatches
+from .lattice import quantum
 from .model import Spec, fit_model
 
 DRAWS = 50
@@ -102,22 +103,6 @@ def refit(model: SensorModel, m, t, channels, free: bool = True) -> Residual | N
 
 
 # -- learning ------------------------------------------------------------------------------
-def quantum(m: np.ndarray) -> tuple:
-    """Per axis, the reading's step when the values sit on a lattice, else 0."""
-    out = []
-    for a in range(3):
-        v = np.unique(m[:, a])
-        d = np.diff(v)
-        d = d[d > 1e-12]
-        if len(d) < 10:
-            out.append(0.0)
-            continue
-        q = float(np.percentile(d, 5))
-        on_grid = np.abs(d / q - np.round(d / q)) < 0.02
-        out.append(q if np.mean(on_grid) > 0.95 else 0.0)
-    return tuple(out)
-
-
 def _heldout_gain(e: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
     """Coefficients of e on the columns of x (all data) and the held-out share of residual
     energy they remove: FOLDS folds of interleaved time blocks (BLOCKS blocks), so every fold

@@ -43,7 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import nnls
+from .nnls import nnls  # numpy: scipy.optimize costs a command 0.4 s to import
 
 K_COSINES = 48  # cosines per component and axis (``draw``)
 MIN_SHARE = 0.01  # a component carrying less than this share of the fitted variance is dropped

@@ -1,0 +1,61 @@
+"""Non-negative least squares in numpy: min ‖A x − b‖ subject to x ≥ 0.
+
+The active-set algorithm of Lawson and Hanson ("Solving Least Squares Problems", SIAM 1995,
+chapter 23), with each subproblem solved by an orthogonal least-squares solve on the free
+columns (never the normal equations, which would square the design's condition number). It
+gives the solution scipy.optimize.nnls gives (the same algorithm), without importing the
+optimiser package, which costs a command most of its start-up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def nnls(a: np.ndarray, b: np.ndarray, maxiter: int | None = None) -> tuple[np.ndarray, float]:
+    """(x, ‖A x − b‖) with x ≥ 0 minimising the residual. ``maxiter`` (default 3 × columns)
+    bounds the inner steps; RuntimeError when they run out."""
+    a0 = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    # x ≥ 0 is unchanged by a positive scale of each column: solved on unit columns, so that
+    # one tolerance serves columns of any size
+    norm = np.linalg.norm(a0, axis=0)
+    norm[norm == 0] = 1.0
+    a = a0 / norm
+    m, n = a.shape
+    maxiter = 3 * n if maxiter is None else maxiter
+    maxiter += n  # the outer steps (one per column freed) are counted too
+    x = np.zeros(n)
+    free = np.zeros(n, dtype=bool)
+    tol = 10.0 * max(m, n) * np.finfo(np.float64).eps * max(float(np.linalg.norm(b)), 1e-300)
+    steps = 0
+    w = a.T @ b
+    while not free.all():
+        steps += 1
+        j = int(np.argmax(np.where(free, -np.inf, w)))
+        if w[j] <= tol:
+            break
+        free[j] = True
+        s = _solve(a, b, free)
+        while np.any(s[free] <= 0):
+            steps += 1
+            if steps > maxiter:
+                raise RuntimeError("nnls: the maximum number of iterations was reached")
+            blocked = free & (s <= 0)
+            gap = x[blocked] - s[blocked]  # ≥ 0: x ≥ 0 ≥ s there
+            alpha = float(np.min(np.divide(x[blocked], gap, out=np.zeros_like(gap), where=gap > 0)))
+            x += alpha * (s - x)
+            free &= x > tol
+            x[~free] = 0.0
+            s = _solve(a, b, free)
+        x = s
+        w = a.T @ (b - a @ x)
+    x = x / norm
+    return x, float(np.linalg.norm(a0 @ x - b))
+
+
+def _solve(a: np.ndarray, b: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """The unconstrained least-squares solution on the free columns, zero elsewhere."""
+    s = np.zeros(a.shape[1])
+    s[free] = np.linalg.lstsq(a[:, free], b, rcond=None)[0]
+    return s
