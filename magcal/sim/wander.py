@@ -212,48 +212,67 @@ def _fast_len(n: int) -> int:
 
 
 UNIFORM = 1e-3  # times within this share of a sample period of a uniform grid are read on it
+PER_PERIOD = 6.0  # grid points to the shortest period when irregular times are interpolated
+TAPS = np.arange(-3, 5)  # the grid points (relative to the one before t) a reading is interpolated from
+_BARYCENTRIC = 1.0 / np.array([np.prod([xi - xj for xj in TAPS if xj != xi]) for xi in TAPS], dtype=np.float64)
 
 
 def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
     """(n, 4) the band components' sum (offset x, y, z; field) by Fourier synthesis on a grid
     twice the stream's span (so the periodic wrap does not correlate its ends). Uniform times
     are read on the grid of their own period (each sample a grid point: nothing interpolated);
-    other times on a finer grid by linear interpolation."""
+    irregular ones between the points of a grid with PER_PERIOD points to the top band's
+    shortest period, by Lagrange interpolation through the eight nearest (each frequency's
+    variance kept to 0.3 %: linear interpolation needs 16 points to keep 97 %)."""
     n = len(t)
     span = max(float(t[-1] - t[0]), 1e-6)
     uniform = n > 1 and np.max(np.abs(t - np.linspace(t[0], t[-1], n))) <= UNIFORM * span / (n - 1)
     if uniform:
         step = span / (n - 1)
     else:
-        dt = float(np.median(np.diff(t))) if n > 1 else span
         top = max(c.band_hz[1] for c in bands)
-        # fine enough that reading the grid by linear interpolation keeps the variance (16
-        # points to the shortest period), and the sample period divided evenly
-        step = max(dt / max(1, int(np.ceil(16.0 * top * dt))), 4.0 * span / MAX_GRID)
+        step = max(min(1.0 / (PER_PERIOD * top), span), 4.0 * span / MAX_GRID)
     size = _fast_len(int(np.ceil(2.0 * span / step)) + 2)
-    grid = np.fft.irfft(_band_spectrum(bands, rng, size, step), n=size, axis=0)
-    if uniform:
-        return grid[:n]
-    x = t[0] + step * np.arange(size)
-    return np.column_stack([np.interp(t, x, grid[:, i]) for i in range(4)])
+    spec, used = _band_spectrum(bands, rng, size, step)
+    out = np.zeros((n, 4))
+    grid = np.fft.irfft(spec[:, used], n=size, axis=0)  # the columns without a band stay zero
+    out[:, used] = grid[:n] if uniform else _lagrange(grid, (t - t[0]) / step)
+    return out
 
 
-def _band_spectrum(bands, rng: np.random.Generator, size: int, step: float) -> np.ndarray:
+def _lagrange(grid: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """(n, k) a periodic grid (size, k) read at fractional indices ``pos`` by the Lagrange
+    polynomial through the grid points TAPS around each."""
+    below = np.floor(pos)
+    d = (pos - below)[:, None] - TAPS  # (n, taps) distance to each grid point
+    at = d == 0
+    d[at] = 1.0
+    w = np.prod(d, axis=1, keepdims=True) / d * _BARYCENTRIC  # Π_(j≠i) (a − x_j) / (x_i − x_j)
+    w[at.any(axis=1)] = at[at.any(axis=1)]  # on a grid point: that point's value
+    idx = (below.astype(np.int64)[:, None] + TAPS) % len(grid)
+    return np.einsum("nt,ntk->nk", w, grid[idx])
+
+
+def _band_spectrum(bands, rng: np.random.Generator, size: int, step: float) -> tuple[np.ndarray, list]:
     """(size // 2 + 1, 4) the random Fourier coefficients of the band components on a grid of
-    ``size`` points ``step`` apart: each band's σ² spread evenly over the grid frequencies
-    inside it, random phases."""
+    ``size`` points ``step`` apart — each band's σ² spread evenly over the grid frequencies
+    inside it, random phases — and the columns that have any."""
     freqs = np.fft.rfftfreq(size, step)
     spec = np.zeros((len(freqs), 4), dtype=complex)
+    used = set()
     for c in bands:
         lo, hi = c.band_hz
-        idx = np.flatnonzero((freqs >= lo) & (freqs < hi) & (freqs > 0))
-        if not len(idx):  # narrower than the grid resolves: its nearest frequency
-            idx = np.array([max(1, int(np.argmin(np.abs(freqs - 0.5 * (lo + hi)))))])
-        cols = [0, 1, 2] if c.frame == OFFSET else [3]
-        sig = np.asarray(c.sigma_ut)[: len(cols)] / np.sqrt(len(idx))
-        z = rng.standard_normal((len(idx), len(cols))) - 1j * rng.standard_normal((len(idx), len(cols)))
-        spec[np.ix_(idx, cols)] += z * sig * (size / 2.0)
-    return spec
+        first, stop = max(1, int(np.searchsorted(freqs, lo))), int(np.searchsorted(freqs, hi))
+        if stop <= first:  # narrower than the grid resolves: its nearest frequency
+            first = max(1, int(np.argmin(np.abs(freqs - 0.5 * (lo + hi)))))
+            stop = first + 1
+        cols = slice(0, 3) if c.frame == OFFSET else slice(3, 4)
+        k = cols.stop - cols.start
+        sig = np.asarray(c.sigma_ut)[:k] / np.sqrt(stop - first)
+        z = rng.standard_normal((stop - first, k)) - 1j * rng.standard_normal((stop - first, k))
+        spec[first:stop, cols] += z * sig * (size / 2.0)
+        used.update(range(cols.start, cols.stop))
+    return spec, sorted(used)
 
 
 # -- fitting -------------------------------------------------------------------------------
