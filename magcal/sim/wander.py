@@ -218,25 +218,32 @@ _BARYCENTRIC = 1.0 / np.array([np.prod([xi - xj for xj in TAPS if xj != xi]) for
 
 
 def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
-    """(n, 4) the band components' sum (offset x, y, z; field) by Fourier synthesis on a grid
-    twice the stream's span (so the periodic wrap does not correlate its ends). Uniform times
-    are read on the grid of their own period (each sample a grid point: nothing interpolated);
-    irregular ones between the points of a grid with PER_PERIOD points to the top band's
-    shortest period, by Lagrange interpolation through the eight nearest (each frequency's
-    variance kept to 0.3 %: linear interpolation needs 16 points to keep 97 %)."""
+    """(n, 4) the band components' sum (offset x, y, z; field) by Fourier synthesis over a
+    period twice the stream's span (so the periodic wrap does not correlate its ends). Uniform
+    times are read on the grid of their own period (each sample a grid point: nothing
+    interpolated). Irregular ones: the frequencies are those of a grid of the sample period
+    divided evenly (16 points to the top band's shortest period), the values are synthesised
+    on a grid of PER_PERIOD points to it and read by Lagrange interpolation through the eight
+    nearest (each frequency's variance kept within 0.3 %; linear interpolation needs the 16
+    points and keeps 97.5 %)."""
     n = len(t)
     span = max(float(t[-1] - t[0]), 1e-6)
     uniform = n > 1 and np.max(np.abs(t - np.linspace(t[0], t[-1], n))) <= UNIFORM * span / (n - 1)
     if uniform:
         step = span / (n - 1)
+        size = _fast_len(int(np.ceil(2.0 * span / step)) + 2)
+        period = size * step
     else:
+        dt = float(np.median(np.diff(t))) if n > 1 else span
         top = max(c.band_hz[1] for c in bands)
-        step = max(min(1.0 / (PER_PERIOD * top), span), 4.0 * span / MAX_GRID)
-    size = _fast_len(int(np.ceil(2.0 * span / step)) + 2)
-    spec, used = _band_spectrum(bands, rng, size, step)
+        fine = max(dt / max(1, int(np.ceil(16.0 * top * dt))), 4.0 * span / MAX_GRID)
+        fine_size = _fast_len(int(np.ceil(2.0 * span / fine)) + 2)
+        period = fine_size * fine
+        size = min(fine_size, _fast_len(max(16, int(np.ceil(PER_PERIOD * top * period)))))
+    spec, used = _band_spectrum(bands, rng, size, period)
     out = np.zeros((n, 4))
     grid = np.fft.irfft(spec[:, used], n=size, axis=0)  # the columns without a band stay zero
-    out[:, used] = grid[:n] if uniform else _lagrange(grid, (t - t[0]) / step)
+    out[:, used] = grid[:n] if uniform else _lagrange(grid, (t - t[0]) * (size / period))
     return out
 
 
@@ -253,11 +260,11 @@ def _lagrange(grid: np.ndarray, pos: np.ndarray) -> np.ndarray:
     return np.einsum("nt,ntk->nk", w, grid[idx])
 
 
-def _band_spectrum(bands, rng: np.random.Generator, size: int, step: float) -> tuple[np.ndarray, list]:
+def _band_spectrum(bands, rng: np.random.Generator, size: int, period: float) -> tuple[np.ndarray, list]:
     """(size // 2 + 1, 4) the random Fourier coefficients of the band components on a grid of
-    ``size`` points ``step`` apart — each band's σ² spread evenly over the grid frequencies
-    inside it, random phases — and the columns that have any."""
-    freqs = np.fft.rfftfreq(size, step)
+    ``size`` points over ``period`` seconds — each band's σ² spread evenly over the grid
+    frequencies inside it, random phases — and the columns that have any."""
+    freqs = np.arange(size // 2 + 1) * (1.0 / period)
     spec = np.zeros((len(freqs), 4), dtype=complex)
     used = set()
     for c in bands:
