@@ -123,7 +123,8 @@ def _heldout_gain(e: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
 
 def _axis_noise(m: np.ndarray, white_var: float, u: np.ndarray, q: tuple) -> tuple:
     """Per-axis white noise: its shape from the second differences of the trajectory, its
-    level from the white part of the radial residual, less the quantisation's share."""
+    level from the white part of the radial residual, less the quantisation's share. ``u``:
+    per sample, how a departure of the raw reading shows in the radial residual (Wᵀu)."""
     d2 = m[2:] - 2 * m[1:-1] + m[:-2]
     shape = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) * 1.4826 / np.sqrt(6.0)
     shape = np.where(shape > 0, shape, max(float(shape.max()), 1e-6))
@@ -254,10 +255,13 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
             temp_gain, e = float(c[0]), e - x[:, 0] * float(c[0])
     dist, covered = disturbances(e, t[keep])
     e = np.where(covered, 0.0, e - np.mean(e[~covered]))  # the wander is fitted around them
-    comps, white = wander_mod.fit(e, u, t[keep], projector(u, used) if free else None)
+    # the noise, the quantum and the offset wander enter the raw reading, which the residual
+    # sees through the soft iron: |W(m − b)| moves by (Wᵀu)·δ for a departure δ of m
+    seen = u @ np.asarray(calibration.soft_iron)
+    comps, white = wander_mod.fit(e, seen, t[keep], projector(u, used) if free else None)
     model = SensorModel(
         calibration=replace_calibration(calibration, field_ut=calibration.field_ut + float(np.mean(r - calibration.field_ut))),
-        noise_ut=_axis_noise(m[keep], white, u, q), quantum_ut=q, wander=comps,
+        noise_ut=_axis_noise(m[keep], white, seen, q), quantum_ut=q, wander=comps,
         glitch_rate=rate, glitch_ut=size, glitch_axis_share=axis_share,
         disturbances=dist, nonlinearity_ut=tuple(nonlin),
         temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),

@@ -46,7 +46,7 @@ import numpy as np
 from .nnls import nnls  # numpy: scipy.optimize costs a command 0.4 s to import
 
 K_COSINES = 48  # cosines per component and axis (``draw``)
-MIN_SHARE = 0.01  # a component carrying less than this share of the fitted variance is dropped
+MIN_SHARE = 0.01  # a component below this share of the fitted spectral density in its own band is dropped
 MIN_LEFT = 0.25  # a candidate the calibration refit absorbs beyond this share is not identifiable
 OFFSET, FIELD = "offset", "field"
 BANDS_PER_DECADE = 4
@@ -325,8 +325,10 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     own times and directions and projected the same way; its mean binned periodogram is its
     spectrum as the residual shows it (what the calibration fit absorbs is accounted for).
     The variances ≥ 0 maximise the Whittle likelihood of the residual's binned periodogram.
-    Returns (components, white_var_ut2). Offset components are isotropic: the radial residual
-    sees only u·w, so the split between axes is not observable."""
+    ``u`` (n, 3): how an offset departure shows in the residual — the field direction, or
+    Wᵀu when the offset enters the raw reading ahead of a soft-iron matrix W. Returns
+    (components, white_var_ut2). Offset components are isotropic: the radial residual sees
+    only u·w, so the split between axes is not observable."""
     n = len(e)
     project = project or (lambda x: x - x.mean())
     dt = float(np.median(np.diff(t_s))) if n > 1 else 1.0
@@ -354,10 +356,29 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     ok = (counts > 0) & (design[:, 0] > 0) & (target > 0)
     coef = _whittle(design[ok], target[ok], counts[ok])
     white, var = _white_floor(float(coef[0]), coef[1:], cands, dt)
-    total = var.sum() + white
-    comps = tuple(Wander(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c in zip(var, cands)
-                  if total > 0 and v > MIN_SHARE * total)
+    keep = _local_share(var, white, cands, dt) > MIN_SHARE
+    comps = tuple(Wander(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c, k in zip(var, cands, keep) if k)
     return comps, white
+
+
+def _bands_of(cands) -> tuple[np.ndarray, list, np.ndarray]:
+    """(each candidate's width in Hz, the distinct bands, each candidate's index among them)."""
+    width = np.array([c.band_hz[1] - c.band_hz[0] for c in cands])
+    keys = sorted({c.band_hz for c in cands})
+    return width, keys, np.array([keys.index(c.band_hz) for c in cands])
+
+
+def _local_share(var: np.ndarray, white: float, cands, dt_s: float) -> np.ndarray:
+    """Each component's share of the fitted spectral density within its own band (all frames'
+    bands over the same frequencies, and the white floor). A share of the total variance would
+    drop every band above a steep red spectrum's low end, though those bands alone set how
+    smooth the reading is from second to second (lag-1, the spectrum's slope)."""
+    if not len(var):
+        return np.zeros(0)
+    width, keys, which = _bands_of(cands)
+    dens = var / width
+    local = np.bincount(which, weights=dens, minlength=len(keys))[which] + white * 2.0 * dt_s
+    return np.where(local > 0, dens / np.maximum(local, 1e-300), 0.0)
 
 
 def _white_floor(white: float, var: np.ndarray, cands, dt_s: float) -> tuple[float, np.ndarray]:
@@ -371,9 +392,7 @@ def _white_floor(white: float, var: np.ndarray, cands, dt_s: float) -> tuple[flo
     var = np.asarray(var, dtype=np.float64).copy()
     if not len(var):
         return white, var
-    width = np.array([c.band_hz[1] - c.band_hz[0] for c in cands])
-    keys = sorted({c.band_hz for c in cands})
-    which = np.array([keys.index(c.band_hz) for c in cands])
+    width, keys, which = _bands_of(cands)
     dens = np.bincount(which, weights=var / width, minlength=len(keys))
     high = np.array([lo >= 0.25 * nyq * (1 - 1e-9) for lo, _ in keys])
     floor = float(np.min(dens[high])) if high.any() and high.sum() * 0.125 * nyq >= 0.5 * nyq else 0.0
