@@ -354,8 +354,7 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     cands = kept[1:]
     design = np.column_stack(cols)
     ok = (counts > 0) & (design[:, 0] > 0) & (target > 0)
-    coef = _whittle(design[ok], target[ok], counts[ok])
-    white, var = _white_floor(float(coef[0]), coef[1:], cands, dt)
+    white, var = _white_floor(design[ok], target[ok], counts[ok], bins[:-1][ok] >= n // 8)
     keep = _local_share(var, white, cands, dt) > MIN_SHARE
     comps = tuple(Wander(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c, k in zip(var, cands, keep) if k)
     return comps, white
@@ -381,40 +380,33 @@ def _local_share(var: np.ndarray, white: float, cands, dt_s: float) -> np.ndarra
     return np.where(local > 0, dens / np.maximum(local, 1e-300), 0.0)
 
 
-def _white_floor(white: float, var: np.ndarray, cands, dt_s: float) -> tuple[float, np.ndarray]:
-    """(white variance, band variances) with the spectrum's flat floor given to the white
-    noise. Offset bands that reach the Nyquist frequency and white noise make the same radial
-    spectrum, so the Whittle fit may split them either way. White noise is the floor of the
-    fitted density over the bands above a quarter of the Nyquist frequency (where a wander has
-    died away and the many periodogram bins pin the level); every band gives up that floor,
-    or what it has when it has less."""
-    nyq = 0.5 / dt_s
-    var = np.asarray(var, dtype=np.float64).copy()
-    if not len(var):
-        return white, var
-    width, keys, which = _bands_of(cands)
-    dens = np.bincount(which, weights=var / width, minlength=len(keys))
-    high = np.array([lo >= 0.25 * nyq * (1 - 1e-9) for lo, _ in keys])
-    floor = float(np.min(dens[high])) if high.any() and high.sum() * 0.125 * nyq >= 0.5 * nyq else 0.0
-    if floor <= 0:
-        return white, var
-    left = np.full(len(keys), floor)
-    for j in np.argsort([c.frame != OFFSET for c in cands], kind="stable"):  # offset bands first
-        take = min(var[j] / width[j], left[which[j]])
-        var[j] -= take * width[j]
-        left[which[j]] -= take
-    return white + floor * nyq, var
+def _white_floor(design: np.ndarray, target: np.ndarray, counts: np.ndarray, high: np.ndarray) -> tuple[float, np.ndarray]:
+    """(white variance, band variances): the Whittle fit, with the spectrum's flat floor given
+    to the white noise. Bands that reach the Nyquist frequency and white noise make nearly the
+    same spectrum, so the fit may split them either way. The floor is the lowest level of the
+    fitted spectrum, in units of the white column, over the periodogram bins above a quarter
+    of the Nyquist frequency (``high``: where a wander has died away and many ordinates pin the
+    level); read in the periodogram's own frequencies, it holds for irregular sampling, where a
+    band's power spreads over all of them. The bands are then fitted to what stands above it."""
+    coef = _whittle(design, target, counts)
+    if not high.any():
+        return float(coef[0]), coef[1:]
+    floor = float(np.min((design[high] @ coef) / design[high, 0]))
+    if floor <= coef[0]:
+        return float(coef[0]), coef[1:]
+    return floor, _whittle(design[:, 1:], target, counts, fixed=floor * design[:, 0])
 
 
-def _whittle(design: np.ndarray, target: np.ndarray, counts: np.ndarray, rounds: int = 30) -> np.ndarray:
+def _whittle(design: np.ndarray, target: np.ndarray, counts: np.ndarray, rounds: int = 30,
+             fixed: np.ndarray | float = 0.0) -> np.ndarray:
     """Non-negative weights w maximising the Whittle likelihood Σ_b m_b (log S_b + Ī_b / S_b),
-    S = design @ w: Fisher scoring (iteratively reweighted non-negative least squares, weights
-    √m_b / S_b), started from the fit in relative error."""
-    w = nnls(design * (np.sqrt(counts) / target)[:, None], np.sqrt(counts))[0]
+    S = fixed + design @ w: Fisher scoring (iteratively reweighted non-negative least squares,
+    weights √m_b / S_b), started from the fit in relative error."""
+    w = nnls(design * (np.sqrt(counts) / target)[:, None], np.sqrt(counts) * (target - fixed) / target)[0]
     for _ in range(rounds):
-        spec = np.maximum(design @ w, 1e-12 * float(np.max(target)))
+        spec = np.maximum(fixed + design @ w, 1e-12 * float(np.max(target)))
         wt = np.sqrt(counts) / spec
-        new = nnls(design * wt[:, None], target * wt)[0]
+        new = nnls(design * wt[:, None], (target - fixed) * wt)[0]
         if np.allclose(new, w, rtol=1e-6, atol=1e-12 * max(float(new.max()), 1e-300)):
             return new
         w = new
