@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     seed0 = args.first_seed if args.first_seed is not None else int.from_bytes(os.urandom(4), "little")
     print(f"diagnose on twins of real recordings: {args.draws} draws each, first seed {seed0}, alpha {ALPHA} "
           "(family-wise, per recording)")
-    print(f"{'recording':<44}{'n':>6}{'wander µT (τ s)':>28}{'twin FA':>10}{'F alone':>10}{'white FA':>10}{'CPU s':>7}")
+    print(f"{'recording':<44}{'n':>6}{'wander µT (parts)':>28}{'twin FA':>10}{'F alone':>10}{'white FA':>10}{'CPU s':>7}")
     totals = {"twin": [0, 0], "F alone": [0, 0], "white": [0, 0]}
     for k, (name, model, u, t) in enumerate(recordings(args.only, args.max_samples)):
         c0 = time.process_time()
@@ -102,7 +102,7 @@ def main(argv=None) -> int:
             totals[label][0] += sum(hits)
             totals[label][1] += len(hits)
             line[label] = f"{sum(hits)}/{len(hits)}"
-        wander = ", ".join(f"{np.sqrt(np.mean(np.square(c.sigma_ut))):.2f} ({c.tau_s:.3g})" for c in model.wander) or "none"
+        wander = f"{np.sqrt(sum(c.variance for c in model.wander)):.2f} ({len(model.wander)} parts)" if model.wander else "none"
         per = (time.process_time() - c0) / (3 * args.draws)
         print(f"{name[:43]:<44}{len(t):>6}{wander[:27]:>28}{line['twin']:>10}{line['F alone']:>10}{line['white']:>10}{per:>7.2f}",
               flush=True)
