@@ -8,8 +8,9 @@ iron + white noise) to the learned model, each step judged against ``--draws`` t
 2.5–97.5 % band at each step, and what the final model still misses; then the acceptance
 count over all (recording, statistic) pairs, final beside baseline.
 
-Run: MAGCAL_REAL_DATA=… python bench/twin_real.py [--draws 50] [--seed N] [--only SUBSTRING]
-     (≈ 10–20 min of CPU on one core; the seed is printed so a run can be repeated)
+Run: MAGCAL_REAL_DATA=… python bench/twin_real.py [--draws 50] [--seed N] [--only SUBSTRING] [--ends]
+     (≈ 10–20 min of CPU on one core; --ends makes two comparisons instead of up to ten; the seed is printed so a run
+     can be repeated)
 """
 
 from __future__ import annotations
@@ -40,13 +41,18 @@ def calibration_of(series, fixed):
     return r.calibration, True
 
 
-def run_one(name, draws, seed):
+def run_one(name, draws, seed, ends=False):
     series, fixed = tr.load(name)
     series = series.only_valid()
     cal, free = calibration_of(series, fixed)
     t0 = time.process_time()
     model = twin.learn(series, cal, source={"recording": name}, free=free)
-    rep = twin.ladder(model, series, draws=draws, seed=seed, free=free)
+    if ends:  # the same two comparisons the ladder makes first and last, on the same seeds
+        rep = twin.TwinReport(model=model, steps=(
+            twin.compare(twin.baseline_model(model, series, free), series, draws, seed, "baseline", free),
+            twin.compare(model, series, draws, seed, "final", free)))
+    else:
+        rep = twin.ladder(model, series, draws=draws, seed=seed, free=free)
     return {"name": name, "n": len(series), "report": rep, "cpu_s": time.process_time() - t0}
 
 
@@ -83,6 +89,8 @@ def main(argv=None) -> int:
     p.add_argument("--draws", type=int, default=twin.DRAWS)
     p.add_argument("--seed", type=int, default=None, help="first seed (default: fresh, printed)")
     p.add_argument("--only", default=None, help="only recordings whose name contains this")
+    p.add_argument("--ends", action="store_true",
+                   help="only the baseline and the final model (the acceptance count, same figures; the steps between skipped)")
     args = p.parse_args(argv)
     seed = args.seed if args.seed is not None else int.from_bytes(os.urandom(4), "little")
     print(f"twin draws per step: {args.draws}; first seed {seed}; {tr.RATE_NOTE}")
@@ -91,7 +99,7 @@ def main(argv=None) -> int:
         if args.only and args.only not in name:
             continue
         try:
-            row = run_one(name, args.draws, seed)
+            row = run_one(name, args.draws, seed, args.ends)
         except Exception as exc:  # a recording the tool cannot handle is reported, not hidden
             print(f"{name:<40} FAILED: {type(exc).__name__}: {exc}")
             continue
