@@ -9,8 +9,8 @@ iron + white noise) to the learned model, each step judged against ``--draws`` t
 count over all (recording, statistic) pairs, final beside baseline.
 
 Run: MAGCAL_REAL_DATA=… python bench/twin_real.py [--draws 50] [--seed N] [--only SUBSTRING] [--ends]
-     (≈ 10–20 min of CPU on one core; --ends makes two comparisons instead of up to ten; the seed is printed so a run
-     can be repeated)
+     (≈ 10–20 min of CPU on one core; --ends makes two comparisons instead of up to ten;
+     the seed is printed so a run can be repeated)
 """
 
 from __future__ import annotations
