@@ -23,6 +23,7 @@ def _model(**kw):
                       coef_ut_per_unit={"current_a": [0.5, -0.2, 0.1]}, reference={"current_a": 0.0})
     base = dict(calibration=cal, noise_ut=(0.3, 0.3, 0.4), quantum_ut=(0.15, 0.15, 0.15),
                 wander=(Wander(0.3, 20.0), Wander((0.1, 0.1, 0.2), 0.5)), glitch_rate=0.001,
+                glitch_ut=(2.0, 3.0, 3.5, 6.0, 15.0),
                 nonlinearity_ut=(0.2,) + (0.0,) * 15, temp_gain_per_c=1e-3, saturation_ut=800.0,
                 disturbances=Disturbances(0.05, (2.0, 6.0), (0.2, 3.0), 0.7))
     base.update(kw)
@@ -174,3 +175,24 @@ def test_disturbances_learned_from_a_recording_that_has_them_and_not_from_one_wi
     assert 0.5 < d.rate_per_s / truth.rate_per_s < 2.0
     assert 2.0 < d.size_ut[1] < 9.0
     assert learned(sm.without("disturbances")).disturbances is None
+
+
+def test_a_first_version_model_file_is_still_read(tmp_path):
+    d = _model(glitch_ut=(4.0, 15.0)).to_dict()
+    d["schema"] = "magcal.sensor-model/1"
+    assert SensorModel.from_dict(d).glitch_ut == (4.0, 15.0)
+
+
+def test_glitch_sizes_follow_their_quantiles_and_two_make_them_log_uniform():
+    from magcal.sim.model import glitches
+
+    def sizes(q):
+        g = glitches(np.random.default_rng(5), 200_000, 0.5, q)
+        return np.linalg.norm(g[np.any(g != 0, axis=1)], axis=1)
+
+    s = sizes((1.0, 1.5, 2.0, 2.2, 8.0))
+    assert np.allclose(np.quantile(s, [0.25, 0.5, 0.75]), [1.5, 2.0, 2.2], rtol=0.02)
+    two = sizes((1.0, 4.0))
+    assert 0.48 < np.mean(two < 2.0) < 0.52  # as many between 1 and 2 µT as between 2 and 4
+    with pytest.raises(ValueError, match="glitch sizes"):
+        _model(glitch_ut=(3.0, 2.0))

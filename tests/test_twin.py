@@ -166,3 +166,36 @@ def test_twin_page_heads_with_the_counts_and_leaves_out_statistics_a_constant_ch
     table = table_html(d)
     assert "lag1" in table and "motor0" not in table and "✗ 0.6" in table and "✓ 0.6" in table
     assert "<b>3 of 3</b>" in headline(d) and "1 of 3" in headline(d)
+
+
+def test_learned_glitches_make_as_many_spikes_as_the_recording():
+    """Glitches near the noise cannot be told from it: what the learned process must give is
+    the recording's count of spikes the detector sees, at sizes the truth has."""
+    truth = dataclasses.replace(_truth(), glitch_rate=0.01, glitch_ut=(1.5, 4.0))
+    s = _recording(truth, seed=21, n=6000)
+    learned = _learned(s)
+    chans, u = twin.with_time(s), twin.twin_directions(learned, s)
+
+    def count(m):
+        return np.count_nonzero(twin.spikes(m, radius=twin._radius(learned.calibration, m, chans)))
+
+    seen = np.mean([count(twin.twin_readings(learned, u, s.t_s, chans, seed)[0]) for seed in (31, 32, 33, 34)])
+    assert 0.6 < seen / count(s.field_ut) < 1.6
+    assert 1.2 < learned.glitch_ut[0] and learned.glitch_ut[-1] < 5.0
+    plain = _learned(_recording(_truth(), seed=22, n=6000))
+    assert plain.glitch_rate < 0.001
+
+
+def test_a_twin_is_as_rough_from_sample_to_sample_as_its_recording():
+    """The twin replays the recording's directions, which carry the noise across the field;
+    it adds noise along the field only, so its second differences match the recording's."""
+    truth = _truth()
+    s = _recording(truth, seed=23, n=4000)
+    model = _learned(s)
+    u = twin.twin_directions(model, s)
+    m, _ = twin.twin_readings(model, u, s.t_s, twin.with_time(s), seed=5)
+
+    def rough(x):
+        return np.median(np.abs(x[2:] - 2 * x[1:-1] + x[:-2]), axis=0)
+
+    assert np.allclose(rough(m), rough(s.field_ut), rtol=0.15)

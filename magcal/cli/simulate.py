@@ -128,8 +128,10 @@ def _like(model, args) -> tuple[Series, dict]:
         raise InputError(f"{args.like} lacks the channel(s) {', '.join(missing)} the model's terms need")
     if len(rec) < 2:
         raise InputError(f"{args.like} has {len(rec)} valid samples; a twin needs at least 2")
-    u = model.directions_of(rec.field_ut, {c: chans[c] for c in model.calibration.coef_ut_per_unit})
-    draws = model.draws(rec.t_s, args.seed)
+    from ..diagnose import twin
+
+    u = twin.twin_directions(model, rec)
+    draws = twin.twin_draws(model, u, rec.t_s, args.seed)
     m, valid = model.distort(u, chans, draws)
     rows = np.flatnonzero(np.any(draws.glitch_ut != 0, axis=1))
     series = Series(t_s=rec.t_s, field_ut=m, channels=dict(rec.channels), valid=valid)

@@ -135,54 +135,80 @@ def _axis_noise(m: np.ndarray, white_var: float, u: np.ndarray, q: tuple) -> tup
     return tuple(float(v) for v in shape * np.sqrt(level))
 
 
-def spikes(m: np.ndarray, z: float | None = None) -> np.ndarray:
+def _departure_score(g: np.ndarray) -> np.ndarray:
+    """Per row of ``g`` (each sample's departure from its neighbours' mean, one column per
+    component), the largest over the columns of the departure in units of the local noise (a
+    running median over ±LOCAL samples, so fast motion raises the bar)."""
+    a = np.abs(g - np.median(g, axis=0))
+    local = ndimage.median_filter(a, size=(2 * ts.LOCAL + 1, 1), mode="nearest") / 0.6745
+    floor = np.maximum(np.median(a, axis=0) / 0.6745, 1e-9)
+    return np.max(a / np.maximum(local, 0.25 * floor), axis=1)
+
+
+def spikes(m: np.ndarray, z: float | None = None, radius: np.ndarray | None = None) -> np.ndarray:
     """One-sample glitches: samples that depart from their neighbours' mean by more than
-    ``z`` (GLITCH_Z) times the local noise on some axis (a running median of the departures
-    over ±LOCAL samples, so fast motion raises the bar), the largest of a run, and after which
-    the trajectory comes back — the neighbours agree with each other better than the sample
-    agrees with them. A kink that does not come back is the motion's own (a twin driven by the
-    recording's directions replays it)."""
+    ``z`` (GLITCH_Z) times the local noise, the largest of a run, and after which the series
+    comes back — the neighbours agree with each other better than the sample agrees with them.
+    Sought in the trajectory ``m`` (on some axis), or with ``radius`` (|h| per sample through a
+    calibration) in |h| alone: a rotation keeps |h|, so a sharp turn of the board between two
+    slow samples is not taken for a glitch, and fast motion, which raises the trajectory's
+    local bar, does not hide one."""
     z = GLITCH_Z if z is None else z
     hit = np.zeros(len(m), bool)
     if len(m) < 5:
         return hit
-    g = m[1:-1] - 0.5 * (m[:-2] + m[2:])
-    a = np.abs(g - np.median(g, axis=0))
-    local = ndimage.median_filter(a, size=(2 * ts.LOCAL + 1, 1), mode="nearest") / 0.6745
-    floor = np.maximum(np.median(a, axis=0) / 0.6745, 1e-9)
-    score = np.max(a / np.maximum(local, 0.25 * floor), axis=1)
+    x = np.asarray(m if radius is None else np.asarray(radius, dtype=np.float64)[:, None], dtype=np.float64)
+    g = x[1:-1] - 0.5 * (x[:-2] + x[2:])
+    score = _departure_score(g)
     peak = (score > z) & (score >= np.roll(score, 1)) & (score >= np.roll(score, -1))
-    back = np.linalg.norm(m[2:] - m[:-2], axis=1) < np.linalg.norm(g, axis=1)
+    back = np.linalg.norm(x[2:] - x[:-2], axis=1) < np.linalg.norm(g, axis=1)
     hit[1:-1] = peak & back
     return hit
 
 
-def _glitches(m: np.ndarray) -> tuple[float, tuple, float, np.ndarray]:
-    """(rate per sample, size range µT, share along one sensor axis, the samples): the spikes
-    of the trajectory, each glitch the sample's departure from its neighbours' mean. Sizes:
-    the 10–90 % range of those seen (drawn log-uniform between). Axis share: the share of glitches with ≥ 90 % of their
-    square on one axis, less the share a random direction would put there (P0_AXIS)."""
-    hit = spikes(m)
+def _radius(cal: Calibration, m: np.ndarray, chans: Mapping) -> np.ndarray:
+    return np.linalg.norm(cal.correct(m, {c: chans[c] for c in cal.coef_ut_per_unit}), axis=1)
+
+
+def size_quantiles(size: np.ndarray) -> tuple:
+    """The glitch sizes seen, as quantiles at evenly spaced probabilities over their 5–95 %
+    range (``magcal.sim.model.glitch_sizes`` draws from them): five when there are enough to
+    tell a shape, else the two ends (log-uniform between)."""
+    if len(size) < 2:
+        v = float(size[0]) if len(size) else 4.0
+        return (v, v) if len(size) else (4.0, 15.0)
+    k = 5 if len(size) >= 10 else 2
+    q = np.quantile(size, np.linspace(0.05, 0.95, k)) if len(size) > 4 else np.array([size.min(), size.max()])
+    return tuple(float(v) for v in np.maximum.accumulate(q))
+
+
+def _glitches(m: np.ndarray, radius: np.ndarray) -> tuple[float, tuple, float, np.ndarray]:
+    """(rate per sample, size quantiles µT, share along one sensor axis, the samples): the
+    spikes of |h| (``spikes``), each glitch the sample's departure from its neighbours' mean. Axis share: the share of glitches with ≥ 90 % of their square
+    on one axis, less the share a random direction would put there (P0_AXIS)."""
+    hit = spikes(m, radius=radius)
     k = np.flatnonzero(hit)
     if not len(k):
         return 0.0, (4.0, 15.0), 0.0, hit
     g = m[k] - 0.5 * (m[k - 1] + m[k + 1])
     size = np.linalg.norm(g, axis=1)
-    lo, hi = np.quantile(size, [0.05, 0.95]) if len(size) > 4 else (size.min(), size.max())
     one_axis = float(np.mean(np.max(g * g, axis=1) >= 0.9 * size**2))
     share = float(np.clip((one_axis - P0_AXIS) / (1.0 - P0_AXIS), 0.0, 1.0))
-    return float(np.mean(hit)), (float(lo), float(max(hi, lo))), share, hit
+    return float(np.mean(hit)), size_quantiles(size), share, hit
 
 
 def twin_directions(model: SensorModel, series: Series) -> np.ndarray:
     """The field directions (n, 3) behind a recording, through the model's inverse, with each
-    glitch sample replaced by its neighbours' mean direction (the twin draws its own glitches)."""
+    glitch sample re-drawn between the directions around it (the twin draws its own glitches;
+    replayed, they would be there twice)."""
     chans = with_time(series)
     m = series.field_ut
     u = model.directions_of(m, {c: chans[c] for c in model.calibration.coef_ut_per_unit})
-    k = np.flatnonzero(spikes(m))
-    if len(k):
-        v = u[k - 1] + u[k + 1]
+    bad = spikes(m, radius=_radius(model.calibration, m, chans))
+    good = np.flatnonzero(~bad)
+    if bad.any() and len(good) >= 2:
+        k = np.flatnonzero(bad)
+        v = np.column_stack([np.interp(k, good, u[good, a]) for a in range(3)])
         u[k] = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
     return u
 
@@ -233,7 +259,7 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     s = series.only_valid()
     m, t, chans = s.field_ut, s.t_s, with_time(s)
     q = quantum(m)
-    rate, size, axis_share, hit = _glitches(m)
+    rate, size, axis_share, hit = _glitches(m, _radius(calibration, m, chans))
     keep = ~hit
     used = {c: chans[c][keep] for c in calibration.coef_ut_per_unit}
     h = calibration.correct(m[keep], used)
@@ -267,7 +293,31 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
         temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),
         rate_hz=1.0 / ts.dt_of(t), source=dict(source or {}),
     )
-    return model
+    return replace(model, glitch_rate=glitch_rate(model, s, int(hit.sum()))) if rate > 0 else model
+
+
+def glitch_rate(model: SensorModel, series: Series, observed: int, seeds=(1, 2, 3, 4)) -> float:
+    """The glitch rate that makes the twins show as many spikes as the recording (indirect
+    inference, one step): the detector misses small glitches and finds a few spikes where
+    there are none (noise, a kink of the motion), so the rate seen is not the rate to draw.
+    Twins on the recording's own times and directions with the rate seen and without glitches
+    count the spikes the same detector finds; the rate is scaled so that the count above the
+    glitch-free twins' equals the recording's."""
+    chans, u = with_time(series), twin_directions(model, series)
+
+    def count(mod: SensorModel) -> float:
+        out = []
+        for seed in seeds:
+            m, _ = twin_readings(mod, u, series.t_s, chans, seed)
+            out.append(np.count_nonzero(spikes(m, radius=_radius(mod.calibration, m, chans))))
+        return float(np.mean(out))
+
+    null, seen = count(model.without("glitches")), count(model)
+    if observed <= null + 3.0 * np.sqrt(max(null, 1.0)):
+        return 0.0  # no more spikes than the twins make without glitches, within three Poisson σ
+    if seen <= null:
+        return model.glitch_rate  # glitches the detector cannot tell apart: keep the rate seen
+    return float(np.clip(model.glitch_rate * (observed - null) / (seen - null), 0.0, 0.5))
 
 
 def projector(u: np.ndarray, channels: Mapping[str, np.ndarray]):
@@ -344,12 +394,35 @@ def _num(x):
     return x if np.isfinite(x) else None
 
 
+def twin_draws(model: SensorModel, u: np.ndarray, t: np.ndarray, seed: int):
+    """The random parts of a twin driven along the recording's directions ``u``. Those
+    directions came through the inverse model from the recording's readings, so they already
+    carry the part of its white noise and offset wander that lies across the field (the
+    inverse keeps it, only |h| is normalised away); the twin draws those two along the field
+    alone — the gradient of |W(m − b)|, Wᵀu — or the part across the field would be there
+    twice and the twin's trajectory rougher than the recording's (its jumps then hide among
+    the noise)."""
+    d = model.draws(t, seed)
+    v = u @ np.asarray(model.calibration.soft_iron)
+    v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+    sigma = np.asarray(model.noise_ut)
+    along = np.sum(d.noise * sigma * v, axis=1, keepdims=True) * v
+    noise = np.where(sigma > 0, along / np.where(sigma > 0, sigma, 1.0), 0.0)
+    wander = np.sum(d.wander_ut * v, axis=1, keepdims=True) * v
+    return replace(d, noise=noise, wander_ut=wander)
+
+
+def twin_readings(model: SensorModel, u: np.ndarray, t: np.ndarray, chans: Mapping, seed: int):
+    """(m, valid): ``model``'s twin along the recording's directions ``u`` (``twin_draws``)."""
+    return model.distort(u, chans, twin_draws(model, u, t, seed))
+
+
 def twin_draw(model: SensorModel, series: Series, seed: int, free: bool = True, u=None) -> Residual | None:
     """One twin of ``series`` refitted: the recording's times, channels and directions
     (``twin_directions``, or ``u`` when given)."""
     chans = with_time(series)
     u = twin_directions(model, series) if u is None else u
-    m, valid = model.simulate(u, series.t_s, chans, seed)
+    m, valid = twin_readings(model, u, series.t_s, chans, seed)
     if not valid.all():
         m, chans = m[valid], {k: v[valid] for k, v in chans.items()}
     return refit(model, m, series.t_s[valid], chans, free)

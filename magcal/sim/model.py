@@ -33,7 +33,8 @@ from . import wander as wander_mod
 from .disturbance import Disturbances
 from .wander import Wander
 
-SCHEMA = "magcal.sensor-model/1"
+SCHEMA = "magcal.sensor-model/2"
+READS = ("magcal.sensor-model/1", SCHEMA)  # /1: two glitch sizes (log-uniform), read the same
 TEMP = "temp_c"
 
 
@@ -55,7 +56,7 @@ class SensorModel:
     quantum_ut: tuple = (0.0, 0.0, 0.0)  # 0: a continuous reading
     wander: tuple = ()
     glitch_rate: float = 0.0  # probability per sample
-    glitch_ut: tuple = (4.0, 15.0)
+    glitch_ut: tuple = (4.0, 15.0)  # size quantiles at evenly spaced probabilities (two: log-uniform)
     glitch_axis_share: float = 0.0  # share of glitches along one sensor axis (else any direction)
     disturbances: Disturbances | None = None  # intermittent departures of the field's magnitude
     nonlinearity_ut: tuple = (0.0,) * len(directions.NAMES)
@@ -73,10 +74,12 @@ class SensorModel:
         if len(nl) != len(directions.NAMES) or not np.all(np.isfinite(nl)):
             raise ValueError(f"nonlinearity_ut needs {len(directions.NAMES)} finite numbers")
         object.__setattr__(self, "nonlinearity_ut", nl)
-        lo, hi = (float(v) for v in self.glitch_ut)
-        if not (0 <= self.glitch_rate < 1) or not (0 <= lo <= hi) or not (0 <= self.glitch_axis_share <= 1):
-            raise ValueError("glitch rate and axis share must be in [0, 1) and [0, 1], glitch sizes 0 ≤ low ≤ high")
-        object.__setattr__(self, "glitch_ut", (lo, hi))
+        sizes = tuple(float(v) for v in np.asarray(self.glitch_ut, dtype=np.float64).reshape(-1))
+        ordered = len(sizes) >= 2 and sizes[0] >= 0 and all(a <= b for a, b in zip(sizes, sizes[1:]))
+        if not (0 <= self.glitch_rate < 1) or not ordered or not (0 <= self.glitch_axis_share <= 1):
+            raise ValueError("glitch rate and axis share must be in [0, 1) and [0, 1]; glitch sizes ≥ 2 quantiles, "
+                             "0 ≤ each ≤ the next")
+        object.__setattr__(self, "glitch_ut", sizes)
         if self.saturation_ut is not None and not self.saturation_ut > 0:
             raise ValueError("saturation_ut must be positive (or absent)")
         if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
@@ -201,8 +204,8 @@ class SensorModel:
         """The model from ``to_dict``'s shape; ValueError naming the problem otherwise."""
         if not isinstance(d, Mapping):
             raise ValueError("a sensor model is a mapping of named values")
-        if d.get("schema") != SCHEMA:
-            raise ValueError(f"unknown sensor model schema {d.get('schema')!r} (this version reads {SCHEMA!r})")
+        if d.get("schema") not in READS:
+            raise ValueError(f"unknown sensor model schema {d.get('schema')!r} (this version reads {', '.join(map(repr, READS))})")
         try:
             return cls(
                 calibration=Calibration.from_dict(d),
@@ -241,18 +244,27 @@ def quantize(m: np.ndarray, quantum_ut) -> np.ndarray:
     return np.where(q > 0, np.round(np.round(m / safe) * safe, 9), m)
 
 
+def glitch_sizes(q: np.ndarray, size_ut: tuple) -> np.ndarray:
+    """Sizes at probabilities ``q`` in [0, 1] of the distribution whose quantiles at evenly
+    spaced probabilities are ``size_ut``, interpolated in the logarithm: two quantiles make it
+    log-uniform between them (as many between 1 and 2 µT as between 2 and 4), more follow the
+    shape a recording showed."""
+    logs = np.log(np.maximum(np.asarray(size_ut, dtype=np.float64), 1e-9))
+    return np.exp(np.interp(q, np.linspace(0.0, 1.0, len(logs)), logs))
+
+
 def glitches(rng: np.random.Generator, n: int, rate: float, size_ut: tuple, axis_share: float = 0.0) -> np.ndarray:
-    """(n, 3) glitch vectors: with probability ``rate`` a one-sample jump of a size drawn
-    log-uniform in ``size_ut`` (as many between 1 and 2 µT as between 2 and 4) — along one sensor axis (either sign) with probability ``axis_share`` (a
-    corrupted register), else along a random direction; zero elsewhere. The draws consumed
-    depend on n alone, so a block of samples is reproducible whatever the rate."""
+    """(n, 3) glitch vectors: with probability ``rate`` a one-sample jump of a size drawn from
+    the quantiles ``size_ut`` (``glitch_sizes``) — along one sensor axis (either sign) with
+    probability ``axis_share`` (a corrupted register), else along a random direction; zero
+    elsewhere. The draws consumed depend on n alone, so a block of samples is reproducible
+    whatever the rate."""
     out = np.zeros((n, 3))
     if rate <= 0 or n == 0:
         return out
     hit = rng.random(n) < rate
     d = rng.standard_normal((n, 3))
-    lo, hi = np.log(max(size_ut[0], 1e-9)), np.log(max(size_ut[1], 1e-9))
-    mag = np.exp(rng.uniform(lo, hi, n))
+    mag = glitch_sizes(rng.random(n), size_ut)
     if axis_share > 0:
         along = rng.random(n) < axis_share
         axis = rng.integers(0, 3, n)
