@@ -79,6 +79,11 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
     spec = Spec(soft_iron=True, channels=tuple(c.channel for c in candidates))
     params = np.concatenate([ref.offset_ut, ref.soft, [ref.field_ut], np.zeros(3 * len(candidates))])
     residual, jac = residual_jacobian(params, spec, m, [chans[c.channel] - c.reference for c in candidates])
+    # the soft-iron columns uᵀE_p d at the model's own point on the surface (|h| = radius), not at
+    # the measurement: |d| carries the noise along the field that the residual carries too, and a
+    # regressor holding the residual's own noise biases its coefficient and, through the block
+    # scores, inflates its covariance (softiron.regressors)
+    jac[:, 3:8] *= (ref.field_ut / (residual + ref.field_ut))[:, None]
     offset_radius = np.concatenate([jac[:, 0:3], jac[:, 8:9]], axis=1)
     residual = residual - jac[:, 3:8] @ ref.soft  # the soft iron taken back out, to first order
     soft_dirs = ref.spec.soft_matrix

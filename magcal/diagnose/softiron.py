@@ -24,9 +24,15 @@ MIN_UNIQUE = 0.1
 
 
 def regressors(m: np.ndarray, offset_ut: np.ndarray) -> np.ndarray:
+    """(n, 5): ∂|h|/∂s_p = uᵀE_p d at the sphere's own point R·u (R the mean radius), not at
+    the measurement d: the measured |d| carries the noise along the field, which the radial
+    residual carries too, and a regressor holding the residual's own noise is correlated with
+    it — its coefficient is biased and, its unique part being small on partial coverage, its
+    information overstated."""
     d = m - offset_ut
-    u = d / np.linalg.norm(d, axis=1, keepdims=True)
-    return np.stack([np.einsum("ij,jk,ik->i", u, e_p, d) for e_p in SOFT_BASIS], axis=1)
+    rho = np.linalg.norm(d, axis=1, keepdims=True)
+    u = d / rho
+    return float(np.mean(rho)) * np.stack([np.einsum("ij,jk,ik->i", u, e_p, u) for e_p in SOFT_BASIS], axis=1)
 
 
 def determined_directions(m: np.ndarray, offset_ut: np.ndarray, sigma_ut: float) -> np.ndarray:
