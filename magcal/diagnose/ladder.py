@@ -228,8 +228,8 @@ def test_terms(a: Analysed, ref: ModelFit, twin_null: bool = True) -> tuple[desi
     dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
     draws = draw_null(a, dsg) if twin_null else null.none(len(m_kept), "the twin as the null was switched off")
     e_null = (draws.e, draws.white) if draws.count else None
-    tests = block_wald(dsg.x, dsg.residual_ut, dsg.groups, min_unique={softiron.EFFECT: softiron.MIN_UNIQUE},
-                              null=e_null)
+    unique = {g: softiron.MIN_UNIQUE if g == softiron.EFFECT else channels.MIN_UNIQUE for g in dsg.groups}
+    tests = block_wald(dsg.x, dsg.residual_ut, dsg.groups, min_unique=unique, null=e_null)
     tests = {g: calibrated(r) for g, r in tests.items()}
     rich = design.test_against_rich_wander(dsg, t_kept, e_null)
     return dsg, tests, rich, skipped, draws

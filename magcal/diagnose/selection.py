@@ -81,15 +81,21 @@ def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tupl
     judged = [g for g in survivors if g != softiron.EFFECT]
     if not judged:
         return survivors, {}
-    x, e = design.x, design.residual_ut
     # the residual with everything but the channel terms fitted out (soft iron and the direction
-    # harmonics would otherwise alias into block offsets under partial coverage)
+    # harmonics would otherwise alias into block offsets under partial coverage). The wander
+    # nuisance is not among the columns fitted: the gate is the contest between the channel and
+    # a slow wander, so the channel's coefficient is the one that explains the block offsets by
+    # itself. Fitted beside a quadratic wander, a slow channel (a 1.3-cycle temperature swing)
+    # shares its trend with it, the split is poorly determined, and the wander's share counted
+    # against the channel: true temperatures in simulations without any wander failed the gate.
+    x = design.x[:, : design.n_before_wander]
+    e = design.residual_ut
     colscale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
     xs = x / colscale
     beta = (pinv_sym(xs.T @ xs) @ (xs.T @ e)) / colscale
     chan_cols = [design.groups[g] for g in design.groups if g != softiron.EFFECT]
     chan_cols = np.concatenate(chan_cols) if chan_cols else np.zeros(0, int)
-    other = np.setdiff1d(np.arange(x.shape[1]), np.concatenate([chan_cols, design.wander_cols]))
+    other = np.setdiff1d(np.arange(x.shape[1]), chan_cols)
     e_w = e - x[:, other] @ beta[other]
     cands = design.candidates
     shares, v_rem = channels.wander_shares(
