@@ -270,7 +270,7 @@ def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, fold
     _, _, chans_kept = a.kept
     survivors, wander = selection.wander_gate(dsg, chans_kept, survivors, verdict.fast)
     accepted, heldout = selection.drop_by_heldout(dsg, survivors, folds)
-    n_tests = len(tests) + len(rich)
+    n_tests = len(selection.family(tests, rich))
     return Selected(tests, rich, verdict.fast, survivors, wander, accepted, heldout, skipped, dsg.candidates, dsg, n_tests,
                     draws)
 

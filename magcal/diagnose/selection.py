@@ -39,16 +39,24 @@ class Significant:
     fast: set  # channels significant against the rich wander, above the practical floor
 
 
+def family(tests: dict, rich: dict) -> dict:
+    """The p-values of Holm's family: both test families together, without the tests the design
+    could not run at all (``untestable``: no direction of the term left once the other columns
+    are fitted — a slow channel against the rich wander, say). Such a test's p is 1 whatever the
+    data say; counted in the family it would only make every other test's threshold stricter."""
+    pvals = {g: r.p for g, r in tests.items() if not r.untestable}
+    pvals.update({("rich", g): r.p for g, r in rich.items() if not r.untestable})
+    return pvals
+
+
 def significant(tests: dict, rich: dict, alpha: float, floor_ut: float) -> Significant:
-    """Holm's step-down over both test families together."""
-    pvals = {g: r.p for g, r in tests.items()}
-    pvals.update({("rich", g): r.p for g, r in rich.items()})
-    rejected_all = holm(pvals, alpha)
+    """Holm's step-down over the family (``family``)."""
+    rejected_all = holm(family(tests, rich), alpha)
     # fast: significant against the rich wander (Holm), and on its own at alpha against the
     # quadratic one too (two views of the same term must agree; chance rarely fools both)
     fast = {g for g, r in rich.items()
-            if rejected_all[("rich", g)] and r.effect_rms_ut >= floor_ut and tests[g].p <= alpha}
-    return Significant({g: rejected_all[g] for g in tests}, fast)
+            if rejected_all.get(("rich", g), False) and r.effect_rms_ut >= floor_ut and tests[g].p <= alpha}
+    return Significant({g: rejected_all.get(g, False) for g in tests}, fast)
 
 
 def above_floor(tests: dict, verdict: Significant, floor_ut: float, soft_size: tuple[float, float]) -> list:
