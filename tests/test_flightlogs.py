@@ -239,10 +239,13 @@ def test_diagnose_tests_the_current_against_the_expected_field():
             assert term["kept"] and term["norm_ut_per_unit"] > 3 * term["floor_ut_per_unit"]
     text = magcal("diagnose", BIN, "--mag", "2").stdout
     assert "finding     current_interference: current_a kept" in text
-    # where |m| alone could not test the current, its line points at the test below it
+    # a |m| limit on the current (where |m| alone could not test it) points at the test below it,
+    # and nothing says the current could not be tested without doing so
     text = magcal("diagnose", BIN, "--mag", "1").stdout
     said = [ln for ln in text.splitlines() if ln.startswith("limit       current_interference")]
-    assert said and all("tested against the expected field below" in ln for ln in said)
+    assert all("tested against the expected field below" in ln for ln in said)
+    assert not [ln for ln in text.splitlines() if "following current_a could not be tested" in ln and ln not in said]
+    assert "finding     current_interference: current_a kept" in text
 
 
 def test_export_of_a_log_diagnosis_writes_its_vector_calibration(tmp_path):
