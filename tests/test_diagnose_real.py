@@ -123,3 +123,15 @@ def test_on_a_wandering_recording_every_test_is_judged_against_its_twin(tilt_sph
     assert twin["draws"] >= 20 and any(max(c["sigma_ut"]) > 0.05 for c in twin["wander"])
     assert d.tests["candidates"]["time_drift"]["twin_inflation"] > 1.0
     assert "time_drift" not in d.effects
+
+
+def test_a_clock_that_repeats_its_stamps_is_diagnosed_as_the_fine_one(tilt_sphere):
+    """A logger whose clock ticks in whole seconds stamps most samples with the time of the one
+    before (the umich pre-flight table repeats 90 % of them): the twin is learned at the mean
+    sample interval, not at a median interval of zero (which raised ZeroDivisionError)."""
+    t, h = tilt_sphere
+    coarse = np.floor(t)
+    assert np.median(np.diff(coarse)) == 0.0
+    d = diagnose(Series(t_s=coarse, field_ut=h))
+    assert d.tests["twin_null"]["draws"] >= 20
+    assert "time_drift" not in d.effects

@@ -331,7 +331,7 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     only u·w, so the split between axes is not observable."""
     n = len(e)
     project = project or (lambda x: x - x.mean())
-    dt = float(np.median(np.diff(t_s))) if n > 1 else 1.0
+    dt = (float(np.median(np.diff(t_s))) or float(t_s[-1] - t_s[0]) / (n - 1) or 1.0) if n > 1 else 1.0  # stamps may repeat
     cands = candidates(dt, float(t_s[-1] - t_s[0]) if n > 1 else dt, frames)
     bins = np.unique(np.round(np.geomspace(1, n // 2 + 1, 48)).astype(np.int64))
     target, counts = _binned_periodogram(e, bins)
