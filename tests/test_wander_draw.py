@@ -80,3 +80,8 @@ def test_a_draw_is_a_function_of_the_generator_and_reads_each_time_in_order():
     assert a[0].shape == (300, 3) and a[1].shape == (300,)
     one = wander.draw_path(comps, np.random.default_rng(3), t[:1])
     assert np.all(np.isfinite(one[0])) and one[0].shape == (1, 3)
+    for kind in ("uniform", "irregular"):  # a field band alone leaves the offset untouched, and the reverse
+        off, fld = wander.draw_path(BANDS[1:], np.random.default_rng(4), _times(kind, n=300))
+        assert np.all(off == 0) and np.std(fld) > 0
+        off, fld = wander.draw_path(BANDS[:1], np.random.default_rng(4), _times(kind, n=300))
+        assert np.all(fld == 0) and np.all(np.std(off, axis=0) > 0)

@@ -242,7 +242,7 @@ def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
         size = min(fine_size, _fast_len(max(16, int(np.ceil(PER_PERIOD * top * period)))))
     spec, used = _band_spectrum(bands, rng, size, period)
     out = np.zeros((n, 4))
-    grid = np.fft.irfft(spec[:, used], n=size, axis=0)  # the columns without a band stay zero
+    grid = np.fft.irfft(spec, n=size, axis=0)  # the columns without a band stay zero
     out[:, used] = grid[:n] if uniform else _lagrange(grid, (t - t[0]) * (size / period))
     return out
 
@@ -261,25 +261,25 @@ def _lagrange(grid: np.ndarray, pos: np.ndarray) -> np.ndarray:
 
 
 def _band_spectrum(bands, rng: np.random.Generator, size: int, period: float) -> tuple[np.ndarray, list]:
-    """(size // 2 + 1, 4) the random Fourier coefficients of the band components on a grid of
-    ``size`` points over ``period`` seconds — each band's σ² spread evenly over the grid
-    frequencies inside it, random phases — and the columns that have any."""
+    """The random Fourier coefficients of the band components on a grid of ``size`` points over
+    ``period`` seconds — each band's σ² spread evenly over the grid frequencies inside it,
+    random phases — for the columns (of offset x, y, z and the field) that have any: ((size //
+    2 + 1, len(used)), used)."""
+    used = sorted({i for c in bands for i in ((0, 1, 2) if c.frame == OFFSET else (3,))})
     freqs = np.arange(size // 2 + 1) * (1.0 / period)
-    spec = np.zeros((len(freqs), 4), dtype=complex)
-    used = set()
+    spec = np.zeros((len(freqs), len(used)), dtype=complex)
     for c in bands:
         lo, hi = c.band_hz
         first, stop = max(1, int(np.searchsorted(freqs, lo))), int(np.searchsorted(freqs, hi))
         if stop <= first:  # narrower than the grid resolves: its nearest frequency
             first = max(1, int(np.argmin(np.abs(freqs - 0.5 * (lo + hi)))))
             stop = first + 1
-        cols = slice(0, 3) if c.frame == OFFSET else slice(3, 4)
-        k = cols.stop - cols.start
+        cols = [used.index(i) for i in ((0, 1, 2) if c.frame == OFFSET else (3,))]
+        k = len(cols)
         sig = np.asarray(c.sigma_ut)[:k] / np.sqrt(stop - first)
         z = rng.standard_normal((stop - first, k)) - 1j * rng.standard_normal((stop - first, k))
-        spec[first:stop, cols] += z * sig * (size / 2.0)
-        used.update(range(cols.start, cols.stop))
-    return spec, sorted(used)
+        spec[first:stop, cols[0] : cols[-1] + 1] += z * sig * (size / 2.0)
+    return spec, used
 
 
 # -- fitting -------------------------------------------------------------------------------
