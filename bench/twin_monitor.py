@@ -44,16 +44,36 @@ def white_twin(model):
     return dataclasses.replace(model, wander=(), disturbances=None, noise_ut=tuple(noise))
 
 
-def run_stream(model, seed, minutes, window, alpha):
+def _field(model, seed, n):
     rate = min(model.rate_hz, 100.0)
-    n = int(minutes * 60 * rate)
     sc = Scenario(physics=Physics(field_ut=model.calibration.field_ut), motion=Motion("sphere", period_s=20.0),
                   seed=seed, model=model)
-    s = sc.simulate(n, rate).series.only_valid()
+    return sc.simulate(n, rate).series.only_valid().field_ut
+
+
+def run_stream(model, seed, minutes, window, alpha):
+    s_field = _field(model, seed, int(minutes * 60 * min(model.rate_hz, 100.0)))
     mon = DriftMonitor(model.calibration, window, alpha, BASELINE_WINDOWS)
-    verdicts = [v for v in mon.add(s.field_ut) if v.phase == "test"]
-    _, tau = mon.noise()
-    return np.array([v.p_value for v in verdicts]), tau, mon.status()["dispersion_factor"]
+    verdicts = [v for v in mon.add(s_field) if v.phase == "test"]
+    st = mon.status()
+    return np.array([v.p_value for v in verdicts]), st["dispersion_factor"], st["offset_wander_ut"]
+
+
+STEP_WINDOWS = 40  # windows per detection stream: the baseline, then a step somewhere in 16..35
+
+
+def detects(model, seed, step_ut, window, alpha) -> bool:
+    """A new hard iron of ``step_ut`` µT in a random direction, at a random sample after the
+    baseline and a stretch of tests: does the monitor alarm in the window holding the step or
+    the next one?"""
+    rng = np.random.default_rng([seed, 0x57E9])
+    m = _field(model, seed, STEP_WINDOWS * window).copy()
+    at = int(rng.integers(16 * window, 36 * window))
+    direction = rng.normal(size=3)
+    m[at:] += step_ut * direction / np.linalg.norm(direction)
+    mon = DriftMonitor(model.calibration, window, alpha, BASELINE_WINDOWS)
+    verdicts = mon.add(m)
+    return any(v.drifted for v in verdicts[at // window: at // window + 2])
 
 
 def main(argv=None) -> int:
@@ -62,12 +82,15 @@ def main(argv=None) -> int:
     p.add_argument("--streams", type=int, default=3, help="twin streams per recording")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--only", default=None)
+    p.add_argument("--step-ut", default="1,3", help="hard-iron steps (µT, comma-separated) whose detection is counted")
     args = p.parse_args(argv)
+    steps = [float(x) for x in args.step_ut.split(",") if x]
     cfg = DaemonSettings()
     seed = args.seed if args.seed is not None else int.from_bytes(os.urandom(4), "little")
     print(f"monitor: window {cfg.monitor_window}, alpha {cfg.monitor_alpha}, {BASELINE_WINDOWS} baseline windows; "
           f"{args.streams} streams × {args.minutes:g} min per recording; first seed {seed}")
     totals = {"twin": [], "white": []}
+    caught = {(label, st): [] for label in totals for st in steps}
     for k, name in enumerate(tr.RECORDINGS):
         if (args.only and args.only not in name) or "still" in name:
             continue
@@ -80,16 +103,21 @@ def main(argv=None) -> int:
         for label, mdl in (("twin", model), ("white", white_twin(model))):
             ps = []
             for j in range(args.streams):
-                p_, tau, phi = run_stream(mdl, seed + 1000 * k + j, args.minutes, cfg.monitor_window, cfg.monitor_alpha)
+                p_, phi, q = run_stream(mdl, seed + 1000 * k + j, args.minutes, cfg.monitor_window, cfg.monitor_alpha)
                 ps.append(p_)
+                for st in steps:
+                    caught[(label, st)].append(detects(mdl, seed + 1000 * k + j, st, cfg.monitor_window,
+                                                       cfg.monitor_alpha))
             ps = np.concatenate(ps)
             totals[label].append(ps)
-            line += f"  {label}: {_rates(ps)} (τ {tau:4.1f}, φ {phi:4.1f})"
+            line += f"  {label}: {_rates(ps)} (φ {phi:5.1f}, q {q:4.2f} µT)"
         print(line)
         sys.stdout.flush()
     for label, ps in totals.items():
         ps = np.concatenate(ps) if ps else np.array([])
         print(f"all {label:>5}: {len(ps)} test windows; p < level at levels {LEVELS}: {_rates(ps)}")
+    for (label, st), hits in caught.items():
+        print(f"new hard iron of {st:g} µT, {label:>5}: caught within two windows in {sum(hits)} of {len(hits)} streams")
     return 0
 
 

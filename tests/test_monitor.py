@@ -104,3 +104,50 @@ def test_a_sensor_whose_offset_wanders_raises_about_alpha_alarms(calibrated):
     assert tests == 200
     # 200 tests at α = 1 %: expect 2; Poisson(2) exceeds 7 with probability < 0.2 %
     assert alarms <= 7, alarms
+
+
+def _wandering(sc, cal):
+    import dataclasses
+
+    from magcal.sim.wander import Wander
+
+    return dataclasses.replace(sc.sensor, calibration=cal, noise_ut=(0.25,) * 3,
+                               wander=(Wander(0.25, 40.0), Wander(0.1, 4.0),
+                                       Wander(sigma_ut=(0.5,) * 3, band_hz=(0.002, 0.01), frame="field")))
+
+
+def test_the_field_magnitude_wandering_is_not_a_new_hard_iron(calibrated):
+    """The local field's magnitude wanders (iron nearby moves): |h| − r moves by the same amount
+    whichever way the board faces — a change of radius, which the hard-iron test leaves free."""
+    import dataclasses
+
+    sc, cal = calibrated
+    sensor = _wandering(sc, cal)
+    alarms = tests = 0
+    for seed in (31, 32):
+        mon = DriftMonitor(cal, window=400, alpha=0.01)
+        s = dataclasses.replace(sc, model=sensor, seed=seed).simulate(400 * 108, 100.0, t0_s=50.0).series
+        verdicts = [v for v in mon.add(s.field_ut) if v.phase == "test"]
+        tests += len(verdicts)
+        alarms += sum(v.drifted for v in verdicts)
+        assert all(v.test == "hard_iron" for v in verdicts)
+    assert tests == 200
+    assert alarms <= 7, alarms  # Poisson(2) exceeds 7 with probability < 0.2 %
+
+
+@pytest.mark.parametrize("motion", ["sphere", "still"])
+def test_a_new_hard_iron_is_caught_on_a_wandering_sensor(calibrated, motion):
+    """The spread the monitor allows for the wander must not hide a real offset step."""
+    import dataclasses
+
+    sc, cal = calibrated
+    sensor = _wandering(sc, cal)
+    sc = dataclasses.replace(sc, model=sensor, seed=41, motion=Motion(motion))
+    mon = DriftMonitor(cal, window=500, alpha=0.001)
+    before = mon.add(_stream(sc, 500 * 20, 30.0))
+    assert mon.phase == "test" and not any(v.drifted for v in before)
+    delta = np.array([2.0, -1.5, 1.0])
+    m = _stream(sc, 1000, 130.0) + delta  # a payload: every reading moves by δ
+    after = mon.add(m)
+    assert any(v.drifted for v in after)  # within the two windows after it
+    assert next(v for v in after if v.drifted).test == ("hard_iron" if motion == "sphere" else "combined")
