@@ -7,9 +7,15 @@ learned from it (as ``magcal diagnose --model-out`` writes it), simulated on the
 motion (as ``magcal simulate --model`` does) for ``--minutes``, fed to a DriftMonitor holding
 the model's own calibration; beside it the same model with its wander replaced by white noise
 of the same total size (the white-noise simulator). Printed: test windows, alarms, the rate
-against alpha, and the monitor's own estimates (noise, autocorrelation and dispersion factor).
+against alpha, and the monitor's own estimates of the spread it allows (φ the factor on the
+noise part, q the sensor's own offset wander, µT rms per direction) at the end of the stream.
+
+Detection: for each stream a shorter one (40 windows) of the same sensor gets a new hard iron
+of each ``--step-ut`` size in a random direction at a random sample after window 16; counted
+as caught when the window holding the step or the next one alarms.
 
 Run: MAGCAL_REAL_DATA=… python bench/twin_monitor.py [--minutes 20] [--streams 3] [--seed N]
+     [--step-ut 1,3] [--only NAME]
 """
 
 from __future__ import annotations

@@ -151,3 +151,16 @@ def test_a_new_hard_iron_is_caught_on_a_wandering_sensor(calibrated, motion):
     after = mon.add(m)
     assert any(v.drifted for v in after)  # within the two windows after it
     assert next(v for v in after if v.drifted).test == ("hard_iron" if motion == "sphere" else "combined")
+
+
+def test_a_state_of_the_first_version_relearns_its_baseline(calibrated):
+    """A state written before the hard-iron reference existed is not refused (the daemon would
+    lose its whole resume state): the monitor keeps its counts and learns its baseline again."""
+    sc, cal = calibrated
+    a = DriftMonitor(cal, window=300, alpha=0.01)
+    a.add(_stream(sc, 300 * 12, 10.0))
+    old = json.loads(json.dumps(a.to_state()))
+    del old["version"]
+    b = DriftMonitor.from_state(old)
+    assert b.phase == "baseline" and b.windows == a.windows and b.alarms == a.alarms
+    assert [v.phase for v in b.add(_stream(sc, 300 * 9, 60.0))] == ["baseline"] * 8 + ["test"]
