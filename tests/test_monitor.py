@@ -94,16 +94,22 @@ def test_a_sensor_whose_offset_wanders_raises_about_alpha_alarms(calibrated):
     sc, cal = calibrated
     sensor = dataclasses.replace(sc.sensor, calibration=cal, noise_ut=(0.25,) * 3,
                                  wander=(Wander(0.25, 40.0), Wander(0.1, 4.0)))
-    alarms = tests = 0
-    for seed in (21, 22):
+    verdicts = _tests_at_one_percent(sc, cal, sensor, (21, 22))
+    assert len(verdicts) == 200
+    # 200 tests at α = 1 %: expect 2; Poisson(2) exceeds 7 with probability < 0.2 %
+    assert sum(v.drifted for v in verdicts) <= 7
+
+
+def _tests_at_one_percent(sc, cal, sensor, seeds):
+    """The test verdicts of a 1 % monitor over 100 test windows of ``sensor`` per seed."""
+    import dataclasses
+
+    out = []
+    for seed in seeds:
         mon = DriftMonitor(cal, window=400, alpha=0.01)
         s = dataclasses.replace(sc, model=sensor, seed=seed).simulate(400 * 108, 100.0, t0_s=50.0).series
-        verdicts = [v for v in mon.add(s.field_ut) if v.phase == "test"]
-        tests += len(verdicts)
-        alarms += sum(v.drifted for v in verdicts)
-    assert tests == 200
-    # 200 tests at α = 1 %: expect 2; Poisson(2) exceeds 7 with probability < 0.2 %
-    assert alarms <= 7, alarms
+        out += [v for v in mon.add(s.field_ut) if v.phase == "test"]
+    return out
 
 
 def _wandering(sc, cal):
@@ -119,20 +125,10 @@ def _wandering(sc, cal):
 def test_the_field_magnitude_wandering_is_not_a_new_hard_iron(calibrated):
     """The local field's magnitude wanders (iron nearby moves): |h| − r moves by the same amount
     whichever way the board faces — a change of radius, which the hard-iron test leaves free."""
-    import dataclasses
-
     sc, cal = calibrated
-    sensor = _wandering(sc, cal)
-    alarms = tests = 0
-    for seed in (31, 32):
-        mon = DriftMonitor(cal, window=400, alpha=0.01)
-        s = dataclasses.replace(sc, model=sensor, seed=seed).simulate(400 * 108, 100.0, t0_s=50.0).series
-        verdicts = [v for v in mon.add(s.field_ut) if v.phase == "test"]
-        tests += len(verdicts)
-        alarms += sum(v.drifted for v in verdicts)
-        assert all(v.test == "hard_iron" for v in verdicts)
-    assert tests == 200
-    assert alarms <= 7, alarms  # Poisson(2) exceeds 7 with probability < 0.2 %
+    verdicts = _tests_at_one_percent(sc, cal, _wandering(sc, cal), (31, 32))
+    assert len(verdicts) == 200 and all(v.test == "hard_iron" for v in verdicts)
+    assert sum(v.drifted for v in verdicts) <= 7  # Poisson(2) exceeds 7 with probability < 0.2 %
 
 
 @pytest.mark.parametrize("motion", ["sphere", "still"])
