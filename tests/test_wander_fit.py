@@ -2,8 +2,10 @@
 white floor and its bands, as a twin must reproduce them."""
 
 import numpy as np
+import pytest
 
 from magcal.core.calibration import Calibration
+from magcal.core.series import Series
 from magcal.diagnose import twin
 from magcal.fit import fit_calibration as fit
 from magcal.sim import wander
@@ -60,3 +62,36 @@ def test_the_noise_learned_through_a_strong_soft_iron_is_the_sensors_own():
     series = sc.simulate(8000).series
     learned = twin.learn(series, fit(series.field_ut, model="ellipsoid").calibration)
     assert abs(np.mean(learned.noise_ut) / 0.3 - 1.0) < 0.05  # through u alone: 0.317 (+6 %)
+
+
+def _arrival_stamps(n, rate_hz, seed=8):
+    """Host arrival times of a sensor sampling at ``rate_hz``: read out in bursts every
+    0.1–0.25 s, each burst's samples stamped 2 ms apart (as a serial host sees an HMC5883L)."""
+    rng = np.random.default_rng(seed)
+    true = np.arange(n) / rate_hz
+    reads = np.cumsum(rng.uniform(0.1, 0.25, int(true[-1] / 0.1) + 2))
+    burst = np.searchsorted(reads, true)  # the read that fetches each sample
+    first = np.searchsorted(burst, burst)  # index of the first sample in the same burst
+    return reads[burst] + 0.002 * (np.arange(n) - first)
+
+
+def test_bursty_stamps_of_a_regular_sensor_give_its_own_band_top():
+    """A 77 Hz sensor stamped on arrival (bursts 2 ms apart, gaps up to 250 ms; median interval
+    2 ms) has the sample rate it has stamped regularly: the wander's bands end at the same top,
+    the sensor's 38.5 Hz Nyquist frequency (from the median interval they reached 250 Hz), no
+    learned band lies above it, and the twin is a 77 Hz sensor."""
+    rate, n = 77.0, 4000
+    truth = SensorModel(calibration=Calibration(offset_ut=[5.0, -8.0, 12.0], field_ut=40.0), noise_ut=(0.1,) * 3,
+                        wander=(Wander(0.3, band_hz=(0.05, 0.5)),))
+    series = Scenario(physics=Physics(), motion=Motion("sphere", period_s=15.0), seed=4, model=truth).simulate(n, rate).series
+    bursty = _arrival_stamps(n, rate)
+    assert np.median(np.diff(bursty)) < 0.0025 and np.all(np.diff(bursty) > 0)
+    cal = fit(series.field_ut, model="ellipsoid").calibration
+    tops = []
+    for t in (series.t_s, bursty):
+        tops.append(wander.band_edges(wander.sample_interval(t), float(t[-1] - t[0]))[-1])
+        learned = twin.learn(Series(t_s=t, field_ut=series.field_ut), cal)
+        assert learned.rate_hz == pytest.approx(rate, rel=0.02)
+        assert all(c.band_hz[1] <= tops[-1] * (1 + 1e-9) for c in learned.wander if c.band_hz)
+    assert tops[0] == pytest.approx(rate / 2, rel=1e-6)
+    assert tops[1] == pytest.approx(tops[0], rel=0.02)

@@ -92,9 +92,8 @@ def learn(residual_ut: np.ndarray, project, m: np.ndarray, t: np.ndarray, u: np.
     q = quantum(m)
     white -= float(np.mean(u**2 @ (np.square(q) / 12.0)))  # what the quantum adds to the white part
     sigma = float(np.sqrt(max(white, 1e-12)))
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     return SensorModel(calibration=calibration, noise_ut=(sigma,) * 3, quantum_ut=q, wander=components,
-                       rate_hz=1.0 / dt if dt > 0 else 50.0)
+                       rate_hz=1.0 / wander.sample_interval(t))
 
 
 def draws(model, u: np.ndarray, t: np.ndarray, chans: Mapping[str, np.ndarray], count: int = DRAWS,

@@ -291,7 +291,7 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
         glitch_rate=rate, glitch_ut=size, glitch_axis_share=axis_share,
         disturbances=dist, nonlinearity_ut=tuple(nonlin),
         temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),
-        rate_hz=1.0 / ts.dt_of(t), source=dict(source or {}),
+        rate_hz=1.0 / wander_mod.sample_interval(t), source=dict(source or {}),
     )
     return replace(model, glitch_rate=glitch_rate(model, s, int(hit.sum()))) if rate > 0 else model
 

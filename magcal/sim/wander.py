@@ -234,7 +234,7 @@ def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
         size = _fast_len(int(np.ceil(2.0 * span / step)) + 2)
         period = size * step
     else:
-        dt = float(np.median(np.diff(t))) if n > 1 else span
+        dt = sample_interval(t) if n > 1 else span
         top = max(c.band_hz[1] for c in bands)
         fine = max(dt / max(1, int(np.ceil(16.0 * top * dt))), 4.0 * span / MAX_GRID)
         fine_size = _fast_len(int(np.ceil(2.0 * span / fine)) + 2)
@@ -283,6 +283,18 @@ def _band_spectrum(bands, rng: np.random.Generator, size: int, period: float) ->
 
 
 # -- fitting -------------------------------------------------------------------------------
+def sample_interval(t_s) -> float:
+    """The sensor's sample interval read from its stamps: the mean, span / (n − 1) — the number
+    of samples over the time they took. Not the median: a host that stamps samples on arrival
+    gets them in bursts (an HMC5883L at 77 Hz read as 2 ms apart, then a gap of up to 250 ms),
+    where the median interval (3.3 ms) would put the Nyquist frequency, and so the top band,
+    at 152 Hz instead of the sensor's 38 Hz; a clock that repeats its stamps has a median of 0.
+    For regular stamps the two agree. 1.0 for fewer than two samples or no span."""
+    t = np.asarray(t_s, dtype=np.float64)
+    span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    return span / (len(t) - 1) if span > 0 else 1.0
+
+
 def band_edges(dt_s: float, duration_s: float) -> np.ndarray:
     """Band edges from half a cycle per recording to the Nyquist frequency: log-spaced
     (BANDS_PER_DECADE to a decade) up to a quarter of Nyquist, then in equal steps of an
@@ -331,7 +343,7 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     only u·w, so the split between axes is not observable."""
     n = len(e)
     project = project or (lambda x: x - x.mean())
-    dt = (float(np.median(np.diff(t_s))) or float(t_s[-1] - t_s[0]) / (n - 1) or 1.0) if n > 1 else 1.0  # stamps may repeat
+    dt = sample_interval(t_s)
     cands = candidates(dt, float(t_s[-1] - t_s[0]) if n > 1 else dt, frames)
     bins = np.unique(np.round(np.geomspace(1, n // 2 + 1, 48)).astype(np.int64))
     target, counts = _binned_periodogram(e, bins)
