@@ -95,3 +95,11 @@ def test_bursty_stamps_of_a_regular_sensor_give_its_own_band_top():
         assert all(c.band_hz[1] <= tops[-1] * (1 + 1e-9) for c in learned.wander if c.band_hz)
     assert tops[0] == pytest.approx(rate / 2, rel=1e-6)
     assert tops[1] == pytest.approx(tops[0], rel=0.02)
+
+
+def test_a_residual_without_power_has_no_wander_and_no_noise():
+    """A residual that is exactly constant (a fit that leaves nothing, as readings scaled far
+    out of range can) is a sensor without wander or noise — it raised ValueError in the
+    Whittle fit's empty solve, so `diagnose --twin` stopped with a traceback."""
+    t = np.arange(200) * 0.02
+    assert wander.fit(np.zeros(200), _directions(200), t) == ((), 0.0)

@@ -366,6 +366,8 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     cands = kept[1:]
     design = np.column_stack(cols)
     ok = (counts > 0) & (design[:, 0] > 0) & (target > 0)
+    if not ok.any():  # a residual with no power at all (exactly constant): no wander, no noise
+        return (), 0.0
     white, var = _white_floor(design[ok], target[ok], counts[ok], bins[:-1][ok] >= n // 8)
     keep = _local_share(var, white, cands, dt) > MIN_SHARE
     comps = tuple(Wander(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c, k in zip(var, cands, keep) if k)
