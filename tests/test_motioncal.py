@@ -92,10 +92,22 @@ def test_soft_iron_mapping_inverts_the_forward_model(seed):
     got = mc.apply_like_device(mc.decode_packet(mc.encode_packet(cal)), m)
     # float32 in the packet: relative 1e-7 of |m| (≤ ~250 µT) and of W
     assert np.abs(got - h).max() < 2e-4
-    # a transposed or permuted matrix would not do it (the test is not blind to the order)
-    wrong = mc.decode_packet(mc.encode_packet(cal))
-    wrong = wrong[:13] + (wrong[14], wrong[13], wrong[15])
-    assert np.abs(mc.apply_like_device(wrong, m) - h).max() > 1e-3
+
+
+def test_soft_iron_mapping_is_not_blind_to_the_matrix_order():
+    """Two off-diagonal entries swapped in the packet would not undo the distortion. A fixed
+    calibration: on a random one the two entries can come out (almost) equal, and then the swap
+    changes nothing."""
+    cal = Calibration(offset_ut=[12.0, -30.0, 8.0], field_ut=48.0,
+                      soft_iron=[[1.03, 0.02, -0.01], [0.02, 0.97, 0.04], [-0.01, 0.04, 1.01]])
+    rng = np.random.default_rng(3)
+    h = rng.normal(size=(200, 3))
+    h *= cal.field_ut / np.linalg.norm(h, axis=1, keepdims=True)
+    m = cal.distort(h)
+    packet = mc.decode_packet(mc.encode_packet(cal))
+    assert np.abs(mc.apply_like_device(packet, m) - h).max() < 2e-4
+    wrong = packet[:13] + (packet[14], packet[13], packet[15])
+    assert packet[13] != packet[14] and np.abs(mc.apply_like_device(wrong, m) - h).max() > 1e-3
 
 
 def test_calibration_with_extra_terms_is_refused():
