@@ -89,7 +89,6 @@ def _named(exc, *words):
         (b"daemon:\n  stall_s: -.inf\n", ["daemon.stall_s", "finite"]),
         (b"daemon:\n  capture_max_bytes: 10\n", ["daemon.capture_max_bytes", "4096"]),
         (b"baud: 1e999\n", ["baud", "integer"]),
-        (b"daemon:\n  state_dir: \"\"\n", ["daemon.state_dir", "non-empty"]),
         (b"port: \"a\\x01b\"\n", ["port", "printable"]),
         (b"x" * (2 << 20), ["larger than"]),
     ],
@@ -186,3 +185,19 @@ def test_nan_and_infinity_are_refused_for_every_number_option(tmp_path, capsys, 
         main(argv)
     err = capsys.readouterr().err
     assert exc.value.code == 2 and f"argument {argv[-2]}" in err and "finite" in err
+
+
+def test_the_daemon_keeps_its_state_in_the_users_state_directory_by_default(tmp_path, monkeypatch):
+    """No daemon.state_dir, or an empty one: $XDG_STATE_HOME/magcal (where emu:// keeps its
+    EEPROM too), not a fixed ~/.local/state that ignores the user's setting."""
+    from magcal.app.daemon import Daemon
+    from magcal.recordings.state import state_directory
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
+    f = tmp_path / "c.yaml"
+    f.write_text('daemon:\n  state_dir: ""\n')
+    for s in (config.load(environ={}), config.load(str(f), environ={})):
+        assert Daemon(s).state_dir == tmp_path / "xdg" / "magcal"
+        assert state_directory(s.daemon.state_dir, create=False) == tmp_path / "xdg" / "magcal"
+    f.write_text(f'daemon:\n  state_dir: "{tmp_path / "mine"}"\n')
+    assert Daemon(config.load(str(f), environ={})).state_dir == tmp_path / "mine"  # a named one is kept

@@ -42,7 +42,7 @@ _short.maxstring, _short.maxother, _short.maxlevel, _short.maxlist, _short.maxdi
 class DaemonSettings:
     """The long-running service (``magcal run``)."""
 
-    state_dir: str = "~/.local/state/magcal"
+    state_dir: str = ""  # empty: the user's state directory, $XDG_STATE_HOME/magcal or ~/.local/state/magcal
     recalibrate: bool = False  # collect, refit and write back when the calibration stops fitting
     monitor_window: int = setting(500, lo=40, hi=100_000)  # samples per drift test window
     monitor_alpha: float = setting(0.001, lo=0, lo_open=True, hi=0.5, hi_open=True)  # false-alarm probability

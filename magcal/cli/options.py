@@ -157,7 +157,7 @@ VOCABULARY: dict[str, tuple[tuple, dict]] = {
     "state_dir": (("--state-dir",), dict(type=directory, metavar="DIR",
                                          help="the daemon's state directory (state file, status socket, "
                                          "captures); default: the config's daemon.state_dir, "
-                                         "~/.local/state/magcal")),
+                                         "else $XDG_STATE_HOME/magcal or ~/.local/state/magcal")),
     "noise_ut": (("--noise-ut",), dict(type=positive, metavar="UT", help="white-noise σ per axis, µT")),
     "mag": (("--mag",), dict(type=integer, metavar="N", help="a flight log's magnetometer, 0-based in the log's "
                              "order (ULog instance; MAG, MAG2, MAG3 …); a log with several and no --mag lists them")),

@@ -32,6 +32,7 @@ from collections import deque
 from pathlib import Path
 
 from ..core.errors import DeviceError, PortError, PortUnavailable
+from ..recordings.state import user_state_dir
 from ..sim.physics import Scenario
 from .faults import register_flags
 from .port import Port, scenario_of
@@ -228,12 +229,6 @@ def _harness_connector(board: EmulatedBoard, baud: int):
     return connect
 
 
-def state_dir() -> Path:
-    """The user's state directory for magcal (XDG base directories)."""
-    base = os.environ.get("XDG_STATE_HOME") or os.path.join(os.path.expanduser("~"), ".local", "state")
-    return Path(base) / "magcal"
-
-
 def eeprom_of(port: Port) -> str | None:
     """The EEPROM file an ``emu://`` port keeps: ``eeprom=PATH``; by default one per seed and
     address in the user's state directory; None (a throwaway file) for ``eeprom=none``."""
@@ -242,7 +237,7 @@ def eeprom_of(port: Port) -> str | None:
         return None
     if given:
         return given
-    folder = state_dir() / "emu"
+    folder = user_state_dir() / "emu"
     folder.mkdir(parents=True, exist_ok=True)
     return str(folder / f"eeprom-seed{port.get('seed', 1)}-{port.get('addr', 0x68):#04x}.bin")
 

@@ -75,11 +75,19 @@ def _refuse_constant(token: str):
     raise ValueError(f"non-finite number {token} in state file")
 
 
+def user_state_dir() -> Path:
+    """The user's state directory for magcal (XDG base directories): ``$XDG_STATE_HOME/magcal``,
+    else ``~/.local/state/magcal``."""
+    base = os.environ.get("XDG_STATE_HOME") or os.path.join(os.path.expanduser("~"), ".local", "state")
+    return Path(base) / "magcal"
+
+
 def state_directory(path, create: bool = True) -> Path:
-    """The daemon's state directory, checked before anything is put in it: ConfigError naming
-    the path and the fix when it is a file, cannot be created or cannot be written. Created
-    (with its parents) when ``create``; new directories get the process umask's permissions."""
-    d = Path(os.path.expanduser(os.fspath(path)))
+    """The daemon's state directory (empty: the user's, ``user_state_dir``), checked before
+    anything is put in it: ConfigError naming the path and the fix when it is a file, cannot be
+    created or cannot be written. Created (with its parents) when ``create``; new directories get
+    the process umask's permissions."""
+    d = Path(os.path.expanduser(os.fspath(path))) if os.fspath(path) else user_state_dir()
     what = f"state directory {d}"
     try:
         existing = next((p for p in (d, *d.parents) if p.exists()), None)

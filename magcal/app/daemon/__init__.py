@@ -55,6 +55,7 @@ from ...devices import open_device as _open_device
 from ...devices.base import Device
 from ...devices.port import scheme_of
 from ...logic.session import Session
+from ...recordings.state import user_state_dir
 from .. import config
 from .control import ControlSocket, query_socket
 from .drift import DriftWatcher
@@ -102,7 +103,7 @@ class Daemon:
         self.settings = settings
         self.config_path = config_path
         self.overrides = dict(overrides or {})
-        self.state_dir = Path(state_dir or settings.daemon.state_dir).expanduser()
+        self.state_dir = Path(state_dir or settings.daemon.state_dir or user_state_dir()).expanduser()
         self._clock, self._wall, self._sleep = clock, wall, sleep
         self.on_sample = on_sample
         self.max_samples = max_samples
