@@ -168,3 +168,16 @@ def test_replay_urls_are_checked_with_clear_errors(tmp_path):
         parse_port("replay://x.cap?speed=2")
     with pytest.raises(DeviceError, match="missing.cap"):
         open_device(f"replay://{tmp_path}/missing.cap")
+
+
+def test_the_daemon_on_a_capture_read_in_the_wrong_dialect_stops_and_says_so(recorded, tmp_path, capsys):
+    """A protocol-v1 capture asked for as --dialect motioncal: the capture will not change, so
+    no reconnection can help — ``magcal run`` ends with a usage error naming both dialects (it
+    retried for ever), and a one-shot command says the same."""
+    port = f"replay://{recorded[0]}?pace=0"
+    with pytest.raises(PortError, match="'native' dialect, not motioncal"):
+        open_device(port, dialect="motioncal")
+    for argv in (["run", "--state-dir", str(tmp_path / "st")], ["stream", "--count", "5"]):
+        assert main([*argv, "--port", port, "--dialect", "motioncal"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert err.startswith(f"magcal {argv[0]}: ") and "--dialect auto or native" in err

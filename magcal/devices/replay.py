@@ -241,7 +241,9 @@ def open_replay(port: Port, dialect: str = "native", *, tap=None, baud: int | No
         raise DeviceError(f"cannot replay {port.url!r}: {exc}") from exc
     recorded = recorded_dialect(reader)
     if dialect == "motioncal" and recorded != "motioncal":
-        raise DeviceError(f"{port.url}: this capture was recorded in the {recorded!r} dialect, not motioncal")
+        # the capture will not change: a setting no retry can help (PortError), not a device fault
+        raise PortError(f"{port.url}: this capture was recorded in the {recorded!r} dialect, not motioncal "
+                        "(--dialect auto or native reads it)")
     transport = BytesTransport(reader, pace=port.get("pace", 0.0))
     if port.faults:
         if recorded == "motioncal":
