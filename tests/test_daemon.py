@@ -4,6 +4,7 @@ what the simulated board emitted), and a calibration that failed a gate or was n
 read-back is never reported (and the previous one is put back)."""
 
 import itertools
+import threading
 
 import numpy as np
 import pytest
@@ -15,6 +16,9 @@ from magcal.devices.base import read_to_end
 from magcal.devices.simboard import SimBoard
 from magcal.recordings.state import StateFiles
 from magcal.wire.protocol import record_from_calibration
+
+
+WALL_LIMIT_S = 300.0
 
 
 def make_settings(port, **daemon):
@@ -52,7 +56,15 @@ class Tracked:
         settings = make_settings(self.url, **daemon)
         d = Daemon(settings, state_dir=tmp_path / "state", on_sample=self.on_sample, max_samples=samples,
                    device_options=self.options(reply_timeout_s=0.25))
-        assert d.run() == 0
+        # a daemon that cannot reach its sample count (a board that stopped answering is retried
+        # for ever, as it should be) fails here instead of hanging the suite
+        guard = threading.Timer(WALL_LIMIT_S, d.request_stop)
+        guard.start()
+        try:
+            assert d.run() == 0
+        finally:
+            guard.cancel()
+        assert d.stopped_by is not Stop.REQUESTED, f"not done after {WALL_LIMIT_S} s: {d.journal.decisions()[-5:]}"
         return d
 
     def assert_exactly_once(self):
@@ -113,7 +125,9 @@ def _calibrated_then(tmp_path, faults, samples=12500):
     """Blank board, recalibration on: the daemon calibrates, then a payload adds hard iron at
     t = 50 s together with ``faults``."""
     t = Tracked(f"seed=7&fault=hard_iron@50=30.5,-38.2,14.8{faults}")
-    d = t.run(tmp_path, samples, recalibrate=True, keep="alarm")  # the alarm path (the tracker's: test_daemon_keeping)
+    # the alarm path (the tracker's: test_daemon_keeping); a stall limit no loaded machine reaches
+    # by accident (a spurious reconnect after the board went mute can never identify it again)
+    d = t.run(tmp_path, samples, recalibrate=True, keep="alarm", stall_s=3.0)
     t.assert_exactly_once()
     return t, d
 
@@ -362,3 +376,13 @@ def test_a_bad_config_on_reload_keeps_the_running_settings(tmp_path, kind):
     assert d.settings is settings and d.faults["config_rejected"] == 1
     (rejected,) = d.journal.find(Decision.RELOAD_REJECTED)
     assert (str(cfg) in rejected["error"]) != (kind == "bad_port") and "\n" not in rejected["error"]
+
+
+def test_a_stopped_daemon_gives_back_the_signals_it_took(tmp_path):
+    """Run in-process (a test, an embedding program): once run() returns, SIGTERM, SIGINT and
+    SIGHUP go where they went before — not to a stopped daemon that would swallow a Ctrl-C."""
+    import signal
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
+    Tracked("seed=3").run(tmp_path, 300)
+    assert {s: signal.getsignal(s) for s in before} == before

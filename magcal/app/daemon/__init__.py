@@ -135,13 +135,13 @@ class Daemon:
     # -- the loop -----------------------------------------------------------------------------------
     def run(self) -> int:
         with StateDirLock(self.state_dir):
-            self._install_signals()
             self.resume()
             if self.settings.daemon.socket:
                 self.control.open()
             self.capture.open(self.settings)
             self.journal.record(Decision.STARTED, port=self.settings.port, state_dir=str(self.state_dir),
                                 pid=os.getpid())
+            previous = _install_signals(self.request_stop, self.request_reload)
             try:
                 self._loop()
             except BaseException:
@@ -149,6 +149,7 @@ class Daemon:
                 raise
             finally:
                 self._shut_down()
+                _restore_signals(previous)
         return 0
 
     def _loop(self) -> None:
@@ -374,14 +375,24 @@ class Daemon:
         self.faults.update(saved.faults)
         self.journal.restore(saved.decisions)
 
-    # -- signals -----------------------------------------------------------------------------------------
-    def _install_signals(self) -> None:
-        if threading.current_thread() is not threading.main_thread():
-            return
-        signal.signal(signal.SIGTERM, lambda *_: self.request_stop())
-        signal.signal(signal.SIGINT, lambda *_: self.request_stop())
-        if hasattr(signal, "SIGHUP"):
-            signal.signal(signal.SIGHUP, lambda *_: self.request_reload())
+
+# -- signals -------------------------------------------------------------------------------------------
+def _install_signals(stop: Callable[[], None], reload: Callable[[], None]) -> dict:
+    """SIGTERM and SIGINT stop, SIGHUP reloads (in the main thread only); the handlers they
+    replace, for ``_restore_signals`` once the daemon has stopped."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    wanted = {signal.SIGTERM: stop, signal.SIGINT: stop}
+    if hasattr(signal, "SIGHUP"):
+        wanted[signal.SIGHUP] = reload
+    return {sig: signal.signal(sig, lambda *_, act=act: act()) for sig, act in wanted.items()}
+
+
+def _restore_signals(previous: dict) -> None:
+    """Put back what ``_install_signals`` replaced: a stopped daemon no longer takes a Ctrl-C or
+    a SIGTERM meant for the process that ran it."""
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)
 
 
 __all__ = ["Daemon", "Decision", "Stop", "query_socket"]
