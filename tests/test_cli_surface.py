@@ -118,6 +118,8 @@ def test_one_option_means_one_thing_everywhere():
     (["fit", "x.csv", "--noise-ut", "-1"], ["--noise-ut", "positive", "-1"]),
     (["calibrate", "--rate", "500"], ["--rate", "1 to 100", "500"]),
     (["simulate", "-o", "x.csv", "--offset-ut", "1,2"], ["--offset-ut", "3 comma-separated", "1,2"]),
+    # a field far beyond the sensor's range overflowed to a recording without any field in it
+    (["simulate", "-o", "x.csv", "--field-ut", "1e300"], ["--field-ut", "12290", "1e300"]),
     (["record", "--port", "sim://", "-o", "x.cap", "--seconds", "nan"], ["--seconds", "finite", "nan"]),
     (["diagnose", "x.csv", "--alpha", "1.5"], ["--alpha", "between 0 and 1"]),
     (["stream", "--port", "sim://", "--count", "0"], ["--count", "positive whole number"]),

@@ -64,6 +64,10 @@ fraction = _within(finite, lambda v: 0 < v < 1, "between 0 and 1 (exclusive)", "
 share = _within(finite, lambda v: 0 <= v <= 1, "between 0 and 1", "share")
 positive_int = _within(integer, lambda v: v > 0, "a positive whole number", "positive_int")
 non_negative_int = _within(integer, lambda v: v >= 0, "zero or a positive whole number", "non_negative_int")
+# a simulated field or noise, µT: up to ten times the AK8975's ±1229 µT range (beyond, every reading
+# saturates and the numbers stop meaning anything; far beyond, they overflow)
+field_scale_ut = _within(finite, lambda v: 0 < v <= 12_290, "a positive number of µT up to 12290", "field_scale_ut")
+noise_scale_ut = _within(finite, lambda v: 0 <= v <= 12_290, "from 0 to 12290 µT", "noise_scale_ut")
 # what the AK8975 can deliver: a single measurement takes up to 9 ms
 rate_hz = _within(integer, lambda v: 1 <= v <= 100, "a rate from 1 to 100 Hz", "rate_hz")
 

@@ -23,7 +23,8 @@ from ..core.series import Series
 from ..recordings.table import save_csv
 from ..sim.physics import Current, Motion, Physics, Scenario, Temperature
 from .common import Progress, document, print_json
-from .options import add, add_alias, existing_file, floats, non_negative, non_negative_int, positive, share
+from .options import (add, add_alias, existing_file, field_scale_ut, floats, noise_scale_ut, non_negative,
+                      non_negative_int, positive, share)
 
 HELP = "write a simulated MPU-9150 recording (CSV, µT) with known physics"
 
@@ -44,8 +45,8 @@ def add_arguments(p) -> None:
               help="hard iron, µT")
     _quantity(p, "--scale", None, default="1,1,1", type=floats(3), metavar="X,Y,Z",
               help="axis gains (soft iron, diagonal)")
-    _quantity(p, "--noise-ut", "--noise", default=0.4, type=non_negative, metavar="UT", help="white noise σ per axis, µT")
-    _quantity(p, "--field-ut", "--field", default=50.0, type=positive, metavar="UT", help="Earth's field strength, µT")
+    _quantity(p, "--noise-ut", "--noise", default=0.4, type=noise_scale_ut, metavar="UT", help="white noise σ per axis, µT")
+    _quantity(p, "--field-ut", "--field", default=50.0, type=field_scale_ut, metavar="UT", help="Earth's field strength, µT")
     p.add_argument("--temp-swing", type=non_negative, default=0.0, metavar="C",
                    help="peak-to-peak die temperature swing, °C")
     p.add_argument("--temp-coef", type=floats(3), default="0,0,0", metavar="X,Y,Z", help="offset change per °C, µT/°C")
