@@ -199,3 +199,23 @@ def test_a_twin_is_as_rough_from_sample_to_sample_as_its_recording():
         return np.median(np.abs(x[2:] - 2 * x[1:-1] + x[:-2]), axis=0)
 
     assert np.allclose(rough(m), rough(s.field_ut), rtol=0.15)
+
+
+def test_disturbance_durations_are_read_at_the_sensors_own_interval():
+    """The same residual stamped regularly and stamped on arrival in bursts (a 77 Hz sensor read
+    2 ms apart, then a gap): the learned durations agree — samples become seconds at the mean
+    interval, the rate the twin draws them back at (the median of bursty stamps made them 4×
+    too short)."""
+    from magcal.diagnose.twin import disturbances
+
+    rng = np.random.default_rng(5)
+    n = 7700
+    e = rng.normal(0.0, 0.2, n)
+    for start in rng.choice(n - 60, 12, replace=False):
+        e[start:start + 40] += 3.0  # 12 events of 40 samples (0.52 s at 77 Hz)
+    regular = np.arange(n) / 77.0
+    burst = np.repeat(np.arange(n // 10) * (10 / 77.0), 10) + np.tile(np.arange(10) * 0.002, n // 10)
+    got = [disturbances(e, t)[0] for t in (regular, burst)]
+    assert all(d is not None for d in got)
+    np.testing.assert_allclose(got[1].duration_s, got[0].duration_s, rtol=0.02)
+    assert 0.3 < got[0].duration_s[1] < 0.8

@@ -238,7 +238,7 @@ def disturbances(e: np.ndarray, t: np.ndarray) -> tuple[Disturbances | None, np.
     lo, hi, peaks = lo[big], hi[big], peaks[big]
     for i, j in zip(lo, hi):
         hit[i:j] = True
-    dt = ts.dt_of(t)
+    dt = wander_mod.sample_interval(t)  # samples to seconds at the rate the twin draws them back
     size = np.quantile(np.abs(peaks), [0.05, 0.95])
     dur = np.quantile((hi - lo) * dt, [0.05, 0.95])
     span = max(float(t[-1] - t[0]) + dt, dt)
