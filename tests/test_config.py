@@ -201,3 +201,18 @@ def test_the_daemon_keeps_its_state_in_the_users_state_directory_by_default(tmp_
         assert state_directory(s.daemon.state_dir, create=False) == tmp_path / "xdg" / "magcal"
     f.write_text(f'daemon:\n  state_dir: "{tmp_path / "mine"}"\n')
     assert Daemon(config.load(str(f), environ={})).state_dir == tmp_path / "mine"  # a named one is kept
+
+
+def test_daemon_keep_is_one_of_its_choices_from_file_environment_or_command_line(tmp_path):
+    """``daemon.keep`` is read into its typed choice; anything else names the key, the choices and
+    where it was set."""
+    assert config.load(None, {}, environ={}).daemon.keep is config.Keep.TRACKER
+    assert config.load(None, {}, environ={"MAGCAL_DAEMON__KEEP": "alarm"}).daemon.keep is config.Keep.ALARM
+    f = tmp_path / "c.yaml"
+    f.write_text("daemon:\n  keep: alarm\n")
+    assert config.load(str(f), {}, environ={}).daemon.keep is config.Keep.ALARM
+    assert config.to_dict(config.load(str(f), {}, environ={}))["daemon"]["keep"] == "alarm"
+    with pytest.raises(ConfigError, match=r"MAGCAL_DAEMON__KEEP: daemon\.keep must be tracker or alarm, got .often."):
+        config.load(None, {}, environ={"MAGCAL_DAEMON__KEEP": "often"})
+    with pytest.raises(ConfigError, match=r"daemon\.keep must be tracker or alarm, got 3"):
+        config.load(None, {"daemon": {"keep": 3}}, environ={})

@@ -20,6 +20,7 @@ variable's value as it is, any other is parsed as a YAML scalar or list.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import os
 import reprlib
 import typing
@@ -36,6 +37,13 @@ MAX_FILE_BYTES = 1 << 20  # the documented file is ~3 KB
 MAX_TEXT = 4096  # characters in a port or a path
 _short = reprlib.Repr()
 _short.maxstring, _short.maxother, _short.maxlevel, _short.maxlist, _short.maxdict = 40, 40, 2, 4, 4
+
+
+class Keep(enum.Enum):
+    """How the service keeps the device calibrated (``daemon.keep``)."""
+
+    TRACKER = "tracker"  # write the tracker's calibration when it is significantly better than the device's
+    ALARM = "alarm"  # refit and write only after the drift monitor rings
 
 
 @dataclass(frozen=True)
@@ -55,15 +63,13 @@ class DaemonSettings:
     stall_s: float = setting(5.0, lo=0, lo_open=True, hi=86400)  # no sample for this long on an open link ⇒ reconnect
     # how a written calibration is kept: "tracker" writes the tracker's when it is significantly
     # better than the device's (gates and budget permitting); "alarm" only after the monitor rings
-    keep: str = "tracker"
+    keep: Keep = Keep.TRACKER
     # EEPROM writes the keeper may spend (ATmega328P: 100 000 cycles rated): per day, back to back
     write_budget_per_day: float = setting(24.0, lo=0, lo_open=True, hi=1440)
     write_burst: int = setting(3, lo=1, hi=100)
 
     def check(self) -> None:
         check_bounds(self, "daemon.")
-        if self.keep not in ("tracker", "alarm"):
-            raise ConfigError(f"daemon.keep must be tracker or alarm, got {self.keep!r}", keys=("daemon.keep",))
         if self.reconnect_max_s < self.reconnect_min_s:
             raise ConfigError(f"daemon.reconnect_max_s ({self.reconnect_max_s:g}) must be ≥ daemon.reconnect_min_s "
                               f"({self.reconnect_min_s:g})", keys=("daemon.reconnect_min_s", "daemon.reconnect_max_s"))
@@ -112,7 +118,18 @@ def _text(value, key: str, empty_ok: bool = False) -> str:
     return text
 
 
+def _choice(value, typ: type[enum.Enum], key: str) -> enum.Enum:
+    if isinstance(value, typ):
+        return value
+    names = [m.value for m in typ]
+    if isinstance(value, str) and value in names:
+        return typ(value)
+    raise ConfigError(f"{key} must be {' or '.join(names)}, got {_show(value)}", keys=(key,))
+
+
 def _scalar(value, typ, key: str, empty_ok: bool = False):
+    if isinstance(typ, type) and issubclass(typ, enum.Enum):
+        return _choice(value, typ, key)
     if typ is bool:
         if isinstance(value, bool):
             return value
@@ -221,7 +238,7 @@ def _field_type(path: list[str]):
 
 
 def _env_value(key: str, raw: str, typ):
-    if typ is str:
+    if typ is str or (isinstance(typ, type) and issubclass(typ, enum.Enum)):
         return raw
     try:
         return yaml.safe_load(raw)
@@ -314,4 +331,6 @@ def load(
 
 
 def to_dict(settings) -> dict:
-    return dataclasses.asdict(settings)
+    """The settings as plain data (a choice as its text), as the config file spells them."""
+    return dataclasses.asdict(settings, dict_factory=lambda kv: {k: v.value if isinstance(v, enum.Enum) else v
+                                                                  for k, v in kv})

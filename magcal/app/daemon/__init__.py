@@ -245,7 +245,7 @@ class Daemon:
         if heard:
             self.link.heard()
         if fields and self.drift.add(fields, temps):  # what was collected belongs to the old field
-            tracker_keeps = self.settings.daemon.keep == "tracker"  # then it says what happens next
+            tracker_keeps = self.settings.daemon.keep is config.Keep.TRACKER  # then it says what happens next
             self.recalibrator.drifted(self._may_write(), say=not tracker_keeps)
             self.tracking.restart(self._may_write() if tracker_keeps else None)
 
@@ -266,7 +266,7 @@ class Daemon:
 
     def _decide(self) -> None:
         """Ask the deciders whether to write a calibration now, and write what they solved."""
-        if self.settings.daemon.keep == "tracker":
+        if self.settings.daemon.keep is config.Keep.TRACKER:
             stored = self.tracking.keep(self.link.device, self.drift.calibration, self._may_write(), self.writer)
         else:
             session = self.recalibrator.poll(self._may_write(), self.drift.wants_calibration)
