@@ -21,6 +21,7 @@ from magcal.recordings.capture import (
     make_header,
     roll_keep_one,
 )
+from magcal.wire.dialect import Dialect
 from magcal.wire.protocol import encode_line
 
 
@@ -46,7 +47,7 @@ def chunks_of(data, size):
 
 def test_header_and_chunks_round_trip(tmp_path):
     path = tmp_path / "a.cap"
-    header = make_header("/dev/ttyACM0", 115200, "native")
+    header = make_header("/dev/ttyACM0", 115200, Dialect.NATIVE)
     with CaptureWriter(path, header, clock=Clock()) as w:
         for i, c in enumerate([b"abc", b"", b"\x00\xff\n", b"$S,1"]):
             w.append(c, t_rx_s=0.5 * i)
@@ -225,3 +226,17 @@ def test_a_raw_serial_dump_with_reset_noise_is_read_like_its_capture(tmp_path):
     dump.write_bytes(b"\x00\x00\xff\x00" + CaptureReader(cap).data())
     a, b = load_series(cap), load_series(dump)
     assert len(b) == len(a) >= 200 and (b.field_ut == a.field_ut).all()
+
+
+def test_a_capture_naming_an_unknown_dialect_is_refused_by_name(tmp_path, capsys):
+    """A header whose dialect magcal does not know is an input error naming the file, the value
+    and the dialects it reads — for the loaders and for ``replay://`` alike."""
+    from magcal.cli import main
+
+    path = tmp_path / "odd.cap"
+    header = {**make_header("sim://", None), "dialect": "zzz"}
+    path.write_bytes(json.dumps(header).encode() + b"\n")
+    with pytest.raises(InputError, match=r"odd\.cap line 1: unknown dialect 'zzz' \(native, motioncal, auto\)"):
+        load_series(str(path))
+    assert main(["stream", "--port", f"replay://{path}", "--count", "1"]) != 0
+    assert "unknown dialect 'zzz'" in capsys.readouterr().err

@@ -32,6 +32,7 @@ import yaml
 from ..core.bounds import check_bounds, setting
 from ..core.errors import ConfigError
 from ..logic.gates import Gates
+from ..wire.dialect import Dialect
 
 MAX_FILE_BYTES = 1 << 20  # the documented file is ~3 KB
 MAX_TEXT = 4096  # characters in a port or a path
@@ -84,7 +85,7 @@ CAPTURE_MIN_BYTES = 4096  # a capture header and a few chunks
 @dataclass(frozen=True)
 class Settings:
     port: str = ""  # no default device: --port, MAGCAL_PORT, this key, or the one plugged in
-    dialect: str = "native"  # native | motioncal | auto
+    dialect: Dialect = Dialect.NATIVE  # native | motioncal | auto
     baud: int = setting(115200, lo=50, hi=4_000_000)
     rate_hz: int = setting(50, lo=1, hi=100, why="the AK8975 needs ≥ 10 ms per measurement")
     model: str = "auto"  # sphere | ellipsoid | auto
@@ -97,8 +98,6 @@ class Settings:
         check_bounds(self)
         if self.model not in ("sphere", "ellipsoid", "auto"):
             raise ConfigError(f"model must be sphere, ellipsoid or auto, got {self.model!r}", keys=("model",))
-        if self.dialect not in ("native", "motioncal", "auto"):
-            raise ConfigError(f"dialect must be native, motioncal or auto, got {self.dialect!r}", keys=("dialect",))
         self.gates.check()
         self.daemon.check()
 

@@ -16,6 +16,7 @@ from ..recordings.capture import BLOCK_BYTES, MAX_HEADER, CaptureReader, is_capt
 from ..recordings.logs import HEAD_BYTES, LogMag, load_log, log_kind
 from ..recordings.table import TableFormat, load_table, looks_like_table
 from ..wire import motioncal
+from ..wire.dialect import Dialect
 from ..wire.bulk import Frames, parse_blocks
 from ..wire.protocol import CalibratedSample, RawSample
 
@@ -24,9 +25,8 @@ def load_capture(path) -> Series:
     """A capture's samples, read by the live link's rules; damage to the chunk structure is
     read around and counted (``Series.reading``)."""
     reader = CaptureReader(path)
-    dialect = recorded_dialect(reader)
-    if dialect != "native":
-        series = _foreign_capture(reader, dialect)
+    if recorded_dialect(reader) is Dialect.MOTIONCAL:
+        series = _motioncal_capture(reader)
     else:
         series = _native_series(reader.frames(), reader.data, str(path))
     return replace(series, reading={**series.reading, **reader.reading()})
@@ -78,19 +78,17 @@ def _raw_only(series: Series, name: str) -> Series:
     return replace(kept, channels=channels, reading={**series.reading, "calibrated_lines": n_cal})
 
 
-def _foreign_capture(reader: CaptureReader, dialect: str) -> Series:
-    if dialect == "motioncal":
-        # read as it was live (the same device on the recorded bytes): each reading timed by
-        # when its bytes arrived
-        from ..devices.base import read_to_end
-        from ..devices.replay import BytesTransport, recorded_device
+def _motioncal_capture(reader: CaptureReader) -> Series:
+    """A MotionCal-dialect capture read as it was live (the same device on the recorded bytes):
+    each reading timed by when its bytes arrived."""
+    from ..devices.base import read_to_end
+    from ..devices.replay import BytesTransport, recorded_device
 
-        dev = recorded_device(str(reader.path), BytesTransport(reader), "motioncal")
-        try:
-            return Series.from_samples(read_to_end(dev))
-        except DeviceError as exc:
-            raise InputError(str(exc)) from None
-    raise InputError(f"{reader.path} line 1: unknown capture dialect {dialect!r}")
+    dev = recorded_device(str(reader.path), BytesTransport(reader), Dialect.MOTIONCAL)
+    try:
+        return Series.from_samples(read_to_end(dev))
+    except DeviceError as exc:
+        raise InputError(str(exc)) from None
 
 
 # -- any recording -------------------------------------------------------------------------

@@ -22,10 +22,10 @@ import importlib
 import inspect
 
 from ..core.errors import DeviceError, PortError
+from ..wire.dialect import Dialect
 from .base import Abilities, Device, Event, Identity, Item
 from .port import Port, parse_port, scheme_of
 
-DIALECTS = ("native", "motioncal", "auto")
 # backend → "module:factory"; each factory is called as factory(port, dialect=…, **options) → Device
 BACKENDS = {
     "sim": "magcal.devices.simboard:open_sim",
@@ -37,19 +37,21 @@ BACKENDS = {
 }
 
 
-def backend_of(port: Port, dialect: str) -> str:
+def backend_of(port: Port, dialect: Dialect) -> str:
     """Which backend serves ``port`` in ``dialect`` (a replay follows its capture's header)."""
-    if dialect not in DIALECTS:
-        raise PortError(f"unknown dialect {dialect!r} ({', '.join(DIALECTS)})")
-    if dialect == "motioncal" and port.scheme not in ("serial", "replay"):
+    if dialect is Dialect.MOTIONCAL and port.scheme not in ("serial", "replay"):
         raise PortError(f"--dialect motioncal needs a serial port or a replay://, not {port.url!r}")
-    return "motioncal" if dialect == "motioncal" and port.scheme == "serial" else port.scheme
+    return "motioncal" if dialect is Dialect.MOTIONCAL and port.scheme == "serial" else port.scheme
 
 
-def open_device(url: str, dialect: str = "native", **options) -> Device:
-    """Build (not yet open) the device a port string names; ``PortError`` when the string or
-    an option is not one its backend takes."""
+def open_device(url: str, dialect: Dialect | str = Dialect.NATIVE, **options) -> Device:
+    """Build (not yet open) the device a port string names; ``PortError`` when the string, the
+    dialect or an option is not one its backend takes."""
     port = parse_port(url)
+    try:
+        dialect = Dialect.named(dialect)
+    except ValueError as exc:
+        raise PortError(str(exc)) from None
     backend = backend_of(port, dialect)
     module, _, name = BACKENDS[backend].partition(":")
     try:
@@ -65,4 +67,4 @@ def open_device(url: str, dialect: str = "native", **options) -> Device:
     return factory(port, dialect=dialect, **options)
 
 
-__all__ = ["Abilities", "Device", "Event", "Identity", "Item", "Port", "open_device", "parse_port", "scheme_of"]
+__all__ = ["Abilities", "Device", "Dialect", "Event", "Identity", "Item", "Port", "open_device", "parse_port", "scheme_of"]

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import time
 
-from ..wire.dialect import SNIFF_BYTES, dialect_of
+from ..wire.dialect import SNIFF_BYTES, Dialect, dialect_of
 
 LISTEN_S = 1.5
 
 
-def detect_dialect(port, listen_s: float = LISTEN_S) -> tuple[str, bytes]:
-    """Return ("native" | "motioncal", the bytes consumed while listening).
+def detect_dialect(port, listen_s: float = LISTEN_S) -> tuple[Dialect, bytes]:
+    """Return (native or MotionCal, the bytes consumed while listening).
 
     Valid v1 lines (correct CRC-8) mean native; ``Raw:``/``Uni:`` lines mean MotionCal. With
     nothing recognisable, native is assumed (the v1 client then asks the device to identify).
@@ -26,4 +26,4 @@ def detect_dialect(port, listen_s: float = LISTEN_S) -> tuple[str, bytes]:
         found = dialect_of(bytes(seen))
         if found:
             return found, bytes(seen)
-    return "native", bytes(seen)
+    return Dialect.NATIVE, bytes(seen)

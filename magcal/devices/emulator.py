@@ -34,6 +34,7 @@ from pathlib import Path
 from ..core.errors import DeviceError, PortError, PortUnavailable
 from ..recordings.state import user_state_dir
 from ..sim.physics import Scenario
+from ..wire.dialect import Dialect
 from .faults import register_flags
 from .port import Port, scenario_of
 from .transport import WrappedTransport
@@ -242,7 +243,7 @@ def eeprom_of(port: Port) -> str | None:
     return str(folder / f"eeprom-seed{port.get('seed', 1)}-{port.get('addr', 0x68):#04x}.bin")
 
 
-def open_emulated(port: Port, dialect: str = "native", *, scenario: Scenario | None = None, asa=None,
+def open_emulated(port: Port, dialect: Dialect = Dialect.NATIVE, *, scenario: Scenario | None = None, asa=None,
                   baud: int = 115200, tap=None, reply_timeout_s: float = 1.5, boot_timeout_s: float = 3.0):
     """``emu://[?seed=N&eeprom=PATH&pace=1…]`` → the v1 protocol client on the emulated board.
 

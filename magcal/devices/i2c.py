@@ -33,6 +33,7 @@ from ..core.calibration import Calibration, StoredRecord
 from ..core.errors import DeviceError, IdentityError, NoReply, PortUnavailable
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, Sample, counts_to_ut, temp_raw_to_c
 from ..core.selftest import SELF_TEST_WINDOW, SelfTestResult  # noqa: F401 (SELF_TEST_WINDOW: re-exported)
+from ..wire.dialect import Dialect
 from .base import Abilities, Device, Event, Identity, Item
 from .port import MPU_ADDRS, Port, check_rate
 
@@ -462,7 +463,7 @@ def _rejection(raw, st2: int) -> str:
 
 def open_i2c(
     port: Port,
-    dialect: str = "native",
+    dialect: Dialect = Dialect.NATIVE,
     bus_factory: Callable | None = None,
     clock: Callable[[], float] | None = None,
     sleep: Callable[[float], None] | None = None,

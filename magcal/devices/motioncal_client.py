@@ -31,6 +31,7 @@ from ..core.calibration import Calibration
 from ..core.errors import DeviceError, NoReply, PortUnavailable, WriteRejected
 from ..core.sample import Sample
 from ..wire import motioncal as mc
+from ..wire.dialect import Dialect
 from .base import RECORDING, Abilities, Device, Identity, Item
 from .transport import Connector, SerialPort, tapped
 
@@ -329,7 +330,7 @@ class MotionCalDevice(Device):
             self._ser = None
 
 
-def open_motioncal(port, dialect: str = "motioncal", *, baud: int = 115200, tap=None, open_timeout_s: float = 3.0,
+def open_motioncal(port, dialect: Dialect = Dialect.MOTIONCAL, *, baud: int = 115200, tap=None, open_timeout_s: float = 3.0,
                    echo_timeout_s: float = 6.0, tries: int = 3, accel_offset=None, gyro_offset=None) -> Device:
     """A (not yet opened) MotionCalDevice on a serial port (``port``: a parsed port string)."""
     return MotionCalDevice(port.url, baud=baud, tap=tap, open_timeout_s=open_timeout_s, echo_timeout_s=echo_timeout_s,

@@ -24,6 +24,7 @@ from ..core.calibration import Calibration, RecordState, StoredRecord
 from ..core.errors import CommandRefused, DeviceError, IdentityError, NoReply, PortUnavailable, WriteRejected
 from ..core.sample import Sample, counts_to_ut, temp_raw_to_c
 from ..core.selftest import SelfTestResult
+from ..wire.dialect import Dialect
 from ..wire.protocol import (
     PROTO_VERSION,
     Ack,
@@ -463,23 +464,23 @@ def _self_test_result(url: str, ack: Ack, asa) -> SelfTestResult:
     return SelfTestResult.from_registers(raw, asa, st2)
 
 
-def open_serial(port: Port, dialect: str = "native", *, baud: int = 115200, tap=None,
+def open_serial(port: Port, dialect: Dialect = Dialect.NATIVE, *, baud: int = 115200, tap=None,
                 reply_timeout_s: float = 1.5, boot_timeout_s: float = 3.0, open_timeout_s: float = 3.0,
                 echo_timeout_s: float = 6.0, tries: int = 3) -> Device:
-    """A serial port or pyserial URL speaking protocol v1 (or, with ``dialect='auto'``, whichever
+    """A serial port or pyserial URL speaking protocol v1 (or, with ``Dialect.AUTO``, whichever
     of v1 and the MotionCal convention the first lines show: ``open_timeout_s``,
     ``echo_timeout_s`` and ``tries`` are that client's options, for when it is the one)."""
     url = port.url
     v1 = dict(transport_name="serial", tap=tap, reply_timeout_s=reply_timeout_s, boot_timeout_s=boot_timeout_s)
     connector = SerialPort(url, baud)
-    if dialect != "auto":
+    if dialect is not Dialect.AUTO:
         return ProtocolDevice(url, connector, **v1)
     from .autodetect import detect_dialect
 
     first = connector()
     # a capture records from the first byte, the detection's included
     dialect, seen = detect_dialect(tapped(first, tap))
-    if dialect == "motioncal":
+    if dialect is Dialect.MOTIONCAL:
         from .motioncal_client import MotionCalDevice
 
         first.close()

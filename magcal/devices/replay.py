@@ -21,6 +21,7 @@ import time
 from typing import Callable, Iterable
 
 from ..core.errors import DeviceError, InputError, PortError, PortUnavailable
+from ..wire.dialect import Dialect
 from ..wire.protocol import Hello, classify_line, encode_line
 from .faults import FaultKind, LinkFaults
 from .protocol_client import ProtocolDevice
@@ -227,7 +228,7 @@ class FaultyReplay(WrappedTransport):
         self._closed = False
 
 
-def open_replay(port: Port, dialect: str = "native", *, tap=None, baud: int | None = None,
+def open_replay(port: Port, dialect: Dialect = Dialect.NATIVE, *, tap=None, baud: int | None = None,
                 reply_timeout_s: float = 1.5, open_timeout_s: float = 3.0):
     """The capture's own convention decides how it is read: protocol v1 through
     ``ProtocolDevice``, a MotionCal-dialect capture through ``MotionCalDevice`` (passive).
@@ -239,14 +240,17 @@ def open_replay(port: Port, dialect: str = "native", *, tap=None, baud: int | No
         reader = CaptureReader(port.target)
     except InputError as exc:
         raise DeviceError(f"cannot replay {port.url!r}: {exc}") from exc
-    recorded = recorded_dialect(reader)
-    if dialect == "motioncal" and recorded != "motioncal":
+    try:
+        recorded = recorded_dialect(reader)
+    except InputError as exc:
+        raise DeviceError(f"cannot replay {port.url!r}: {exc}") from exc
+    if dialect is Dialect.MOTIONCAL and recorded is not Dialect.MOTIONCAL:
         # the capture will not change: a setting no retry can help (PortError), not a device fault
-        raise PortError(f"{port.url}: this capture was recorded in the {recorded!r} dialect, not motioncal "
+        raise PortError(f"{port.url}: this capture was recorded in the {recorded.value!r} dialect, not motioncal "
                         "(--dialect auto or native reads it)")
     transport = BytesTransport(reader, pace=port.get("pace", 0.0))
     if port.faults:
-        if recorded == "motioncal":
+        if recorded is Dialect.MOTIONCAL:
             raise PortError(f"{port.url}: fault injection replays protocol v1 captures only")
         transport = FaultyReplay(transport, port.faults)
     dev = recorded_device(port.url, transport, recorded, tap=tap, reply_timeout_s=reply_timeout_s,
@@ -256,12 +260,12 @@ def open_replay(port: Port, dialect: str = "native", *, tap=None, baud: int | No
     return dev
 
 
-def recorded_device(url: str, transport, dialect: str = "native", *, tap=None, reply_timeout_s: float = 1.5,
+def recorded_device(url: str, transport, dialect: Dialect = Dialect.NATIVE, *, tap=None, reply_timeout_s: float = 1.5,
                     open_timeout_s: float = 3.0):
     """The client that reads a recording (``BytesTransport``, possibly faulty) as it was read
     live, listening only: ``ProtocolDevice`` for protocol v1, ``MotionCalDevice`` for the
     MotionCal convention, each reading timed by when its bytes arrived."""
-    if dialect == "motioncal":
+    if dialect is Dialect.MOTIONCAL:
         from .motioncal_client import MotionCalDevice
 
         return MotionCalDevice(url, connect=resuming(transport, url), passive=True, tap=tap,

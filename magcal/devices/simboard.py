@@ -33,6 +33,7 @@ from ..core.errors import PortUnavailable
 from ..core.sample import counts_to_ut, temp_raw_to_c
 from ..recordings.atomic import write_atomic
 from ..sim.physics import Scenario, demo_scenario
+from ..wire.dialect import Dialect
 from ..wire.protocol import (
     MAX_LINE,
     RECORD_FIELDS,
@@ -495,7 +496,7 @@ def serve_fd(board: SimBoard, fd: int) -> None:
                 return
 
 
-def open_sim(port: Port, dialect: str = "native", *, board: SimBoard | None = None,
+def open_sim(port: Port, dialect: Dialect = Dialect.NATIVE, *, board: SimBoard | None = None,
              scenario: Scenario | None = None, tap=None, reply_timeout_s: float = 1.5,
              boot_timeout_s: float = 3.0) -> ProtocolDevice:
     """The v1 client on a simulated board: ``board`` when given, else the one ``port`` describes."""

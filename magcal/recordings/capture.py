@@ -57,7 +57,7 @@ from ..core.errors import InputError, MagcalError
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
 from ..core.series import Series
 from ..wire.bulk import Frames, parse_blocks
-from ..wire.dialect import dialect_of
+from ..wire.dialect import Dialect, dialect_of
 from ..wire.protocol import Hello, Restart, hello_applies
 
 FORMAT = "magcal-capture"
@@ -76,10 +76,11 @@ class CaptureWriteError(MagcalError):
     before them."""
 
 
-def make_header(port: str, baud: int | None = None, dialect: str = "native", start_utc: datetime | None = None) -> dict:
+def make_header(port: str, baud: int | None = None, dialect: Dialect = Dialect.NATIVE,
+                start_utc: datetime | None = None) -> dict:
     start = start_utc or datetime.now(timezone.utc)
-    if str(port).startswith("replay://") and dialect == "native":
-        dialect = "auto"  # a replay speaks its own capture's convention: read back from the bytes
+    if str(port).startswith("replay://") and dialect is Dialect.NATIVE:
+        dialect = Dialect.AUTO  # a replay speaks its own capture's convention: read back from the bytes
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -87,7 +88,7 @@ def make_header(port: str, baud: int | None = None, dialect: str = "native", sta
         "baud": None if baud is None else int(baud),
         "start_utc": start.isoformat(timespec="microseconds"),
         "tool": f"magcal {__version__}",
-        "dialect": dialect,
+        "dialect": dialect.value,
     }
 
 
@@ -267,7 +268,7 @@ def open_capture_tap(path, settings, max_bytes: int | None = None, on_full=None)
     """A writer whose header names ``settings.port``/``baud``/``dialect``; pass it as the
     device's ``tap`` option."""
     header = make_header(
-        getattr(settings, "port", "?"), getattr(settings, "baud", None), getattr(settings, "dialect", "native")
+        getattr(settings, "port", "?"), getattr(settings, "baud", None), getattr(settings, "dialect", Dialect.NATIVE)
     )
     return CaptureWriter(path, header, max_bytes=max_bytes, on_full=on_full)
 
@@ -559,15 +560,19 @@ def _applied_hellos(frames: Frames) -> tuple[list, int]:
     return out, refused
 
 
-def recorded_dialect(reader: "CaptureReader") -> str:
+def recorded_dialect(reader: "CaptureReader") -> Dialect:
     """The convention a capture was recorded in. A capture taken with ``--dialect auto`` names
-    no convention in its header: its first bytes tell (protocol v1 when they cannot)."""
-    dialect = reader.header.get("dialect") or "native"
-    if dialect == "auto":
+    no convention in its header: its first bytes tell (protocol v1 when they cannot).
+    ``InputError`` for a header naming no dialect magcal knows."""
+    try:
+        dialect = Dialect.named(reader.header.get("dialect") or Dialect.NATIVE)
+    except ValueError as exc:
+        raise InputError(f"{reader.path} line 1: {exc}") from None
+    if dialect is Dialect.AUTO:
         head = b""
         for _, chunk in reader:
             head += chunk
             if len(head) >= 4096:
                 break
-        dialect = dialect_of(head) or "native"
+        dialect = dialect_of(head) or Dialect.NATIVE
     return dialect

@@ -27,7 +27,7 @@ class RollingCapture:
             return
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            header = make_header(settings.port, settings.baud, settings.dialect or "native")
+            header = make_header(settings.port, settings.baud, settings.dialect)
             self.writer = CaptureWriter(self.path, header, max_bytes=max(4096, limit // 2), on_full=roll_keep_one)
         except (CaptureWriteError, OSError, ValueError) as exc:
             self._faults["capture_failed"] += 1
