@@ -100,17 +100,24 @@ def pack(offset_ut, field_ut, kind: str, W=None) -> np.ndarray:
     return theta
 
 
-def residual(theta, m: np.ndarray, kind: str) -> np.ndarray:
-    b, r, W = unpack(theta, kind)
-    return np.linalg.norm((m - b) @ W.T, axis=1) - r
-
-
-def jacobian(theta, m: np.ndarray, kind: str) -> np.ndarray:
-    theta = np.asarray(theta, dtype=np.float64)
-    W, dWs = expm_derivatives(kind, theta[4:])
+def _forward(theta: np.ndarray, m: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(d = m − b, h = W d, |h|) at θ: what the residual and the Jacobian share."""
+    W = expm_sym(shape_matrix(kind, theta[4:]))[0]
     d = m - theta[:3]
     h = d @ W.T
-    nh = np.linalg.norm(h, axis=1)
+    return d, h, np.linalg.norm(h, axis=1)
+
+
+def residual(theta, m: np.ndarray, kind: str) -> np.ndarray:
+    theta = np.asarray(theta, dtype=np.float64)
+    return _forward(theta, m, kind)[2] - float(theta[3])
+
+
+def jacobian(theta, m: np.ndarray, kind: str, forward=None) -> np.ndarray:
+    """∂e/∂θ (n, p); ``forward``: ``_forward`` at the same θ when already computed."""
+    theta = np.asarray(theta, dtype=np.float64)
+    W, dWs = expm_derivatives(kind, theta[4:])
+    d, h, nh = forward if forward is not None else _forward(theta, m, kind)
     u = h / np.where(nh > 0, nh, 1.0)[:, None]
     J = np.empty((len(m), n_params(kind)))
     J[:, :3] = -(u @ W)
@@ -239,16 +246,36 @@ def solve(
         sw = np.sqrt(np.asarray(weights, dtype=np.float64).reshape(-1))
         if len(sw) != len(m) or not np.all(np.isfinite(sw)) or np.any(sw < 0):
             raise ValueError("weights must be finite, non-negative, one per sample")
+    fun, jac = _weighted(mc, kind, None if weights is None else sw)
     with np.errstate(over="ignore", invalid="ignore"):
-        theta, nfev, converged = levenberg_marquardt(
-            lambda t: sw * residual(t, mc, kind), lambda t: sw[:, None] * jacobian(t, mc, kind), t0,
-            loss=loss, f_scale=f_scale_ut / scale, max_iter=max_nfev)
+        theta, nfev, converged = levenberg_marquardt(fun, jac, t0, loss=loss, f_scale=f_scale_ut / scale,
+                                                     max_iter=max_nfev)
     if not np.all(np.isfinite(theta)) or not converged:
         return FitFailure("no_convergence", f"{kind} fit did not converge in {max_nfev} steps")
     theta[:3] = centre + scale * theta[:3]
     theta[3] = scale * theta[3]
     if theta[3] < 0:  # |h| − r with r < 0 cannot be a minimum unless all |h| ≈ 0
         return FitFailure("degenerate", f"{kind} fit produced a negative radius")
-    e = residual(theta, m, kind)
-    J = jacobian(theta, m, kind)
-    return GeometricFit(kind=kind, theta=theta, residual_ut=e, jac=J, n_iter=nfev)
+    fwd = _forward(theta, m, kind)
+    return GeometricFit(kind=kind, theta=theta, residual_ut=fwd[2] - float(theta[3]),
+                        jac=jacobian(theta, m, kind, fwd), n_iter=nfev)
+
+
+def _weighted(m: np.ndarray, kind: str, sw: np.ndarray | None):
+    """The residual and Jacobian functions Levenberg–Marquardt steps with (rows times ``sw``,
+    the square-root weights; None: unweighted). It asks for the Jacobian at the point whose
+    residual it evaluated last, so the two share that evaluation (m − b, W(m − b), its norm)."""
+    last: list = [None, None]
+
+    def fun(t):
+        fwd = _forward(t, m, kind)
+        last[:] = [t.copy(), fwd]
+        e = fwd[2] - float(t[3])
+        return e if sw is None else sw * e
+
+    def jac(t):
+        fwd = last[1] if last[0] is not None and np.array_equal(last[0], t) else None
+        J = jacobian(t, m, kind, fwd)
+        return J if sw is None else sw[:, None] * J
+
+    return fun, jac
