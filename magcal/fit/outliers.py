@@ -13,6 +13,7 @@ clean sample from a clean run (measured: see tests/test_fit_outliers.py).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -114,6 +115,16 @@ def grubbs_critical(n, alpha: float = DEFAULT_ALPHA):
     return float(g) if np.ndim(g) == 0 else g
 
 
+@functools.lru_cache(maxsize=64)
+def _critical_block(start: int, stop: int, alpha: float) -> np.ndarray:
+    """Critical values for k = start, start − 1, … > stop (read-only). Kept: every fit of the
+    same number of samples asks for the same block (a diagnosis fits its n samples six to eight
+    times), and each costs a t quantile by Newton's method on a continued fraction."""
+    out = np.atleast_1d(grubbs_critical(np.arange(start, stop, -1), alpha))
+    out.flags.writeable = False
+    return out
+
+
 def grubbs(residual, alpha: float = DEFAULT_ALPHA, max_fraction: float = 0.2) -> np.ndarray:
     """Indices (into ``residual``) that the iterated Grubbs test removes, in removal order.
 
@@ -136,8 +147,8 @@ def grubbs(residual, alpha: float = DEFAULT_ALPHA, max_fraction: float = 0.2) ->
     crit = np.zeros(0)
     while k > 3 and len(removed) < limit:
         if n - k >= len(crit):
-            ks = np.arange(n - len(crit), max(n - len(crit) - 2 * len(crit) - 64, last_k - 1), -1)
-            crit = np.concatenate([crit, np.atleast_1d(grubbs_critical(ks, alpha))])
+            start = n - len(crit)
+            crit = np.concatenate([crit, _critical_block(start, max(start - 2 * len(crit) - 64, last_k - 1), alpha)])
         mean = s1 / k
         var = (s2 - k * mean * mean) / (k - 1)
         if var <= 0:

@@ -214,7 +214,7 @@ def _fast_len(n: int) -> int:
 UNIFORM = 1e-3  # times within this share of a sample period of a uniform grid are read on it
 PER_PERIOD = 6.0  # grid points to the shortest period when irregular times are interpolated
 TAPS = np.arange(-3, 5)  # the grid points (relative to the one before t) a reading is interpolated from
-_BARYCENTRIC = 1.0 / np.array([np.prod([xi - xj for xj in TAPS if xj != xi]) for xi in TAPS], dtype=np.float64)
+_DENOMINATOR = np.array([np.prod([xi - xj for xj in TAPS if xj != xi]) for xi in TAPS], dtype=np.float64)
 
 
 def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
@@ -249,15 +249,23 @@ def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
 
 def _lagrange(grid: np.ndarray, pos: np.ndarray) -> np.ndarray:
     """(n, k) a periodic grid (size, k) read at fractional indices ``pos`` by the Lagrange
-    polynomial through the grid points TAPS around each."""
+    polynomial through the grid points TAPS around each: tap i's weight is Π_(j≠i) (a − x_j) /
+    Π_(j≠i) (x_i − x_j), the numerator as the product of the taps before i and of those after
+    it (no division by a − x_i, exact on a grid point), tap by tap over all samples at once."""
     below = np.floor(pos)
-    d = (pos - below)[:, None] - TAPS  # (n, taps) distance to each grid point
-    at = d == 0
-    d[at] = 1.0
-    w = np.prod(d, axis=1, keepdims=True) / d * _BARYCENTRIC  # Π_(j≠i) (a − x_j) / (x_i − x_j)
-    w[at.any(axis=1)] = at[at.any(axis=1)]  # on a grid point: that point's value
-    idx = (below.astype(np.int64)[:, None] + TAPS) % len(grid)
-    return np.einsum("nt,ntk->nk", w, grid[idx])
+    a = pos - below
+    base = below.astype(np.int64)
+    d = [a - x for x in TAPS]
+    before = [np.ones_like(a)]
+    for di in d[:-1]:
+        before.append(before[-1] * di)
+    after = np.ones_like(a)
+    out = np.zeros((len(pos), grid.shape[1]))
+    for i in range(len(TAPS) - 1, -1, -1):
+        w = before[i] * after / _DENOMINATOR[i]
+        out += w[:, None] * np.take(grid, base + TAPS[i], axis=0, mode="wrap")
+        after = after * d[i]
+    return out
 
 
 def _band_spectrum(bands, rng: np.random.Generator, size: int, period: float) -> tuple[np.ndarray, list]:
