@@ -249,23 +249,43 @@ def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
 
 def _lagrange(grid: np.ndarray, pos: np.ndarray) -> np.ndarray:
     """(n, k) a periodic grid (size, k) read at fractional indices ``pos`` by the Lagrange
-    polynomial through the grid points TAPS around each: tap i's weight is Π_(j≠i) (a − x_j) /
-    Π_(j≠i) (x_i − x_j), the numerator as the product of the taps before i and of those after
-    it (no division by a − x_i, exact on a grid point), tap by tap over all samples at once."""
+    polynomial through the grid points TAPS around each."""
+    idx, weights = _reading(pos, len(grid))
+    out = np.empty((grid.shape[1], len(pos)))
+    for column, g in zip(out, np.ascontiguousarray(grid.T)):  # a column at a time: 1-d gathers
+        column[:] = weights[0] * g[idx[0]]
+        for i, w in zip(idx[1:], weights[1:]):
+            column += w * g[i]
+    return out.T
+
+
+_LAST_READING: list = [None]  # (pos, size, idx, weights): a twin's draws read the same times again and again
+
+
+def _reading(pos: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(grid index (taps, n), weight (taps, n)) of each tap of the reading at ``pos`` on a grid
+    of ``size`` points: tap i's weight is Π_(j≠i) (a − x_j) / Π_(j≠i) (x_i − x_j), the numerator
+    as the product of the taps before i and of those after it (no division by a − x_i: exact
+    on a grid point). The last one is kept: it depends on the times alone, and every draw of a
+    twin (the same components at the same times) reads the same."""
+    last = _LAST_READING[0]
+    if last is not None and last[1] == size and last[0].shape == pos.shape and np.array_equal(last[0], pos):
+        return last[2], last[3]
     below = np.floor(pos)
     a = pos - below
-    base = below.astype(np.int64)
     d = [a - x for x in TAPS]
-    before = [np.ones_like(a)]
-    for di in d[:-1]:
-        before.append(before[-1] * di)
+    weights = np.empty((len(TAPS), len(pos)))
+    before = np.ones_like(a)
+    for i, di in enumerate(d):
+        weights[i] = before
+        before = before * di
     after = np.ones_like(a)
-    out = np.zeros((len(pos), grid.shape[1]))
     for i in range(len(TAPS) - 1, -1, -1):
-        w = before[i] * after / _DENOMINATOR[i]
-        out += w[:, None] * np.take(grid, base + TAPS[i], axis=0, mode="wrap")
+        weights[i] = weights[i] * after / _DENOMINATOR[i]
         after = after * d[i]
-    return out
+    idx = (below.astype(np.int64) + TAPS[:, None]) % size
+    _LAST_READING[0] = (pos.copy(), size, idx, weights)
+    return idx, weights
 
 
 def _band_spectrum(bands, rng: np.random.Generator, size: int, period: float) -> tuple[np.ndarray, list]:
