@@ -292,20 +292,26 @@ def _band_spectrum(bands, rng: np.random.Generator, size: int, period: float) ->
     """The random Fourier coefficients of the band components on a grid of ``size`` points over
     ``period`` seconds — each band's σ² spread evenly over the grid frequencies inside it,
     random phases — for the columns (of offset x, y, z and the field) that have any: ((size //
-    2 + 1, len(used)), used)."""
+    2 + 1, len(used)), used). The normal deviates of all bands come from one call, in the
+    order band by band, real parts then imaginary ones (the same stream as a call per part)."""
     used = sorted({i for c in bands for i in ((0, 1, 2) if c.frame == OFFSET else (3,))})
     freqs = np.arange(size // 2 + 1) * (1.0 / period)
     spec = np.zeros((len(freqs), len(used)), dtype=complex)
-    for c in bands:
-        lo, hi = c.band_hz
-        first, stop = max(1, int(np.searchsorted(freqs, lo))), int(np.searchsorted(freqs, hi))
+    edges = np.array([c.band_hz for c in bands], dtype=np.float64).reshape(-1, 2)
+    firsts, stops = np.maximum(1, np.searchsorted(freqs, edges[:, 0])), np.searchsorted(freqs, edges[:, 1])
+    where = []
+    for c, first, stop in zip(bands, firsts.tolist(), stops.tolist()):
         if stop <= first:  # narrower than the grid resolves: its nearest frequency
-            first = max(1, int(np.argmin(np.abs(freqs - 0.5 * (lo + hi)))))
+            first = max(1, int(np.argmin(np.abs(freqs - 0.5 * sum(c.band_hz)))))
             stop = first + 1
-        cols = [used.index(i) for i in ((0, 1, 2) if c.frame == OFFSET else (3,))]
-        k = len(cols)
+        where.append((first, stop, [used.index(i) for i in ((0, 1, 2) if c.frame == OFFSET else (3,))]))
+    z_all = rng.standard_normal(sum(2 * (stop - first) * len(cols) for first, stop, cols in where))
+    at = 0
+    for c, (first, stop, cols) in zip(bands, where):
+        k, n = len(cols), (stop - first) * len(cols)
         sig = np.asarray(c.sigma_ut)[:k] / np.sqrt(stop - first)
-        z = rng.standard_normal((stop - first, k)) - 1j * rng.standard_normal((stop - first, k))
+        z = z_all[at : at + n].reshape(-1, k) - 1j * z_all[at + n : at + 2 * n].reshape(-1, k)
+        at += 2 * n
         spec[first:stop, cols[0] : cols[-1] + 1] += z * sig * (size / 2.0)
     return spec, used
 
