@@ -36,7 +36,7 @@ import twin_recordings as tr  # noqa: E402
 from magcal.app.config import DaemonSettings  # noqa: E402
 from magcal.diagnose import twin  # noqa: E402
 from magcal.fit import fit_calibration as fit  # noqa: E402
-from magcal.logic.monitor import DriftMonitor  # noqa: E402
+from magcal.logic.monitor import DriftMonitor, Phase  # noqa: E402
 from magcal.sim.physics import Motion, Physics, Scenario  # noqa: E402
 
 BASELINE_WINDOWS = 8
@@ -60,7 +60,7 @@ def _field(model, seed, n):
 def run_stream(model, seed, minutes, window, alpha):
     s_field = _field(model, seed, int(minutes * 60 * min(model.rate_hz, 100.0)))
     mon = DriftMonitor(model.calibration, window, alpha, BASELINE_WINDOWS)
-    verdicts = [v for v in mon.add(s_field) if v.phase == "test"]
+    verdicts = [v for v in mon.add(s_field) if v.phase is Phase.TEST]
     st = mon.status()
     return np.array([v.p_value for v in verdicts]), st["dispersion_factor"], st["offset_wander_ut"]
 

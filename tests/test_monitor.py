@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from magcal.fit import fit_calibration
-from magcal.logic.monitor import DriftMonitor
+from magcal.logic.monitor import DriftMonitor, Phase, WindowTest
 from magcal.sim.physics import Motion, demo_scenario
 
 
@@ -27,7 +27,7 @@ def test_good_calibration_raises_about_alpha_alarms(calibrated):
     sc, cal = calibrated
     mon = DriftMonitor(cal, window=400, alpha=0.01)
     verdicts = mon.add(_stream(sc, 400 * 208, 50.0))
-    tests = [v for v in verdicts if v.phase == "test"]
+    tests = [v for v in verdicts if v.phase is Phase.TEST]
     assert len(tests) == 200
     # 200 tests at α = 1 %: expect 2; Poisson(2) exceeds 7 with probability < 0.2 %
     assert mon.alarms <= 7
@@ -108,7 +108,7 @@ def _tests_at_one_percent(sc, cal, sensor, seeds):
     for seed in seeds:
         mon = DriftMonitor(cal, window=400, alpha=0.01)
         s = dataclasses.replace(sc, model=sensor, seed=seed).simulate(400 * 108, 100.0, t0_s=50.0).series
-        out += [v for v in mon.add(s.field_ut) if v.phase == "test"]
+        out += [v for v in mon.add(s.field_ut) if v.phase is Phase.TEST]
     return out
 
 
@@ -127,7 +127,7 @@ def test_the_field_magnitude_wandering_is_not_a_new_hard_iron(calibrated):
     whichever way the board faces — a change of radius, which the hard-iron test leaves free."""
     sc, cal = calibrated
     verdicts = _tests_at_one_percent(sc, cal, _wandering(sc, cal), (31, 32))
-    assert len(verdicts) == 200 and all(v.test == "hard_iron" for v in verdicts)
+    assert len(verdicts) == 200 and all(v.test is WindowTest.HARD_IRON for v in verdicts)
     assert sum(v.drifted for v in verdicts) <= 7  # Poisson(2) exceeds 7 with probability < 0.2 %
 
 
@@ -141,12 +141,12 @@ def test_a_new_hard_iron_is_caught_on_a_wandering_sensor(calibrated, motion):
     sc = dataclasses.replace(sc, model=sensor, seed=41, motion=Motion(motion))
     mon = DriftMonitor(cal, window=500, alpha=0.001)
     before = mon.add(_stream(sc, 500 * 20, 30.0))
-    assert mon.phase == "test" and not any(v.drifted for v in before)
+    assert mon.phase is Phase.TEST and not any(v.drifted for v in before)
     delta = np.array([2.0, -1.5, 1.0])
     m = _stream(sc, 1000, 130.0) + delta  # a payload: every reading moves by δ
     after = mon.add(m)
     assert any(v.drifted for v in after)  # within the two windows after it
-    assert next(v for v in after if v.drifted).test == ("hard_iron" if motion == "sphere" else "combined")
+    assert next(v for v in after if v.drifted).test is (WindowTest.HARD_IRON if motion == "sphere" else WindowTest.COMBINED)
 
 
 def test_a_state_of_the_first_version_relearns_its_baseline(calibrated):
@@ -158,5 +158,5 @@ def test_a_state_of_the_first_version_relearns_its_baseline(calibrated):
     old = json.loads(json.dumps(a.to_state()))
     del old["version"]
     b = DriftMonitor.from_state(old)
-    assert b.phase == "baseline" and b.windows == a.windows and b.alarms == a.alarms
-    assert [v.phase for v in b.add(_stream(sc, 300 * 9, 60.0))] == ["baseline"] * 8 + ["test"]
+    assert b.phase is Phase.BASELINE and b.windows == a.windows and b.alarms == a.alarms
+    assert [v.phase for v in b.add(_stream(sc, 300 * 9, 60.0))] == [Phase.BASELINE] * 8 + [Phase.TEST]

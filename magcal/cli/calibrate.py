@@ -32,6 +32,7 @@ def add_arguments(p) -> None:
 
 def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
     """The live display: a status line, the direction map and the next move (pure)."""
+    from ..logic.session import Status
     from .common import duration
     from .coverage_map import hint, render
 
@@ -45,9 +46,10 @@ def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
     need = session.gates_cfg.min_coverage
     head = (f"{p['status']}: {p['samples']} samples ({rate:.0f}/s), {100 * p['coverage']:.0f}% of directions "
             f"(need {100 * need:.0f}%), {len(kept)} kept, gives up in {duration(max(0, timeout_s - elapsed))}{est}")
-    failing = [g.name for g in session.failing_gates()] if p["status"] == "collecting" else []
+    collecting = session.status is Status.COLLECTING
+    failing = [g.name for g in session.failing_gates()] if collecting else []
     lines = [head]
-    if p["status"] == "collecting":
+    if collecting:
         direction = None
         if session.last_field_ut is not None:
             direction = session.last_field_ut - kept.centre_ut

@@ -47,6 +47,7 @@ a window that alarms never joins, so a new hard iron stays loud.
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,18 +67,33 @@ def _clipped(moments: np.ndarray, c: float) -> np.ndarray:
     """A comparison's moments as if its difference Δ were shrunk so that T² became c·T²: the
     two moments quadratic in Δ scaled by c, the geometry terms kept."""
     return moments * np.array([c, 1.0, 1.0, c, 1.0])
-HARD_IRON, COMBINED = "hard_iron", "combined"
+
+
+class Phase(enum.Enum):
+    """Where the monitor is: learning the noise from its first windows, or testing."""
+
+    BASELINE = "baseline"
+    TEST = "test"
+
+
+class WindowTest(enum.Enum):
+    """Which test a window gets: the hard iron d with the field's magnitude free (the window's
+    directions determine some direction of d), or c and d together (a still board)."""
+
+    HARD_IRON = "hard_iron"
+    COMBINED = "combined"
+
+
+HARD_IRON, COMBINED = WindowTest.HARD_IRON, WindowTest.COMBINED
 _D, _NUISANCE = [1, 2, 3], [0, 4]  # places of d and of (c₀, c₁) in θ
 
 
 @dataclass(frozen=True)
 class Verdict:
-    """One window's test. ``phase`` is ``baseline`` (learning the noise) or ``test``; ``test``
-    names which: ``hard_iron`` (d with the field's magnitude free) or ``combined`` (a still
-    board: c and d together)."""
+    """One window's verdict: in which ``phase`` and, when testing, by which ``test``."""
 
     window: int
-    phase: str
+    phase: Phase
     n: int
     statistic: float
     threshold: float
@@ -86,13 +102,13 @@ class Verdict:
     drifted: bool
     rms_ut: float  # RMS of |h| − r over the window
     estimated_shift_ut: tuple  # sensor-frame offset change the window suggests (µT)
-    test: str = ""
+    test: WindowTest | None = None
 
     def to_dict(self) -> dict:
         return {
             "window": self.window,
-            "phase": self.phase,
-            "test": self.test or None,
+            "phase": self.phase.value,
+            "test": self.test.value if self.test else None,
             "n": self.n,
             "statistic": _f(self.statistic),
             "threshold": _f(self.threshold),
@@ -155,12 +171,12 @@ def _near(e: np.ndarray, bound: float) -> np.ndarray:
     return keep
 
 
-def window_parts(a: np.ndarray, b: np.ndarray, test: str) -> tuple[np.ndarray, np.ndarray]:
+def window_parts(a: np.ndarray, b: np.ndarray, test: WindowTest) -> tuple[np.ndarray, np.ndarray]:
     """(estimate, information) of one window for ``test`` (pure), from its sums on [1, u, s]:
     ``combined`` θ = (c, d) on [1, u] alone; ``hard_iron`` d with c₀ and c₁ free — the Schur
     complement S = A_dd − A_dN A_NN⁻¹ A_Nd, so sums of S and S·d over windows estimate one d
     while each window keeps its own field magnitude."""
-    if test == COMBINED:
+    if test is COMBINED:
         a4 = a[:4, :4]
         return np.linalg.pinv(a4, rcond=1e-10, hermitian=True) @ b[:4], a4
     k = a[np.ix_(_D, _NUISANCE)] @ np.linalg.pinv(a[np.ix_(_NUISANCE, _NUISANCE)], rcond=1e-10, hermitian=True)
@@ -274,8 +290,8 @@ class DriftMonitor:
 
     # -- feeding ---------------------------------------------------------------------------------
     @property
-    def phase(self) -> str:
-        return "baseline" if self._base_done < self.baseline_windows else "test"
+    def phase(self) -> Phase:
+        return Phase.BASELINE if self._base_done < self.baseline_windows else Phase.TEST
 
     @property
     def drifted(self) -> bool:
@@ -304,7 +320,7 @@ class DriftMonitor:
             channels = {"temp_c": temp}
         w = window_fit(self.calibration, m, channels)
         self.windows += 1
-        if self.phase == "baseline":
+        if self.phase is Phase.BASELINE:
             v = self._learn(w, len(m))
         else:
             v = self._test(w, len(m))
@@ -320,7 +336,7 @@ class DriftMonitor:
         self._join(w)
         if self._base_done == self.baseline_windows:
             self._spread()
-        return Verdict(self.windows, "baseline", n, float("nan"), float("nan"), 0, float("nan"), False,
+        return Verdict(self.windows, Phase.BASELINE, n, float("nan"), float("nan"), 0, float("nan"), False,
                        w["rms_ut"], (0.0, 0.0, 0.0))
 
     # -- the test ----------------------------------------------------------------------------------
@@ -372,12 +388,12 @@ class DriftMonitor:
         nu = max(1.0, nu)
         t2, k, seen, moments = statistic(theta - theta0, info, n, ref_inv, self._var(), (phi, q))
         if k == 0:
-            return Verdict(self.windows, "test", n, 0.0, float("inf"), 0, 1.0, False, w["rms_ut"], (0.0, 0.0, 0.0),
+            return Verdict(self.windows, Phase.TEST, n, 0.0, float("inf"), 0, 1.0, False, w["rms_ut"], (0.0, 0.0, 0.0),
                            test)
         p = float(stats.f.sf(t2 / k, k, nu))
         threshold = float(k * stats.f.isf(self.alpha, k, nu))
         drifted = p < self.alpha
-        shift = self._w_inv @ (seen if test == HARD_IRON else seen[1:])  # e ≈ u·Wδ ⇒ δ = W⁻¹d
+        shift = self._w_inv @ (seen if test is HARD_IRON else seen[1:])  # e ≈ u·Wδ ⇒ δ = W⁻¹d
         if drifted:
             self.alarms += 1
             if self.first_alarm_window is None:
@@ -388,7 +404,7 @@ class DriftMonitor:
         else:
             ref.spread(moments)
             self._join(w)
-        return Verdict(self.windows, "test", n, t2, threshold, k, p, drifted,
+        return Verdict(self.windows, Phase.TEST, n, t2, threshold, k, p, drifted,
                        w["rms_ut"], tuple(float(s) for s in shift), test)
 
     def _join(self, w: dict) -> None:
@@ -417,7 +433,7 @@ class DriftMonitor:
                 "noise": list(self._noise_sums),
                 "done": self._base_done,
                 "windows": [[a.tolist(), b.tolist()] for a, b in self._base_windows],
-                "references": {test: ref.to_state() for test, ref in self._ref.items()},
+                "references": {test.value: ref.to_state() for test, ref in self._ref.items()},
             },
         }
 
@@ -450,14 +466,14 @@ class DriftMonitor:
         self._base_windows = [(np.asarray(a, dtype=np.float64).reshape(5, 5), np.asarray(b, dtype=np.float64).reshape(5))
                               for a, b in base["windows"]]
         refs = base["references"]
-        self._ref = {HARD_IRON: Reference.from_state(refs[HARD_IRON], 3, self._forget),
-                     COMBINED: Reference.from_state(refs[COMBINED], 4, self._forget)}
+        self._ref = {HARD_IRON: Reference.from_state(refs[HARD_IRON.value], 3, self._forget),
+                     COMBINED: Reference.from_state(refs[COMBINED.value], 4, self._forget)}
 
     def status(self) -> dict:
         sigma, tau = self.noise() if self._noise_sums[3] else (None, None)
         phi, q, _ = self._ref[HARD_IRON].scale()
         return {
-            "phase": "drifted" if self.drifted else self.phase,
+            "phase": "drifted" if self.drifted else self.phase.value,
             "windows": self.windows,
             "alarms": self.alarms,
             "first_alarm_window": self.first_alarm_window,

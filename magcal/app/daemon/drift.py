@@ -10,7 +10,7 @@ from typing import Callable
 import numpy as np
 
 from ...core.calibration import Calibration
-from ...logic.monitor import DriftMonitor
+from ...logic.monitor import DriftMonitor, Phase
 from .journal import Decision, Journal
 
 log = logging.getLogger("magcal.daemon")
@@ -64,8 +64,8 @@ class DriftWatcher:
         return rang
 
     def _verdict(self, v) -> bool:
-        if v.phase == "baseline":
-            if self.monitor.phase == "test":
+        if v.phase is Phase.BASELINE:
+            if self.monitor.phase is Phase.TEST:
                 sigma, tau = self.monitor.noise()
                 self._journal.record(Decision.BASELINE_DONE, noise_ut=round(sigma, 4), autocorrelation=round(tau, 2))
             return False
