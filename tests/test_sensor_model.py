@@ -196,3 +196,34 @@ def test_glitch_sizes_follow_their_quantiles_and_two_make_them_log_uniform():
     assert 0.48 < np.mean(two < 2.0) < 0.52  # as many between 1 and 2 µT as between 2 and 4
     with pytest.raises(ValueError, match="glitch sizes"):
         _model(glitch_ut=(3.0, 2.0))
+
+
+def test_repeated_reads_repeat_the_last_conversion_in_a_steady_pattern_and_leave_the_rest():
+    """A host polling faster than the sensor converts reads the last conversion again, bit for
+    bit: at a 24 % share every 4th or 5th read, the phase a function of the seed; the noise,
+    wander and glitches are the same draws with or without repeats."""
+    sm = _model(repeat_share=0.24, saturation_ut=None, quantum_ut=(0.0, 0.0, 0.0))
+    a = np.linspace(0.0, 20.0 * np.pi, 4000)
+    u = np.column_stack([0.6 * np.cos(a), 0.6 * np.sin(a), np.full(4000, 0.8)])
+    t = np.arange(4000) / 50.0
+    m, _ = sm.simulate(u, t, {"current_a": np.zeros(4000)}, seed=3)
+    same = np.all(np.diff(m, axis=0) == 0, axis=1)
+    assert abs(same.mean() - 0.24) < 0.002
+    gaps = np.diff(np.flatnonzero(same))
+    assert set(gaps) <= {4, 5}
+    fresh, _ = sm.without("repeats").simulate(u, t, {"current_a": np.zeros(4000)}, seed=3)
+    assert np.array_equal(m[~np.concatenate([[False], same])], fresh[~np.concatenate([[False], same])])
+    other, _ = sm.simulate(u, t, {"current_a": np.zeros(4000)}, seed=4)
+    assert not np.array_equal(np.all(np.diff(other, axis=0) == 0, axis=1), same)
+    assert "repeats" in sm.effects() and "repeats" not in sm.without("repeats").effects()
+
+
+def test_repeat_share_is_written_and_an_older_file_reads_as_none():
+    d = _model(repeat_share=0.1).to_dict()
+    assert d["reads"] == {"repeat_share": 0.1}
+    assert SensorModel.from_dict(json.loads(json.dumps(d))).repeat_share == 0.1
+    d.pop("reads")
+    d["schema"] = "magcal.sensor-model/2"
+    assert SensorModel.from_dict(d).repeat_share == 0.0
+    with pytest.raises(ValueError, match="repeat_share"):
+        _model(repeat_share=1.0)

@@ -35,7 +35,7 @@ from ..core.series import Series
 from ..sim import directions
 from ..sim import wander as wander_mod
 from ..sim.disturbance import Disturbances
-from ..sim.model import TEMP, SensorModel, replace_calibration
+from ..sim.model import TEMP, SensorModel, glitches, replace_calibration
 from . import twin_stats as ts
 from .twin_names import Mismatch, locate, mismatches
 from .lattice import quantum
@@ -184,8 +184,13 @@ def size_quantiles(size: np.ndarray) -> tuple:
 
 def _glitches(m: np.ndarray, radius: np.ndarray) -> tuple[float, tuple, float, np.ndarray]:
     """(rate per sample, size quantiles µT, share along one sensor axis, the samples): the
-    spikes of |h| (``spikes``), each glitch the sample's departure from its neighbours' mean. Axis share: the share of glitches with ≥ 90 % of their square
-    on one axis, less the share a random direction would put there (P0_AXIS)."""
+    spikes of |h| (``spikes``). A glitch's size is read from its departure in |h| from its
+    neighbours' mean, doubled (a jump in a random direction moves |h| by |cos θ| of its length,
+    ½ on average): its departure in the 3-vector also carries the trajectory's own curvature,
+    which on fast motion is many times the glitch (rm3100 umich flight: 3.9× the radial
+    departure at the 90th percentile, 1.9× on its twins). Axis share: the share of glitches
+    with ≥ 90 % of their square on one axis, less the share a random direction would put there
+    (P0_AXIS)."""
     hit = spikes(m, radius=radius)
     k = np.flatnonzero(hit)
     if not len(k):
@@ -194,17 +199,20 @@ def _glitches(m: np.ndarray, radius: np.ndarray) -> tuple[float, tuple, float, n
     size = np.linalg.norm(g, axis=1)
     one_axis = float(np.mean(np.max(g * g, axis=1) >= 0.9 * size**2))
     share = float(np.clip((one_axis - P0_AXIS) / (1.0 - P0_AXIS), 0.0, 1.0))
-    return float(np.mean(hit)), size_quantiles(size), share, hit
+    return float(np.mean(hit)), size_quantiles(2.0 * _departures(radius, k)), share, hit
 
 
 def twin_directions(model: SensorModel, series: Series) -> np.ndarray:
     """The field directions (n, 3) behind a recording, through the model's inverse, with each
-    glitch sample re-drawn between the directions around it (the twin draws its own glitches;
-    replayed, they would be there twice)."""
+    glitch sample (and, when the model repeats reads, each repeated read) re-drawn between the
+    directions around it (the twin draws its own glitches and repeats; replayed, they would be
+    there twice)."""
     chans = with_time(series)
     m = series.field_ut
     u = model.directions_of(m, {c: chans[c] for c in model.calibration.coef_ut_per_unit})
     bad = spikes(m, radius=_radius(model.calibration, m, chans))
+    if model.repeat_share > 0:
+        bad |= repeats(m)  # a repeated read shows an earlier direction; the twin repeats its own
     good = np.flatnonzero(~bad)
     if bad.any() and len(good) >= 2:
         k = np.flatnonzero(bad)
@@ -293,31 +301,118 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
         temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),
         rate_hz=1.0 / wander_mod.sample_interval(t), source=dict(source or {}),
     )
-    return replace(model, glitch_rate=glitch_rate(model, s, int(hit.sum()))) if rate > 0 else model
+    model = replace(model, repeat_share=repeat_share(model, s))
+    if rate <= 0:
+        return model
+    rate, missed = glitch_process(model, s, hit)
+    return replace(model, glitch_rate=rate, noise_ut=_less_noise(model, s, missed))
 
 
-def glitch_rate(model: SensorModel, series: Series, observed: int, seeds=(1, 2, 3, 4)) -> float:
-    """The glitch rate that makes the twins show as many spikes as the recording (indirect
-    inference, one step): the detector misses small glitches and finds a few spikes where
-    there are none (noise, a kink of the motion), so the rate seen is not the rate to draw.
-    Twins on the recording's own times and directions with the rate seen and without glitches
-    count the spikes the same detector finds; the rate is scaled so that the count above the
-    glitch-free twins' equals the recording's."""
+def _less_noise(model: SensorModel, series: Series, missed: float) -> tuple:
+    """The white noise less the glitches the detector missed: those stayed in the residual the
+    wander and its white floor were fitted to, and the twin draws them again as glitches (on
+    rm3100 umich flight the twins' RMS came out above the recording's). Cut to no less than a
+    tenth of its variance."""
+    sigma, white = np.asarray(model.noise_ut), _white_var(model, series)
+    if white <= 0 or missed <= 0:
+        return model.noise_ut
+    return tuple(float(v) for v in sigma * np.sqrt(max(white - missed, 0.1 * white) / white))
+
+
+def _white_var(model: SensorModel, series: Series) -> float:
+    """The radial variance µT² of the model's white noise along the recording's directions."""
+    u = twin_directions(model, series) @ np.asarray(model.calibration.soft_iron)
+    return float(np.mean(u * u @ np.asarray(model.noise_ut) ** 2))
+
+
+def repeats(m: np.ndarray) -> np.ndarray:
+    """Reads equal to the one before on every axis, bit for bit."""
+    return np.concatenate([[False], np.all(np.diff(m, axis=0) == 0, axis=1)])
+
+
+def repeat_share(model: SensorModel, series: Series, seeds=(1, 2)) -> float:
+    """The share of reads that repeat the previous conversion (the host read before the next
+    one was ready): the recording's share of exact repeats beyond what its twins without
+    repeats make by chance (a coarse quantum and a still board repeat a reading too), when it
+    passes that chance share by three binomial σ; else 0."""
+    m = series.field_ut
+    seen = float(np.mean(repeats(m)))
+    if seen == 0.0:
+        return 0.0
     chans, u = with_time(series), twin_directions(model, series)
+    bare = replace(model, repeat_share=0.0, glitch_rate=0.0)
+    chance = float(np.mean([np.mean(repeats(twin_readings(bare, u, series.t_s, chans, seed)[0])) for seed in seeds]))
+    n = len(m)
+    if seen <= chance + 3.0 * np.sqrt(max(chance * (1.0 - chance), 1.0 / n) / n):
+        return 0.0
+    return float(min((seen - chance) / (1.0 - chance), 0.9))
 
-    def count(mod: SensorModel) -> float:
-        out = []
-        for seed in seeds:
-            m, _ = twin_readings(mod, u, series.t_s, chans, seed)
-            out.append(np.count_nonzero(spikes(m, radius=_radius(mod.calibration, m, chans))))
-        return float(np.mean(out))
 
-    null, seen = count(model.without("glitches")), count(model)
+GLITCH_SEEDS = (1, 2, 3, 4)
+
+
+def _departures(r: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """|r_k − mean of its neighbours| (µT) at samples ``k``: a spike's departure in |h|."""
+    return np.abs(r[k] - 0.5 * (r[k - 1] + r[k + 1]))
+
+
+def _spike_counter(model: SensorModel, series: Series, seeds=GLITCH_SEEDS):
+    """rate ↦ (mean number of spikes ``spikes`` finds, the radial variance µT² of the glitches
+    it misses) on twins of ``series`` whose glitches come at ``rate``. The twins' other random
+    parts are drawn once and the glitches from fixed generators (common random numbers): a
+    higher rate adds glitches where a lower one had them, so the count rises with the rate and
+    a bracketing solve converges."""
+    chans, u = with_time(series), twin_directions(model, series)
+    bare = model.without("glitches")
+    base = [twin_draws(bare, u, series.t_s, seed) for seed in seeds]
+    seen = u @ np.asarray(model.calibration.soft_iron)  # a jump g of m moves |h| by seen·g
+
+    def count(rate: float) -> tuple[float, float]:
+        n_hit, missed = 0, 0.0
+        for seed, d in zip(seeds, base):
+            rng = np.random.default_rng([seed, 0x611])
+            g = glitches(rng, len(u), rate, model.glitch_ut, model.glitch_axis_share)
+            m, _ = bare.distort(u, chans, replace(d, glitch_ut=g))
+            hit = spikes(m, radius=_radius(bare.calibration, m, chans))
+            n_hit += int(np.count_nonzero(hit))
+            missed += float(np.sum(np.sum(g * seen, axis=1)[~hit] ** 2)) / len(u)
+        return n_hit / len(seeds), missed / len(seeds)
+
+    return count
+
+
+def _rate_for(count, observed: float, n: int, steps: int = 12) -> float | None:
+    """The rate at which the twins' spike count equals ``observed`` (bisection; the count
+    rises with the rate), or None when even a glitch in every other sample falls short (the
+    sizes are too small for the detector to see)."""
+    lo, hi = 0.0, min(max(2.0 * observed / n, 1e-4), 0.5)
+    while count(hi)[0] < observed:
+        if hi >= 0.5:
+            return None
+        lo, hi = hi, min(2.0 * hi, 0.5)
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if count(mid)[0] < observed else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def glitch_process(model: SensorModel, series: Series, hit: np.ndarray) -> tuple[float, float]:
+    """(rate per sample, the radial variance µT² of the glitches the detector misses) of the
+    glitches, at the model's sizes, that make the twins' detector find as many spikes as it
+    finds on the recording. The detector misses glitches near the noise and finds a few spikes
+    where there are none (its false positives: the count on glitch-free twins), so the rate
+    seen is not the rate to draw; both are measured on twins of the recording (its times,
+    directions and every other effect) and the rate solved by bisection — no rate when the
+    recording shows no more spikes than glitch-free twins make, within three Poisson σ."""
+    observed = float(np.count_nonzero(hit))
+    count = _spike_counter(model, series)
+    null = count(0.0)[0]
     if observed <= null + 3.0 * np.sqrt(max(null, 1.0)):
-        return 0.0  # no more spikes than the twins make without glitches, within three Poisson σ
-    if seen <= null:
-        return model.glitch_rate  # glitches the detector cannot tell apart: keep the rate seen
-    return float(np.clip(model.glitch_rate * (observed - null) / (seen - null), 0.0, 0.5))
+        return 0.0, 0.0
+    rate = _rate_for(count, observed, len(hit))
+    if rate is None:
+        return model.glitch_rate, 0.0  # the detector cannot place them: keep the rate it saw
+    return float(min(rate, 0.5)), count(rate)[1]
 
 
 def projector(u: np.ndarray, channels: Mapping[str, np.ndarray]):
@@ -468,7 +563,7 @@ def _band(name: str, real: float, values) -> Band:
 
 # -- baseline → each effect added → final ---------------------------------------------------
 ORDER = ("calibration", "quantum", "wander", "field_wander", "nonlinearity", "temperature_gain", "glitches",
-         "disturbances", "saturation")
+         "disturbances", "saturation", "repeats")
 _LATER = {step: ORDER[i + 1:] for i, step in enumerate(ORDER)}  # what a step still leaves out
 
 

@@ -5,8 +5,9 @@ Per sample i at time t_i, true unit field direction u_i (body frame) and channel
     r_i = (field_ut + f(t_i) + d(t_i)) · (1 + γ (T_i − T_ref))
           + Σ_j c_j Y_j(u_i)                                         radial: field wander,
                                                                      disturbances, gain, nonlinearity
-    m_i = W⁻¹ (r_i u_i) + b + Σ_c K_c (x_ci − ref_c)                 the calibration, inverted
-          + w(t_i) + g_i + diag(σ) z_i                               wander, glitches, noise
+    c_i = W⁻¹ (r_i u_i) + b + Σ_c K_c (x_ci − ref_c)                 the calibration, inverted
+          + w(t_i) + diag(σ) z_i                                     wander, noise: the conversion
+    m_i = c_j(i) + g_i                                               the read: repeats, glitches
     m_i → clipped at ±saturation_ut (then flagged), rounded to quantum_ut per axis
 
 W, b, field, K_c and ref_c are a :class:`~magcal.calibration.Calibration` (the deterministic
@@ -14,7 +15,11 @@ part, shared with every fit); γ the temperature gain; Y_j the degree-3/4 direct
 (``magcal.sim.directions``); w and f the offset and field wander, sums of stationary Gaussian
 components (``magcal.sim.wander``); d intermittent disturbances of the field's magnitude
 (``magcal.sim.disturbance``); g_i rare one-sample glitches of a size in ``glitch_ut``;
-z_i standard normal.
+z_i standard normal. Repeated reads: a host that reads faster than the sensor converts (the
+data-ready flag not awaited) gets the last conversion again, bit for bit; a share
+``repeat_share`` of reads does, in the steady pattern of two unequal rates (read i shows
+conversion ⌊i·(1 − share) + φ⌋, φ a random phase; j(i) the first read of that conversion). A
+glitch corrupts one read, repeated or not.
 
 The value serialises to a plain dict (YAML or JSON) with units in its keys and a schema
 version; ``from_dict`` refuses a malformed or unknown one with a message naming the key.
@@ -33,8 +38,9 @@ from . import wander as wander_mod
 from .disturbance import Disturbances
 from .wander import Wander
 
-SCHEMA = "magcal.sensor-model/2"
-READS = ("magcal.sensor-model/1", SCHEMA)  # /1: two glitch sizes (log-uniform), read the same
+SCHEMA = "magcal.sensor-model/3"
+# /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0)
+READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", SCHEMA)
 TEMP = "temp_c"
 
 
@@ -47,6 +53,7 @@ class Draws:
     glitch_ut: np.ndarray
     wander_ut: np.ndarray
     field_wander_ut: np.ndarray | None = None  # (n,): the field magnitude's wander
+    shown: np.ndarray | None = None  # (n,) int: the read whose conversion each read shows (repeats)
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +70,7 @@ class SensorModel:
     temp_gain_per_c: float = 0.0
     temp_ref_c: float = 25.0
     saturation_ut: float | None = None
+    repeat_share: float = 0.0  # share of reads that repeat the previous conversion
     rate_hz: float = 50.0
     source: Mapping = field(default_factory=dict)
 
@@ -80,6 +88,8 @@ class SensorModel:
             raise ValueError("glitch rate and axis share must be in [0, 1) and [0, 1]; glitch sizes ≥ 2 quantiles, "
                              "0 ≤ each ≤ the next")
         object.__setattr__(self, "glitch_ut", sizes)
+        if not 0 <= self.repeat_share < 1:
+            raise ValueError("repeat_share must be in [0, 1)")
         if self.saturation_ut is not None and not self.saturation_ut > 0:
             raise ValueError("saturation_ut must be positive (or absent)")
         if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
@@ -104,7 +114,10 @@ class SensorModel:
         u = np.atleast_2d(np.asarray(u, dtype=np.float64))
         h = self.radius_ut(u, channels, draws.field_wander_ut)[:, None] * u
         m = self.calibration.distort(h, channels)
-        m = m + draws.wander_ut + draws.glitch_ut + np.asarray(self.noise_ut) * draws.noise
+        m = m + draws.wander_ut + np.asarray(self.noise_ut) * draws.noise
+        if draws.shown is not None:  # a repeated read shows the conversion before; a glitch corrupts one read
+            m = m[draws.shown]
+        m = m + draws.glitch_ut
         valid = np.ones(len(m), bool)
         if self.saturation_ut is not None:
             valid = np.all(np.abs(m) < self.saturation_ut, axis=1)
@@ -121,7 +134,8 @@ class SensorModel:
         path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
         if self.disturbances is not None:
             field = field + self.disturbances.draw(seed, t)
-        return Draws(noise, glitches(rng, len(t), self.glitch_rate, self.glitch_ut, self.glitch_axis_share), path, field)
+        g = glitches(rng, len(t), self.glitch_rate, self.glitch_ut, self.glitch_axis_share)
+        return Draws(noise, g, path, field, repeated_reads(len(t), self.repeat_share, seed))
 
     def simulate(self, u, t_s, channels: Mapping[str, np.ndarray] | None, seed: int):
         """(m, valid) for directions ``u`` at times ``t_s``: the twin of a recording."""
@@ -134,7 +148,8 @@ class SensorModel:
 
     def without(self, effect: str) -> "SensorModel":
         """This model with one effect removed (``wander``, ``field_wander``, ``nonlinearity``, ``glitches``,
-        ``disturbances``, ``soft_iron``, ``temperature_gain``, ``saturation``, ``quantum`` or a channel name)."""
+        ``disturbances``, ``soft_iron``, ``temperature_gain``, ``saturation``, ``repeats``, ``quantum`` or a
+        channel name)."""
         cal = self.calibration
         if effect in ("wander", "field_wander"):
             frame = wander_mod.OFFSET if effect == "wander" else wander_mod.FIELD
@@ -149,6 +164,8 @@ class SensorModel:
             return replace(self, temp_gain_per_c=0.0)
         if effect == "saturation":
             return replace(self, saturation_ut=None)
+        if effect == "repeats":
+            return replace(self, repeat_share=0.0)
         if effect == "quantum":
             return replace(self, quantum_ut=(0.0, 0.0, 0.0))
         if effect == "soft_iron":
@@ -176,6 +193,7 @@ class SensorModel:
         out += ["disturbances"] if self.disturbances is not None and self.disturbances.rate_per_s > 0 else []
         out += ["temperature_gain"] if self.temp_gain_per_c else []
         out += ["saturation"] if self.saturation_ut is not None else []
+        out += ["repeats"] if self.repeat_share > 0 else []
         return tuple(out)
 
     # -- serialisation -------------------------------------------------------------------
@@ -193,6 +211,7 @@ class SensorModel:
             "temp_gain_per_c": float(self.temp_gain_per_c),
             "temp_ref_c": float(self.temp_ref_c),
             "saturation_ut": None if self.saturation_ut is None else float(self.saturation_ut),
+            "reads": {"repeat_share": float(self.repeat_share)},
             "rate_hz": float(self.rate_hz),
         })
         if self.source:
@@ -220,6 +239,7 @@ class SensorModel:
                 temp_gain_per_c=float(d.get("temp_gain_per_c", 0.0)),
                 temp_ref_c=float(d.get("temp_ref_c", 25.0)),
                 saturation_ut=None if d.get("saturation_ut") is None else float(d["saturation_ut"]),
+                repeat_share=float((d.get("reads") or {}).get("repeat_share", 0.0)),
                 rate_hz=float(d.get("rate_hz", 50.0)),
                 source=dict(d.get("source", {})),
             )
@@ -242,6 +262,28 @@ def quantize(m: np.ndarray, quantum_ut) -> np.ndarray:
         return m
     safe = np.where(q > 0, q, 1.0)
     return np.where(q > 0, np.round(np.round(m / safe) * safe, 9), m)
+
+
+def first_reads(k, share: float, seed: int) -> np.ndarray:
+    """For reads numbered ``k``, the first read of the conversion each shows when a share
+    ``share`` of reads repeat the one before: read k shows conversion ⌊k·(1 − share) + φ⌋, the
+    steady pattern of a host polling faster than the sensor converts (at 24 % repeats: every
+    4th or 5th read), φ drawn from ``seed`` on a generator of its own (the other random parts
+    do not move). A function of (seed, k) alone, so a board can be read at any sample."""
+    k = np.asarray(k, dtype=np.int64)
+    if share <= 0:
+        return k
+    phase = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x5EAD]).random()
+    conv = np.floor(k * (1.0 - share) + phase)
+    first = np.ceil((conv - phase) / (1.0 - share)).astype(np.int64)
+    first = np.where(np.floor(first * (1.0 - share) + phase) < conv, first + 1, first)  # rounding
+    return np.clip(first, 0, k)  # the first read of all shows a fresh conversion
+
+
+def repeated_reads(n: int, share: float, seed: int) -> np.ndarray | None:
+    """(n,) the read whose conversion each of ``n`` reads shows (``first_reads``), None when
+    no read repeats."""
+    return None if share <= 0 or n == 0 else first_reads(np.arange(n), share, seed)
 
 
 def glitch_sizes(q: np.ndarray, size_ut: tuple) -> np.ndarray:

@@ -32,7 +32,7 @@ from ..core.calibration import Calibration
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_HOFL, UT_PER_COUNT, asa_gain, temp_c_to_raw
 from ..core.series import Series
 from . import wander as wander_mod
-from .model import Draws, SensorModel, glitches
+from .model import Draws, SensorModel, first_reads, glitches
 
 HOFL_SUM_UT = 2400.0
 _BLOCK = 1024  # noise is drawn in blocks of this many measurements, keyed by (seed, block)
@@ -237,9 +237,14 @@ class Scenario:
         vectors: the sensor model driven by this motion and environment."""
         sensor = self.sensor
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        k = np.atleast_1d(np.asarray(k, dtype=np.int64))
+        noise, glitch = self._noise_glitch(k, sensor)
+        if sensor.repeat_share > 0:  # a repeated read shows an earlier conversion, its time and noise
+            first = first_reads(k, sensor.repeat_share, self.seed)
+            t = t - (k - first) * _read_interval(t, k, sensor.rate_hz)
+            noise = self._noise_glitch(first, sensor)[0]
         h = self.earth_body_ut(t)
         u = h / np.linalg.norm(h, axis=1, keepdims=True)
-        noise, glitch = self._noise_glitch(k, sensor)
         offset, field = wander_mod.draw(sensor.wander, self.seed, t)
         if sensor.disturbances is not None:
             field = field + sensor.disturbances.draw(self.seed, t)
@@ -322,6 +327,13 @@ def _phases(seed: int) -> np.ndarray:
     periods = rng.uniform(0.7, 1.3, size=4) * np.array([1.0, 1.47, 0.83, 2.3])
     phases = rng.uniform(0, 2 * np.pi, size=5)
     return np.concatenate([periods, phases])
+
+
+def _read_interval(t: np.ndarray, k: np.ndarray, rate_hz: float) -> float:
+    """Seconds per read: from the reads asked for when they span more than one, else the
+    sensor's own rate."""
+    span = int(k.max() - k.min()) if len(k) else 0
+    return float(t.max() - t.min()) / span if span > 0 else 1.0 / rate_hz
 
 
 @lru_cache(maxsize=256)
