@@ -241,7 +241,9 @@ class Scenario:
         noise, glitch = self._noise_glitch(k, sensor)
         if sensor.repeat_share > 0:  # a repeated read shows an earlier conversion, its time and noise
             first = first_reads(k, sensor.repeat_share, self.seed)
-            t = t - (k - first) * _read_interval(t, k, sensor.rate_hz)
+            o = np.argsort(k, kind="stable")  # the time of a read asked for is taken as it is (bit for bit)
+            back = t - (k - first) * _read_interval(t, k, sensor.rate_hz)
+            t = np.where(np.isin(first, k), np.interp(first, k[o], t[o]), back)
             noise = self._noise_glitch(first, sensor)[0]
         h = self.earth_body_ut(t)
         u = h / np.linalg.norm(h, axis=1, keepdims=True)
