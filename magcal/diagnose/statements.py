@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import channels, design, floors, glitches, limits as limits_, selection, softiron
+from . import channels, design, floors, glitches, limits as limits_, longrun, selection, softiron
 from .distributions import f_isf, t_isf
 from .finding import Finding
 from .model import ModelFit
@@ -49,28 +49,47 @@ def estimating_test(g: str, selected):
     return selected.tests[g]
 
 
-def widened(cov: np.ndarray, spread: np.ndarray | None, inflation: float = 1.0) -> tuple[np.ndarray, float]:
+def envelope(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The covariance that is a along every direction where a is the larger and b where b is:
+    b's eigenvalues in a's whitened coordinates raised to at least 1."""
+    w, v = np.linalg.eigh(0.5 * (a + a.T))
+    root = v * np.sqrt(np.maximum(w, 1e-300))
+    inv = v / np.sqrt(np.maximum(w, 1e-300))
+    mw, mv = np.linalg.eigh(inv.T @ (0.5 * (b + b.T)) @ inv)
+    return root @ (mv * np.maximum(mw, 1.0)) @ mv.T @ root.T
+
+
+def widened(cov: np.ndarray, spread: np.ndarray | None, inflation: float = 1.0,
+            slow: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """The test's covariance scaled up (never down) by the larger of the test's twin inflation λ
     (inference.calibrated: the test's statistic is divided by it and its floor raised by it, so
     the region, the same test inverted, carries it too) and the draws' own coefficient spread
-    over it, tr(V⁻¹ S) / k: (covariance, factor)."""
+    over it, tr(V⁻¹ S) / k; then, along every direction where it is larger, the test's
+    covariance plus ``slow``, the share of the recording's own slow wander the coefficient takes
+    (magcal.diagnose.longrun): (covariance, tr(V⁻¹ widened) / k)."""
+    k = cov.shape[0]
     factor = max(1.0, float(inflation))
+    prec = np.linalg.pinv(cov, rcond=1e-10, hermitian=True)
     if spread is not None:
-        k = cov.shape[0]
-        factor = max(factor, float(np.trace(np.linalg.pinv(cov, rcond=1e-10, hermitian=True) @ spread)) / k)
-    return cov * factor, factor
+        factor = max(factor, float(np.trace(prec @ spread)) / k)
+    out = cov * factor
+    if slow is not None:
+        out = envelope(out, cov + slow)
+    return out, float(np.trace(prec @ out)) / k
 
 
-def interval(coef: np.ndarray, result) -> dict:
+def interval(coef: np.ndarray, result, slow: np.ndarray | None = None) -> dict:
     """The 95 % uncertainty of a channel coefficient from the block-HAC covariance of its test,
     widened by the test's twin inflation λ, or to the coefficient's spread over the twin's draws
     where that is larger (see ``widened``: the draws carry the recording's own wander, which a
     covariance estimated from a few blocks can miss): per axis (Student t with ν, the effective
+    number of blocks, as degrees of freedom), and to the test's covariance plus ``slow`` (the
+    recording's own slow wander, magcal.diagnose.longrun) where that is larger; per axis (Student t with ν, the effective
     number of blocks, as degrees of freedom) and as a joint region (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
     if result.cov is None:
         return {}
     nu = float(result.nu)
-    cov, factor = widened(result.cov, result.null_spread, result.inflation)
+    cov, factor = widened(result.cov, result.null_spread, result.inflation, slow)
     half = float(t_isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
     k, df2 = result.df1, float(result.df2)
     return {
@@ -118,6 +137,7 @@ def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_u
         radial = base.residual(a.series.field_ut[idx], {})
         out.append(glitches.describe(a.glitches, a.series.row[idx], a.series.t_s[idx], radial))
     floor_ut = selection.practical_floor_ut(noise_ut)
+    slow = slow_wander(a, selected)
     for g in selected.accepted:
         ev = _evidence(g, selected, alpha, floor_ut)
         if g == softiron.EFFECT:
@@ -126,9 +146,20 @@ def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_u
         cand = selected.candidates[g]
         coef = final.coef_ut_per_unit[cand.channel]
         _, _, chans_kept = a.kept
-        ev.update(interval(coef, estimating_test(g, selected)))
+        ev.update(interval(coef, estimating_test(g, selected), slow.get(g)))
         out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP)))
     return tuple(out)
+
+
+def slow_wander(a, selected) -> dict:
+    """Per accepted channel term: its coefficient's covariance from the recording's own slow
+    wander (magcal.diagnose.longrun), with every column of the design in place."""
+    dsg = selected.design
+    groups = {g: dsg.groups[g] for g in selected.accepted if g != softiron.EFFECT}
+    left_out = [dsg.groups[g] for g in dsg.candidates if g not in selected.accepted]
+    model_cols = np.setdiff1d(np.arange(dsg.x.shape[1]), np.concatenate(left_out)) if left_out else np.arange(dsg.x.shape[1])
+    _, t_kept, _ = a.kept
+    return longrun.wander_covariances(dsg.x, dsg.residual_ut, t_kept, dsg.offset_directions, groups, model_cols)
 
 
 def channel_floors(selected, wander: Wander, chans: dict, alpha: float, noise_ut: float) -> dict:

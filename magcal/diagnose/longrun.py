@@ -1,0 +1,121 @@
+"""The recording's own slow wander as an uncertainty of a slow term's coefficient.
+
+A channel that varies slowly (a temperature swing of about a cycle, time itself) takes into its
+coefficient whatever part of the recording's offset wander happens to have its shape. That part
+is exactly what a residual cannot show: the fit removes it together with the term, so no
+covariance estimated from the residual (block sums, even bias-corrected) carries it, and a
+twin whose wander was learned at the recording's faster scales draws too little of it.
+
+Here the wander is read where the residual still shows it and carried to where it does not. The
+offset wander is written as a random polynomial in time, b(t) = Σ_d P̂_d(τ) a_d (P̂_d the
+Legendre polynomial of degree d scaled to unit mean square on [−1, 1], a_d a random 3-vector):
+for a stationary wander the variance of a_d is its spectrum near the frequency d / (2·duration),
+and an Ornstein–Uhlenbeck wander (the sensor model's, magcal.sim.wander) gives
+s_d = level / (1 + (d / knee)²): flat below its knee, falling as a random walk's above. The coefficients of degrees ``FIRST_SEEN``…
+``DEGREE`` are estimated by regressing the residual on them with every column of the design in
+place, and s_d (level ≥ 0, knee) is fitted to them by maximum likelihood,
+each a_d,j ~ N(0, s_d + w_d,j) with w_d,j its white-noise variance. The wander's share of a
+term's coefficient is then Σ_d s_d M_d M_dᵀ, M_d the coefficient a wander of shape P̂_d·(W u)
+would give the term in the same regression (degrees 1…``DEGREE``, the unseen slow ones
+included) — the long-run variance at the term's own time scales.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.polynomial import legendre
+
+DEGREE = 8  # the wander next to the slow terms' own time scales: the degrees just above the fitted ones
+FIRST_SEEN = 3  # degrees 0…2 (hard iron, the drift, the quadratic nuisance) are fitted by the design
+KNEES = np.concatenate([np.geomspace(0.25, 64.0, 33), [np.inf]])  # the knee, in degrees (∞: flat)
+
+
+@dataclass(frozen=True)
+class SlowSpectrum:
+    """The fitted variance of the wander's Legendre coefficient of degree d (µT²): an
+    Ornstein–Uhlenbeck (Lorentzian) spectrum, level / (1 + (d / knee)²) — flat below the knee,
+    falling as a random walk's above it."""
+
+    level_ut2: float
+    knee: float  # in degrees (∞: flat)
+
+    def variance(self, degree: np.ndarray) -> np.ndarray:
+        return self.level_ut2 / (1.0 + (np.asarray(degree, np.float64) / self.knee) ** 2)
+
+
+def shapes(t_s: np.ndarray, offset_directions: np.ndarray, degree: int = DEGREE) -> np.ndarray:
+    """(degree, n, 3): P̂_d(τ)·(W u) for d = 1…degree, τ the time scaled to [−1, 1]."""
+    t = np.asarray(t_s, np.float64)
+    span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    tau = 2.0 * (t - t[0]) / span - 1.0 if span > 0 else np.zeros(len(t))
+    vand = legendre.legvander(tau, degree)[:, 1:] * np.sqrt(2.0 * np.arange(1, degree + 1) + 1.0)
+    return vand.T[:, :, None] * offset_directions[None, :, :]
+
+
+def _basis(x: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of x's column space."""
+    xs = x / np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
+    q, r = np.linalg.qr(xs)
+    d = np.abs(np.diag(r))
+    return q[:, d > 1e-10 * max(float(d.max(initial=0.0)), 1e-300)]
+
+
+def fit_spectrum(coef: np.ndarray, white: np.ndarray, degrees: np.ndarray) -> SlowSpectrum:
+    """Maximum likelihood of coef[d, j] ~ N(0, s_d + white[d, j]) over the level ≥ 0 and the
+    knee of s_d (SlowSpectrum), knee on KNEES."""
+    c2 = coef**2
+    top = max(float(c2.max(initial=0.0)), float(white.max(initial=0.0)), 1e-300)
+    levels = np.concatenate([[0.0], top * np.logspace(-8, 3, 221)])  # at the lowest seen degree
+    best = (np.inf, 0.0, np.inf)
+    for knee in KNEES:
+        shape = (1.0 + (degrees[0] / knee) ** 2) / (1.0 + (degrees.astype(float) / knee) ** 2)
+        s = levels[:, None, None] * shape[None, :, None] + white[None]
+        nll = np.sum(np.log(s) + c2[None] / s, axis=(1, 2))
+        i = int(np.argmin(nll))
+        if nll[i] < best[0]:
+            best = (float(nll[i]), float(levels[i] * (1.0 + (degrees[0] / knee) ** 2)), float(knee))
+    return SlowSpectrum(best[1], best[2])
+
+
+def spectrum_of(x: np.ndarray, e: np.ndarray, shp: np.ndarray) -> SlowSpectrum:
+    """The wander's Legendre spectrum fitted to the residual e of design x (see the module)."""
+    q = _basis(x)
+    seen = shp[FIRST_SEEN - 1 :]  # (m, n, 3)
+    m = len(seen)
+    w = np.concatenate(list(seen), axis=1)  # (n, 3m)
+    w = w - q @ (q.T @ w)
+    r = e - q @ (q.T @ e)
+    g = w.T @ w
+    ginv = np.linalg.pinv(g, rcond=1e-10, hermitian=True)
+    a = ginv @ (w.T @ r)
+    dof = max(len(e) - q.shape[1] - 3 * m, 1)
+    sigma2 = float(np.sum((r - w @ a) ** 2)) / dof
+    white = sigma2 * np.diag(ginv).reshape(m, 3)
+    return fit_spectrum(a.reshape(m, 3), white, np.arange(FIRST_SEEN, FIRST_SEEN + m))
+
+
+def coefficient_cov(x: np.ndarray, cols: np.ndarray, shp: np.ndarray, spectrum: SlowSpectrum) -> np.ndarray:
+    """(len(cols), len(cols)): Σ_d s_d M_d M_dᵀ, M_d the coefficients of x's columns ``cols``
+    (in their own units) that a wander of shape P̂_d·(W u) gets in the regression on all of x."""
+    scale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
+    xs = x / scale
+    rhs = np.concatenate(list(shp), axis=1)  # (n, 3·D)
+    b = np.linalg.lstsq(xs, rhs, rcond=1e-10)[0][cols] / scale[cols, None]  # (k, 3·D)
+    s = np.repeat(spectrum.variance(np.arange(1, len(shp) + 1)), 3)
+    return (b * s) @ b.T
+
+
+def wander_covariances(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_directions: np.ndarray,
+                       groups: dict, model_cols: np.ndarray) -> dict:
+    """Per named group of x's columns: its coefficient's covariance from the recording's own
+    slow offset wander (the module's construction). The wander's spectrum is read from the
+    residual of the model's own columns ``model_cols`` (a slow candidate left out of the model
+    would take the very shapes the spectrum is read from); the coefficients are those of the
+    regression on all of x."""
+    if not groups or len(e) < 10 * (x.shape[1] + 3 * DEGREE):
+        return {}
+    shp = shapes(t_s, offset_directions)
+    spectrum = spectrum_of(x[:, np.asarray(model_cols)], e, shp)
+    return {g: coefficient_cov(x, np.asarray(cols), shp, spectrum) for g, cols in groups.items()}
