@@ -30,6 +30,7 @@ from numpy.polynomial import legendre
 DEGREE = 8  # the wander next to the slow terms' own time scales: the degrees just above the fitted ones
 FIRST_SEEN = 3  # degrees 0…2 (hard iron, the drift, the quadratic nuisance) are fitted by the design
 KNEES = np.concatenate([np.geomspace(0.25, 64.0, 33), [np.inf]])  # the knee, in degrees (∞: flat)
+KNEE_DROP = 1.353  # half the 90 % point of χ²₁: a one-sided 95 % profile-likelihood bound
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,7 @@ class SlowSpectrum:
 
     level_ut2: float
     knee: float  # in degrees (∞: flat)
+    white_ut2: float = 0.0  # the variance of the rest of the residual, per sample
 
     def variance(self, degree: np.ndarray) -> np.ndarray:
         return self.level_ut2 / (1.0 + (np.asarray(degree, np.float64) / self.knee) ** 2)
@@ -63,20 +65,24 @@ def _basis(x: np.ndarray) -> np.ndarray:
 
 
 def fit_spectrum(coef: np.ndarray, white: np.ndarray, degrees: np.ndarray) -> SlowSpectrum:
-    """Maximum likelihood of coef[d, j] ~ N(0, s_d + white[d, j]) over the level ≥ 0 and the
-    knee of s_d (SlowSpectrum), knee on KNEES."""
+    """coef[d, j] ~ N(0, s_d + white[d, j]), s_d = level / (1 + (d / knee)²): for each knee on
+    KNEES the level (≥ 0) of maximum likelihood; of the knees the seen degrees do not reject
+    (profile likelihood within KNEE_DROP of its maximum: a one-sided 95 % bound), the one that
+    puts the most variance at degree 1 — below the seen degrees the data cannot place the knee,
+    and a region must not assume the flattest spectrum they allow."""
     c2 = coef**2
     top = max(float(c2.max(initial=0.0)), float(white.max(initial=0.0)), 1e-300)
     levels = np.concatenate([[0.0], top * np.logspace(-8, 3, 221)])  # at the lowest seen degree
-    best = (np.inf, 0.0, np.inf)
+    fits = []
     for knee in KNEES:
         shape = (1.0 + (degrees[0] / knee) ** 2) / (1.0 + (degrees.astype(float) / knee) ** 2)
         s = levels[:, None, None] * shape[None, :, None] + white[None]
-        nll = np.sum(np.log(s) + c2[None] / s, axis=(1, 2))
+        nll = 0.5 * np.sum(np.log(s) + c2[None] / s, axis=(1, 2))
         i = int(np.argmin(nll))
-        if nll[i] < best[0]:
-            best = (float(nll[i]), float(levels[i] * (1.0 + (degrees[0] / knee) ** 2)), float(knee))
-    return SlowSpectrum(best[1], best[2])
+        fits.append((float(nll[i]), SlowSpectrum(float(levels[i] * (1.0 + (degrees[0] / knee) ** 2)), float(knee))))
+    least = min(f[0] for f in fits)
+    allowed = [sp for nll, sp in fits if nll <= least + KNEE_DROP]
+    return max(allowed, key=lambda sp: float(sp.variance(1.0)))
 
 
 def spectrum_of(x: np.ndarray, e: np.ndarray, shp: np.ndarray) -> SlowSpectrum:
@@ -93,24 +99,37 @@ def spectrum_of(x: np.ndarray, e: np.ndarray, shp: np.ndarray) -> SlowSpectrum:
     dof = max(len(e) - q.shape[1] - 3 * m, 1)
     sigma2 = float(np.sum((r - w @ a) ** 2)) / dof
     white = sigma2 * np.diag(ginv).reshape(m, 3)
-    return fit_spectrum(a.reshape(m, 3), white, np.arange(FIRST_SEEN, FIRST_SEEN + m))
+    fitted = fit_spectrum(a.reshape(m, 3), white, np.arange(FIRST_SEEN, FIRST_SEEN + m))
+    return SlowSpectrum(fitted.level_ut2, fitted.knee, sigma2)
+
+
+@dataclass(frozen=True)
+class SlowShare:
+    """A term's coefficient covariance from the slow wander, and the degrees of freedom of the
+    spectrum it rests on (the seen coefficients less the two fitted parameters)."""
+
+    cov: np.ndarray
+    dof: float
 
 
 def coefficient_cov(x: np.ndarray, cols: np.ndarray, shp: np.ndarray, spectrum: SlowSpectrum) -> np.ndarray:
-    """(len(cols), len(cols)): Σ_d s_d M_d M_dᵀ, M_d the coefficients of x's columns ``cols``
-    (in their own units) that a wander of shape P̂_d·(W u) gets in the regression on all of x."""
+    """(len(cols), len(cols)): Σ_d s_d M_d M_dᵀ + σ² [(XᵀX)⁻¹]_cols, M_d the coefficients of x's
+    columns ``cols`` (in their own units) that a wander of shape P̂_d·(W u) gets in the
+    regression on all of x, σ² the rest of the residual taken as white: the coefficient's
+    covariance under the fitted wander."""
     scale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
     xs = x / scale
     rhs = np.concatenate(list(shp), axis=1)  # (n, 3·D)
     b = np.linalg.lstsq(xs, rhs, rcond=1e-10)[0][cols] / scale[cols, None]  # (k, 3·D)
     s = np.repeat(spectrum.variance(np.arange(1, len(shp) + 1)), 3)
-    return (b * s) @ b.T
+    ginv = np.linalg.pinv(xs.T @ xs, rcond=1e-10, hermitian=True)[np.ix_(cols, cols)] / np.outer(scale[cols], scale[cols])
+    return (b * s) @ b.T + spectrum.white_ut2 * ginv
 
 
 def wander_covariances(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_directions: np.ndarray,
                        groups: dict, model_cols: np.ndarray) -> dict:
     """Per named group of x's columns: its coefficient's covariance from the recording's own
-    slow offset wander (the module's construction). The wander's spectrum is read from the
+    slow offset wander (the module's construction), a SlowShare. The wander's spectrum is read from the
     residual of the model's own columns ``model_cols`` (a slow candidate left out of the model
     would take the very shapes the spectrum is read from); the coefficients are those of the
     regression on all of x."""
@@ -118,4 +137,5 @@ def wander_covariances(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_dir
         return {}
     shp = shapes(t_s, offset_directions)
     spectrum = spectrum_of(x[:, np.asarray(model_cols)], e, shp)
-    return {g: coefficient_cov(x, np.asarray(cols), shp, spectrum) for g, cols in groups.items()}
+    dof = 3.0 * (DEGREE - FIRST_SEEN + 1) - 2.0
+    return {g: SlowShare(coefficient_cov(x, np.asarray(cols), shp, spectrum), dof) for g, cols in groups.items()}

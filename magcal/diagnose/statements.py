@@ -64,9 +64,9 @@ def widened(cov: np.ndarray, spread: np.ndarray | None, inflation: float = 1.0,
     """The test's covariance scaled up (never down) by the larger of the test's twin inflation λ
     (inference.calibrated: the test's statistic is divided by it and its floor raised by it, so
     the region, the same test inverted, carries it too) and the draws' own coefficient spread
-    over it, tr(V⁻¹ S) / k; then, along every direction where it is larger, the test's
-    covariance plus ``slow``, the share of the recording's own slow wander the coefficient takes
-    (magcal.diagnose.longrun): (covariance, tr(V⁻¹ widened) / k)."""
+    over it, tr(V⁻¹ S) / k; then, along every direction where it is larger, ``slow``: the
+    coefficient's covariance under the recording's own slow wander, which the block covariance
+    cannot see where the term takes it (magcal.diagnose.longrun): (covariance, tr(V⁻¹ widened) / k)."""
     k = cov.shape[0]
     factor = max(1.0, float(inflation))
     prec = np.linalg.pinv(cov, rcond=1e-10, hermitian=True)
@@ -74,24 +74,31 @@ def widened(cov: np.ndarray, spread: np.ndarray | None, inflation: float = 1.0,
         factor = max(factor, float(np.trace(prec @ spread)) / k)
     out = cov * factor
     if slow is not None:
-        out = envelope(out, cov + slow)
+        out = envelope(out, slow)
     return out, float(np.trace(prec @ out)) / k
 
 
-def interval(coef: np.ndarray, result, slow: np.ndarray | None = None) -> dict:
+def interval(coef: np.ndarray, result, slow=None) -> dict:
     """The 95 % uncertainty of a channel coefficient from the block-HAC covariance of its test,
     widened by the test's twin inflation λ, or to the coefficient's spread over the twin's draws
     where that is larger (see ``widened``: the draws carry the recording's own wander, which a
-    covariance estimated from a few blocks can miss): per axis (Student t with ν, the effective
-    number of blocks, as degrees of freedom), and to the test's covariance plus ``slow`` (the
-    recording's own slow wander, magcal.diagnose.longrun) where that is larger; per axis (Student t with ν, the effective
-    number of blocks, as degrees of freedom) and as a joint region (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``."""
+    covariance estimated from a few blocks can miss), and to the test's covariance plus the
+    recording's own slow wander's share where that is larger (``slow``, a
+    magcal.diagnose.longrun.SlowShare); per axis (Student t) and as a joint region
+    (c − ĉ)ᵀ V⁻¹ (c − ĉ) ≤ ``coef_region95_wald``, with ν, the effective number of blocks, as
+    degrees of freedom — or, with the wander's share, Satterthwaite's combination of ν and the
+    degrees of freedom of the wander's fitted spectrum."""
     if result.cov is None:
         return {}
     nu = float(result.nu)
-    cov, factor = widened(result.cov, result.null_spread, result.inflation, slow)
-    half = float(t_isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
     k, df2 = result.df1, float(result.df2)
+    cov, factor = widened(result.cov, result.null_spread, result.inflation, None if slow is None else slow.cov)
+    if slow is not None:
+        prec = np.linalg.pinv(result.cov, rcond=1e-10, hermitian=True)
+        share = float(np.trace(prec @ slow.cov)) / (float(np.trace(prec @ slow.cov)) + k)
+        nu = 1.0 / ((1.0 - share) ** 2 / max(nu, 1.0) + share**2 / slow.dof)
+        df2 = max(nu - k + 1.0, 1.0)
+    half = float(t_isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))
     return {
         "coef_ut_per_unit_tested": [float(v) for v in -result.beta],
         "coef_ci95_ut_per_unit": [[float(c - h), float(c + h)] for c, h in zip(coef, half)],
