@@ -243,3 +243,20 @@ def test_disturbance_durations_are_read_at_the_sensors_own_interval():
     assert all(d is not None for d in got)
     np.testing.assert_allclose(got[1].duration_s, got[0].duration_s, rtol=0.02)
     assert 0.3 < got[0].duration_s[1] < 0.8
+
+
+def test_a_direction_cell_no_twin_visits_has_no_band_and_no_warning():
+    """A cell empty in every twin (a direction the motion never reached) is left out of the
+    located mismatches without numpy's 'All-NaN slice' warning reaching the user's terminal."""
+    import warnings
+
+    from magcal.diagnose.twin_names import locate
+
+    t = np.linspace(0.0, 100.0, 400)
+    real = {"blocks": np.full(20, 1.05), "cells": np.array([1.05, np.nan, 9.0]), "lags": np.zeros(3)}
+    twins = [{"blocks": np.ones(20) + 0.01 * k, "cells": np.array([1.0 + 0.01 * k, np.nan, 1.0])} for k in range(10)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = locate(real, twins, t)
+    assert np.isnan(out["cells_low"][1]) and np.isnan(out["cells_high"][1])
+    assert out["cells_outside"] == [2] and out["blocks_outside"] == []

@@ -53,9 +53,13 @@ _DIRECTION = {"harmonic_share", "direction_bias_ut", "gain_deviation"}
 
 
 def _band(values: list, q=(2.5, 97.5)) -> tuple[np.ndarray, np.ndarray]:
+    """The twins' band per column; NaN where no twin has a value (a direction cell none visits)."""
     a = np.array(values, dtype=np.float64)
-    with np.errstate(all="ignore"):
-        return np.nanpercentile(a, q[0], axis=0), np.nanpercentile(a, q[1], axis=0)
+    lo, hi = np.full(a.shape[1:], np.nan), np.full(a.shape[1:], np.nan)
+    seen = np.isfinite(a).any(axis=0)
+    if seen.any():
+        lo[seen], hi[seen] = np.nanpercentile(a[:, seen], q, axis=0)
+    return lo, hi
 
 
 def locate(real: dict, twins: list[dict], t_s: np.ndarray) -> dict:
