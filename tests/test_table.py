@@ -317,3 +317,25 @@ def test_a_thinned_fit_reports_the_uncertainty_of_the_samples_it_fitted(tmp_path
     thinned = sigma(whole)
     np.testing.assert_allclose(thinned, sigma(kth), rtol=1e-9)
     assert np.all((thinned / full > 1.6) & (thinned / full < 2.5)), thinned / full
+
+
+def test_a_plain_first_block_is_read_at_once_with_the_same_values_and_text_columns(monkeypatch):
+    """The first block of rows is read at once when it is plain numbers, its text columns decided
+    by the first data row as line by line: the same samples, channels and text columns either
+    way, and a bad cell further down still named by its line."""
+    import magcal.recordings.table as table
+
+    m = sphere_ut(300)
+    rows = [f"{i * 0.01:.2f},{'on' if i % 2 else 'off'},{x:.6g},{y:.6g},{z:.6g},{20 + i * 1e-3:.4e}"
+            for i, (x, y, z) in enumerate(m)]
+    text = "t_s,state,mx_ut,my_ut,mz_ut,temp_c\n" + "\n".join(rows) + "\n"
+    fast = parse_table(text, "r.csv", TableFormat(delimiter=","))
+    monkeypatch.setattr(table, "_plain_block", lambda *a: None)  # every block line by line
+    slow = parse_table(text, "r.csv", TableFormat(delimiter=","))
+    monkeypatch.undo()
+    assert np.array_equal(fast.field_ut, slow.field_ut) and np.array_equal(fast.t_s, slow.t_s)
+    assert set(fast.channels) == set(slow.channels) == {"temp_c"}
+    assert np.array_equal(fast.channels["temp_c"], slow.channels["temp_c"])
+    bad = text.replace(rows[200], rows[200].replace(f"{m[200][1]:.6g}", "1.2.3"))
+    with pytest.raises(InputError, match=r"r\.csv line 202: column 'my_ut': '1\.2\.3' is not a number"):
+        parse_table(bad, "r.csv", TableFormat(delimiter=","))

@@ -445,13 +445,14 @@ def _read_rows(lines, first_no: int, lay: _Layout, name: str):
 
 
 def _take_block(block, at, lay: _Layout, name: str, blocks, text_cols):
-    """Append one block's values to ``blocks`` (per column); returns the text columns."""
-    if text_cols is not None:
-        values = _plain_block(block, lay, text_cols)
-        if values is not None:
-            for k, col in values.items():
-                blocks[k].append(col)
-            return text_cols
+    """Append one block's values to ``blocks`` (per column); returns the text columns (decided
+    by the first data row, so the first block too is read at once when it is plain numbers)."""
+    decided = text_cols if text_cols is not None else _rows_one_by_one(block[:1], at[:1], lay, name, None)[1]
+    values = _plain_block(block, lay, decided)
+    if values is not None:
+        for k, col in values.items():
+            blocks[k].append(col)
+        return decided
     values, text_cols = _rows_one_by_one(block, at, lay, name, text_cols)
     for k, col in values.items():
         blocks[k].append(np.array(col, np.float64))
