@@ -60,6 +60,14 @@ class Design:
         return -(np.asarray(x, np.float64) - reference)[:, None] * self.offset_directions[rows]
 
 
+def column_basis(x: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (n, rank) of x's column space (columns scaled to unit norm first; a
+    column dependent on the others to 1e-10 adds nothing)."""
+    q, r = np.linalg.qr(x / np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300)))
+    d = np.abs(np.diag(r))
+    return q[:, d > 1e-10 * max(float(d.max(initial=0.0)), 1e-300)]
+
+
 def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: list) -> Design:
     """The design at the reference model ``ref`` (hard iron, radius and the soft iron the data
     determine) for samples ``m`` (µT), times ``t`` and channel arrays ``chans`` (keyed by

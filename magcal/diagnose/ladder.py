@@ -240,9 +240,7 @@ def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
     design but the wander fitted out, around the full candidate model), and its draws with no
     candidate term (magcal.diagnose.null)."""
     m_kept, t_kept, chans_kept = a.kept
-    x = dsg.x[:, : dsg.n_before_wander]
-    q, rr = np.linalg.qr(x / np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300)))
-    q = q[:, np.abs(np.diag(rr)) > 1e-10 * max(float(np.max(np.abs(np.diag(rr)))), 1e-300)]
+    q = design.column_basis(dsg.x[:, : dsg.n_before_wander])
 
     def project(v):
         return v - q @ (q.T @ v)

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.polynomial import legendre
 
+from .design import column_basis
+
 DEGREE = 8  # the wander next to the slow terms' own time scales: the degrees just above the fitted ones
 FIRST_SEEN = 3  # degrees 0…2 (hard iron, the drift, the quadratic nuisance) are fitted by the design
 KNEES = np.concatenate([np.geomspace(0.25, 64.0, 33), [np.inf]])  # the knee, in degrees (∞: flat)
@@ -56,14 +58,6 @@ def shapes(t_s: np.ndarray, offset_directions: np.ndarray, degree: int = DEGREE)
     return vand.T[:, :, None] * offset_directions[None, :, :]
 
 
-def _basis(x: np.ndarray) -> np.ndarray:
-    """An orthonormal basis of x's column space."""
-    xs = x / np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
-    q, r = np.linalg.qr(xs)
-    d = np.abs(np.diag(r))
-    return q[:, d > 1e-10 * max(float(d.max(initial=0.0)), 1e-300)]
-
-
 def fit_spectrum(coef: np.ndarray, white: np.ndarray, degrees: np.ndarray) -> SlowSpectrum:
     """coef[d, j] ~ N(0, s_d + white[d, j]), s_d = level / (1 + (d / knee)²): for each knee on
     KNEES the level (≥ 0) of maximum likelihood; of the knees the seen degrees do not reject
@@ -87,7 +81,7 @@ def fit_spectrum(coef: np.ndarray, white: np.ndarray, degrees: np.ndarray) -> Sl
 
 def spectrum_of(x: np.ndarray, e: np.ndarray, shp: np.ndarray) -> SlowSpectrum:
     """The wander's Legendre spectrum fitted to the residual e of design x (see the module)."""
-    q = _basis(x)
+    q = column_basis(x)
     seen = shp[FIRST_SEEN - 1 :]  # (m, n, 3)
     m = len(seen)
     w = np.concatenate(list(seen), axis=1)  # (n, 3m)

@@ -94,8 +94,8 @@ def interval(coef: np.ndarray, result, slow=None) -> dict:
     k, df2 = result.df1, float(result.df2)
     cov, factor = widened(result.cov, result.null_spread, result.inflation, None if slow is None else slow.cov)
     if slow is not None:
-        prec = np.linalg.pinv(result.cov, rcond=1e-10, hermitian=True)
-        share = float(np.trace(prec @ slow.cov)) / (float(np.trace(prec @ slow.cov)) + k)
+        slow_k = float(np.trace(np.linalg.pinv(result.cov, rcond=1e-10, hermitian=True) @ slow.cov))
+        share = slow_k / (slow_k + k)
         nu = 1.0 / ((1.0 - share) ** 2 / max(nu, 1.0) + share**2 / slow.dof)
         df2 = max(nu - k + 1.0, 1.0)
     half = float(t_isf(0.025, max(nu, 1.0))) * np.sqrt(np.maximum(np.diag(cov), 0.0))

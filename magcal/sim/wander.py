@@ -260,6 +260,7 @@ def _lagrange(grid: np.ndarray, pos: np.ndarray) -> np.ndarray:
 
 
 _LAST_READING: list = [None]  # (pos, size, idx, weights): a twin's draws read the same times again and again
+KEEP_READING_MAX = 100_000  # times whose reading is kept (136 bytes a time: ≤ 14 MB held after the call)
 
 
 def _reading(pos: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -284,7 +285,7 @@ def _reading(pos: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
         weights[i] = weights[i] * after / _DENOMINATOR[i]
         after = after * d[i]
     idx = (below.astype(np.int64) + TAPS[:, None]) % size
-    _LAST_READING[0] = (pos.copy(), size, idx, weights)
+    _LAST_READING[0] = (pos.copy(), size, idx, weights) if len(pos) <= KEEP_READING_MAX else None
     return idx, weights
 
 
