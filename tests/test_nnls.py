@@ -39,3 +39,14 @@ def test_a_right_hand_side_in_the_cone_is_met_exactly_and_a_zero_design_gives_ze
     assert np.array_equal(x, [0.0, 0.0])
     x, _ = nnls(np.zeros((4, 2)), np.ones(4))
     assert np.array_equal(x, [0.0, 0.0])
+
+
+def test_a_start_from_a_nearby_problems_columns_gives_the_same_optimum():
+    rng = np.random.default_rng(7)
+    for a, b in _problems(60):
+        cold, rnorm = nnls(a, b)
+        near = nnls(a * (1.0 + 0.05 * rng.random(a.shape[1])), b * (1.0 + 0.05 * rng.random(len(b))))[0] > 0
+        for start in (cold > 0, near, rng.random(a.shape[1]) < 0.5, np.ones(a.shape[1], bool)):
+            x, r = nnls(a, b, start=start)
+            np.testing.assert_allclose(x, cold, rtol=1e-9, atol=1e-9 * np.abs(cold).max(initial=1e-300))
+            assert r == pytest.approx(rnorm, rel=1e-9, abs=1e-300)

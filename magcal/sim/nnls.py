@@ -13,9 +13,14 @@ from __future__ import annotations
 import numpy as np
 
 
-def nnls(a: np.ndarray, b: np.ndarray, maxiter: int | None = None) -> tuple[np.ndarray, float]:
+def nnls(a: np.ndarray, b: np.ndarray, maxiter: int | None = None, start: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """(x, ‖A x − b‖) with x ≥ 0 minimising the residual. ``maxiter`` (default 3 × columns)
-    bounds the inner steps; RuntimeError when they run out."""
+    bounds the inner steps; RuntimeError when they run out. ``start``: a guess at the columns
+    that are positive at the optimum (boolean, e.g. those of a nearby problem's solution in a
+    sequence of them): when the least-squares solution on those columns is positive the
+    active-set steps start from it instead of from zero (each column freed on the way there
+    is a solve saved) — the optimum, and so the set of free columns it ends with, is the
+    same, and x is then the same solve on that set."""
     a0 = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     # x ≥ 0 is unchanged by a positive scale of each column: solved on unit columns, so that
@@ -31,7 +36,11 @@ def nnls(a: np.ndarray, b: np.ndarray, maxiter: int | None = None) -> tuple[np.n
     tol = 10.0 * max(m, n) * np.finfo(np.float64).eps * max(float(np.linalg.norm(b)), 1e-300)
     steps = 0
     solve = _solver(a, b)
-    w = a.T @ b
+    if start is not None and np.any(start):
+        s = solve(np.asarray(start, dtype=bool))
+        if np.all(s[start] > tol):
+            free, x = np.array(start, dtype=bool), s
+    w = a.T @ (b - a @ x)
     while not free.all():
         steps += 1
         j = int(np.argmax(np.where(free, -np.inf, w)))

@@ -450,12 +450,13 @@ def _whittle(design: np.ndarray, target: np.ndarray, counts: np.ndarray, rounds:
              fixed: np.ndarray | float = 0.0) -> np.ndarray:
     """Non-negative weights w maximising the Whittle likelihood Σ_b m_b (log S_b + Ī_b / S_b),
     S = fixed + design @ w: Fisher scoring (iteratively reweighted non-negative least squares,
-    weights √m_b / S_b), started from the fit in relative error."""
+    weights √m_b / S_b), started from the fit in relative error; each round's active set starts
+    at the last round's positive weights (the rounds' problems differ only in their weights)."""
     w = nnls(design * (np.sqrt(counts) / target)[:, None], np.sqrt(counts) * (target - fixed) / target)[0]
     for _ in range(rounds):
         spec = np.maximum(fixed + design @ w, 1e-12 * float(np.max(target)))
         wt = np.sqrt(counts) / spec
-        new = nnls(design * wt[:, None], (target - fixed) * wt)[0]
+        new = nnls(design * wt[:, None], (target - fixed) * wt, start=w > 0)[0]
         if np.allclose(new, w, rtol=1e-6, atol=1e-12 * max(float(new.max()), 1e-300)):
             return new
         w = new
