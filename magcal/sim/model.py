@@ -129,9 +129,12 @@ class SensorModel:
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x51D])
         noise = rng.standard_normal((len(t), 3))
-        order = np.argsort(t, kind="stable")
-        path, field = np.empty((len(t), 3)), np.empty(len(t))
-        path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
+        if len(t) < 2 or np.all(t[1:] >= t[:-1]):  # already in time order (a recording's own times)
+            path, field = wander_mod.draw_path(self.wander, rng, t)
+        else:
+            order = np.argsort(t, kind="stable")
+            path, field = np.empty((len(t), 3)), np.empty(len(t))
+            path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
         if self.disturbances is not None:
             field = field + self.disturbances.draw(seed, t)
         g = glitches(rng, len(t), self.glitch_rate, self.glitch_ut, self.glitch_axis_share)

@@ -41,6 +41,7 @@ periodogram; components carrying little variance are dropped.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from .nnls import nnls  # numpy: scipy.optimize costs a command 0.4 s to import
@@ -196,8 +197,10 @@ def _ou_path(tau_s: float, rng: np.random.Generator, t: np.ndarray, k: int) -> n
     return x
 
 
+@lru_cache(maxsize=256)
 def _fast_len(n: int) -> int:
-    """The smallest 2^a 3^b 5^c ≥ n (a length numpy's FFT transforms fast)."""
+    """The smallest 2^a 3^b 5^c ≥ n (a length numpy's FFT transforms fast). Kept per n: a
+    twin's fit and draws ask for the same few lengths again and again."""
     best, p5 = 1 << max(0, int(n - 1).bit_length()), 1
     while p5 < best:
         p35 = p5
@@ -228,7 +231,7 @@ def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
     points and keeps 97.5 %)."""
     n = len(t)
     span = max(float(t[-1] - t[0]), 1e-6)
-    uniform = n > 1 and np.max(np.abs(t - np.linspace(t[0], t[-1], n))) <= UNIFORM * span / (n - 1)
+    uniform = _uniform(t, span)
     if uniform:
         step = span / (n - 1)
         size = _fast_len(int(np.ceil(2.0 * span / step)) + 2)
@@ -245,6 +248,20 @@ def _band_paths(bands, rng: np.random.Generator, t: np.ndarray) -> np.ndarray:
     grid = np.fft.irfft(spec, n=size, axis=0)  # the columns without a band stay zero
     out[:, used] = grid[:n] if uniform else _lagrange(grid, (t - t[0]) * (size / period))
     return out
+
+
+_LAST_UNIFORM: list = [None]  # (times, uniform): a twin's fit and draws ask of the same times
+
+
+def _uniform(t: np.ndarray, span: float) -> bool:
+    """Whether the times lie on an evenly spaced grid (within UNIFORM of a period)."""
+    last = _LAST_UNIFORM[0]
+    if last is not None and last[0].shape == t.shape and np.array_equal(last[0], t):
+        return last[1]
+    n = len(t)
+    uniform = bool(n > 1 and np.max(np.abs(t - np.linspace(t[0], t[-1], n))) <= UNIFORM * span / (n - 1))
+    _LAST_UNIFORM[0] = (t.copy(), uniform) if n <= KEEP_READING_MAX else None
+    return uniform
 
 
 def _lagrange(grid: np.ndarray, pos: np.ndarray) -> np.ndarray:
@@ -284,7 +301,12 @@ def _reading(pos: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
     for i in range(len(TAPS) - 1, -1, -1):
         weights[i] = weights[i] * after / _DENOMINATOR[i]
         after = after * d[i]
-    idx = (below.astype(np.int64) + TAPS[:, None]) % size
+    idx = below.astype(np.int64) % size + TAPS[:, None]  # one remainder a time, then the taps' wrap
+    if size > np.ptp(TAPS):
+        idx[idx < 0] += size
+        idx[idx >= size] -= size
+    else:
+        idx %= size
     _LAST_READING[0] = (pos.copy(), size, idx, weights) if len(pos) <= KEEP_READING_MAX else None
     return idx, weights
 
@@ -344,10 +366,13 @@ def band_edges(dt_s: float, duration_s: float) -> np.ndarray:
     return np.concatenate([np.geomspace(lo, knee, k + 1), top])
 
 
-def _binned_periodogram(x: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _binned_periodogram(x: np.ndarray, edges: np.ndarray, which: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(mean periodogram ordinate in each bin between ``edges`` (Fourier indices), ordinates
+    in each). ``which``: each ordinate's bin (np.digitize of its index), when already known —
+    it depends on the length alone."""
     p = np.abs(np.fft.rfft(x - x.mean())) ** 2 / len(x)
-    k = np.arange(len(p))
-    which = np.digitize(k, edges)
+    if which is None:
+        which = np.digitize(np.arange(len(p)), edges)
     sums = np.bincount(which, weights=p, minlength=len(edges) + 1)
     counts = np.bincount(which, minlength=len(edges) + 1)
     return (sums / np.maximum(counts, 1))[1:-1], counts[1:-1]
@@ -381,7 +406,8 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     dt = sample_interval(t_s)
     cands = candidates(dt, float(t_s[-1] - t_s[0]) if n > 1 else dt, frames)
     bins = np.unique(np.round(np.geomspace(1, n // 2 + 1, 48)).astype(np.int64))
-    target, counts = _binned_periodogram(e, bins)
+    which = np.digitize(np.arange(n // 2 + 1), bins)
+    target, counts = _binned_periodogram(e, bins, which)
     cols, kept = [], []
     for j, c in enumerate([None, *cands]):
         spec, left = [], []
@@ -394,7 +420,7 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
                 x = np.einsum("ij,ij->i", u, off) if c.frame == OFFSET else fld
             px = project(x)
             left.append(float(px @ px) / max(float(x @ x), 1e-300))
-            spec.append(_binned_periodogram(px, bins)[0])
+            spec.append(_binned_periodogram(px, bins, which)[0])
         if c is None or np.mean(left) >= MIN_LEFT:
             cols.append(np.mean(spec, axis=0))
             kept.append(c)
