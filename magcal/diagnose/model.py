@@ -129,6 +129,13 @@ def _centred(channels, spec: Spec, reference) -> list[np.ndarray]:
 
 def residual_jacobian(p, spec: Spec, m, xs, want_j=True):
     """Radial residual e (n,) and its Jacobian J (n, n_params) at parameters p."""
+    e, state = _forward(p, spec, m, xs)
+    return e, (_jacobian(m, xs, state) if want_j else None)
+
+
+def _forward(p, spec: Spec, m, xs):
+    """(e, what the Jacobian at p needs of the residual's evaluation: the soft-iron basis, W,
+    d = m − b − the channel terms, h = W d, |h|)."""
     b = p[0:3]
     ns = spec.n_soft
     basis = spec.basis if ns else None
@@ -140,20 +147,23 @@ def residual_jacobian(p, spec: Spec, m, xs, want_j=True):
         d = d - np.outer(x, p[k0 + 1 + 3 * j : k0 + 4 + 3 * j])
     h = d if w is None else d @ w  # w symmetric
     rho = np.sqrt(np.einsum("ij,ij->i", h, h))
-    e = rho - r
-    if not want_j:
-        return e, None
+    return rho - r, (basis, w, d, h, rho)
+
+
+def _jacobian(m, xs, state):
+    basis, w, d, h, rho = state
     u = h / np.maximum(rho, 1e-12)[:, None]
     wu = u if w is None else u @ w
     cols = [-wu]
-    if ns:
+    if basis is not None:
         # ∂|h|/∂s_p = uᵀ E_p d, all p at once: (u · [E_1 … E_k]) reshaped, times d
+        ns = len(basis)
         ue = (u @ basis.transpose(1, 0, 2).reshape(3, 3 * ns)).reshape(len(m), ns, 3)
         cols.append(np.einsum("npj,nj->np", ue, d))
     cols.append(-np.ones((len(m), 1)))
     for x in xs:
         cols.append(-x[:, None] * wu)
-    return e, np.concatenate(cols, axis=1)
+    return np.concatenate(cols, axis=1)
 
 
 def fit_model(
@@ -206,7 +216,7 @@ def fit_model(
                 lam *= 10
                 continue
             p_new = p + step
-            e_new, _ = residual_jacobian(p_new, spec, m, xs, False)
+            e_new, state = _forward(p_new, spec, m, xs)
             c_new = e_new @ e_new
             if np.isfinite(c_new) and c_new <= cost:
                 improved = True
@@ -218,7 +228,7 @@ def fit_model(
         p = p_new
         cost = c_new
         lam = max(lam / 10, 1e-9)
-        e, j = residual_jacobian(p, spec, m, xs)
+        e, j = e_new, _jacobian(m, xs, state)  # the Jacobian where the residual was just evaluated
         if rel < 1e-10:
             break
     if not np.all(np.isfinite(p)):

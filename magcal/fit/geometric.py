@@ -65,9 +65,10 @@ def expm_sym(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return (Q * np.exp(lam)) @ Q.T, lam, Q
 
 
-def expm_derivatives(kind: str, s) -> tuple[np.ndarray, list[np.ndarray]]:
-    """W = expm(S(s)) and dW/ds_k (Daleckii–Krein: dW = Q (F ∘ Qᵀ dS Q) Qᵀ)."""
-    W, lam, Q = expm_sym(shape_matrix(kind, s))
+def expm_derivatives(kind: str, s, eig=None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """W = expm(S(s)) and dW/ds_k (Daleckii–Krein: dW = Q (F ∘ Qᵀ dS Q) Qᵀ); ``eig``: expm_sym's
+    (W, λ, Q) at the same s when already computed."""
+    W, lam, Q = expm_sym(shape_matrix(kind, s)) if eig is None else eig
     el = np.exp(lam)
     dl = lam[:, None] - lam[None, :]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -100,12 +101,16 @@ def pack(offset_ut, field_ut, kind: str, W=None) -> np.ndarray:
     return theta
 
 
-def _forward(theta: np.ndarray, m: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(d = m − b, h = W d, |h|) at θ: what the residual and the Jacobian share."""
-    W = expm_sym(shape_matrix(kind, theta[4:]))[0]
+def _forward(theta: np.ndarray, m: np.ndarray, kind: str) -> tuple:
+    """(d = m − b, h = W d, |h|, expm_sym's (W, λ, Q)) at θ: what the residual and the Jacobian
+    share. For the sphere W = expm(0) = I exactly, so h is d itself (the product by I is exact)
+    and the eigen-decomposition is not made: None."""
     d = m - theta[:3]
-    h = d @ W.T
-    return d, h, row_norm(h)
+    if kind == "sphere":
+        return d, d, row_norm(d), None
+    eig = expm_sym(shape_matrix(kind, theta[4:]))
+    h = d @ eig[0].T
+    return d, h, row_norm(h), eig
 
 
 def row_norm(v: np.ndarray) -> np.ndarray:
@@ -125,11 +130,14 @@ def jacobian(theta, m: np.ndarray, kind: str, forward=None) -> np.ndarray:
     parameter at a time over all samples (rows of its transpose, each contiguous): ∂e/∂b = −Wu
     (W symmetric), ∂e/∂r = −1, ∂e/∂s_k = uᵀ (∂W/∂s_k) d = Σ_ij u_i d_j (∂W/∂s_k)_ij."""
     theta = np.asarray(theta, dtype=np.float64)
-    W, dWs = expm_derivatives(kind, theta[4:])
-    d, h, nh = forward if forward is not None else _forward(theta, m, kind)
+    d, h, nh, eig = forward if forward is not None else _forward(theta, m, kind)
     ut = np.ascontiguousarray(h.T) / np.where(nh > 0, nh, 1.0)
     jt = np.empty((n_params(kind), len(m)))
-    jt[:3] = -(W.T @ ut)
+    if kind == "sphere":  # W = I: −Wu is −u exactly
+        jt[:3], dWs = -ut, []
+    else:
+        W, dWs = expm_derivatives(kind, theta[4:], eig)
+        jt[:3] = -(W.T @ ut)
     jt[3] = -1.0
     if dWs:
         ud = (ut[:, None, :] * np.ascontiguousarray(d.T)[None, :, :]).reshape(9, len(m))
