@@ -158,7 +158,7 @@ def _hac(z: np.ndarray, blocks: list[slice], nuis: _Nuisance) -> _Hac:
     zinv = np.linalg.inv(ztz)
     s_b = np.stack([z[b].T @ z[b] for b in blocks])
     p_b = np.stack([z[b].T @ nuis.x[b] for b in blocks])
-    e_b = s_b - np.einsum("bkr,rs,bls->bkl", p_b, nuis.ginv, p_b) - s_b @ zinv @ s_b
+    e_b = s_b - (p_b @ nuis.ginv) @ p_b.transpose(0, 2, 1) - s_b @ zinv @ s_b  # P_b N⁻¹ P_bᵀ as matrix products
     e_sum = e_b.sum(axis=0)
     root = _sqrt_sym(zinv, 0.5)
     kept = float(np.linalg.eigvalsh(root @ e_sum @ root).min())
