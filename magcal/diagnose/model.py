@@ -151,19 +151,21 @@ def _forward(p, spec: Spec, m, xs):
 
 
 def _jacobian(m, xs, state):
+    """J (n, n_params), each block of columns written in place."""
     basis, w, d, h, rho = state
     u = h / np.maximum(rho, 1e-12)[:, None]
     wu = u if w is None else u @ w
-    cols = [-wu]
-    if basis is not None:
+    ns = 0 if basis is None else len(basis)
+    j = np.empty((len(m), 4 + ns + 3 * len(xs)))
+    np.negative(wu, out=j[:, 0:3])
+    if ns:
         # ∂|h|/∂s_p = uᵀ E_p d, all p at once: (u · [E_1 … E_k]) reshaped, times d
-        ns = len(basis)
         ue = (u @ basis.transpose(1, 0, 2).reshape(3, 3 * ns)).reshape(len(m), ns, 3)
-        cols.append(np.einsum("npj,nj->np", ue, d))
-    cols.append(-np.ones((len(m), 1)))
-    for x in xs:
-        cols.append(-x[:, None] * wu)
-    return np.concatenate(cols, axis=1)
+        j[:, 3 : 3 + ns] = np.einsum("npj,nj->np", ue, d)
+    j[:, 3 + ns] = -1.0
+    for k, x in enumerate(xs):
+        np.multiply(-x[:, None], wu, out=j[:, 4 + ns + 3 * k : 7 + ns + 3 * k])
+    return j
 
 
 def fit_model(
