@@ -248,10 +248,13 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
             zr = np.abs(dr[:, 0]) / sr[:, 0]
             zr[flagged] = 0
             score = np.maximum(score, zr / thr_r)
-        ok3 = (z > thr) & _side_ok(m, g, floor, side_thr)
+        # the side check (two local scales of its own) only when some sample is over the threshold
+        ok3 = z > thr
+        ok3 = ok3 & _side_ok(m, g, floor, side_thr) if ok3.any() else ok3
         okr = np.zeros(n, bool)
         if sphere is not None:
-            okr = (zr > thr_r) & _side_ok(r, g, floor_r, side_thr_r)
+            okr = zr > thr_r
+            okr = okr & _side_ok(r, g, floor_r, side_thr_r) if okr.any() else okr
         # candidates: over the threshold and isolated in the channel that flags them; of
         # those, the largest within ±2 samples (a glitch also disturbs its neighbours'
         # predictions, and a gap in the timestamps can make a neighbour's larger still)
