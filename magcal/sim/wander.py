@@ -408,8 +408,12 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     bins = np.unique(np.round(np.geomspace(1, n // 2 + 1, 48)).astype(np.int64))
     which = np.digitize(np.arange(n // 2 + 1), bins)
     target, counts = _binned_periodogram(e, bins, which)
-    cols, kept = [], []
-    for j, c in enumerate([None, *cands]):
+    columns = {}
+    every = [None, *cands]
+    # drawn band by band (an offset and a field candidate over the same band read their draws at
+    # the same grid positions: the reading is kept between them), each with its own seed [s, j]
+    for j in sorted(range(len(every)), key=lambda j: (0.0, 0.0) if every[j] is None else every[j].band_hz):
+        c = every[j]
         spec, left = [], []
         for s in seeds:
             rng = np.random.default_rng([s, j])
@@ -421,8 +425,11 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
             px = project(x)
             left.append(float(px @ px) / max(float(x @ x), 1e-300))
             spec.append(_binned_periodogram(px, bins, which)[0])
-        if c is None or np.mean(left) >= MIN_LEFT:
-            cols.append(np.mean(spec, axis=0))
+        columns[j] = (np.mean(spec, axis=0), np.mean(left))
+    cols, kept = [], []
+    for j, c in enumerate(every):
+        if c is None or columns[j][1] >= MIN_LEFT:
+            cols.append(columns[j][0])
             kept.append(c)
     cands = kept[1:]
     design = np.column_stack(cols)
