@@ -106,17 +106,37 @@ class SlowShare:
     dof: float
 
 
-def coefficient_cov(x: np.ndarray, cols: np.ndarray, shp: np.ndarray, spectrum: SlowSpectrum) -> np.ndarray:
-    """(len(cols), len(cols)): Σ_d s_d M_d M_dᵀ + σ² [(XᵀX)⁻¹]_cols, M_d the coefficients of x's
-    columns ``cols`` (in their own units) that a wander of shape P̂_d·(W u) gets in the
-    regression on all of x, σ² the rest of the residual taken as white: the coefficient's
-    covariance under the fitted wander."""
+@dataclass(frozen=True)
+class _Regression:
+    """What every group's coefficient_cov reads of the regression on all of x: each column's
+    scale, the coefficients of every column for each wander shape (scaled columns), and the
+    pseudo-inverse of the scaled Gram matrix."""
+
+    scale: np.ndarray
+    b: np.ndarray  # (p, 3·D)
+    ginv: np.ndarray  # (p, p)
+
+
+def _regression(x: np.ndarray, shp: np.ndarray) -> _Regression:
     scale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
     xs = x / scale
     rhs = np.concatenate(list(shp), axis=1)  # (n, 3·D)
-    b = np.linalg.lstsq(xs, rhs, rcond=1e-10)[0][cols] / scale[cols, None]  # (k, 3·D)
+    return _Regression(scale, np.linalg.lstsq(xs, rhs, rcond=1e-10)[0],
+                       np.linalg.pinv(xs.T @ xs, rcond=1e-10, hermitian=True))
+
+
+def coefficient_cov(x: np.ndarray, cols: np.ndarray, shp: np.ndarray, spectrum: SlowSpectrum,
+                    reg: _Regression | None = None) -> np.ndarray:
+    """(len(cols), len(cols)): Σ_d s_d M_d M_dᵀ + σ² [(XᵀX)⁻¹]_cols, M_d the coefficients of x's
+    columns ``cols`` (in their own units) that a wander of shape P̂_d·(W u) gets in the
+    regression on all of x, σ² the rest of the residual taken as white: the coefficient's
+    covariance under the fitted wander. ``reg``: ``_regression(x, shp)`` when already made
+    (it is the same for every group of x's columns)."""
+    reg = reg or _regression(x, shp)
+    scale = reg.scale
+    b = reg.b[cols] / scale[cols, None]  # (k, 3·D)
     s = np.repeat(spectrum.variance(np.arange(1, len(shp) + 1)), 3)
-    ginv = np.linalg.pinv(xs.T @ xs, rcond=1e-10, hermitian=True)[np.ix_(cols, cols)] / np.outer(scale[cols], scale[cols])
+    ginv = reg.ginv[np.ix_(cols, cols)] / np.outer(scale[cols], scale[cols])
     return (b * s) @ b.T + spectrum.white_ut2 * ginv
 
 
@@ -132,4 +152,5 @@ def wander_covariances(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_dir
     shp = shapes(t_s, offset_directions)
     spectrum = spectrum_of(x[:, np.asarray(model_cols)], e, shp)
     dof = 3.0 * (DEGREE - FIRST_SEEN + 1) - 2.0
-    return {g: SlowShare(coefficient_cov(x, np.asarray(cols), shp, spectrum), dof) for g, cols in groups.items()}
+    reg = _regression(x, shp)  # one regression on all of x serves every group
+    return {g: SlowShare(coefficient_cov(x, np.asarray(cols), shp, spectrum, reg), dof) for g, cols in groups.items()}
