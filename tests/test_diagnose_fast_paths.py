@@ -1,10 +1,14 @@
 """The fast paths of the fit and of the twin's draws give what the straightforward forms give:
 the geometric Jacobian (built a parameter at a time) against the per-column products and
 against finite differences, the row norms against numpy's, the Lagrange reading of a draw
-against the polynomial itself; and a whole diagnosis — the fit's Levenberg–Marquardt steps,
-its Grubbs critical values, the twin's draws — made with the straightforward forms put back
-finds the same effects with the same coefficients, on a simulated recording and on a real
-excerpt whose bursty stamps make the twin read its draws between grid points."""
+against the polynomial itself, the sphere's residual without its matrix exponential against
+the one with it, diagnosis's model Jacobian against finite differences, a twin's draws on
+times in order against the same draws on the times shuffled, the kept checks of a stream's
+times against fresh ones; and a whole diagnosis — the fit's Levenberg–Marquardt steps, its
+Grubbs critical values, the twin's draws and the Whittle fit's non-negative solves — made with
+the straightforward forms put back finds the same effects with the same coefficients, on a
+simulated recording and on a real excerpt whose bursty stamps make the twin read its draws
+between grid points."""
 
 from __future__ import annotations
 
@@ -16,8 +20,11 @@ import pytest
 
 from magcal.app.load import load_series
 from magcal.diagnose import diagnose
+from magcal.diagnose import model as diagnose_model
 from magcal.fit import fit_calibration, geometric, outliers
+from magcal.sim import nnls as nnls_module
 from magcal.sim import wander
+from magcal.sim.model import SensorModel
 from magcal.sim.physics import Motion, Physics, Scenario, Temperature
 
 DATA = Path(__file__).parent / "data"
@@ -47,6 +54,19 @@ def _reference_lagrange(grid, pos):
     w[at.any(axis=1)] = at[at.any(axis=1)]
     idx = (below.astype(np.int64)[:, None] + taps) % len(grid)
     return np.einsum("nt,ntk->nk", w, grid[idx])
+
+
+def _reference_forward(theta, mt, kind):
+    """``geometric._forward`` with W = expm(S) made for every kind, the sphere's too."""
+    eig = geometric.expm_sym(geometric.shape_matrix(kind, theta[4:]))
+    d = mt - theta[:3, None]
+    h = eig[0] @ d
+    return d, h, np.sqrt((h[0] * h[0] + h[1] * h[1]) + h[2] * h[2]), eig
+
+
+def _cold_nnls(a, b, maxiter=None, start=None):
+    """Every non-negative solve from the empty active set."""
+    return nnls_module.nnls(a, b, maxiter)
 
 
 def _real_excerpt():
@@ -98,6 +118,62 @@ def test_a_reading_between_grid_points_is_the_polynomial_through_its_taps():
     np.testing.assert_array_equal(wander._lagrange(grid, pos.copy()), got)  # read again: the same
 
 
+def test_the_spheres_residual_and_jacobian_without_the_exponential_are_those_with_it():
+    m = _real_excerpt().field_ut
+    theta = np.array([3.0, -12.0, 1.5, 50.0])
+    fast = geometric._forward(theta, geometric._columns(m), "sphere")
+    slow = _reference_forward(theta, geometric._columns(m), "sphere")
+    for a, b in zip(fast[:3], slow[:3]):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(geometric.jacobian(theta, m, "sphere", fast), geometric.jacobian(theta, m, "sphere", slow))
+
+
+def test_diagnosis_model_jacobian_is_the_finite_difference():
+    s = _simulated()
+    m, x = s.field_ut, s.channels["temp_c"] - 20.0
+    spec = diagnose_model.Spec(soft_iron=True, channels=("temp_c",))
+    p = np.concatenate([[21.0, -33.0, 8.0], [0.01, -0.004, 0.003, 0.0, 0.002], [49.0], [0.04, -0.03, 0.02]])
+    e, J = diagnose_model.residual_jacobian(p, spec, m, [x])
+    assert J.shape == (len(m), spec.n_params) and J.flags["C_CONTIGUOUS"]
+    step = 1e-6
+    for k in range(len(p)):
+        dp = np.zeros(len(p))
+        dp[k] = step
+        fd = (diagnose_model.residual_jacobian(p + dp, spec, m, [x], False)[0]
+              - diagnose_model.residual_jacobian(p - dp, spec, m, [x], False)[0]) / (2 * step)
+        np.testing.assert_allclose(J[:, k], fd, rtol=0, atol=1e-6 * max(1.0, np.abs(J[:, k]).max()))
+
+
+def test_a_twins_draws_on_times_in_order_are_its_draws_on_the_times_shuffled():
+    t = np.sort(np.random.default_rng(2).uniform(0.0, 30.0, 400))
+    model = SensorModel(calibration=_simulated_calibration(), wander=(wander.Wander(0.3, band_hz=(0.05, 2.0)),
+                                                                      wander.Wander(0.2, tau_s=3.0)))
+    in_order = model.draws(t, 7)
+    shuffle = np.random.default_rng(3).permutation(len(t))
+    shuffled = model.draws(t[shuffle], 7)
+    np.testing.assert_array_equal(shuffled.wander_ut, in_order.wander_ut[shuffle])
+    np.testing.assert_array_equal(shuffled.field_wander_ut, in_order.field_wander_ut[shuffle])
+
+
+def test_the_kept_checks_of_a_streams_times_do_not_carry_over_to_other_times():
+    comps = (wander.Wander(0.3, band_hz=(0.5, 4.0)),)
+    uniform = np.arange(600) * 0.02
+    jittered = uniform + np.random.default_rng(5).uniform(-0.004, 0.004, 600)
+    for first, second in ((uniform, jittered), (jittered, uniform)):
+        wander.draw_path(comps, np.random.default_rng(1), first)  # its checks and reading are kept
+        again = wander.draw_path(comps, np.random.default_rng(1), second)
+        wander._LAST_UNIFORM[0] = wander._LAST_READING[0] = None
+        fresh = wander.draw_path(comps, np.random.default_rng(1), second)
+        np.testing.assert_array_equal(again[0], fresh[0])
+    assert wander._fast_len(7501) == 7680 and wander._fast_len(16) == 16
+
+
+def _simulated_calibration():
+    from magcal.core.calibration import Calibration
+
+    return Calibration(offset_ut=(21.0, -33.0, 8.0), field_ut=49.0)
+
+
 def _uncached_block(start, stop, alpha):
     return np.atleast_1d(outliers.grubbs_critical(np.arange(start, stop, -1), alpha))
 
@@ -116,6 +192,8 @@ def straightforward(monkeypatch):
         monkeypatch.setattr(geometric, "row_norm", lambda v: np.linalg.norm(v, axis=1))
         monkeypatch.setattr(outliers, "_critical_block", _uncached_block)
         monkeypatch.setattr(wander, "_lagrange", lagrange)
+        monkeypatch.setattr(geometric, "_forward", _reference_forward)
+        monkeypatch.setattr(wander, "nnls", _cold_nnls)
         return readings
     return put_back
 
