@@ -134,7 +134,7 @@ def test_model_dict_is_json_with_units_in_its_keys():
     for key in ("offset_ut", "field_ut", "noise_ut", "quantum_ut", "temp_gain_per_c", "saturation_ut", "rate_hz"):
         assert key in d
     assert d["wander"][0].keys() == {"sigma_ut", "tau_s"}
-    assert d["glitches"].keys() == {"rate_per_sample", "size_ut", "axis_share"}
+    assert d["glitches"].keys() == {"rate_per_sample", "size_ut", "axis_share", "period_s", "jitter_s"}
 
 
 def test_a_model_that_cannot_be_written_is_a_named_error(tmp_path):
@@ -181,6 +181,40 @@ def test_a_first_version_model_file_is_still_read(tmp_path):
     d = _model(glitch_ut=(4.0, 15.0)).to_dict()
     d["schema"] = "magcal.sensor-model/1"
     assert SensorModel.from_dict(d).glitch_ut == (4.0, 15.0)
+
+
+def test_a_third_version_model_file_has_its_glitches_at_random_reads():
+    d = _model().to_dict()
+    d["schema"] = "magcal.sensor-model/3"
+    for key in ("period_s", "jitter_s"):
+        del d["glitches"][key]
+    back = SensorModel.from_dict(d)
+    assert back.glitch_period_s is None and back.glitch_rate == 0.001
+    with pytest.raises(ValueError, match="jitter_s needs a period_s"):
+        _model(glitch_jitter_s=0.01)
+
+
+def test_a_pulse_train_glitches_its_reads_at_its_period_whichever_way_the_board_is_read():
+    """Glitches from a source on its own clock: at 50 Hz, a pulse every 0.2 s (10 reads) with
+    half of the pulses glitching gives 5 % of reads glitched, nearly always a whole number of
+    10 reads apart; the simulated board read in any order gives the same glitches, and a higher rate
+    keeps those a lower one made."""
+    sm = _model(glitch_rate=0.05, glitch_period_s=0.2, glitch_jitter_s=0.004, wander=(), disturbances=None)
+    sc = Scenario(physics=Physics(), motion=Motion("sphere", period_s=20.0), seed=9, model=sm)
+    k = np.arange(20000)
+    t = k / 50.0
+    _, glitch = sc.field_ut(t, k)
+    hit = np.flatnonzero(np.any(glitch != 0, axis=1))
+    assert 0.045 < len(hit) / len(k) < 0.055
+    assert np.mean(np.diff(hit) % 10 == 0) > 0.9
+    order = np.random.default_rng(1).permutation(len(k))
+    _, shuffled = sc.field_ut(t[order], k[order])
+    assert np.array_equal(np.any(shuffled != 0, axis=1), np.any(glitch != 0, axis=1)[order])
+    d = sm.draws(t, seed=4)
+    more = dataclasses.replace(sm, glitch_rate=0.08).draws(t, seed=4)
+    low, high = np.any(d.glitch_ut != 0, axis=1), np.any(more.glitch_ut != 0, axis=1)
+    assert np.all(high[low]) and high.sum() > 1.4 * low.sum()
+    assert np.mean(np.diff(np.flatnonzero(low)) % 10 == 0) > 0.9
 
 
 def test_glitch_sizes_follow_their_quantiles_and_two_make_them_log_uniform():

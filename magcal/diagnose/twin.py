@@ -35,7 +35,7 @@ from ..core.series import Series
 from ..sim import directions
 from ..sim import wander as wander_mod
 from ..sim.disturbance import Disturbances
-from ..sim.model import TEMP, SensorModel, glitches, replace_calibration
+from ..sim.model import TEMP, SensorModel, replace_calibration
 from . import twin_stats as ts
 from .twin_names import Mismatch, locate, mismatches
 from .lattice import quantum
@@ -51,6 +51,10 @@ EVENT_Z = 4.5  # a disturbance departs from the median radius by this many robus
 EVENT_EDGE = 2.0  # and lasts while it stays beyond this many
 EVENT_MIN = 1  # and more than twice what a Gaussian residual would make
 P0_AXIS = 0.15  # chance that a random direction puts ≥ 90 % of its square on one axis (3 × (1 − √0.9))
+TRAIN_WINDOW = 0.2  # a gap between spikes within ±20 % of the period counts as one period
+TRAIN_Z = 5.0  # and the count there passes what random spikes give by this many σ
+TRAIN_MIN = 20  # gaps needed to look for a period
+TRAIN_READS = 4  # the shortest period sought, in read intervals
 # channels that follow the orientation or are the magnetometer itself: not offered as couplings
 ORIENTATION_WORDS = ("mag", "acc", "gyro", "quat", "roll", "pitch", "yaw", "bias", "att")
 
@@ -254,6 +258,35 @@ def disturbances(e: np.ndarray, t: np.ndarray) -> tuple[Disturbances | None, np.
                         duration_s=(float(dur[0]), float(dur[1])), up_share=float(np.mean(peaks > 0))), hit
 
 
+def glitch_train(t_spikes: np.ndarray, read_s: float) -> dict:
+    """{glitch_period_s, glitch_jitter_s} when the spikes come nearly periodically, else {}:
+    the gaps between successive spikes pile up within ±TRAIN_WINDOW of one period — more, by
+    TRAIN_Z σ, than the mean of the two windows of the same width either side (what a smooth
+    density of gaps puts there: spikes at random times, or in bursts, make no peak) — a high
+    bar, since every gap seen is tried as the period. Periods under TRAIN_READS read intervals
+    ``read_s`` are not sought (a burst of spikes two reads apart is not a train). The period:
+    the median of the gaps in its window; the jitter: their spread over √2 (a gap is the
+    difference of two pulses' times, each off its slot). A pulse the detector missed makes a
+    gap of two periods, outside the window."""
+    t = np.sort(np.asarray(t_spikes, dtype=np.float64))
+    gaps = np.diff(t)
+    gaps = gaps[gaps > 0]
+    c = np.unique(gaps[gaps >= TRAIN_READS * read_s])
+    if len(gaps) < TRAIN_MIN or not len(c):
+        return {}
+    w = TRAIN_WINDOW * c[:, None]
+    d = gaps[None, :] - c[:, None]
+    inside = np.count_nonzero(np.abs(d) <= w, axis=1)
+    beside = np.count_nonzero((np.abs(d) > w) & (np.abs(d) <= 3 * w), axis=1) / 2.0
+    z = (inside - beside) / np.sqrt(inside + beside / 2.0 + 1.0)
+    best = int(np.argmax(z))
+    if z[best] < TRAIN_Z:
+        return {}
+    sel = gaps[np.abs(gaps - c[best]) <= TRAIN_WINDOW * c[best]]
+    period = float(np.median(sel))
+    return {"glitch_period_s": period, "glitch_jitter_s": float(min(np.std(sel) / np.sqrt(2.0), 0.5 * period))}
+
+
 def _saturation(m: np.ndarray) -> float | None:
     top = np.max(np.abs(m))
     at_rail = np.isclose(np.abs(m), top, rtol=0, atol=1e-9 + 1e-6 * top)
@@ -296,7 +329,7 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     model = SensorModel(
         calibration=replace_calibration(calibration, field_ut=calibration.field_ut + float(np.mean(r - calibration.field_ut))),
         noise_ut=_axis_noise(m[keep], white, seen, q), quantum_ut=q, wander=comps,
-        glitch_rate=rate, glitch_ut=size, glitch_axis_share=axis_share,
+        glitch_rate=rate, glitch_ut=size, glitch_axis_share=axis_share, **glitch_train(t[hit], wander_mod.sample_interval(t)),
         disturbances=dist, nonlinearity_ut=tuple(nonlin),
         temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),
         rate_hz=1.0 / wander_mod.sample_interval(t), source=dict(source or {}),
@@ -371,7 +404,7 @@ def _spike_counter(model: SensorModel, series: Series, seeds=GLITCH_SEEDS):
         n_hit, missed = 0, 0.0
         for seed, d in zip(seeds, base):
             rng = np.random.default_rng([seed, 0x611])
-            g = glitches(rng, len(u), rate, model.glitch_ut, model.glitch_axis_share)
+            g = model.glitch_vectors(rng, series.t_s, seed, rate)
             m, _ = bare.distort(u, chans, replace(d, glitch_ut=g))
             hit = spikes(m, radius=_radius(bare.calibration, m, chans))
             n_hit += int(np.count_nonzero(hit))
@@ -381,15 +414,17 @@ def _spike_counter(model: SensorModel, series: Series, seeds=GLITCH_SEEDS):
     return count
 
 
-def _rate_for(count, observed: float, n: int, steps: int = 12) -> float | None:
+def _rate_for(count, observed: float, n: int, steps: int = 12, top: float | None = None) -> float | None:
     """The rate at which the twins' spike count equals ``observed`` (bisection; the count
     rises with the rate), or None when even a glitch in every other sample falls short (the
-    sizes are too small for the detector to see)."""
-    lo, hi = 0.0, min(max(2.0 * observed / n, 1e-4), 0.5)
+    sizes are too small for the detector to see); ``top``: the highest rate there is (a pulse
+    train's every pulse), returned when the count falls short there."""
+    ceiling = 0.5 if top is None else top
+    lo, hi = 0.0, min(max(2.0 * observed / n, 1e-4), ceiling)
     while count(hi)[0] < observed:
-        if hi >= 0.5:
-            return None
-        lo, hi = hi, min(2.0 * hi, 0.5)
+        if hi >= ceiling:
+            return top
+        lo, hi = hi, min(2.0 * hi, ceiling)
     for _ in range(steps):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if count(mid)[0] < observed else (lo, mid)
@@ -403,13 +438,16 @@ def glitch_process(model: SensorModel, series: Series, hit: np.ndarray) -> tuple
     where there are none (its false positives: the count on glitch-free twins), so the rate
     seen is not the rate to draw; both are measured on twins of the recording (its times,
     directions and every other effect) and the rate solved by bisection — no rate when the
-    recording shows no more spikes than glitch-free twins make, within three Poisson σ."""
+    recording shows no more spikes than glitch-free twins make, within three Poisson σ. A pulse
+    train cannot glitch more reads than it has pulses: when even a glitch at every pulse falls
+    short, every pulse glitches (the nearest the train comes)."""
     observed = float(np.count_nonzero(hit))
     count = _spike_counter(model, series)
     null = count(0.0)[0]
     if observed <= null + 3.0 * np.sqrt(max(null, 1.0)):
         return 0.0, 0.0
-    rate = _rate_for(count, observed, len(hit))
+    full = None if model.glitch_period_s is None else min(1.0 / (model.rate_hz * model.glitch_period_s), 0.5)
+    rate = _rate_for(count, observed, len(hit), top=full)
     if rate is None:
         return model.glitch_rate, 0.0  # the detector cannot place them: keep the rate it saw
     return float(min(rate, 0.5)), count(rate)[1]

@@ -8,13 +8,17 @@ Per sample i at time t_i, true unit field direction u_i (body frame) and channel
     c_i = W⁻¹ (r_i u_i) + b + Σ_c K_c (x_ci − ref_c)                 the calibration, inverted
           + w(t_i) + diag(σ) z_i                                     wander, noise: the conversion
     m_i = c_j(i) + g_i                                               the read: repeats, glitches
+                                                                     (random, or a pulse train)
     m_i → clipped at ±saturation_ut (then flagged), rounded to quantum_ut per axis
 
 W, b, field, K_c and ref_c are a :class:`~magcal.calibration.Calibration` (the deterministic
 part, shared with every fit); γ the temperature gain; Y_j the degree-3/4 direction basis
 (``magcal.sim.directions``); w and f the offset and field wander, sums of stationary Gaussian
 components (``magcal.sim.wander``); d intermittent disturbances of the field's magnitude
-(``magcal.sim.disturbance``); g_i rare one-sample glitches of a size in ``glitch_ut``;
+(``magcal.sim.disturbance``); g_i rare one-sample glitches of a size in ``glitch_ut``, at
+random reads or, with ``glitch_period_s``, at the reads a nearly periodic train of pulses hits
+(a source that fires on its own clock: a radio burst, a LED, another device on the bus) — pulse
+j at φ + j·P + jitter·z_j, each kept with the probability that gives ``glitch_rate``;
 z_i standard normal. Repeated reads: a host that reads faster than the sensor converts (the
 data-ready flag not awaited) gets the last conversion again, bit for bit; a share
 ``repeat_share`` of reads does, in the steady pattern of two unequal rates (read i shows
@@ -38,9 +42,10 @@ from . import wander as wander_mod
 from .disturbance import Disturbances
 from .wander import Wander
 
-SCHEMA = "magcal.sensor-model/3"
-# /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0)
-READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", SCHEMA)
+SCHEMA = "magcal.sensor-model/4"
+# /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0);
+# /3: glitches at random reads only (no glitches.period_s)
+READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", "magcal.sensor-model/3", SCHEMA)
 TEMP = "temp_c"
 
 
@@ -65,6 +70,8 @@ class SensorModel:
     glitch_rate: float = 0.0  # probability per sample
     glitch_ut: tuple = (4.0, 15.0)  # size quantiles at evenly spaced probabilities (two: log-uniform)
     glitch_axis_share: float = 0.0  # share of glitches along one sensor axis (else any direction)
+    glitch_period_s: float | None = None  # glitches from a nearly periodic train of pulses (None: at random)
+    glitch_jitter_s: float = 0.0  # each pulse's time off the train's grid, standard deviation
     disturbances: Disturbances | None = None  # intermittent departures of the field's magnitude
     nonlinearity_ut: tuple = (0.0,) * len(directions.NAMES)
     temp_gain_per_c: float = 0.0
@@ -90,6 +97,11 @@ class SensorModel:
         object.__setattr__(self, "glitch_ut", sizes)
         if not 0 <= self.repeat_share < 1:
             raise ValueError("repeat_share must be in [0, 1)")
+        period = self.glitch_period_s
+        if period is not None and not (np.isfinite(period) and period > 0 and 0 <= self.glitch_jitter_s <= period):
+            raise ValueError("glitch period_s must be positive (or absent), jitter_s in [0, period_s]")
+        if period is None and self.glitch_jitter_s != 0:
+            raise ValueError("glitch jitter_s needs a period_s")
         if self.saturation_ut is not None and not self.saturation_ut > 0:
             raise ValueError("saturation_ut must be positive (or absent)")
         if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
@@ -137,8 +149,24 @@ class SensorModel:
             path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
         if self.disturbances is not None:
             field = field + self.disturbances.draw(seed, t)
-        g = glitches(rng, len(t), self.glitch_rate, self.glitch_ut, self.glitch_axis_share)
+        g = self.glitch_vectors(rng, t, seed)
         return Draws(noise, g, path, field, repeated_reads(len(t), self.repeat_share, seed))
+
+    def glitch_vectors(self, rng: np.random.Generator, t_s, seed: int, rate: float | None = None,
+                       read_s: float | None = None) -> np.ndarray:
+        """(n, 3) glitch vectors for reads at times ``t_s`` at ``rate`` (default: the model's),
+        at random reads (``glitches``) or at those the pulse train hits (``pulse_reads``: each
+        read takes the pulses nearer to it than to the reads either side, or with ``read_s``
+        those within half of it). The draws consumed from ``rng`` depend on n alone, and a
+        higher rate keeps the glitches a lower one had."""
+        rate = self.glitch_rate if rate is None else rate
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        if self.glitch_period_s is None:
+            return glitches(rng, len(t), rate, self.glitch_ut, self.glitch_axis_share)
+        every = glitches(rng, len(t), 1.0, self.glitch_ut, self.glitch_axis_share)  # a vector for each read
+        hit = pulse_reads(t, rate, self.glitch_period_s, self.glitch_jitter_s, read_s or 1.0 / self.rate_hz, seed,
+                          stream=read_s is None)
+        return every * hit[:, None]
 
     def simulate(self, u, t_s, channels: Mapping[str, np.ndarray] | None, seed: int):
         """(m, valid) for directions ``u`` at times ``t_s``: the twin of a recording."""
@@ -208,7 +236,9 @@ class SensorModel:
             "quantum_ut": list(self.quantum_ut),
             "wander": [c.to_dict() for c in self.wander],
             "glitches": {"rate_per_sample": float(self.glitch_rate), "size_ut": list(self.glitch_ut),
-                         "axis_share": float(self.glitch_axis_share)},
+                         "axis_share": float(self.glitch_axis_share),
+                         "period_s": None if self.glitch_period_s is None else float(self.glitch_period_s),
+                         "jitter_s": float(self.glitch_jitter_s)},
             "disturbances": None if self.disturbances is None else self.disturbances.to_dict(),
             "nonlinearity_ut": {k: v for k, v in zip(directions.NAMES, self.nonlinearity_ut) if v},
             "temp_gain_per_c": float(self.temp_gain_per_c),
@@ -237,6 +267,8 @@ class SensorModel:
                 glitch_rate=float(d.get("glitches", {}).get("rate_per_sample", 0.0)),
                 glitch_ut=tuple(d.get("glitches", {}).get("size_ut", (4.0, 15.0))),
                 glitch_axis_share=float(d.get("glitches", {}).get("axis_share", 0.0)),
+                glitch_period_s=_optional(d.get("glitches", {}).get("period_s")),
+                glitch_jitter_s=float(d.get("glitches", {}).get("jitter_s", 0.0)),
                 disturbances=None if d.get("disturbances") is None else Disturbances.from_dict(d["disturbances"]),
                 nonlinearity_ut=_nonlinearity(d.get("nonlinearity_ut", {})),
                 temp_gain_per_c=float(d.get("temp_gain_per_c", 0.0)),
@@ -317,6 +349,56 @@ def glitches(rng: np.random.Generator, n: int, rate: float, size_ut: tuple, axis
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     out[hit] = d[hit] * mag[hit, None]
     return out
+
+
+def hash_uniform(seed: int, idx) -> np.ndarray:
+    """A deterministic uniform(0, 1) per integer index (splitmix64): random numbers that are a
+    function of (seed, index), for processes sampled at any time in any order."""
+    with np.errstate(over="ignore"):
+        x = np.asarray(idx, dtype=np.int64).astype(np.uint64) + np.uint64(int(seed) & 0xFFFFFFFFFFFFFFFF) * np.uint64(0x9E3779B97F4A7C15)
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        x = x ^ (x >> np.uint64(31))
+    return (x >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+
+
+_PULSE = 0x9F15E
+
+
+def pulse_reads(t_s, rate: float, period_s: float, jitter_s: float, read_s: float, seed: int,
+                stream: bool = False) -> np.ndarray:
+    """(n,) bool: the reads at times ``t_s`` a nearly periodic train of pulses hits — pulse j at
+    φ + j·period_s + jitter_s·z_j (φ uniform over a period, z_j standard normal, a pulse within
+    half a period of its slot), kept with probability q = rate·period_s / read_s (a full train
+    hits one read in period_s / read_s, ``read_s`` the mean read interval; q ≤ 1), hitting the
+    read within half a read interval of it — or, for a ``stream`` (irregular times), the read
+    it lies nearest to. A function of (seed, t): each pulse's jitter and whether it is kept
+    come from its index, so a board read at any time agrees with a stream, and a higher rate
+    keeps the pulses a lower one kept."""
+    t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+    hit = np.zeros(len(t), bool)
+    if rate <= 0 or not len(t):
+        return hit
+    lo, hi = t - 0.5 * read_s, t + 0.5 * read_s
+    if stream and len(t) > 1:  # each read's share of time: halfway to the reads either side
+        o = np.argsort(t, kind="stable")
+        mid = 0.5 * (t[o][1:] + t[o][:-1])
+        lo[o[1:]], hi[o[:-1]] = mid, mid
+    key = (int(seed) & 0xFFFFFFFF) * 4 + _PULSE
+    phase = float(hash_uniform(key, -1)) * period_s
+    q = min(rate * period_s / read_s, 1.0)
+    j0 = np.round((t - phase) / period_s).astype(np.int64)
+    for j in (j0 - 1, j0, j0 + 1):  # the jitter is at most a period: a pulse lands near its own slot
+        u1, u2 = np.maximum(hash_uniform(key + 1, j), 1e-300), hash_uniform(key + 2, j)
+        z = np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+        bound = 0.5 * period_s / max(jitter_s, 1e-300)  # off its slot by at most half a period
+        at = phase + j * period_s + jitter_s * np.clip(z, -bound, bound)
+        hit |= (hash_uniform(key + 3, j) < q) & (at >= lo) & (at < hi)
+    return hit
+
+
+def _optional(v) -> float | None:
+    return None if v is None else float(v)
 
 
 def _triple(v, name: str, lo: float) -> tuple:

@@ -32,7 +32,7 @@ from ..core.calibration import Calibration
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_HOFL, UT_PER_COUNT, asa_gain, temp_c_to_raw
 from ..core.series import Series
 from . import wander as wander_mod
-from .model import Draws, SensorModel, first_reads, glitches
+from .model import Draws, SensorModel, first_reads, glitches, hash_uniform, pulse_reads
 
 HOFL_SUM_UT = 2400.0
 _BLOCK = 1024  # noise is drawn in blocks of this many measurements, keyed by (seed, block)
@@ -209,18 +209,21 @@ class Scenario:
         if cur.level_a == 0:
             return np.zeros_like(t)
         seg = np.floor(t / cur.segment_s).astype(np.int64)
-        on = _hash_uniform(self.seed + 7919, seg) < cur.duty
+        on = hash_uniform(self.seed + 7919, seg) < cur.duty
         ramp = np.clip((t - seg * cur.segment_s) / 0.2, 0, 1)  # 0.2 s spin-up
         return np.where(on, cur.level_a * ramp, 0.0)
 
     # -- per-measurement randomness -------------------------------------------------------
     def _noise_glitch(self, k: np.ndarray, sensor: SensorModel):
+        """(noise, glitch vectors) of reads ``k``; a model whose glitches come from a pulse train
+        gets a vector for every read, which ``field_ut`` keeps where the train hits."""
         k = np.asarray(k, dtype=np.int64)
         blocks = np.unique(k // _BLOCK)
         noise = np.empty((len(k), 3))
         glitch = np.zeros((len(k), 3))
+        rate = sensor.glitch_rate if sensor.glitch_period_s is None else 1.0
         for b in blocks:
-            nb, gb = _block(self.seed, int(b), sensor.glitch_rate, tuple(sensor.glitch_ut), sensor.glitch_axis_share)
+            nb, gb = _block(self.seed, int(b), rate, tuple(sensor.glitch_ut), sensor.glitch_axis_share)
             sel = (k // _BLOCK) == b
             noise[sel] = nb[k[sel] % _BLOCK]
             glitch[sel] = gb[k[sel] % _BLOCK]
@@ -239,6 +242,10 @@ class Scenario:
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
         k = np.atleast_1d(np.asarray(k, dtype=np.int64))
         noise, glitch = self._noise_glitch(k, sensor)
+        if sensor.glitch_period_s is not None:  # the reads the train hits, at their own times
+            hit = pulse_reads(t, sensor.glitch_rate, sensor.glitch_period_s, sensor.glitch_jitter_s,
+                              _read_interval(t, k, sensor.rate_hz), self.seed)
+            glitch = glitch * hit[:, None]
         if sensor.repeat_share > 0:  # a repeated read shows an earlier conversion, its time and noise
             first = first_reads(k, sensor.repeat_share, self.seed)
             o = np.argsort(k, kind="stable")  # the time of a read asked for is taken as it is (bit for bit)
@@ -346,16 +353,6 @@ def _block(seed: int, block: int, glitch_rate: float, glitch_ut: tuple, axis_sha
     noise.setflags(write=False)
     glitch.setflags(write=False)
     return noise, glitch
-
-
-def _hash_uniform(seed: int, idx: np.ndarray) -> np.ndarray:
-    """A deterministic uniform(0,1) per integer index (splitmix64)."""
-    with np.errstate(over="ignore"):
-        x = np.asarray(idx, dtype=np.uint64) + np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15)
-        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        x = x ^ (x >> np.uint64(31))
-    return (x >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
 def demo_scenario(seed: int = 1) -> Scenario:
