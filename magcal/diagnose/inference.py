@@ -232,6 +232,7 @@ def block_wald(
     xs = x / scale
     blocks = contiguous_blocks(n, n_blocks or n_test_blocks(n))
     gram = xs.T @ xs
+    ys = e[:, None] if null is None else np.column_stack([e, *null])  # the residual columns every group tests
     out = {}
     for name, cols in groups.items():
         cols = np.asarray(cols)
@@ -243,12 +244,13 @@ def block_wald(
         floor = min_unique.get(name, 0.2) if isinstance(min_unique, dict) else min_unique
         keep = np.sqrt(np.maximum(ev, 0.0)) >= floor
         basis = vec[:, keep] / scale[cols, None]
-        out[name] = _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, scale[cols], null)
+        out[name] = _test_group(xp, vec, keep, ys, nuis, blocks, xc, basis, scale[cols], null)
     return out
 
 
-def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale, null) -> WaldResult:
-    """One group's test on its identifiable directions (see block_wald)."""
+def _test_group(xp, vec, keep, ys, nuis, blocks, xc, basis, col_scale, null) -> WaldResult:
+    """One group's test on its identifiable directions (see block_wald), of the residual
+    columns ``ys`` (the recording's, then the twin's draws with and without its wander)."""
     k, nb, ncols = int(keep.sum()), len(blocks), len(keep)
     if k == 0:
         return _untested(0, nb, ncols, basis, "directions")
@@ -259,7 +261,7 @@ def _test_group(xp, vec, keep, e, nuis, blocks, xc, basis, col_scale, null) -> W
     z = xp @ vec[:, keep]  # the identifiable part, orthogonal to the other columns
     z = nuis.project_out(z) if k < ncols else z
     h = _hac(z, blocks, nuis)
-    r0 = nuis.project_out(e[:, None] if null is None else np.column_stack([e, *null]))
+    r0 = nuis.project_out(ys)
     bz, cov, wald, lam = _hac_wald(h, r0)
     df2 = h.df2
     f_of = wald * df2 / (k * (len(blocks) - 1 if h.fallback else h.nu))

@@ -28,6 +28,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -65,10 +66,15 @@ class Analysed:
         """The logged channels (without time)."""
         return {c: v for c, v in self.chans.items() if c != channels.TIME}
 
-    @property
+    @cached_property
     def kept(self) -> tuple[np.ndarray, np.ndarray, dict]:
-        """(field, times, channels) of the analysed samples that are not glitches."""
-        return self.m[self.keep], self.t[self.keep], {c: v[self.keep] for c, v in self.chans.items()}
+        """(field, times, channels) of the analysed samples that are not glitches. Taken once
+        (every step asks for them; a diagnosis took the same copies nine times) and read-only:
+        the steps share them."""
+        m, t, chans = self.m[self.keep], self.t[self.keep], {c: v[self.keep] for c, v in self.chans.items()}
+        for v in (m, t, *chans.values()):
+            v.flags.writeable = False
+        return m, t, chans
 
 
 @dataclass(frozen=True)
