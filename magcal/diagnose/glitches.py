@@ -70,18 +70,19 @@ def _weights(t: np.ndarray) -> np.ndarray:
     return w
 
 
-def innovations(m: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def innovations(m: np.ndarray, t: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """m − (prediction from the two neighbours on each side) divided by the square root of
     its own noise-variance gain 1 + Σw² (1.944 for uniform sampling), and that gain per
     sample. Normalised so, a sample whose prediction reaches across a gap in the timestamps
     (large weights on a few neighbours) is not mistaken for a jump when one of those
-    neighbours is the glitch."""
+    neighbours is the glitch. ``w``: ``_weights(t)`` when already made (they depend on the
+    times alone)."""
     n = len(m)
     d = np.zeros_like(m)
     gain = np.ones(n)
     if n < 5:
         return d, gain
-    w = _weights(t)
+    w = _weights(t) if w is None else w
     pred = w[:, 0:1] * m[:-4] + w[:, 1:2] * m[1:-3] + w[:, 2:3] * m[3:-1] + w[:, 3:4] * m[4:]
     d[2:-2] = m[2:-2] - pred
     gain[2:-2] = 1.0 + np.sum(w * w, axis=1)
@@ -219,7 +220,8 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
     n = len(m)
     g = sample_grid(np.asarray(t, np.float64))
     floor = 0.5 * _quantum(m) if n > 3 else np.full(3, 1e-3)
-    d, gain = innovations(m, g)
+    w = _weights(g) if n >= 5 else None  # the prediction weights of the whole series, for each of its innovations
+    d, gain = innovations(m, g, w)
     noise = float(np.median(trimmed_scale(d))) if n else 0.0
     sphere = _radial(m) if n >= 10 else None
     channels = 2 if sphere is not None else 1
@@ -243,7 +245,7 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
         score = z / thr
         if sphere is not None:
             r = radial_series(m)
-            dr, _ = innovations(r, g)
+            dr, _ = innovations(r, g, w)
             sr = local_scale(dr, floor_r)
             zr = np.abs(dr[:, 0]) / sr[:, 0]
             zr[flagged] = 0
@@ -286,7 +288,7 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
             break
         for a in range(3):  # repair by interpolation from unflagged samples
             m[idx, a] = np.interp(g[idx], g[good], m[good, a])
-        d, gain = innovations(m, g)
+        d, gain = innovations(m, g, w)
     # bursts (three or more flags within five samples) are fast motion, not glitches
     if flagged.any():
         c = np.convolve(flagged.astype(int), np.ones(5, int), mode="same")
