@@ -250,8 +250,7 @@ def detect(m: np.ndarray, t: np.ndarray, alpha: float = 0.01, max_rounds: int = 
             zr = np.abs(dr[:, 0]) / sr[:, 0]
             zr[flagged] = 0
             score = np.maximum(score, zr / thr_r)
-        # the side check (two local scales of its own) only when some sample is over the threshold
-        ok3 = z > thr
+        ok3 = z > thr  # the side check (two local scales of its own) only when some sample is over it
         ok3 = ok3 & _side_ok(m, g, floor, side_thr) if ok3.any() else ok3
         okr = np.zeros(n, bool)
         if sphere is not None:
