@@ -413,3 +413,24 @@ def test_a_temperature_swing_that_is_mostly_a_curve_in_time_is_found(seed, hard,
     assert d.effects == ["temperature_drift"]
     k = np.array(_finding(d, "temperature_drift").params["coef_ut_per_unit"])
     assert np.linalg.norm(k - coef) < 0.3 * np.linalg.norm(coef)
+
+
+@pytest.mark.parametrize("seed,tilt", [(302, 40.0), (301, 25.0)])
+def test_soft_iron_beside_a_strong_current_is_neither_lost_nor_invented(seed, tilt):
+    # an intermittent 3 A current moving the offset by 3.7 µT on a band or partial sphere: left
+    # in the samples the soft-iron reference is fitted to, it dragged that fit along the
+    # offset–gain valley (seed 302: a 100 µT radius and 36 % of soft iron) and the soft-iron
+    # test, linearised there, missed a 1.5 % soft iron and found one where there was none
+    def run(soft):
+        off = 0.004 if soft else 0.0
+        dist = ((1 + soft, off, 0.0), (off, 1 - soft / 2, 0.0), (0.0, 0.0, 1 - soft / 2))
+        sc = Scenario(physics=Physics(hard_iron_ut=HARD, distortion=dist, current_coef_ut_per_a=(0.3, -0.8, 0.9), noise_ut=0.5),
+                      motion=Motion("tilt", max_tilt_deg=tilt, period_s=20.0), current=Current(level_a=3.0, duty=0.4), seed=seed)
+        return diagnose(sc.simulate(N, 50.0).series)
+
+    with_soft = run(0.015)
+    assert sorted(with_soft.effects) == ["current_interference", "soft_iron"]
+    gains = _finding(with_soft, "soft_iron").params["principal_gains"]
+    assert 0.01 < max(gains) - min(gains) < 0.03  # 2.25 % between the extreme gains
+    assert run(0.0).effects == ["current_interference"]
+
