@@ -216,6 +216,20 @@ def test_glitches_from_a_pulse_train_are_learned_at_its_period_and_random_ones_a
     assert _learned(_recording(_truth(), seed=seed, n=6000)).glitch_period_s is None
 
 
+@pytest.mark.parametrize("seed", [45, 46])
+def test_glitches_along_one_sensor_axis_are_read_at_their_size(seed):
+    """A corrupted register: glitches of 2–8 µT (log-uniform, median 4) along one sensor axis
+    move |h| by their length times the field's share on that axis (Wᵀu), not by half their
+    length as a random direction does on average; read that way their sizes come out at the
+    truth's (median within 25 %, the top under 9 µT) — doubled, the median came out 5.7–5.9
+    and the top 9–13 µT."""
+    truth = dataclasses.replace(_truth(), glitch_rate=0.004, glitch_ut=(2.0, 8.0), glitch_axis_share=1.0)
+    learned = _learned(_recording(truth, seed=seed, n=6000))
+    sizes = learned.glitch_ut
+    assert learned.glitch_axis_share > 0.8
+    assert abs(sizes[len(sizes) // 2] / 4.0 - 1.0) < 0.25 and sizes[-1] < 9.0
+
+
 def test_repeated_reads_are_learned_beyond_the_repeats_a_coarse_quantum_makes_by_chance():
     """A host polling faster than the sensor converts: a fifth of the reads repeat the one
     before; the twin learns that share, and a recording without repeats gets none."""

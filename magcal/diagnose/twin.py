@@ -170,8 +170,12 @@ def spikes(m: np.ndarray, z: float | None = None, radius: np.ndarray | None = No
     return hit
 
 
+def _corrected(cal: Calibration, m: np.ndarray, chans: Mapping) -> np.ndarray:
+    return cal.correct(m, {c: chans[c] for c in cal.coef_ut_per_unit})
+
+
 def _radius(cal: Calibration, m: np.ndarray, chans: Mapping) -> np.ndarray:
-    return np.linalg.norm(cal.correct(m, {c: chans[c] for c in cal.coef_ut_per_unit}), axis=1)
+    return np.linalg.norm(_corrected(cal, m, chans), axis=1)
 
 
 def size_quantiles(size: np.ndarray) -> tuple:
@@ -186,24 +190,34 @@ def size_quantiles(size: np.ndarray) -> tuple:
     return tuple(float(v) for v in np.maximum.accumulate(q))
 
 
-def _glitches(m: np.ndarray, radius: np.ndarray) -> tuple[float, tuple, float, np.ndarray]:
+def _glitches(m: np.ndarray, radius: np.ndarray, seen: np.ndarray | None = None) -> tuple[float, tuple, float, np.ndarray]:
     """(rate per sample, size quantiles µT, share along one sensor axis, the samples): the
     spikes of |h| (``spikes``). A glitch's size is read from its departure in |h| from its
     neighbours' mean, doubled (a jump in a random direction moves |h| by |cos θ| of its length,
     ½ on average): its departure in the 3-vector also carries the trajectory's own curvature,
     which on fast motion is many times the glitch (rm3100 umich flight: 3.9× the radial
-    departure at the 90th percentile, 1.9× on its twins). Axis share: the share of glitches
-    with ≥ 90 % of their square on one axis, less the share a random direction would put there
-    (P0_AXIS)."""
+    departure at the 90th percentile, 1.9× on its twins). A spike along one sensor axis a (≥
+    90 % of its square there) is read, with ``seen`` (per sample Wᵀu, how a jump of the reading
+    moves |h|), as its departure over |seen_a| (at most doubled): such a glitch moves |h| by its
+    length times the field's share on that axis — on the estibone RM3100 logs, whose field lies
+    near z, a z-axis glitch by 0.8 of it: doubled, it was read 1.6× too large. Axis share: the
+    share of glitches with ≥ 90 % of their square on one axis, less the share a random
+    direction would put there (P0_AXIS)."""
     hit = spikes(m, radius=radius)
     k = np.flatnonzero(hit)
     if not len(k):
         return 0.0, (4.0, 15.0), 0.0, hit
     g = m[k] - 0.5 * (m[k - 1] + m[k + 1])
     size = np.linalg.norm(g, axis=1)
-    one_axis = float(np.mean(np.max(g * g, axis=1) >= 0.9 * size**2))
+    along = np.max(g * g, axis=1) >= 0.9 * size**2
+    one_axis = float(np.mean(along))
     share = float(np.clip((one_axis - P0_AXIS) / (1.0 - P0_AXIS), 0.0, 1.0))
-    return float(np.mean(hit)), size_quantiles(2.0 * _departures(radius, k)), share, hit
+    dep = _departures(radius, k)
+    scale = np.full(len(k), 2.0)
+    if seen is not None:  # a jump s along axis a moves |h| by s·(Wᵀu)_a
+        axis = np.argmax(g * g, axis=1)
+        scale[along] = 1.0 / np.maximum(np.abs(seen[k[along], axis[along]]), 0.5)
+    return float(np.mean(hit)), size_quantiles(scale * dep), share, hit
 
 
 def twin_directions(model: SensorModel, series: Series) -> np.ndarray:
@@ -300,7 +314,9 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     s = series.only_valid()
     m, t, chans = s.field_ut, s.t_s, with_time(s)
     q = quantum(m)
-    rate, size, axis_share, hit = _glitches(m, _radius(calibration, m, chans))
+    h_all = _corrected(calibration, m, chans)
+    r_all = np.linalg.norm(h_all, axis=1)
+    rate, size, axis_share, hit = _glitches(m, r_all, (h_all / r_all[:, None]) @ np.asarray(calibration.soft_iron))
     keep = ~hit
     used = {c: chans[c][keep] for c in calibration.coef_ut_per_unit}
     h = calibration.correct(m[keep], used)
