@@ -291,3 +291,20 @@ def test_a_direction_cell_no_twin_visits_has_no_band_and_no_warning():
         out = locate(real, twins, t)
     assert np.isnan(out["cells_low"][1]) and np.isnan(out["cells_high"][1])
     assert out["cells_outside"] == [2] and out["blocks_outside"] == []
+
+
+def test_the_final_step_says_which_effect_it_adds():
+    """The ladder's last step is the whole model; its label still names the effect it adds, so
+    a learned repeat share (or any last effect) is not hidden behind the word "final"."""
+    from magcal.diagnose.twin_text import format_twin
+
+    def step(name, effects, inside):
+        return {"step": name, "effects": effects, "inside": inside, "statistics": 2, "mismatches": [],
+                "bands": {"lag1": {"inside": inside > 0}, "rms_ut": {"inside": inside > 1}}}
+
+    steps = [step("baseline", [], 0), step("+glitches", ["noise", "glitches"], 1),
+             step("final", ["noise", "glitches", "repeats"], 2)]
+    text = format_twin({"draws": 50, "band_pct": [2.5, 97.5], "steps": steps})
+    assert "final (+repeats)" in text and "+glitches" in text
+    two = format_twin({"draws": 50, "band_pct": [2.5, 97.5], "steps": [steps[0], steps[2]]})
+    assert "final (+" not in two  # straight from the baseline: every effect is new

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..diagnose import twin_stats as ts
+from ..diagnose.twin_text import step_label
 
 _REAL = "#1f5fbf"
 _TWIN = "#e07b00"
@@ -119,7 +120,7 @@ def table_html(d: dict) -> str:
     """Statistics down, steps across: the recording's value, ✓ inside its twins' band, ✗ not."""
     steps = d["steps"]
     names = [n for n in steps[-1]["bands"] if n not in constant_statistics(d)]
-    head = "".join(f"<th>{html.escape(s['step'])}</th>" for s in steps)
+    head = "".join(f"<th>{html.escape(step_label(steps, s))}</th>" for s in steps)
     rows = []
     for n in names:
         cells = []

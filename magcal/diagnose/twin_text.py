@@ -3,6 +3,16 @@
 from __future__ import annotations
 
 
+def step_label(steps: list, step: dict) -> str:
+    """A step's name; the final one also says which effect it adds to the step before it
+    (``final`` would otherwise hide the last effect learned, e.g. repeated reads)."""
+    i = next(k for k, s in enumerate(steps) if s is step)
+    if step["step"] != "final" or i == 0 or steps[i - 1]["step"] == "baseline":
+        return step["step"]
+    added = [e for e in step.get("effects", ()) if e not in steps[i - 1].get("effects", ())]
+    return f"final (+{'+'.join(added)})" if added else "final"
+
+
 def format_twin(t: dict) -> str:
     """One line per step (statistics inside the twins' band), then the final mismatches."""
     lo, hi = t["band_pct"]
@@ -11,7 +21,7 @@ def format_twin(t: dict) -> str:
     for step in t["steps"]:
         missed = [k for k, b in step["bands"].items() if not b["inside"]]
         tail = ("   misses " + ", ".join(missed)) if missed else ""
-        lines.append(f"  {step['step']:<17} {step['inside']:>2}/{step['statistics']} inside{tail}")
+        lines.append(f"  {step_label(t['steps'], step):<21} {step['inside']:>2}/{step['statistics']} inside{tail}")
     final = t["steps"][-1]
     for m in final["mismatches"]:
         lines.append(f"  mismatch  {m['statistic']} ({m['effect']}): {m['summary']}")
