@@ -158,3 +158,24 @@ def test_a_channel_left_out_of_the_tests_is_said_so_not_drawn_as_tested(tmp_path
     page = (tmp_path / "page" / "index.html").read_text()
     assert "Not tested, so not drawn: mag_x_counts: a magnetometer reading" in page
     assert "mag_x_counts: nothing found" not in page
+
+
+def test_a_recording_without_time_is_drawn_by_sample_number_not_in_minutes(tmp_path):
+    """A table with no time column is read by sample index; the page must not turn that index
+    into seconds or minutes (4960 samples were once shown as '82.7 min')."""
+    from magcal.app.report.views import views_of
+
+    rec = tmp_path / "sim.csv"
+    assert magcal("simulate", "-o", str(rec), "--seconds", "100").returncode == 0
+    lines = rec.read_text().splitlines()
+    cols = [lines[0].split(",").index(c) for c in ("mx", "my", "mz")]
+    rec.write_text("\n".join(",".join(line.split(",")[k] for k in cols) for line in lines) + "\n")
+    series = load_table(rec)
+    assert not series.clock
+    v = views_of(diagnose(series))
+    assert v.t_axis == "sample number (the recording has no time)" and v.t[-1] == len(series) - 1
+    p = magcal("diagnose", str(rec), "--report", str(tmp_path / "page"))
+    assert p.returncode == 0, p.stderr
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert f"over {len(series)} samples (the recording has no time)" in page
+    assert " min." not in page and " min<" not in page

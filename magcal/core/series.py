@@ -29,6 +29,7 @@ class Series:
     row: np.ndarray | None = None
     source: str | None = None  # how a table was read (columns, units), for the user to check
     reading: Mapping[str, int] = field(default_factory=dict)  # what reading met: counts by name
+    clock: bool = True  # False: the source gave no time, and t_s is the sample index
 
     def __post_init__(self):
         f = np.asarray(self.field_ut, dtype=np.float64).reshape(-1, 3)
@@ -67,6 +68,7 @@ class Series:
             row=self.row[idx],
             source=self.source,
             reading=self.reading,
+            clock=self.clock,
         )
 
     def thinned(self, max_n: int) -> tuple["Series", int]:

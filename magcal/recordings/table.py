@@ -334,7 +334,8 @@ def read_table(lines, name: str = "<table>", fmt: TableFormat | None = None) -> 
             channels[as_name] = data[k]
     source = _describe([lay.cols[k] for k in lay.mag], lay.scale, lay.assumed_unit,
                        None if lay.t_col is None else (lay.cols[lay.t_col], lay.t_scale), list(channels))
-    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=rows, source=source)
+    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=rows, source=source,
+                  clock=lay.t_col is not None)
 
 
 def _layout(head: list[str], fmt: TableFormat, name: str, skipped: int) -> _Layout:

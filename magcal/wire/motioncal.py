@@ -475,4 +475,4 @@ def parse_log(data: bytes, rate_hz: float | None = None, source: str = "log") ->
         raise InputError(f"{source}: rate_hz must be positive, got {rate_hz}")
     n = len(fields)
     t = np.arange(n, dtype=np.float64) / (1.0 if rate_hz is None else float(rate_hz))
-    return Series(t_s=t, field_ut=np.array(fields), row=np.array(rows))
+    return Series(t_s=t, field_ut=np.array(fields), row=np.array(rows), clock=rate_hz is not None)

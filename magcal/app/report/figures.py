@@ -138,7 +138,7 @@ def over_time(diagnosis, v, plt, out) -> Figure:
         ax.axvline(v.t[min(a, len(v.t) - 1)], color="0.75", lw=0.8, ls=":", zorder=0)
     ax.set_ylim(-lim, lim)
     ax.set_xlim(v.t[0], v.t[-1])
-    ax.set_xlabel(f"time since the first sample ({v.t_unit}); dotted lines: the held-out blocks")
+    ax.set_xlabel(f"{v.t_axis}; dotted lines: the held-out blocks")
     ax.set_ylabel("radial residual |B| − r (µT)")
     ax.set_title("Residual against time")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=5, fontsize=9, markerscale=4, frameon=False)
@@ -148,7 +148,8 @@ def over_time(diagnosis, v, plt, out) -> Figure:
                   "a running mean that drifts or steps: an offset that changes while recording "
                   "(temperature, a current, a magnetised part); after a good model it stays flat at 0.",
                   f"the running mean swings over {swing_b:.2f} µT before and {swing_a:.2f} µT after, over "
-                  f"{v.t[-1]:.1f} {v.t_unit}.", "residual against time")
+                  + (f"{v.t[-1]:.1f} {v.t_unit}." if v.clock else f"{len(v.t)} samples (the recording has no time)."),
+                  "residual against time")
 
 
 def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
@@ -178,7 +179,7 @@ def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
                  0.2)
     ax.set_ylim(-2.5 * spread, 2.5 * spread)
     unit = ch.unit_of(c)
-    ax.set_xlabel(f"time since the first sample ({v.t_unit})" if c == ch.TIME
+    ax.set_xlabel(v.t_axis if c == ch.TIME
                   else f"{c} ({unit})" if unit != "unit" else c)
     ax.set_ylabel("offset along the term (µT)")
     verdict = f"FOUND: {found[c]}, {size:.3g} µT/{unit}" if c in found else "nothing found"

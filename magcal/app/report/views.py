@@ -13,8 +13,11 @@ from ...diagnose import channels as ch
 MAX_POINTS = 20000
 
 
-def time_unit(span_s: float) -> tuple[str, float]:
-    """(unit name, seconds per unit) for a recording ``span_s`` long: s, min or h."""
+def time_unit(span_s: float, clock: bool = True) -> tuple[str, float]:
+    """(unit name, seconds per unit) for a recording ``span_s`` long: s, min or h; a recording
+    without a clock is counted in samples (its t_s is the sample index)."""
+    if not clock:
+        return "samples", 1.0
     if span_s < 300:
         return "s", 1.0
     if span_s < 3 * 3600:
@@ -32,6 +35,8 @@ class Views:
     t: np.ndarray  # time since the first sample, in ``t_unit``
     t_unit: str
     t_scale_s: float  # seconds per t unit
+    clock: bool  # False: t counts samples (the recording has no time)
+    t_axis: str  # what t is, for an axis label: time since the first sample, or the sample number
     before: np.ndarray  # radial residual of the sphere (µT)
     after: np.ndarray  # of the final model (µT)
     raw_norm: np.ndarray  # |m| as recorded (µT)
@@ -53,11 +58,13 @@ def views_of(diagnosis) -> Views:
     h = diagnosis.final.calibration().correct(s.field_ut, {c: chans[c] for c in diagnosis.final.spec.channels})
     norm = np.linalg.norm(h, axis=1)
     span = float(s.t_s[-1] - s.t_s[0]) if len(s) else 0.0
-    unit, scale = time_unit(span)
+    unit, scale = time_unit(span, s.clock)
     return Views(
         t=(s.t_s - s.t_s[0]) / scale if len(s) else s.t_s,
         t_unit=unit,
         t_scale_s=scale,
+        clock=s.clock,
+        t_axis=f"time since the first sample ({unit})" if s.clock else "sample number (the recording has no time)",
         before=before,
         after=after,
         raw_norm=np.linalg.norm(s.field_ut, axis=1),
