@@ -160,3 +160,34 @@ def test_a_state_of_the_first_version_relearns_its_baseline(calibrated):
     b = DriftMonitor.from_state(old)
     assert b.phase is Phase.BASELINE and b.windows == a.windows and b.alarms == a.alarms
     assert [v.phase for v in b.add(_stream(sc, 300 * 9, 60.0))] == [Phase.BASELINE] * 8 + [Phase.TEST]
+
+
+def _band_wander(rng, t_s, sigma_ut, band_hz=(0.03, 0.09), k=40):
+    """An offset wander confined to a narrow band of slow frequencies (as learned from a
+    quadcopter's QMC5883L): a sum of ``k`` sines of random frequency and phase per axis."""
+    f = rng.uniform(*band_hz, size=(k, 1, 1))
+    phase = rng.uniform(0.0, 2.0 * np.pi, size=(k, 1, 3))
+    return sigma_ut * np.sqrt(2.0 / k) * np.sin(2.0 * np.pi * f * t_s[None, :, None] + phase).sum(axis=0)
+
+
+def test_a_wander_that_pauses_and_resumes_raises_about_alpha_alarms(calibrated):
+    """A narrow-band wander has calm stretches. The spread the monitor allows must outlast
+    one — a spread as short-lived as the reference read "no wander" in the calm, and the
+    wander's return then alarmed at many times the stated rate."""
+    sc, cal = calibrated
+    active, calm, back = 48, 30, 40  # windows of 500 samples
+    late = []
+    for seed in range(1, 11):
+        rng = np.random.default_rng(seed)
+        s = replace(sc, seed=seed, motion=Motion("sphere", period_s=20.0)).simulate(
+            500 * (active + calm + back), 100.0, t0_s=50.0).series
+        envelope = np.ones(len(s.t_s))
+        envelope[500 * active: 500 * (active + calm)] = 0.0
+        envelope = np.convolve(envelope, np.ones(500) / 500, mode="same")  # it fades out and in
+        m = s.field_ut + envelope[:, None] * _band_wander(rng, s.t_s - s.t_s[0], 0.2)
+        verdicts = DriftMonitor(cal, window=500, alpha=0.001).add(m)
+        assert not any(v.drifted for v in verdicts[:active])
+        late += verdicts[active + calm:]
+    assert len(late) == 400
+    # 400 tests at α = 0.1 %: expect 0.4; Poisson(0.4) exceeds 2 with probability < 0.8 %
+    assert sum(v.drifted for v in late) <= 2

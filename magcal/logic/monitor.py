@@ -24,10 +24,13 @@ determines (eigenvectors of its information that carry some; Δ the difference t
   C = σ²τ (S⁻¹ + S₀⁻¹) + q I. q is the sensor's own offset wander between a window and the
   reference, in µT² per direction: an additive spread that does not shrink as a window sees
   more directions (the noise part does). It is estimated from the baseline windows, each
-  tested against the ones before it, and then from every test window that passes, with the
-  reference's memory — a slow wander's size changes over minutes, and a spread measured on
-  the first minute alone was beaten 5 to 60 times as often as stated on twins of real
-  recordings (bench/twin_monitor.py).
+  tested against the ones before it, and then from every test window that passes, with a
+  memory ``SPREAD_MEMORY`` times the reference's — a slow wander's size changes over minutes,
+  and a spread measured on the first minute alone was beaten 5 to 60 times as often as stated
+  on twins of real recordings (bench/twin_monitor.py); but a narrow-band wander also has calm
+  stretches, and a spread as short-lived as the reference read "no wander" in them (q = 0,
+  the noise alone) just before the wander rose again: on twins of a quadcopter's QMC5883L
+  every alarm came from such windows (bench/README.md).
 * the combined test, on a still board (its one direction sees c + u·d together): θ = (c, d)
   on X = [1, u], C = φσ²τ ((XᵀX)⁻¹ + (X₀ᵀX₀)⁻¹), φ ≥ 1 the baseline windows' dispersion
   around each other (a calibration slightly off in soft iron leaves a residual whose degree-1
@@ -61,6 +64,7 @@ MIN_BATCHES = 10  # batches per window for the batch-means (autocorrelation) est
 TAIL = 0.01  # expected Gaussian samples per window that the outlier bound leaves out by chance
 REJECT_PASSES = 10  # at most this many refits, each leaving out the samples beyond that bound
 STATE_VERSION = 2
+SPREAD_MEMORY = 4  # the spread (φ, q) forgets this many times more slowly than the reference
 
 
 def _clipped(moments: np.ndarray, c: float) -> np.ndarray:
@@ -203,31 +207,21 @@ def statistic(delta_full, info, n, ref_inv, var, scale=(1.0, 0.0)):
     return t2, k, v @ delta, moments
 
 
-class Reference:
-    """One test's tracked reference: forgetting sums of the windows' information and
-    information × estimate, and of the windows' spread around it, as the moments of each
-    comparison (``spread``) with weights for their effective count.
+class Spread:
+    """The windows' spread around a reference, as forgetting sums of each comparison's moments
+    (``statistic``) with weights for their effective count.
 
-    The spread: E[ΔΔᵀ] = φN + qI — φ ≥ 1 scales the noise part N (a calibration slightly off
+    The model: E[ΔΔᵀ] = φN + qI — φ ≥ 1 scales the noise part N (a calibration slightly off
     leaves a residual whose projection depends on which directions a window sees, so it grows
     as N does), q ≥ 0 adds the sensor's own wander between a window and the reference (µT²
     per direction, whatever the window sees). Two moment equations, summed over comparisons:
     Σ ΔᵀN⁻¹Δ = φ Σk + q Σ tr N⁻¹ and Σ |Δ|² = φ Σ tr N + q Σk."""
 
-    def __init__(self, dim: int, forget: float):
+    def __init__(self, forget: float):
         self.forget = forget
-        self.a, self.b = np.zeros((dim, dim)), np.zeros(dim)
         self.moments, self.w, self.w2 = np.zeros(5), 0.0, 0.0
 
-    def estimate(self):
-        inv = np.linalg.pinv(self.a, rcond=1e-10, hermitian=True)
-        return inv @ self.b, inv
-
-    def join(self, theta, info) -> None:
-        self.a = self.forget * self.a + info
-        self.b = self.forget * self.b + info @ theta
-
-    def spread(self, moments) -> None:
+    def add(self, moments) -> None:
         f = self.forget
         self.moments = f * self.moments + moments
         self.w, self.w2 = f * self.w + 1.0, f * f * self.w2 + 1.0
@@ -248,15 +242,54 @@ class Reference:
         return float(phi), float(q), self.w * self.w / self.w2
 
     def to_state(self) -> dict:
-        return {"a": self.a.tolist(), "b": self.b.tolist(), "moments": self.moments.tolist(), "w": [self.w, self.w2]}
+        return {"moments": self.moments.tolist(), "w": [self.w, self.w2]}
+
+    def restore(self, d: dict) -> None:
+        self.moments = np.asarray(d["moments"], dtype=np.float64).reshape(5)
+        self.w, self.w2 = (float(v) for v in d["w"])
+
+
+class Reference:
+    """One test's tracked reference: forgetting sums of the windows' information and
+    information × estimate, and the windows' spread around it over two memories — the
+    reference's own (a wander that grows is learned within a few windows) and ``SPREAD_MEMORY``
+    times longer (a narrow-band wander has calm stretches, and the short memory alone reads
+    "no wander" in them just before it rises again). A window is judged under whichever
+    of the two allows the larger spread for it."""
+
+    def __init__(self, dim: int, forget: float):
+        self.forget = forget
+        self.a, self.b = np.zeros((dim, dim)), np.zeros(dim)
+        self.spreads = (Spread(forget), Spread(1.0 - (1.0 - forget) / SPREAD_MEMORY))
+
+    def estimate(self):
+        inv = np.linalg.pinv(self.a, rcond=1e-10, hermitian=True)
+        return inv @ self.b, inv
+
+    def join(self, theta, info) -> None:
+        self.a = self.forget * self.a + info
+        self.b = self.forget * self.b + info @ theta
+
+    def spread(self, moments) -> None:
+        for sp in self.spreads:
+            sp.add(moments)
+
+    def scale(self) -> tuple[float, float, float]:
+        """The short memory's (φ, q, effective comparisons): what ``status`` reports."""
+        return self.spreads[0].scale()
+
+    def to_state(self) -> dict:
+        short, long = (sp.to_state() for sp in self.spreads)
+        return {"a": self.a.tolist(), "b": self.b.tolist(), **short, "long": long}
 
     @classmethod
     def from_state(cls, d: dict, dim: int, forget: float) -> "Reference":
+        """A state written before the long memory existed starts it from the short one."""
         ref = cls(dim, forget)
         ref.a = np.asarray(d["a"], dtype=np.float64).reshape(dim, dim)
         ref.b = np.asarray(d["b"], dtype=np.float64).reshape(dim)
-        ref.moments = np.asarray(d["moments"], dtype=np.float64).reshape(5)
-        ref.w, ref.w2 = (float(v) for v in d["w"])
+        ref.spreads[0].restore(d)
+        ref.spreads[1].restore(d.get("long", d))
         return ref
 
 
@@ -378,20 +411,11 @@ class DriftMonitor:
         theta, info = window_parts(w["a"], w["b"], test)
         ref = self._ref[test]
         theta0, ref_inv = ref.estimate()
-        phi, q, nu = ref.scale()
-        # the scale is estimated: its dof are the baseline batches (σ²τ) or, when the windows
-        # spread more than the noise explains, the comparisons behind φ and q — at most as many
-        # as the baseline's: the spread forgets at the reference's rate, and consecutive
-        # comparisons share most of their reference and of the wander, so however long the
-        # monitor has run its spread rests on about that many independent ones
-        nu = min(nu, self.baseline_windows - 1) if (phi > 1.0 or q > 0.0) else self._noise_sums[3] - 1
-        nu = max(1.0, nu)
-        t2, k, seen, moments = statistic(theta - theta0, info, n, ref_inv, self._var(), (phi, q))
+        judged = [self._judge(theta - theta0, info, n, ref_inv, sp.scale()) for sp in ref.spreads]
+        t2, k, seen, moments, p, threshold = max(judged, key=lambda j: j[4])
         if k == 0:
             return Verdict(self.windows, Phase.TEST, n, 0.0, float("inf"), 0, 1.0, False, w["rms_ut"], (0.0, 0.0, 0.0),
                            test)
-        p = float(stats.f.sf(t2 / k, k, nu))
-        threshold = float(k * stats.f.isf(self.alpha, k, nu))
         drifted = p < self.alpha
         shift = self._w_inv @ (seen if test is HARD_IRON else seen[1:])  # e ≈ u·Wδ ⇒ δ = W⁻¹d
         if drifted:
@@ -406,6 +430,21 @@ class DriftMonitor:
             self._join(w)
         return Verdict(self.windows, Phase.TEST, n, t2, threshold, k, p, drifted,
                        w["rms_ut"], tuple(float(s) for s in shift), test)
+
+    def _judge(self, delta, info, n, ref_inv, scale):
+        """(T², k, the tested difference, its moments, p, threshold) under one spread."""
+        phi, q, nu = scale
+        # the scale is estimated: its dof are the baseline batches (σ²τ) or, when the windows
+        # spread more than the noise explains, the comparisons behind φ and q — at most as many
+        # as the baseline's: consecutive comparisons share most of their reference and of the
+        # wander, so however long the monitor has run its spread rests on about that many
+        # independent ones
+        nu = min(nu, self.baseline_windows - 1) if (phi > 1.0 or q > 0.0) else self._noise_sums[3] - 1
+        nu = max(1.0, nu)
+        t2, k, seen, moments = statistic(delta, info, n, ref_inv, self._var(), (phi, q))
+        if k == 0:
+            return t2, k, seen, moments, 1.0, float("inf")
+        return t2, k, seen, moments, float(stats.f.sf(t2 / k, k, nu)), float(k * stats.f.isf(self.alpha, k, nu))
 
     def _join(self, w: dict) -> None:
         """A baseline window, or a test window that passed, joins both references, which forget
