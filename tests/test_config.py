@@ -60,6 +60,16 @@ def test_bad_environment_is_named():
         config.load(environ={"MAGCAL_GATES__BOGUS": "1"})
 
 
+def test_the_benchmarks_data_variables_are_not_taken_for_settings():
+    """bench/README.md has the user export MAGCAL_REAL_DATA and MAGCAL_MOTIONCAL_DRIVER; a shell
+    with them must still run magcal (they were refused as unknown settings), while a misspelt
+    setting in the same shell is still named."""
+    env = {"MAGCAL_REAL_DATA": "/data/real", "MAGCAL_MOTIONCAL_DRIVER": "/opt/mc_driver", "MAGCAL_PORT": "sim://"}
+    assert config.load(environ=env).port == "sim://"
+    with pytest.raises(ConfigError, match="MAGCAL_REAL_DATAS"):
+        config.load(environ={"MAGCAL_REAL_DATAS": "/data/real"})
+
+
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(ConfigError, match="not found"):
         config.load(str(tmp_path / "nope.yaml"), environ={})

@@ -245,13 +245,19 @@ def _env_value(key: str, raw: str, typ):
         raise ConfigError(f"{key}={_show(raw)}: not a value (a number, true/false, or a list like [15, 100])") from None
 
 
+# MAGCAL_* variables that are not settings: where the host store and the config file are, and
+# where the benchmarks find the real recordings and the MotionCal driver (bench/README.md) —
+# a shell that exports those for the benches must still run every command
+NOT_SETTINGS = frozenset({"MAGCAL_STORE_DIR", "MAGCAL_CONFIG", "MAGCAL_REAL_DATA", "MAGCAL_MOTIONCAL_DRIVER"})
+
+
 def from_environment(environ: Mapping[str, str]) -> dict:
     """The settings in ``MAGCAL_*`` variables, each checked on its own (the error names the
     variable); two variables that set one key both as a value and as a section are refused."""
     out: dict = {}
     owner: dict[tuple, str] = {}
     for key in sorted(environ):
-        if not key.startswith("MAGCAL_") or key in ("MAGCAL_STORE_DIR", "MAGCAL_CONFIG"):
+        if not key.startswith("MAGCAL_") or key in NOT_SETTINGS:
             continue
         path = key[len("MAGCAL_"):].lower().split("__")
         if not all(path):
@@ -288,7 +294,7 @@ def _sources(file_path: str | None, file_data: Mapping, environ: Mapping[str, st
 
     walk(file_data, "", f"in config file {file_path}")
     for key in environ:
-        if key.startswith("MAGCAL_") and key not in ("MAGCAL_STORE_DIR", "MAGCAL_CONFIG"):
+        if key.startswith("MAGCAL_") and key not in NOT_SETTINGS:
             out[".".join(key[len("MAGCAL_"):].lower().split("__"))] = f"in the environment: {key}"
     walk(overrides, "", "on the command line")
     return out
