@@ -259,6 +259,8 @@ class Progress:
 
 
 class _Ticker:
+    SHOW_AFTER_S = 1.0  # work done within a second draws nothing: no display flashes past
+
     def __init__(self, progress: Progress, label: str):
         import threading
 
@@ -292,7 +294,7 @@ class _Ticker:
         while not self.stop.wait(0.2):
             k += 1
             elapsed = self.progress.clock() - self.t0
-            if elapsed >= 1.0:
+            if elapsed >= self.SHOW_AFTER_S:
                 eta = ""
                 if self.total_s is not None:
                     left = self.total_s - elapsed
