@@ -119,8 +119,10 @@ def test_diagnose_writes_a_model_that_simulate_draws_twins_from(tmp_path):
     assert steps[-1]["inside"] > steps[0]["inside"]
     sm = load_model(tmp_path / "m.yaml")
     assert sm.wander and sm.source["recording"] == REAL
+    assert sm.source["clock"] is False  # the excerpt has no time column: its rates count samples
     r = _run("simulate", "--model", "m.yaml", "--like", REAL, "-o", "twin.csv", "--seed", "9", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+    assert "note:" not in r.stdout  # on the recording's own samples the clock does not matter
     real, tw = load_series(REAL), load_series(tmp_path / "twin.csv")
     assert len(tw) == len(real)
     assert np.allclose(np.linalg.norm(tw.field_ut - sm.calibration.offset_ut, axis=1).mean(),
@@ -128,6 +130,7 @@ def test_diagnose_writes_a_model_that_simulate_draws_twins_from(tmp_path):
     r = _run("simulate", "--model", "m.yaml", "-o", "own.csv", "--seconds", "20", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert len(load_series(tmp_path / "own.csv")) == int(round(20 * sm.rate_hz))
+    assert "note: the model was learned from a recording without time" in r.stdout and "--like REC" in r.stdout
 
 
 def test_diagnose_twin_text_shows_the_steps(tmp_path):

@@ -240,7 +240,8 @@ def _twin(args, series, d: dict, ticker):
     from ..diagnose import twin
 
     ticker.doing("learning the sensor model")
-    model = twin.learn(series, Calibration.from_dict(d["calibration"]), source={"recording": str(args.file)})
+    source = {"recording": str(args.file), **({} if series.clock else {"clock": False})}  # no time: rates per sample
+    model = twin.learn(series, Calibration.from_dict(d["calibration"]), source=source)
     if args.model_out:
         from ..app.sensor_file import save_model
 

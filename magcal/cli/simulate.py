@@ -167,10 +167,16 @@ def run(args) -> int:
     truth = {"truth": cal.to_dict(), **truth, "n_samples": len(series), "output": args.output}
     if model:
         truth["model"] = model.to_dict()
+    if model and not args.like and model.source.get("clock") is False:
+        truth["note"] = (f"the model was learned from a recording without time ({model.source.get('recording')}): "
+                         "its rate and its wander's bands count samples, not seconds, and the simulator's "
+                         "own motion has no such clock; --like REC draws the twin on the recording's own samples")
     with open(args.output + ".truth.json", "w", encoding="utf-8") as f:
         json.dump(truth, f, indent=2)
     if args.json:
         print_json(document("simulate", truth))
     else:
         print(f"wrote {len(series)} samples to {args.output}; truth in {args.output}.truth.json")
+        if "note" in truth:
+            print(f"note: {truth['note']}")
     return 0
