@@ -135,3 +135,15 @@ def test_a_clock_that_repeats_its_stamps_is_diagnosed_as_the_fine_one(tilt_spher
     d = diagnose(Series(t_s=coarse, field_ut=h))
     assert d.tests["twin_null"]["draws"] >= 20
     assert "time_drift" not in d.effects
+
+
+def test_a_recording_without_time_states_its_drift_floor_per_sample(tilt_sphere):
+    """Without a time column t_s is the sample index: a drift in time is then per sample, and
+    the wander limit must say so (it said µT/s, as if the recording ran at 1 Hz)."""
+    t, h = tilt_sphere
+    timed = diagnose(Series(t_s=t, field_ut=h))
+    untimed = diagnose(Series(t_s=np.arange(len(h), dtype=float), field_ut=h, clock=False))
+    (w,) = [x for x in timed.to_dict()["limits"] if x["effect"] == "offset_wander"]
+    (u,) = [x for x in untimed.to_dict()["limits"] if x["effect"] == "offset_wander"]
+    assert "µT/s of drift in time" in w["summary"] and "µT/sample" not in w["summary"]
+    assert "µT/sample of drift in time" in u["summary"] and "µT/s " not in u["summary"]

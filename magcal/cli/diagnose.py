@@ -82,7 +82,7 @@ def format_text(d: dict) -> str:
     from ..diagnose.channels import unit_of
 
     for name, coef in (d["calibration"].get("coef_ut_per_unit") or {}).items():
-        lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + f"   µT per {unit_of(name)}")
+        lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + f"   µT per {unit_of(name, d.get('clock', True))}")
     return "\n".join(lines)
 
 
@@ -152,6 +152,7 @@ def run(args) -> int:
         if series.source:
             d["input"] = series.source
         d["reading"] = reading_report(series, args.file)
+        d["clock"] = series.clock  # false: the source gave no time, and "per sample" replaces "per s"
         if flight_log is not None:  # the terms |m| cannot test, against the expected field
             from ..app.flightlog import diagnose_flight_log
 

@@ -119,9 +119,10 @@ def describe(
     t_s: np.ndarray,
     evidence: dict,
     temp: np.ndarray | None = None,
+    clock: bool = True,
 ) -> Finding:
     name = cand.channel
-    unit = unit_of(name)
+    unit = unit_of(name, clock)
     size = float(np.linalg.norm(coef))
     contrib = np.abs((x - cand.reference)) * size
     peak = float(contrib.max()) if len(contrib) else 0.0
@@ -139,7 +140,7 @@ def describe(
     span = float(np.ptp(x)) * size
     if name == TIME:
         summary = (
-            f"The offset drifted by {size:.3g} µT/s ({span:.2f} µT over the recording) along "
+            f"The offset drifted by {size:.3g} µT/{unit} ({span:.2f} µT over the recording) along "
             f"({_vec(direction)}): the hard iron is not constant in time."
         )
         if cand.confounded:
@@ -246,8 +247,10 @@ SLOW_DEGREE = 6  # a channel is "slow" when a degree-6 curve in time carries SLO
 SLOW_SHARE = 0.8
 
 
-def unit_of(channel: str) -> str:
-    return _UNIT.get(channel, "unit")
+def unit_of(channel: str, clock: bool = True) -> str:
+    """The unit a coefficient of ``channel`` is per; time counts samples when the recording has
+    no clock (its t_s is the sample index)."""
+    return "sample" if channel == TIME and not clock else _UNIT.get(channel, "unit")
 
 
 def slow_term_floor(x: np.ndarray, wander_rms_ut: float, ratio: float, n_blocks: int = 20) -> float | None:

@@ -45,7 +45,7 @@ def by_direction(r) -> str:
     return f" ({lo:.2g}–{hi:.2g} by its direction)" if hi is not None else f" ({lo:.2g} or more by its direction; along some, not at all)"
 
 
-def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: list) -> tuple:
+def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: list, clock: bool = True) -> tuple:
     """Real recordings wander: the offset moves slowly in a way no logged channel explains.
     That is not a calibration term (it cannot be predicted for the next session), but it bounds
     what the calibration is good for and what slow effects this recording can identify, so it
@@ -70,7 +70,7 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
             ranges[c] = channels.slow_term_floor_range(chans[c], u, rms, channels.WANDER_RATIO, WANDER_BLOCKS)
     if floors:
         tail += " (to be reported, a slowly varying term would have needed about " + ", ".join(
-            f"{v:.2g} µT/{channels.unit_of(c)} of {'drift in time' if c == channels.TIME else c}"
+            f"{v:.2g} µT/{channels.unit_of(c, clock)} of {'drift in time' if c == channels.TIME else c}"
             + by_direction(ranges.get(c))
             for c, v in floors.items()
         ) + ")"

@@ -154,7 +154,8 @@ def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_u
         coef = final.coef_ut_per_unit[cand.channel]
         _, _, chans_kept = a.kept
         ev.update(interval(coef, estimating_test(g, selected), slow.get(g)))
-        out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP)))
+        out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP),
+                                     a.series.clock))
     return tuple(out)
 
 
@@ -202,7 +203,7 @@ def limits(a, selected, final: ModelFit, simulated: float, wander: Wander, floor
     left_out = [selected.candidates[g].channel for g in selected.candidates if g not in selected.accepted]
     floor_ut = selection.practical_floor_ut(noise_ut)
     _, _, chans_kept = a.kept
-    return out + limits_.wander_limit(wander, chans_kept, alpha, floor_ut, left_out)
+    return out + limits_.wander_limit(wander, chans_kept, alpha, floor_ut, left_out, a.series.clock)
 
 
 def left_out(channels_left_out: tuple) -> tuple:

@@ -178,7 +178,7 @@ def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
     spread = max(np.nanmax(np.abs(mb)) if len(mb) else 0.0, 3 * diagnosis.noise_ut / np.sqrt(max(len(xs) / 16, 1)),
                  0.2)
     ax.set_ylim(-2.5 * spread, 2.5 * spread)
-    unit = ch.unit_of(c)
+    unit = ch.unit_of(c, v.clock)
     ax.set_xlabel(v.t_axis if c == ch.TIME
                   else f"{c} ({unit})" if unit != "unit" else c)
     ax.set_ylabel("offset along the term (µT)")

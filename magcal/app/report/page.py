@@ -58,10 +58,11 @@ def calibration_table(diagnosis) -> str:
     rows.append(f"<tr><th>soft iron</th><td class='num'>{soft}</td><td class='l'>calibrated = W (m − offset); {note}</td></tr>")
     for j, (c, k) in enumerate(f.coef_ut_per_unit.items()):
         base = 4 + ns + 3 * j
-        unit = ch.unit_of(c)
+        unit = ch.unit_of(c, diagnosis.series.clock)
         vals = ", ".join(_pm(float(k[i]), None if sd is None else sd[base + i], ".4f") for i in range(3))
         ref = f.reference.get(c, 0.0)
-        about = (f"about {ref - float(diagnosis.series.t_s[0]):.0f} s after the first sample" if c == ch.TIME
+        after = "s" if diagnosis.series.clock else "samples"
+        about = (f"about {ref - float(diagnosis.series.t_s[0]):.0f} {after} after the first sample" if c == ch.TIME
                  else f"about {ref:.3g} {unit}")
         rows.append(f"<tr><th>{esc(c)} term</th><td class='num'>{vals}</td><td class='l'>µT per {esc(unit)}, "
                     f"{esc(about)}</td></tr>")
