@@ -16,6 +16,7 @@ from magcal.app.sensor_file import load_model
 from magcal.core.calibration import Calibration
 from magcal.core.series import Series
 from magcal.diagnose import twin
+from magcal.diagnose import twin_stats as ts
 from magcal.fit import fit_calibration as fit
 from magcal.sim.model import SensorModel
 from magcal.sim.physics import Motion, Physics, Scenario
@@ -311,3 +312,58 @@ def test_the_final_step_says_which_effect_it_adds():
     assert "final (+repeats)" in text and "+glitches" in text
     two = format_twin({"draws": 50, "band_pct": [2.5, 97.5], "steps": [steps[0], steps[2]]})
     assert "final (+" not in two  # straight from the baseline: every effect is new
+
+
+def _flip_recording(flip_at=400, glitch_at=200, n=600, seed=7):
+    """A board at 10 Hz turning 3° per read, then a tumble across the field in irregular
+    steps (50–130° per read, as at the flip that ends a flight), each reading the field
+    averaged over its read interval (so |h| dips by up to a fifth during the tumble), with
+    0.1 µT of noise and one glitch of 6 µT radial and 6 µT across the field at ``glitch_at``."""
+    rng = np.random.default_rng(seed)
+    steps = np.full(n, np.radians(3.0))
+    tumble = np.radians([60.0, 120.0, 90.0, 130.0, 80.0, 110.0, 50.0])
+    steps[flip_at : flip_at + len(tumble)] = tumble
+    edges = np.concatenate([[0.0], np.cumsum(steps)])  # turned angle at each read's end
+    start, end = edges[flip_at], edges[flip_at + len(tumble)]
+
+    def level(az):
+        return np.stack([np.cos(0.4) * np.cos(az), np.cos(0.4) * np.sin(az), np.full_like(az, np.sin(0.4))], axis=-1)
+
+    axis = np.cross(level(np.array(start)), [0.0, 0.0, 1.0])
+    axis /= np.linalg.norm(axis)  # across the field: the tumble turns it along a great circle
+
+    def field(angle):  # a steady yaw, held during the tumble about ``axis``
+        roll = np.clip(angle - start, 0.0, end - start)[..., None]
+        v = level(angle - roll[..., 0])
+        along = axis * (v @ axis)[..., None]
+        return 50.0 * (v * np.cos(roll) + np.cross(axis, v) * np.sin(roll) + along * (1 - np.cos(roll)))
+
+    sub = edges[:-1, None] + np.linspace(0.0, 1.0, 41)[None, :] * steps[:, None]  # each read's interval
+    m = field(sub).mean(axis=1) + rng.normal(0.0, 0.1, (n, 3))
+    u = m[glitch_at] / np.linalg.norm(m[glitch_at])
+    across = np.cross(u, [0.0, 0.0, 1.0])
+    m[glitch_at] += 6.0 * u + 6.0 * across / np.linalg.norm(across)
+    truth = field(edges[1:] - 0.5 * steps)
+    return Series(t_s=np.arange(n) / 10.0, field_ut=m), truth / 50.0
+
+
+def test_a_fast_turn_that_dips_the_field_is_replayed_as_recorded_and_a_glitch_is_still_repaired():
+    """A reading averaged over its read interval shrinks while the board tumbles (|h| dips
+    up to 10 µT of 50 here): those dips are spikes of |h| but no glitch, and the directions the
+    twin replays keep the recorded turn — re-drawn between their neighbours 90–110° away, they
+    moved the turn's jumps in every twin to reads where the recording has none. A real glitch
+    on the slow part is still re-drawn between its neighbours."""
+    s, truth = _flip_recording()
+    cal = Calibration(offset_ut=[0.0, 0.0, 0.0], field_ut=50.0)
+    model = SensorModel(calibration=cal, noise_ut=(0.1,) * 3, rate_hz=10.0)
+    recorded = model.directions_of(s.field_ut)
+    r = np.linalg.norm(s.field_ut, axis=1)
+    assert twin.spikes(s.field_ut, radius=r)[400:408].any()  # the dips are spikes of |h|
+    u = twin.twin_directions(model, s)
+    assert np.allclose(u[395:412], recorded[395:412], rtol=0.0, atol=1e-9)
+    off = np.degrees(np.arccos(np.clip(np.sum(u[200] * truth[200]), -1.0, 1.0)))
+    was = np.degrees(np.arccos(np.clip(np.sum(recorded[200] * truth[200]), -1.0, 1.0)))
+    assert was > 5.0 and off < 0.5
+    for seed in (3, 4):  # the twins' jumps at the turn are the recording's, no more, no fewer
+        m, _ = twin.twin_readings(model, u, s.t_s, twin.with_time(s), seed=seed)
+        assert np.array_equal(ts.jumps(m)[395:412], ts.jumps(s.field_ut)[395:412])

@@ -149,14 +149,17 @@ def _departure_score(g: np.ndarray) -> np.ndarray:
     return np.max(a / np.maximum(local, 0.25 * floor), axis=1)
 
 
-def spikes(m: np.ndarray, z: float | None = None, radius: np.ndarray | None = None) -> np.ndarray:
+def spikes(m: np.ndarray, z: float | None = None, radius: np.ndarray | None = None,
+           directions: np.ndarray | None = None) -> np.ndarray:
     """One-sample glitches: samples that depart from their neighbours' mean by more than
     ``z`` (GLITCH_Z) times the local noise, the largest of a run, and after which the series
     comes back — the neighbours agree with each other better than the sample agrees with them.
     Sought in the trajectory ``m`` (on some axis), or with ``radius`` (|h| per sample through a
     calibration) in |h| alone: a rotation keeps |h|, so a sharp turn of the board between two
     slow samples is not taken for a glitch, and fast motion, which raises the trajectory's
-    local bar, does not hide one."""
+    local bar, does not hide one. With ``directions`` (the unit field directions per sample), a
+    departure of |h| no larger than ``turn_blur`` allows beside a fast turn is the turn's, not a
+    glitch."""
     z = GLITCH_Z if z is None else z
     hit = np.zeros(len(m), bool)
     if len(m) < 5:
@@ -167,7 +170,29 @@ def spikes(m: np.ndarray, z: float | None = None, radius: np.ndarray | None = No
     peak = (score > z) & (score >= np.roll(score, 1)) & (score >= np.roll(score, -1))
     back = np.linalg.norm(x[2:] - x[:-2], axis=1) < np.linalg.norm(g, axis=1)
     hit[1:-1] = peak & back
+    if radius is not None and directions is not None:
+        hit[1:-1] &= np.abs(g[:, 0]) > turn_blur(directions, float(np.median(x)))[1:-1]
     return hit
+
+
+def turn_blur(u: np.ndarray, radius_ut: float) -> np.ndarray:
+    """Per sample, how far a turn can move |h| of a sample from its neighbours' mean (µT) when
+    each reading is the field averaged over its read interval (a driver that accumulates
+    conversions between reads, as ArduPilot's compass drivers do): a field of size
+    ``radius_ut`` turning by θ at a steady rate along the shortest way averages to
+    radius_ut·sin(θ/2)/(θ/2). θ: the largest step between reads (of the directions ``u``)
+    among the two steps on each side, which feed the sample and its two neighbours. On a board
+    turning a few degrees per read this is a few nT; at the flip that ends the ArduPilot Solo
+    flight logged at 10 Hz (steps of 90–150° between reads) it is 10–20 µT, more than the dips
+    of |h| there — dips the spike test had taken for glitches, and whose directions, re-drawn
+    between neighbours 100° away, put a jump into every twin."""
+    n = len(u)
+    if n < 3:
+        return np.zeros(n)
+    step = np.arccos(np.clip(np.sum(u[1:] * u[:-1], axis=1), -1.0, 1.0))  # step j: u_j → u_j+1
+    pad = np.concatenate([[0.0, 0.0], step, [0.0, 0.0]])  # step j at pad[j + 2]
+    theta = np.max(np.stack([pad[0:n], pad[1 : n + 1], pad[2 : n + 2], pad[3 : n + 3]]), axis=0)
+    return radius_ut * (1.0 - np.sinc(theta / (2.0 * np.pi)))
 
 
 def _corrected(cal: Calibration, m: np.ndarray, chans: Mapping) -> np.ndarray:
@@ -190,7 +215,8 @@ def size_quantiles(size: np.ndarray) -> tuple:
     return tuple(float(v) for v in np.maximum.accumulate(q))
 
 
-def _glitches(m: np.ndarray, radius: np.ndarray, seen: np.ndarray | None = None) -> tuple[float, tuple, float, np.ndarray]:
+def _glitches(m: np.ndarray, radius: np.ndarray, seen: np.ndarray | None = None,
+              directions: np.ndarray | None = None) -> tuple[float, tuple, float, np.ndarray]:
     """(rate per sample, size quantiles µT, share along one sensor axis, the samples): the
     spikes of |h| (``spikes``). A glitch's size is read from its departure in |h| from its
     neighbours' mean, doubled (a jump in a random direction moves |h| by |cos θ| of its length,
@@ -202,8 +228,9 @@ def _glitches(m: np.ndarray, radius: np.ndarray, seen: np.ndarray | None = None)
     length times the field's share on that axis — on the estibone RM3100 logs, whose field lies
     near z, a z-axis glitch by 0.8 of it: doubled, it was read 1.6× too large. Axis share: the
     share of glitches with ≥ 90 % of their square on one axis, less the share a random
-    direction would put there (P0_AXIS)."""
-    hit = spikes(m, radius=radius)
+    direction would put there (P0_AXIS). ``directions``: the field's per sample, for ``spikes``
+    to leave a fast turn's blur of |h| alone."""
+    hit = spikes(m, radius=radius, directions=directions)
     k = np.flatnonzero(hit)
     if not len(k):
         return 0.0, (4.0, 15.0), 0.0, hit
@@ -228,7 +255,7 @@ def twin_directions(model: SensorModel, series: Series) -> np.ndarray:
     chans = with_time(series)
     m = series.field_ut
     u = model.directions_of(m, {c: chans[c] for c in model.calibration.coef_ut_per_unit})
-    bad = spikes(m, radius=_radius(model.calibration, m, chans))
+    bad = spikes(m, radius=_radius(model.calibration, m, chans), directions=u)
     if model.repeat_share > 0:
         bad |= repeats(m)  # a repeated read shows an earlier direction; the twin repeats its own
     good = np.flatnonzero(~bad)
@@ -316,7 +343,8 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     q = quantum(m)
     h_all = _corrected(calibration, m, chans)
     r_all = np.linalg.norm(h_all, axis=1)
-    rate, size, axis_share, hit = _glitches(m, r_all, (h_all / r_all[:, None]) @ np.asarray(calibration.soft_iron))
+    u_all = h_all / r_all[:, None]
+    rate, size, axis_share, hit = _glitches(m, r_all, u_all @ np.asarray(calibration.soft_iron), u_all)
     keep = ~hit
     used = {c: chans[c][keep] for c in calibration.coef_ut_per_unit}
     h = calibration.correct(m[keep], used)
@@ -422,7 +450,7 @@ def _spike_counter(model: SensorModel, series: Series, seeds=GLITCH_SEEDS):
             rng = np.random.default_rng([seed, 0x611])
             g = model.glitch_vectors(rng, series.t_s, seed, rate)
             m, _ = bare.distort(u, chans, replace(d, glitch_ut=g))
-            hit = spikes(m, radius=_radius(bare.calibration, m, chans))
+            hit = spikes(m, radius=_radius(bare.calibration, m, chans), directions=u)
             n_hit += int(np.count_nonzero(hit))
             missed += float(np.sum(np.sum(g * seen, axis=1)[~hit] ** 2)) / len(u)
         return n_hit / len(seeds), missed / len(seeds)
