@@ -315,10 +315,14 @@ def glitch_train(t_spikes: np.ndarray, read_s: float) -> dict:
     c = np.unique(gaps[gaps >= TRAIN_READS * read_s])
     if len(gaps) < TRAIN_MIN or not len(c):
         return {}
-    w = TRAIN_WINDOW * c[:, None]
-    d = gaps[None, :] - c[:, None]
-    inside = np.count_nonzero(np.abs(d) <= w, axis=1)
-    beside = np.count_nonzero((np.abs(d) > w) & (np.abs(d) <= 3 * w), axis=1) / 2.0
+    g = np.sort(gaps)
+    w = TRAIN_WINDOW * c
+
+    def within(half):  # gaps within ``half`` of each candidate (counted on the sorted gaps)
+        return np.searchsorted(g, c + half, side="right") - np.searchsorted(g, c - half, side="left")
+
+    inside = within(w)
+    beside = (within(3 * w) - inside) / 2.0
     z = (inside - beside) / np.sqrt(inside + beside / 2.0 + 1.0)
     best = int(np.argmax(z))
     if z[best] < TRAIN_Z:
