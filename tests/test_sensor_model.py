@@ -134,7 +134,7 @@ def test_model_dict_is_json_with_units_in_its_keys():
     for key in ("offset_ut", "field_ut", "noise_ut", "quantum_ut", "temp_gain_per_c", "saturation_ut", "rate_hz"):
         assert key in d
     assert d["wander"][0].keys() == {"sigma_ut", "tau_s"}
-    assert d["glitches"].keys() == {"rate_per_sample", "size_ut", "axis_share", "period_s", "jitter_s"}
+    assert d["glitches"].keys() == {"rate_per_sample", "size_ut", "axis_share", "radial_share", "period_s", "jitter_s"}
 
 
 def test_a_model_that_cannot_be_written_is_a_named_error(tmp_path):
@@ -192,6 +192,33 @@ def test_a_third_version_model_file_has_its_glitches_at_random_reads():
     assert back.glitch_period_s is None and back.glitch_rate == 0.001
     with pytest.raises(ValueError, match="jitter_s needs a period_s"):
         _model(glitch_jitter_s=0.01)
+
+
+def test_a_fourth_version_model_file_has_no_glitches_along_the_field():
+    d = _model().to_dict()
+    d["schema"] = "magcal.sensor-model/4"
+    del d["glitches"]["radial_share"]
+    assert SensorModel.from_dict(d).glitch_radial_share == 0.0
+    with pytest.raises(ValueError, match="radial shares"):
+        _model(glitch_axis_share=0.6, glitch_radial_share=0.6)
+
+
+def test_a_glitch_along_the_field_reads_the_fields_magnitude_wrong_by_its_size_on_the_simulated_board():
+    """The simulated board and the twin share the one model: a glitch along the field moves the
+    corrected reading along the field direction by its size (2–8 µT), nothing across it."""
+    sm = _model(glitch_rate=0.05, glitch_ut=(2.0, 8.0), glitch_radial_share=1.0, glitch_period_s=None,
+                glitch_jitter_s=0.0, wander=(), disturbances=None)
+    sc = Scenario(physics=Physics(), motion=Motion("sphere", period_s=20.0), seed=9, model=sm)
+    k = np.arange(4000)
+    t = k / 50.0
+    _, glitch = sc.field_ut(t, k)
+    hit = np.any(glitch != 0, axis=1)
+    gh = glitch[hit] @ np.asarray(sm.calibration.soft_iron).T  # the glitch in the corrected frame
+    u = sc.earth_body_ut(t[hit])
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    along = np.sum(gh * u, axis=1)
+    assert 0.04 < hit.mean() < 0.06
+    assert np.allclose(np.linalg.norm(gh, axis=1), np.abs(along)) and np.all((np.abs(along) > 1.99) & (np.abs(along) < 8.01))
 
 
 def test_a_pulse_train_glitches_its_reads_at_its_period_whichever_way_the_board_is_read():

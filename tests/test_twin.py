@@ -234,6 +234,24 @@ def test_glitches_along_one_sensor_axis_are_read_at_their_size(seed):
     assert abs(sizes[len(sizes) // 2] / 4.0 - 1.0) < 0.25 and sizes[-1] < 9.0
 
 
+@pytest.mark.parametrize("seed", [47, 48])
+def test_glitches_along_the_field_are_learned_so_and_give_the_twins_the_recordings_jumps(seed):
+    """The field's magnitude read wrong for one read: glitches of 2–8 µT along the field move
+    |h| by their whole length and the trajectory by no more. Learned as such (their share
+    along the field), the twins show as many isolated 3-vector jumps as the recording (within
+    30 %); drawn in random directions at twice the departure seen in |h|, the twins showed 3–4×
+    the recording's. Glitches in random directions (the control) are not taken for the field's."""
+    truth = dataclasses.replace(_truth(), glitch_rate=0.01, glitch_ut=(2.0, 8.0), glitch_radial_share=1.0)
+    s = _recording(truth, seed=seed, n=6000)
+    learned = _learned(s)
+    assert learned.glitch_radial_share > 0.6
+    chans, u = twin.with_time(s), twin.twin_directions(learned, s)
+    twins = [np.count_nonzero(ts.jumps(twin.twin_readings(learned, u, s.t_s, chans, k)[0])) for k in range(50, 58)]
+    assert 0.7 < np.mean(twins) / np.count_nonzero(ts.jumps(s.field_ut)) < 1.3
+    control = _learned(_recording(dataclasses.replace(truth, glitch_radial_share=0.0), seed=seed, n=6000))
+    assert control.glitch_radial_share < 0.3
+
+
 def test_repeated_reads_are_learned_beyond_the_repeats_a_coarse_quantum_makes_by_chance():
     """A host polling faster than the sensor converts: a fifth of the reads repeat the one
     before; the twin learns that share, and a recording without repeats gets none."""

@@ -134,7 +134,8 @@ def _like(model, args) -> tuple[Series, dict]:
     u = twin.twin_directions(model, rec)
     draws = twin.twin_draws(model, u, rec.t_s, args.seed)
     m, valid = model.distort(u, chans, draws)
-    rows = np.flatnonzero(np.any(draws.glitch_ut != 0, axis=1))
+    hit = np.any(draws.glitch_ut != 0, axis=1)
+    rows = np.flatnonzero(hit if draws.glitch_along_ut is None else hit | (draws.glitch_along_ut != 0))
     series = Series(t_s=rec.t_s, field_ut=m, channels=dict(rec.channels), valid=valid)
     return series, {"glitch_rows": [int(i) for i in rows], "like": args.like}
 

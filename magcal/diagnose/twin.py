@@ -216,13 +216,15 @@ def size_quantiles(size: np.ndarray) -> tuple:
 
 
 def _glitches(m: np.ndarray, radius: np.ndarray, seen: np.ndarray | None = None,
-              directions: np.ndarray | None = None) -> tuple[float, tuple, float, np.ndarray]:
+              directions: np.ndarray | None = None, radial_share: float = 0.0) -> tuple[float, tuple, float, np.ndarray]:
     """(rate per sample, size quantiles µT, share along one sensor axis, the samples): the
     spikes of |h| (``spikes``). A glitch's size is read from its departure in |h| from its
     neighbours' mean, doubled (a jump in a random direction moves |h| by |cos θ| of its length,
     ½ on average): its departure in the 3-vector also carries the trajectory's own curvature,
     which on fast motion is many times the glitch (rm3100 umich flight: 3.9× the radial
-    departure at the 90th percentile, 1.9× on its twins). A spike along one sensor axis a (≥
+    departure at the 90th percentile, 1.9× on its twins). A share ``radial_share`` of glitches
+    along the field moves |h| by its whole length, so the departure is scaled by 2/(1 + share)
+    (the mean |cos θ| of the mixture). A spike along one sensor axis a (≥
     90 % of its square there) is read, with ``seen`` (per sample Wᵀu, how a jump of the reading
     moves |h|), as its departure over |seen_a| (at most doubled): such a glitch moves |h| by its
     length times the field's share on that axis — on the estibone RM3100 logs, whose field lies
@@ -240,11 +242,23 @@ def _glitches(m: np.ndarray, radius: np.ndarray, seen: np.ndarray | None = None,
     one_axis = float(np.mean(along))
     share = float(np.clip((one_axis - P0_AXIS) / (1.0 - P0_AXIS), 0.0, 1.0))
     dep = _departures(radius, k)
-    scale = np.full(len(k), 2.0)
+    scale = np.full(len(k), 2.0 / (1.0 + radial_share))
     if seen is not None:  # a jump s along axis a moves |h| by s·(Wᵀu)_a
         axis = np.argmax(g * g, axis=1)
         scale[along] = 1.0 / np.maximum(np.abs(seen[k[along], axis[along]]), 0.5)
     return float(np.mean(hit)), size_quantiles(scale * dep), share, hit
+
+
+def radial_fractions(h: np.ndarray, hit: np.ndarray) -> np.ndarray:
+    """Per spike (``hit``) of the corrected readings ``h``, the share of its departure from its
+    neighbours' mean (a vector) that lies along the field there (their mean's direction):
+    1 for a glitch of the field's magnitude, 1/3 on average for a random direction (more among
+    the spikes |h| shows, which favours those along the field)."""
+    k = np.flatnonzero(hit[1:-1]) + 1
+    g = h[k] - 0.5 * (h[k - 1] + h[k + 1])
+    u = h[k - 1] + h[k + 1]
+    u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    return np.sum(g * u, axis=1) ** 2 / np.maximum(np.sum(g * g, axis=1), 1e-300)
 
 
 def twin_directions(model: SensorModel, series: Series) -> np.ndarray:
@@ -386,7 +400,10 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     if rate <= 0:
         return model
     rate, missed = glitch_process(model, s, hit)
-    return replace(model, glitch_rate=rate, noise_ut=_less_noise(model, s, missed))
+    glitched, missed = along_the_field(replace(model, glitch_rate=rate), s, hit, h_all, missed,
+                                       lambda share: _glitches(m, r_all, u_all @ np.asarray(calibration.soft_iron),
+                                                               u_all, share)[1])
+    return replace(glitched, noise_ut=_less_noise(model, s, missed))
 
 
 def _less_noise(model: SensorModel, series: Series, missed: float) -> tuple:
@@ -439,7 +456,7 @@ def _departures(r: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 def _spike_counter(model: SensorModel, series: Series, seeds=GLITCH_SEEDS):
     """rate ↦ (mean number of spikes ``spikes`` finds, the radial variance µT² of the glitches
-    it misses) on twins of ``series`` whose glitches come at ``rate``. The twins' other random
+    it misses, the spikes' ``radial_fractions``) on twins of ``series`` whose glitches come at ``rate``. The twins' other random
     parts are drawn once and the glitches from fixed generators (common random numbers): a
     higher rate adds glitches where a lower one had them, so the count rises with the rate and
     a bracketing solve converges."""
@@ -448,16 +465,19 @@ def _spike_counter(model: SensorModel, series: Series, seeds=GLITCH_SEEDS):
     base = [twin_draws(bare, u, series.t_s, seed) for seed in seeds]
     seen = u @ np.asarray(model.calibration.soft_iron)  # a jump g of m moves |h| by seen·g
 
-    def count(rate: float) -> tuple[float, float]:
-        n_hit, missed = 0, 0.0
+    def count(rate: float) -> tuple[float, float, np.ndarray]:
+        n_hit, missed, fractions = 0, 0.0, []
         for seed, d in zip(seeds, base):
             rng = np.random.default_rng([seed, 0x611])
-            g = model.glitch_vectors(rng, series.t_s, seed, rate)
-            m, _ = bare.distort(u, chans, replace(d, glitch_ut=g))
-            hit = spikes(m, radius=_radius(bare.calibration, m, chans), directions=u)
+            g, along = model.glitch_vectors(rng, series.t_s, seed, rate)
+            m, _ = bare.distort(u, chans, replace(d, glitch_ut=g, glitch_along_ut=along))
+            h = _corrected(bare.calibration, m, chans)
+            hit = spikes(m, radius=np.linalg.norm(h, axis=1), directions=u)
             n_hit += int(np.count_nonzero(hit))
-            missed += float(np.sum(np.sum(g * seen, axis=1)[~hit] ** 2)) / len(u)
-        return n_hit / len(seeds), missed / len(seeds)
+            moved = np.sum(g * seen, axis=1) + (0.0 if along is None else along)  # a glitch along the field moves |h| by its size
+            missed += float(np.sum(moved[~hit] ** 2)) / len(u)
+            fractions.append(radial_fractions(h, hit))
+        return n_hit / len(seeds), missed / len(seeds), np.concatenate(fractions)
 
     return count
 
@@ -499,6 +519,43 @@ def glitch_process(model: SensorModel, series: Series, hit: np.ndarray) -> tuple
     if rate is None:
         return model.glitch_rate, 0.0  # the detector cannot place them: keep the rate it saw
     return float(min(rate, 0.5)), count(rate)[1]
+
+
+def along_the_field(model: SensorModel, series: Series, hit: np.ndarray, h: np.ndarray, missed: float,
+                    sizes) -> tuple[SensorModel, float]:
+    """(the model with the share of its glitches that lie along the field, the radial variance
+    µT² of the glitches the detector misses). The spikes of |h| favour glitches along the field
+    even when their directions are random, so the recording's mean ``radial_fractions`` (its
+    spikes ``hit`` of the corrected readings ``h``) is set against the twins': at the model's
+    rate with no glitch along the field, and with every glitch not on a sensor axis along it
+    (``sizes(share)``: the size quantiles read for a share, the rate solved again); the share
+    is interpolated between the two (none when the recording's mean is not above the first
+    twins'; as the axis share, an estimate clipped to its range, with no test). A glitch along the field moves |h| by
+    its whole length and the trajectory by no more, where a random one of the same departure
+    in |h| is twice as long on average: drawn in random directions, such glitches gave the
+    ArduPilot Solo twins isolated 3-vector jumps the recording lacks."""
+    seen = radial_fractions(h, hit)
+    if not len(seen) or model.glitch_rate <= 0:
+        return model, missed
+    none = _spike_counter(model, series)(model.glitch_rate)[2]
+    if not len(none) or np.mean(seen) <= np.mean(none):
+        return model, missed
+
+    def solved(share: float) -> tuple[SensorModel, float, np.ndarray]:
+        m = replace(model, glitch_radial_share=share, glitch_ut=sizes(share))
+        rate, lost = glitch_process(m, series, hit)
+        m = replace(m, glitch_rate=rate)
+        return m, lost, _spike_counter(m, series)(rate)[2]
+
+    top = 1.0 - model.glitch_axis_share
+    full, lost, every = solved(top)
+    if not len(every) or np.mean(every) <= np.mean(none):
+        return full, lost
+    share = top * float(np.clip((np.mean(seen) - np.mean(none)) / (np.mean(every) - np.mean(none)), 0.0, 1.0))
+    if share >= top:
+        return full, lost
+    out, lost, _ = solved(share)
+    return out, lost
 
 
 def projector(u: np.ndarray, channels: Mapping[str, np.ndarray]):

@@ -15,7 +15,9 @@ W, b, field, K_c and ref_c are a :class:`~magcal.calibration.Calibration` (the d
 part, shared with every fit); γ the temperature gain; Y_j the degree-3/4 direction basis
 (``magcal.sim.directions``); w and f the offset and field wander, sums of stationary Gaussian
 components (``magcal.sim.wander``); d intermittent disturbances of the field's magnitude
-(``magcal.sim.disturbance``); g_i rare one-sample glitches of a size in ``glitch_ut``, at
+(``magcal.sim.disturbance``); g_i rare one-sample glitches of a size in ``glitch_ut`` — in a
+random direction, along one sensor axis (a corrupted register) or along the field (the read's
+magnitude wrong for one read: W⁻¹u_i times the size, which moves |h| by exactly that) — at
 random reads or, with ``glitch_period_s``, at the reads a nearly periodic train of pulses hits
 (a source that fires on its own clock: a radio burst, a LED, another device on the bus) — pulse
 j at φ + j·P + jitter·z_j, each kept with the probability that gives ``glitch_rate``;
@@ -42,10 +44,11 @@ from . import wander as wander_mod
 from .disturbance import Disturbances
 from .wander import Wander
 
-SCHEMA = "magcal.sensor-model/4"
+SCHEMA = "magcal.sensor-model/5"
 # /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0);
-# /3: glitches at random reads only (no glitches.period_s)
-READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", "magcal.sensor-model/3", SCHEMA)
+# /3: glitches at random reads only (no glitches.period_s); /4: no glitches along the field
+# (glitches.radial_share 0)
+READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", "magcal.sensor-model/3", "magcal.sensor-model/4", SCHEMA)
 TEMP = "temp_c"
 
 
@@ -59,6 +62,7 @@ class Draws:
     wander_ut: np.ndarray
     field_wander_ut: np.ndarray | None = None  # (n,): the field magnitude's wander
     shown: np.ndarray | None = None  # (n,) int: the read whose conversion each read shows (repeats)
+    glitch_along_ut: np.ndarray | None = None  # (n,): glitches along the field, signed µT of |h|
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +74,7 @@ class SensorModel:
     glitch_rate: float = 0.0  # probability per sample
     glitch_ut: tuple = (4.0, 15.0)  # size quantiles at evenly spaced probabilities (two: log-uniform)
     glitch_axis_share: float = 0.0  # share of glitches along one sensor axis (else any direction)
+    glitch_radial_share: float = 0.0  # share of glitches along the field (its magnitude read wrong)
     glitch_period_s: float | None = None  # glitches from a nearly periodic train of pulses (None: at random)
     glitch_jitter_s: float = 0.0  # each pulse's time off the train's grid, standard deviation
     disturbances: Disturbances | None = None  # intermittent departures of the field's magnitude
@@ -91,9 +96,10 @@ class SensorModel:
         object.__setattr__(self, "nonlinearity_ut", nl)
         sizes = tuple(float(v) for v in np.asarray(self.glitch_ut, dtype=np.float64).reshape(-1))
         ordered = len(sizes) >= 2 and sizes[0] >= 0 and all(a <= b for a, b in zip(sizes, sizes[1:]))
-        if not (0 <= self.glitch_rate < 1) or not ordered or not (0 <= self.glitch_axis_share <= 1):
-            raise ValueError("glitch rate and axis share must be in [0, 1) and [0, 1]; glitch sizes ≥ 2 quantiles, "
-                             "0 ≤ each ≤ the next")
+        shares = (self.glitch_axis_share, self.glitch_radial_share)
+        if not (0 <= self.glitch_rate < 1) or not ordered or not (min(shares) >= 0 and sum(shares) <= 1):
+            raise ValueError("glitch rate must be in [0, 1), axis and radial shares ≥ 0 with a sum ≤ 1; glitch sizes "
+                             "≥ 2 quantiles, 0 ≤ each ≤ the next")
         object.__setattr__(self, "glitch_ut", sizes)
         if not 0 <= self.repeat_share < 1:
             raise ValueError("repeat_share must be in [0, 1)")
@@ -128,8 +134,10 @@ class SensorModel:
         m = self.calibration.distort(h, channels)
         m = m + draws.wander_ut + np.asarray(self.noise_ut) * draws.noise
         if draws.shown is not None:  # a repeated read shows the conversion before; a glitch corrupts one read
-            m = m[draws.shown]
+            m, u = m[draws.shown], u[draws.shown]
         m = m + draws.glitch_ut
+        if draws.glitch_along_ut is not None:
+            m = m + draws.glitch_along_ut[:, None] * self.along_field(u)
         valid = np.ones(len(m), bool)
         if self.saturation_ut is not None:
             valid = np.all(np.abs(m) < self.saturation_ut, axis=1)
@@ -149,24 +157,30 @@ class SensorModel:
             path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
         if self.disturbances is not None:
             field = field + self.disturbances.draw(seed, t)
-        g = self.glitch_vectors(rng, t, seed)
-        return Draws(noise, g, path, field, repeated_reads(len(t), self.repeat_share, seed))
+        g, along = self.glitch_vectors(rng, t, seed)
+        return Draws(noise, g, path, field, repeated_reads(len(t), self.repeat_share, seed), along)
 
     def glitch_vectors(self, rng: np.random.Generator, t_s, seed: int, rate: float | None = None,
-                       read_s: float | None = None) -> np.ndarray:
-        """(n, 3) glitch vectors for reads at times ``t_s`` at ``rate`` (default: the model's),
-        at random reads (``glitches``) or at those the pulse train hits (``pulse_reads``: each
-        read takes the pulses nearer to it than to the reads either side, or with ``read_s``
-        those within half of it). The draws consumed from ``rng`` depend on n alone, and a
-        higher rate keeps the glitches a lower one had."""
+                       read_s: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """((n, 3) glitch vectors, (n,) glitches along the field or None) for reads at times
+        ``t_s`` at ``rate`` (default: the model's), at random reads (``glitch_parts``) or at those
+        the pulse train hits (``pulse_reads``: each read takes the pulses nearer to it than to
+        the reads either side, or with ``read_s`` those within half of it). The draws consumed
+        from ``rng`` depend on n alone, and a higher rate keeps the glitches a lower one had."""
         rate = self.glitch_rate if rate is None else rate
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        shares = (self.glitch_axis_share, self.glitch_radial_share)
         if self.glitch_period_s is None:
-            return glitches(rng, len(t), rate, self.glitch_ut, self.glitch_axis_share)
-        every = glitches(rng, len(t), 1.0, self.glitch_ut, self.glitch_axis_share)  # a vector for each read
+            return glitch_parts(rng, len(t), rate, self.glitch_ut, *shares)
+        every, along = glitch_parts(rng, len(t), 1.0, self.glitch_ut, *shares)  # a glitch for each read
         hit = pulse_reads(t, rate, self.glitch_period_s, self.glitch_jitter_s, read_s or 1.0 / self.rate_hz, seed,
                           stream=read_s is None)
-        return every * hit[:, None]
+        return every * hit[:, None], None if along is None else along * hit
+
+    def along_field(self, u: np.ndarray) -> np.ndarray:
+        """(n, 3) W⁻¹u: the change of the raw reading that moves |h| by one µT along the
+        field direction ``u`` (a glitch along the field, per µT of its size)."""
+        return np.linalg.solve(np.asarray(self.calibration.soft_iron, dtype=np.float64), np.atleast_2d(u).T).T
 
     def simulate(self, u, t_s, channels: Mapping[str, np.ndarray] | None, seed: int):
         """(m, valid) for directions ``u`` at times ``t_s``: the twin of a recording."""
@@ -237,6 +251,7 @@ class SensorModel:
             "wander": [c.to_dict() for c in self.wander],
             "glitches": {"rate_per_sample": float(self.glitch_rate), "size_ut": list(self.glitch_ut),
                          "axis_share": float(self.glitch_axis_share),
+                         "radial_share": float(self.glitch_radial_share),
                          "period_s": None if self.glitch_period_s is None else float(self.glitch_period_s),
                          "jitter_s": float(self.glitch_jitter_s)},
             "disturbances": None if self.disturbances is None else self.disturbances.to_dict(),
@@ -267,6 +282,7 @@ class SensorModel:
                 glitch_rate=float(d.get("glitches", {}).get("rate_per_sample", 0.0)),
                 glitch_ut=tuple(d.get("glitches", {}).get("size_ut", (4.0, 15.0))),
                 glitch_axis_share=float(d.get("glitches", {}).get("axis_share", 0.0)),
+                glitch_radial_share=float(d.get("glitches", {}).get("radial_share", 0.0)),
                 glitch_period_s=_optional(d.get("glitches", {}).get("period_s")),
                 glitch_jitter_s=float(d.get("glitches", {}).get("jitter_s", 0.0)),
                 disturbances=None if d.get("disturbances") is None else Disturbances.from_dict(d["disturbances"]),
@@ -331,24 +347,36 @@ def glitch_sizes(q: np.ndarray, size_ut: tuple) -> np.ndarray:
 
 
 def glitches(rng: np.random.Generator, n: int, rate: float, size_ut: tuple, axis_share: float = 0.0) -> np.ndarray:
-    """(n, 3) glitch vectors: with probability ``rate`` a one-sample jump of a size drawn from
-    the quantiles ``size_ut`` (``glitch_sizes``) — along one sensor axis (either sign) with
-    probability ``axis_share`` (a corrupted register), else along a random direction; zero
-    elsewhere. The draws consumed depend on n alone, so a block of samples is reproducible
-    whatever the rate."""
+    """(n, 3) glitch vectors: ``glitch_parts`` without glitches along the field."""
+    return glitch_parts(rng, n, rate, size_ut, axis_share)[0]
+
+
+def glitch_parts(rng: np.random.Generator, n: int, rate: float, size_ut: tuple, axis_share: float = 0.0,
+                 radial_share: float = 0.0) -> tuple[np.ndarray, np.ndarray | None]:
+    """((n, 3) glitch vectors, (n,) glitches along the field or None): with probability
+    ``rate`` a one-sample jump of a size drawn from the quantiles ``size_ut``
+    (``glitch_sizes``) — along one sensor axis (either sign) with probability ``axis_share``
+    (a corrupted register), along the field with probability ``radial_share`` (a signed size
+    of |h|, which ``SensorModel.distort`` turns into a vector along the read's own field), else
+    along a random direction; zero elsewhere. The draws consumed depend on n alone (and on
+    whether the shares are zero), so a block of samples is reproducible whatever the rate."""
     out = np.zeros((n, 3))
     if rate <= 0 or n == 0:
-        return out
+        return out, None
     hit = rng.random(n) < rate
     d = rng.standard_normal((n, 3))
     mag = glitch_sizes(rng.random(n), size_ut)
-    if axis_share > 0:
-        along = rng.random(n) < axis_share
+    radial = np.zeros(n, bool)
+    if axis_share > 0 or radial_share > 0:
+        v = rng.random(n)
+        along = v < axis_share
+        radial = hit & (v >= axis_share) & (v < axis_share + radial_share)
         axis = rng.integers(0, 3, n)
         d[along] = np.eye(3)[axis[along]] * np.sign(d[along, 0])[:, None]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    out[hit] = d[hit] * mag[hit, None]
-    return out
+    keep = hit & ~radial
+    out[keep] = d[keep] * mag[keep, None]
+    return out, (np.where(radial, np.sign(d[:, 0]) * mag, 0.0) if radial_share > 0 else None)
 
 
 def hash_uniform(seed: int, idx) -> np.ndarray:

@@ -32,7 +32,7 @@ from ..core.calibration import Calibration
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_HOFL, UT_PER_COUNT, asa_gain, temp_c_to_raw
 from ..core.series import Series
 from . import wander as wander_mod
-from .model import Draws, SensorModel, first_reads, glitches, hash_uniform, pulse_reads
+from .model import Draws, SensorModel, first_reads, glitch_parts, hash_uniform, pulse_reads
 
 HOFL_SUM_UT = 2400.0
 _BLOCK = 1024  # noise is drawn in blocks of this many measurements, keyed by (seed, block)
@@ -215,19 +215,23 @@ class Scenario:
 
     # -- per-measurement randomness -------------------------------------------------------
     def _noise_glitch(self, k: np.ndarray, sensor: SensorModel):
-        """(noise, glitch vectors) of reads ``k``; a model whose glitches come from a pulse train
-        gets a vector for every read, which ``field_ut`` keeps where the train hits."""
+        """(noise, glitch vectors, glitches along the field) of reads ``k``; a model whose
+        glitches come from a pulse train gets a glitch for every read, which ``field_ut`` keeps
+        where the train hits."""
         k = np.asarray(k, dtype=np.int64)
         blocks = np.unique(k // _BLOCK)
         noise = np.empty((len(k), 3))
         glitch = np.zeros((len(k), 3))
+        along = np.zeros(len(k))
         rate = sensor.glitch_rate if sensor.glitch_period_s is None else 1.0
         for b in blocks:
-            nb, gb = _block(self.seed, int(b), rate, tuple(sensor.glitch_ut), sensor.glitch_axis_share)
+            nb, gb, ab = _block(self.seed, int(b), rate, tuple(sensor.glitch_ut), sensor.glitch_axis_share,
+                                sensor.glitch_radial_share)
             sel = (k // _BLOCK) == b
             noise[sel] = nb[k[sel] % _BLOCK]
             glitch[sel] = gb[k[sel] % _BLOCK]
-        return noise, glitch
+            along[sel] = ab[k[sel] % _BLOCK]
+        return noise, glitch, along
 
     # -- measurements ------------------------------------------------------------------------
     def channels(self, t_s) -> dict[str, np.ndarray]:
@@ -241,11 +245,11 @@ class Scenario:
         sensor = self.sensor
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
         k = np.atleast_1d(np.asarray(k, dtype=np.int64))
-        noise, glitch = self._noise_glitch(k, sensor)
+        noise, glitch, along = self._noise_glitch(k, sensor)
         if sensor.glitch_period_s is not None:  # the reads the train hits, at their own times
             hit = pulse_reads(t, sensor.glitch_rate, sensor.glitch_period_s, sensor.glitch_jitter_s,
                               _read_interval(t, k, sensor.rate_hz), self.seed)
-            glitch = glitch * hit[:, None]
+            glitch, along = glitch * hit[:, None], along * hit
         if sensor.repeat_share > 0:  # a repeated read shows an earlier conversion, its time and noise
             first = first_reads(k, sensor.repeat_share, self.seed)
             o = np.argsort(k, kind="stable")  # the time of a read asked for is taken as it is (bit for bit)
@@ -257,9 +261,9 @@ class Scenario:
         offset, field = wander_mod.draw(sensor.wander, self.seed, t)
         if sensor.disturbances is not None:
             field = field + sensor.disturbances.draw(self.seed, t)
-        draws = Draws(noise=noise, glitch_ut=glitch, wander_ut=offset, field_wander_ut=field)
+        draws = Draws(noise=noise, glitch_ut=glitch, wander_ut=offset, field_wander_ut=field, glitch_along_ut=along)
         m, _ = sensor.distort(u, self.channels(t), draws)
-        return m, glitch
+        return m, glitch + along[:, None] * sensor.along_field(u)
 
     def measure(self, t_s, k) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the chip reports: raw counts (n, 3) int, ST2 (n,), TEMP_OUT raw (n,)."""
@@ -346,13 +350,15 @@ def _read_interval(t: np.ndarray, k: np.ndarray, rate_hz: float) -> float:
 
 
 @lru_cache(maxsize=256)
-def _block(seed: int, block: int, glitch_rate: float, glitch_ut: tuple, axis_share: float = 0.0):
+def _block(seed: int, block: int, glitch_rate: float, glitch_ut: tuple, axis_share: float = 0.0,
+           radial_share: float = 0.0):
     rng = np.random.default_rng([int(seed), 0xA8975, block])
     noise = rng.standard_normal((_BLOCK, 3))
-    glitch = glitches(rng, _BLOCK, glitch_rate, glitch_ut, axis_share)
-    noise.setflags(write=False)
-    glitch.setflags(write=False)
-    return noise, glitch
+    glitch, along = glitch_parts(rng, _BLOCK, glitch_rate, glitch_ut, axis_share, radial_share)
+    along = np.zeros(_BLOCK) if along is None else along
+    for a in (noise, glitch, along):
+        a.setflags(write=False)
+    return noise, glitch, along
 
 
 def demo_scenario(seed: int = 1) -> Scenario:
