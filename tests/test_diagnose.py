@@ -415,6 +415,37 @@ def test_a_temperature_swing_that_is_mostly_a_curve_in_time_is_found(seed, hard,
     assert np.linalg.norm(k - coef) < 0.3 * np.linalg.norm(coef)
 
 
+def _band_with_temperature(seed, coef):
+    """A level ±28° band of directions (yaw free) with 1.3 cycles of a 19 °C temperature swing."""
+    temp = Temperature(base_c=34.4, swing_c=18.9, period_s=N / 50.0 / 1.3)
+    sc = Scenario(physics=Physics(hard_iron_ut=(-16.6, 27.7, -32.1), noise_ut=0.45, temp_coef_ut_per_c=coef),
+                  motion=Motion("tilt", max_tilt_deg=28.2, period_s=27.7), temperature=temp, seed=seed)
+    return sc.simulate(N, 50.0)
+
+
+@pytest.mark.parametrize("seed", [13, 20])
+def test_a_temperature_on_a_band_of_directions_is_found_where_the_residual_shows_no_wander(seed):
+    # on a band the offset the temperature moves lies nearly along the band's axis, where a slow
+    # offset and a slow gain look alike, and the quadratic offset wander fitted as free columns
+    # took most of the 1.3-cycle swing even without any wander: seed 13 was missed (F 2.9) and
+    # seed 20 reported 25 % off. The nuisance is now fitted only where the residual shows a wander
+    coef = (0.04, -0.07, -0.002)
+    d = diagnose(_band_with_temperature(seed, coef).series)
+    assert d.effects == ["temperature_drift"]
+    k = np.array(_finding(d, "temperature_drift").params["coef_ut_per_unit"])
+    assert np.linalg.norm(k - coef) < 0.2 * np.linalg.norm(coef)
+
+
+@pytest.mark.parametrize("seed", [13, 15])
+def test_a_temperature_channel_on_a_band_of_directions_is_not_credited_with_wander(seed):
+    # the same band and swing with no temperature gain: silent without wander; with a slow
+    # 0.8 µT wander the residual shows it, the quadratic is a nuisance again and the channel is
+    # not credited with the wander
+    run = _band_with_temperature(seed, (0.0, 0.0, 0.0))
+    assert diagnose(run.series).effects == []
+    assert "temperature_drift" not in diagnose(_wandering(run, seed, amp_ut=0.8)).effects
+
+
 @pytest.mark.parametrize("seed,tilt", [(302, 40.0), (301, 25.0)])
 def test_soft_iron_beside_a_strong_current_is_neither_lost_nor_invented(seed, tilt):
     # an intermittent 3 A current moving the offset by 3.7 µT on a band or partial sphere: left

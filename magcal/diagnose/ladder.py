@@ -35,7 +35,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.series import Series
-from . import channels, design, glitches, hygiene, null, selection, softiron, statements
+from . import channels, design, glitches, hygiene, longrun, null, selection, softiron, statements
 from .diagnosis import Diagnosis
 from .inference import block_wald, calibrated, contiguous_blocks, n_test_blocks
 from ..fit import fit_calibration
@@ -94,6 +94,7 @@ class Selected:
     design: design.Design  # the columns every channel was tested with
     n_tests: int  # hypotheses in Holm's family
     null: null.NullDraws  # the twin's draws every test was judged against
+    wander_nuisance: bool = True  # the quadratic offset wander was a nuisance of ``tests`` (the residual shows a wander)
 
 
 STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare_heldout",
@@ -245,23 +246,46 @@ def without_channel_offsets(a: Analysed, base: ModelFit) -> tuple[np.ndarray, Mo
     return m_kept - fit.calibration().channel_offset_ut(chans, len(m_kept)), fit
 
 
-def test_terms(a: Analysed, ref: ModelFit, twin_null: bool = True) -> tuple[design.Design, dict, dict, list, null.NullDraws]:
+def test_terms(a: Analysed, ref: ModelFit, twin_null: bool = True) -> tuple[design.Design, dict, dict, list, null.NullDraws, bool]:
     """Build the candidate design at the reference model and test every term
     (magcal.diagnose.design): soft iron along the directions the data determine, every channel
     with soft iron in place (so that the soft iron a sphere leaves cannot pass for a channel),
     each test judged against the recording's twin (magcal.diagnose.null). Returns the design,
-    the tests against the quadratic wander, the rich-wander tests of the channels, the channels
-    skipped as constant or incomplete, and the twin's draws."""
+    the tests against the quadratic wander (a nuisance only where the residual shows a wander,
+    ``wander_seen``), the rich-wander tests of the channels, the channels skipped as constant or
+    incomplete, the twin's draws, and whether the quadratic wander was a nuisance."""
     m_kept, t_kept, chans_kept = a.kept
     candidates, skipped = channels.candidates(a.t, a.logged)
     dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
     draws = draw_null(a, dsg) if twin_null else null.none(len(m_kept), "the twin as the null was switched off")
     e_null = (draws.e, draws.white) if draws.count else None
     unique = {g: softiron.MIN_UNIQUE if g == softiron.EFFECT else channels.MIN_UNIQUE for g in dsg.groups}
-    tests = block_wald(dsg.x, dsg.residual_ut, dsg.groups, min_unique=unique, null=e_null)
+    seen = draws.count > 0 or wander_seen(dsg, t_kept)
+    # free, the quadratic wander takes most of a 1.3-cycle temperature swing on a band of
+    # directions even where the residual shows no wander at all (see wander_seen)
+    tests = block_wald(dsg.x if seen else dsg.x[:, : dsg.n_before_wander], dsg.residual_ut, dsg.groups,
+                       min_unique=unique, null=e_null)
     tests = {g: calibrated(r) for g, r in tests.items()}
     rich = design.test_against_rich_wander(dsg, t_kept, e_null)
-    return dsg, tests, rich, skipped, draws
+    return dsg, tests, rich, skipped, draws, seen
+
+
+def wander_seen(dsg: design.Design, t: np.ndarray) -> bool:
+    """Whether the residual of every column but the wander nuisance shows a slow wander: its
+    block sums are not those of white noise (null.white_p, as for the twin), or an offset
+    following the Legendre polynomials of degree 2 (the nuisance's own) and above in time is
+    significant beside every candidate term (longrun.shows_wander); either at
+    null.WHITE_LEVEL. Only then is the quadratic wander a nuisance of the tests: as free
+    columns it takes most of a 1.3-cycle temperature swing on a band of directions (there the
+    offset the temperature moves lies nearly along the band's axis, where a slow offset and a
+    slow gain look alike) even where the residual shows no wander at all — on simulated bands
+    without wander a temperature's noncentrality of 40–93 fell to 2–21 with it."""
+    x = dsg.x[:, : dsg.n_before_wander]
+    q = design.column_basis(x)
+    residual = dsg.residual_ut - q @ (q.T @ dsg.residual_ut)
+    if null.white_p(residual, contiguous_blocks(len(residual), n_test_blocks(len(residual)))) <= null.WHITE_LEVEL:
+        return True
+    return longrun.shows_wander(x, dsg.residual_ut, t, dsg.offset_directions, design.WANDER_DEGREE)
 
 
 def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
@@ -289,7 +313,7 @@ def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
 def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, folds: int, twin_null: bool = True) -> Selected:
     """Which tested terms earn a place (magcal.diagnose.selection): significant, above the
     practical floor, past the wander gate, and helping the held-out residual."""
-    dsg, tests, rich, skipped, draws = test_terms(a, ref, twin_null)
+    dsg, tests, rich, skipped, draws, seen = test_terms(a, ref, twin_null)
     floor_ut = selection.practical_floor_ut(noise_ut)
     verdict = selection.significant(tests, rich, alpha, floor_ut)
     soft_size = softiron.fitted_size(dsg.x[:, dsg.groups[softiron.EFFECT]], dsg.soft_dirs, ref)
@@ -299,7 +323,7 @@ def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, fold
     accepted, heldout = selection.drop_by_heldout(dsg, survivors, folds)
     n_tests = len(selection.family(tests, rich))
     return Selected(tests, rich, verdict.fast, survivors, wander, accepted, heldout, skipped, dsg.candidates, dsg, n_tests,
-                    draws)
+                    draws, seen)
 
 
 def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, list]:

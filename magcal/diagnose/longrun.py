@@ -28,6 +28,7 @@ import numpy as np
 from numpy.polynomial import legendre
 
 from .design import column_basis
+from .null import WHITE_LEVEL
 
 DEGREE = 8  # the wander next to the slow terms' own time scales: the degrees just above the fitted ones
 FIRST_SEEN = 3  # degrees 0…2 (hard iron, the drift, the quadratic nuisance) are fitted by the design
@@ -154,3 +155,26 @@ def wander_covariances(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_dir
     dof = 3.0 * (DEGREE - FIRST_SEEN + 1) - 2.0
     reg = _regression(x, shp)  # one regression on all of x serves every group
     return {g: SlowShare(coefficient_cov(x, np.asarray(cols), shp, spectrum, reg), dof) for g, cols in groups.items()}
+
+
+def shows_wander(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_directions: np.ndarray, first: int) -> bool:
+    """Whether the residual e of design x shows an offset wander of Legendre degrees
+    ``first``…DEGREE: the F test of those shapes (``shapes``) added to x rejects at
+    WHITE_LEVEL, the level at which a residual gets no twin either (exact for white noise; a
+    degree the design's columns nearly take counts for what is left of it). True where the
+    recording is too short to tell (as ``wander_covariances``)."""
+    n = len(e)
+    if n < 10 * (x.shape[1] + 3 * DEGREE):
+        return True
+    from .distributions import f_sf
+
+    q = column_basis(x)
+    w = np.concatenate(list(shapes(t_s, offset_directions)[first - 1 :]), axis=1)
+    qw = column_basis(w - q @ (q.T @ w))
+    r = e - q @ (q.T @ e)
+    explained = qw.T @ r
+    k, dof = qw.shape[1], n - q.shape[1] - qw.shape[1]
+    rest = float(r @ r) - float(explained @ explained)
+    if k == 0 or dof <= 0 or not rest > 0:
+        return True
+    return float(f_sf(float(explained @ explained) / k / (rest / dof), k, dof)) <= WHITE_LEVEL

@@ -112,7 +112,9 @@ def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
     """The statistics behind one accepted term (a finding's ``evidence``)."""
     r = accepting_test(g, selected)
     fast = g in selected.fast
-    nuisance = f"slow offset wander up to degree {design.RICH_DEGREE} in time" if fast else "quadratic offset wander in time"
+    nuisance = (f"slow offset wander up to degree {design.RICH_DEGREE} in time" if fast
+                else "quadratic offset wander in time" if selected.wander_nuisance
+                else "no offset wander (the residual shows none)")
     ev = {
         "test": "Wald, block-HAC (batch means over contiguous time blocks, bias-corrected for the fitted "
         "nuisance columns), Holm-controlled, with a " + nuisance + " as a nuisance, "
@@ -237,4 +239,4 @@ def tests_record(selected) -> dict:
         for g, r in selected.tests.items()
     }
     return {"skipped_channels": selected.skipped, "twin_null": selected.null.to_dict(), "against_rich_wander": rich, "survivors": list(selected.survivors),
-            "heldout": dict(selected.heldout), "candidates": candidates}
+            "wander_nuisance": selected.wander_nuisance, "heldout": dict(selected.heldout), "candidates": candidates}
