@@ -24,7 +24,7 @@ from .inference import block_wald, calibrated
 from .model import ModelFit, Spec, residual_jacobian
 
 # the slow wander as a nuisance: Legendre degrees 2..WANDER_DEGREE of the offset versus time, in
-# every test and held-out comparison
+# every held-out comparison, and in every test where the residual shows a wander (ladder.wander_seen)
 WANDER_DEGREE = 2
 # the second test of each channel: against a wander up to this degree, on at most RICH_MAX rows
 RICH_DEGREE = 12

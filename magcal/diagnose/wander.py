@@ -8,10 +8,12 @@ P_j of degree 2..``degree`` in τ = time scaled to [−1, 1] (the constant is th
 the straight line is the reportable ``time_drift`` candidate, so neither is in the nuisance).
 To first order its radial residual is Σ_j P_j(τ) uᵀδ_j: 3 columns per degree.
 
-Every channel term is then tested and its coefficient estimated from the part of its variation
-that a smooth offset-versus-time curve cannot explain; a channel that only varies slowly (a
-temperature swing of about a cycle) shares most of its variation with the nuisance, which is
-the honest statement that it cannot be told apart from wander in one recording.
+Where the residual shows a wander (magcal.diagnose.ladder.wander_seen), every channel term is
+then tested and its coefficient estimated from the part of its variation that a smooth
+offset-versus-time curve cannot explain; a channel that only varies slowly (a temperature swing
+of about a cycle) shares most of its variation with the nuisance, which is the honest statement
+that it cannot be told apart from wander in one recording. Where the residual shows none, the
+nuisance is left out of the tests: it would only take such a channel's power.
 """
 
 from __future__ import annotations
