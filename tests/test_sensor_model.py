@@ -288,3 +288,28 @@ def test_repeat_share_is_written_and_an_older_file_reads_as_none():
     assert SensorModel.from_dict(d).repeat_share == 0.0
     with pytest.raises(ValueError, match="repeat_share"):
         _model(repeat_share=1.0)
+
+
+def test_noise_that_alternates_between_reads_is_drawn_at_its_correlation_and_read_back():
+    """A sensor whose noise anti-correlates between successive reads (an AMR bridge flipped
+    between reads): the drawn noise has that lag-1 correlation and the model's variance, the
+    file keeps it, a fifth-version file is white, and a correlation no moving average of one
+    step reaches is refused."""
+    m = dataclasses.replace(_model(), noise_lag1=-0.3)
+    noise = m.draws(np.arange(200_000) / 50.0, seed=4).noise
+    for a in range(3):
+        x = noise[:, a]
+        assert abs(np.corrcoef(x[1:], x[:-1])[0, 1] + 0.3) < 0.01
+        assert abs(np.var(x) - 1.0) < 0.02
+    assert SensorModel.from_dict(m.to_dict()).noise_lag1 == -0.3
+    clean = SensorModel(calibration=Calibration(offset_ut=[20.0, -30.0, 5.0], field_ut=48.0), noise_ut=(0.3,) * 3,
+                        noise_lag1=-0.3, rate_hz=50.0)  # the simulator's own motion, read by read index
+    sc = Scenario(physics=Physics(), motion=Motion("sphere", period_s=15.0), seed=2, model=clean)
+    e = np.linalg.norm(sc.simulate(20_000).series.field_ut - clean.calibration.offset_ut, axis=1) - 48.0
+    assert abs(np.corrcoef(e[1:], e[:-1])[0, 1] + 0.3) < 0.03
+    d = m.to_dict()
+    d["schema"] = "magcal.sensor-model/5"
+    del d["noise_lag1"]
+    assert SensorModel.from_dict(d).noise_lag1 == 0.0
+    with pytest.raises(ValueError, match="noise_lag1"):
+        _model(noise_lag1=0.6)

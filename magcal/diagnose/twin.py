@@ -55,6 +55,8 @@ TRAIN_WINDOW = 0.2  # a gap between spikes within ±20 % of the period counts as
 TRAIN_Z = 5.0  # and the count there passes what random spikes give by this many σ
 TRAIN_MIN = 20  # gaps needed to look for a period
 TRAIN_READS = 4  # the shortest period sought, in read intervals
+NOISE_LAG1_Z = 2.0  # the recording's lag-1 correlation must lie this many twin σ from the twins' mean
+NOISE_LAG1_MAX = 0.45  # a one-step moving average reaches ±0.5
 # channels that follow the orientation or are the magnetometer itself: not offered as couplings
 ORIENTATION_WORDS = ("mag", "acc", "gyro", "quat", "roll", "pitch", "yaw", "bias", "att")
 
@@ -397,13 +399,35 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
         rate_hz=1.0 / wander_mod.sample_interval(t), source=dict(source or {}),
     )
     model = replace(model, repeat_share=repeat_share(model, s))
-    if rate <= 0:
-        return model
-    rate, missed = glitch_process(model, s, hit)
-    glitched, missed = along_the_field(replace(model, glitch_rate=rate), s, hit, h_all, missed,
-                                       lambda share: _glitches(m, r_all, u_all @ np.asarray(calibration.soft_iron),
-                                                               u_all, share)[1])
-    return replace(glitched, noise_ut=_less_noise(model, s, missed))
+    if rate > 0:
+        rate, missed = glitch_process(model, s, hit)
+        glitched, missed = along_the_field(replace(model, glitch_rate=rate), s, hit, h_all, missed,
+                                           lambda share: _glitches(m, r_all, u_all @ np.asarray(calibration.soft_iron),
+                                                                   u_all, share)[1])
+        model = replace(glitched, noise_ut=_less_noise(model, s, missed))
+    return replace(model, noise_lag1=noise_lag1(model, s, free))
+
+
+def noise_lag1(model: SensorModel, series: Series, free: bool = True, seeds=tuple(range(101, 113))) -> float:
+    """The correlation between successive reads' noise that brings the twins' lag-1
+    correlation of the residual to the recording's — 0 (white) unless the recording's lies
+    beyond NOISE_LAG1_Z of the twins' spread. Every other effect (wander, repeats, glitches)
+    is already in the twins, so what is left at lag 1 is the noise's own: it moves the
+    residual's lag-1 correlation by its share of the residual's variance. A gap the noise
+    could close only with a correlation beyond NOISE_LAG1_MAX is left to the effects that made
+    it (0)."""
+    real = refit(model, series.field_ut, series.t_s, with_time(series), free)
+    u = twin_directions(model, series)
+    twins = [twin_draw(model, series, seed, free, u) for seed in seeds]
+    twins = [x for x in twins if x is not None]
+    if real is None or len(twins) < 2:
+        return 0.0
+    lag = np.array([ts.lag1(x.e) for x in twins])
+    gap = ts.lag1(real.e) - float(np.mean(lag))
+    if abs(gap) <= NOISE_LAG1_Z * float(np.std(lag, ddof=1)):
+        return 0.0
+    rho = gap * float(np.mean([np.var(x.e) for x in twins])) / max(_white_var(model, series), 1e-300)
+    return float(rho) if abs(rho) <= NOISE_LAG1_MAX else 0.0  # beyond what the noise can carry: not the noise's
 
 
 def _less_noise(model: SensorModel, series: Series, missed: float) -> tuple:

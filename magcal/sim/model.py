@@ -44,11 +44,12 @@ from . import wander as wander_mod
 from .disturbance import Disturbances
 from .wander import Wander
 
-SCHEMA = "magcal.sensor-model/5"
+SCHEMA = "magcal.sensor-model/6"
 # /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0);
 # /3: glitches at random reads only (no glitches.period_s); /4: no glitches along the field
-# (glitches.radial_share 0)
-READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", "magcal.sensor-model/3", "magcal.sensor-model/4", SCHEMA)
+# (glitches.radial_share 0); /5: white noise (no noise_lag1)
+READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", "magcal.sensor-model/3", "magcal.sensor-model/4",
+         "magcal.sensor-model/5", SCHEMA)
 TEMP = "temp_c"
 
 
@@ -69,6 +70,7 @@ class Draws:
 class SensorModel:
     calibration: Calibration
     noise_ut: tuple = (0.4, 0.4, 0.4)
+    noise_lag1: float = 0.0  # correlation of the noise between successive reads (|·| < 0.5; 0: white)
     quantum_ut: tuple = (0.0, 0.0, 0.0)  # 0: a continuous reading
     wander: tuple = ()
     glitch_rate: float = 0.0  # probability per sample
@@ -103,6 +105,8 @@ class SensorModel:
         object.__setattr__(self, "glitch_ut", sizes)
         if not 0 <= self.repeat_share < 1:
             raise ValueError("repeat_share must be in [0, 1)")
+        if not abs(self.noise_lag1) < 0.5:
+            raise ValueError("noise_lag1 must lie in (-0.5, 0.5): the lag-1 correlation of a one-step moving average")
         period = self.glitch_period_s
         if period is not None and not (np.isfinite(period) and period > 0 and 0 <= self.glitch_jitter_s <= period):
             raise ValueError("glitch period_s must be positive (or absent), jitter_s in [0, period_s]")
@@ -148,7 +152,7 @@ class SensorModel:
         """Fresh random parts for a stream at times ``t_s``, a function of ``seed`` alone."""
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x51D])
-        noise = rng.standard_normal((len(t), 3))
+        noise = moving_average(rng.standard_normal((len(t), 3)), self.noise_lag1)
         if len(t) < 2 or np.all(t[1:] >= t[:-1]):  # already in time order (a recording's own times)
             path, field = wander_mod.draw_path(self.wander, rng, t)
         else:
@@ -247,6 +251,7 @@ class SensorModel:
         d.update(self.calibration.to_dict())
         d.update({
             "noise_ut": list(self.noise_ut),
+            "noise_lag1": float(self.noise_lag1),
             "quantum_ut": list(self.quantum_ut),
             "wander": [c.to_dict() for c in self.wander],
             "glitches": {"rate_per_sample": float(self.glitch_rate), "size_ut": list(self.glitch_ut),
@@ -277,6 +282,7 @@ class SensorModel:
             return cls(
                 calibration=Calibration.from_dict(d),
                 noise_ut=d.get("noise_ut", (0.0, 0.0, 0.0)),
+                noise_lag1=float(d.get("noise_lag1", 0.0)),
                 quantum_ut=d.get("quantum_ut", (0.0, 0.0, 0.0)),
                 wander=tuple(Wander.from_dict(c) for c in d.get("wander", ())),
                 glitch_rate=float(d.get("glitches", {}).get("rate_per_sample", 0.0)),
@@ -305,6 +311,27 @@ def replace_calibration(cal: Calibration, **changes) -> Calibration:
          "coef_ut_per_unit": cal.coef_ut_per_unit, "reference": cal.reference}
     d.update(changes)
     return Calibration(**d)
+
+
+def moving_average(w: np.ndarray, rho: float) -> np.ndarray:
+    """Unit-variance noise whose successive reads correlate by ``rho`` (|rho| < 0.5), from white
+    ``w`` (n, 3): (w_k + θ·w_{k−1}) / √(1 + θ²) with θ / (1 + θ²) = rho — a sensor that filters
+    its conversions (rho > 0) or alternates its bridge between reads (rho < 0). rho 0 returns
+    ``w`` itself."""
+    if rho == 0 or len(w) < 2:
+        return w
+    out = w.copy()
+    out[1:] = with_previous(w[1:], w[:-1], rho)
+    return out
+
+
+def with_previous(w: np.ndarray, w_before: np.ndarray, rho: float) -> np.ndarray:
+    """(w + θ·w_before) / √(1 + θ²), θ / (1 + θ²) = rho: the moving average of white draws
+    ``w`` and the draws of the reads before them."""
+    if rho == 0:
+        return w
+    theta = (1.0 - np.sqrt(1.0 - 4.0 * rho * rho)) / (2.0 * rho)
+    return (w + theta * w_before) / np.sqrt(1.0 + theta * theta)
 
 
 def quantize(m: np.ndarray, quantum_ut) -> np.ndarray:

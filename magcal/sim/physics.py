@@ -32,7 +32,7 @@ from ..core.calibration import Calibration
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_HOFL, UT_PER_COUNT, asa_gain, temp_c_to_raw
 from ..core.series import Series
 from . import wander as wander_mod
-from .model import Draws, SensorModel, first_reads, glitch_parts, hash_uniform, pulse_reads
+from .model import Draws, SensorModel, first_reads, glitch_parts, hash_uniform, pulse_reads, with_previous
 
 HOFL_SUM_UT = 2400.0
 _BLOCK = 1024  # noise is drawn in blocks of this many measurements, keyed by (seed, block)
@@ -256,6 +256,10 @@ class Scenario:
             back = t - (k - first) * _read_interval(t, k, sensor.rate_hz)
             t = np.where(np.isin(first, k), np.interp(first, k[o], t[o]), back)
             noise = self._noise_glitch(first, sensor)[0]
+        if sensor.noise_lag1:  # noise correlated with the read before's (a read 0 has none before it)
+            own = first if sensor.repeat_share > 0 else k
+            noise = np.where((own > 0)[:, None], with_previous(noise, self._noise_glitch(np.maximum(own - 1, 0), sensor)[0],
+                                                               sensor.noise_lag1), noise)
         h = self.earth_body_ut(t)
         u = h / np.linalg.norm(h, axis=1, keepdims=True)
         offset, field = wander_mod.draw(sensor.wander, self.seed, t)
