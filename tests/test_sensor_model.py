@@ -158,6 +158,31 @@ def test_disturbances_are_a_function_of_seed_and_time_and_hold_their_rate_size_a
         Disturbances(0.1, (1.0, 2.0), (0.5, 1.0), 1.5)
 
 
+def test_disturbances_with_events_hold_one_pair_each_and_survive_the_file(tmp_path):
+    """A process given the (size, duration) pairs a recording showed draws each event as one
+    of them — a 5 µT hold lasts 0.2 s, a 2 µT one 3 s, never 5 µT for 3 s — and a version-6
+    file, which has no pairs, is read as the log-uniform ranges it held."""
+    d = Disturbances(rate_per_s=0.05, size_ut=(2.0, 6.0), duration_s=(0.2, 3.0), up_share=1.0,
+                     events=((5.0, 0.2), (2.0, 3.0)))
+    x = d.draw(5, np.arange(0.0, 20000.0, 0.01))
+
+    def runs_at(level):  # lengths (samples) of the runs where x holds ``level``
+        edges = np.diff(np.concatenate([[0], (x == level).astype(int), [0]]))
+        return np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+
+    assert len(runs_at(5.0)) > 300 and runs_at(5.0).max() <= 21  # (overlapping holds add: 2 + 5 = 7)
+    assert len(runs_at(2.0)) > 300 and np.median(runs_at(2.0)) > 250
+    m = _model(disturbances=d)
+    save_model(m, tmp_path / "m.yaml")
+    assert load_model(tmp_path / "m.yaml").disturbances == d
+    old = m.to_dict()
+    old["schema"] = "magcal.sensor-model/6"
+    del old["disturbances"]["events"]
+    assert SensorModel.from_dict(old).disturbances.events == ()
+    with pytest.raises(ValueError, match="at most duration_s"):
+        Disturbances(0.05, (2.0, 6.0), (0.2, 1.0), events=((2.0, 3.0),))
+
+
 def test_disturbances_learned_from_a_recording_that_has_them_and_not_from_one_without():
     from magcal.diagnose import twin
 

@@ -5,7 +5,11 @@ Real residuals have heavier tails than any stationary Gaussian wander makes (doc
 stretches of a few samples to several seconds where |field| departs by many times the noise,
 then comes back. The model: events arrive at random (Poisson, ``rate_per_s``); each holds the
 field's magnitude away by a size drawn log-uniform in ``size_ut`` (up with probability
-``up_share``, else down) for a duration drawn log-uniform in ``duration_s``, then lets go.
+``up_share``, else down) for a duration drawn log-uniform in ``duration_s``, then lets go — or,
+with ``events`` (pairs of size µT and duration s, the ones a recording showed), by the size and
+for the duration of one pair drawn at random: sizes and durations drawn apart lose how they go
+together, and a log-uniform range cut at its 5–95 % quantiles loses the few longest holds,
+which carry most of the power.
 
 ``draw`` is a deterministic function of (seed, t): time is cut into cells as long as the
 longest event, each cell's events are drawn from a generator keyed by (seed, cell), and a time
@@ -29,6 +33,7 @@ class Disturbances:
     size_ut: tuple
     duration_s: tuple
     up_share: float = 0.5
+    events: tuple = ()
 
     def __post_init__(self):
         s = tuple(float(v) for v in self.size_ut)
@@ -41,25 +46,40 @@ class Disturbances:
             raise ValueError(f"disturbance sizes and durations must be 0 < low ≤ high, got {list(s)}, {list(d)}")
         if not (0 <= self.up_share <= 1):
             raise ValueError(f"disturbance up_share must be in [0, 1], got {self.up_share}")
+        ev = tuple((float(a), float(b)) for a, b in self.events)
+        if any(not (0 < a < np.inf and 0 < b <= d[1] * (1 + 1e-9)) for a, b in ev):
+            raise ValueError(f"disturbance events are (size_ut, duration_s) pairs > 0 lasting at most duration_s[1] = {d[1]}")
+        object.__setattr__(self, "events", ev)
         object.__setattr__(self, "size_ut", s)
         object.__setattr__(self, "duration_s", d)
         object.__setattr__(self, "rate_per_s", float(self.rate_per_s))
         object.__setattr__(self, "up_share", float(self.up_share))
 
     def to_dict(self) -> dict:
-        return {"rate_per_s": self.rate_per_s, "size_ut": list(self.size_ut),
-                "duration_s": list(self.duration_s), "up_share": self.up_share}
+        d = {"rate_per_s": self.rate_per_s, "size_ut": list(self.size_ut),
+             "duration_s": list(self.duration_s), "up_share": self.up_share}
+        if self.events:
+            d["events"] = {"size_ut": [a for a, _ in self.events], "duration_s": [b for _, b in self.events]}
+        return d
 
     @classmethod
     def from_dict(cls, d) -> "Disturbances":
+        ev = d.get("events") or {}
+        sizes, durations = list(ev.get("size_ut", ())), list(ev.get("duration_s", ()))
+        if len(sizes) != len(durations):
+            raise ValueError("disturbance events need as many size_ut as duration_s")
         return cls(rate_per_s=d["rate_per_s"], size_ut=tuple(d["size_ut"]), duration_s=tuple(d["duration_s"]),
-                   up_share=d.get("up_share", 0.5))
+                   up_share=d.get("up_share", 0.5), events=tuple(zip(sizes, durations)))
 
     def _cell_events(self, seed: int, cell: int, width: float) -> np.ndarray:
         """(k, 3): start, duration and signed size of the events starting in one cell."""
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, _KEY, cell + _CELL_OFFSET])
         k = rng.poisson(self.rate_per_s * width)
         start = (cell + rng.random(k)) * width
+        if self.events:
+            pair = np.asarray(self.events)[rng.integers(0, len(self.events), k)]
+            size = pair[:, 0] * np.where(rng.random(k) < self.up_share, 1.0, -1.0)
+            return np.column_stack([start, pair[:, 1], size])
         dur = np.exp(rng.uniform(*np.log(self.duration_s), k))
         size = np.exp(rng.uniform(*np.log(self.size_ut), k)) * np.where(rng.random(k) < self.up_share, 1.0, -1.0)
         return np.column_stack([start, dur, size])

@@ -44,12 +44,13 @@ from . import wander as wander_mod
 from .disturbance import Disturbances
 from .wander import Wander
 
-SCHEMA = "magcal.sensor-model/6"
+SCHEMA = "magcal.sensor-model/7"
 # /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0);
 # /3: glitches at random reads only (no glitches.period_s); /4: no glitches along the field
-# (glitches.radial_share 0); /5: white noise (no noise_lag1)
+# (glitches.radial_share 0); /5: white noise (no noise_lag1); /6: disturbances drawn log-uniform
+# in size and duration apart (no disturbances.events)
 READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", "magcal.sensor-model/3", "magcal.sensor-model/4",
-         "magcal.sensor-model/5", SCHEMA)
+         "magcal.sensor-model/5", "magcal.sensor-model/6", SCHEMA)
 TEMP = "temp_c"
 
 
