@@ -15,6 +15,7 @@ magcal.diagnose.inference, and a channel group a second time against a rich wand
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -45,6 +46,12 @@ class Design:
     offset_directions: np.ndarray  # (n, 3) W·u: how an offset change shows in the residual
     reference: ModelFit  # the model the columns were built at
     soft_dirs: np.ndarray  # (5, k) the soft-iron directions of the soft-iron group, in SOFT_BASIS coordinates
+
+    @cached_property
+    def basis_before_wander(self) -> np.ndarray:
+        """``column_basis`` of the columns before the wander nuisance, made once: the twin's
+        residual, the wander check and its F test all project on it."""
+        return column_basis(self.x[:, : self.n_before_wander])
 
     @property
     def wander_cols(self) -> np.ndarray:

@@ -280,12 +280,11 @@ def wander_seen(dsg: design.Design, t: np.ndarray) -> bool:
     offset the temperature moves lies nearly along the band's axis, where a slow offset and a
     slow gain look alike) even where the residual shows no wander at all — on simulated bands
     without wander a temperature's noncentrality of 40–93 fell to 2–21 with it."""
-    x = dsg.x[:, : dsg.n_before_wander]
-    q = design.column_basis(x)
+    x, q = dsg.x[:, : dsg.n_before_wander], dsg.basis_before_wander
     residual = dsg.residual_ut - q @ (q.T @ dsg.residual_ut)
     if null.white_p(residual, contiguous_blocks(len(residual), n_test_blocks(len(residual)))) <= null.WHITE_LEVEL:
         return True
-    return longrun.shows_wander(x, dsg.residual_ut, t, dsg.offset_directions, design.WANDER_DEGREE)
+    return longrun.shows_wander(x, dsg.residual_ut, t, dsg.offset_directions, design.WANDER_DEGREE, q)
 
 
 def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
@@ -293,7 +292,7 @@ def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
     design but the wander fitted out, around the full candidate model), and its draws with no
     candidate term (magcal.diagnose.null)."""
     m_kept, t_kept, chans_kept = a.kept
-    q = design.column_basis(dsg.x[:, : dsg.n_before_wander])
+    q = dsg.basis_before_wander
 
     def project(v):
         return v - q @ (q.T @ v)

@@ -157,18 +157,20 @@ def wander_covariances(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_dir
     return {g: SlowShare(coefficient_cov(x, np.asarray(cols), shp, spectrum, reg), dof) for g, cols in groups.items()}
 
 
-def shows_wander(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_directions: np.ndarray, first: int) -> bool:
+def shows_wander(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_directions: np.ndarray, first: int,
+                 q: np.ndarray | None = None) -> bool:
     """Whether the residual e of design x shows an offset wander of Legendre degrees
     ``first``…DEGREE: the F test of those shapes (``shapes``) added to x rejects at
     WHITE_LEVEL, the level at which a residual gets no twin either (exact for white noise; a
     degree the design's columns nearly take counts for what is left of it). True where the
-    recording is too short to tell (as ``wander_covariances``)."""
+    recording is too short to tell (as ``wander_covariances``). ``q``: ``column_basis(x)`` when
+    the caller has it."""
     n = len(e)
     if n < 10 * (x.shape[1] + 3 * DEGREE):
         return True
     from .distributions import f_sf
 
-    q = column_basis(x)
+    q = column_basis(x) if q is None else q
     w = np.concatenate(list(shapes(t_s, offset_directions)[first - 1 :]), axis=1)
     qw = column_basis(w - q @ (q.T @ w))
     r = e - q @ (q.T @ e)
