@@ -270,10 +270,10 @@ def test_a_pulse_train_glitches_its_reads_at_its_period_whichever_way_the_board_
 
 
 def test_glitch_sizes_follow_their_quantiles_and_two_make_them_log_uniform():
-    from magcal.sim.model import glitches
+    from magcal.sim.model import glitch_parts
 
     def sizes(q):
-        g = glitches(np.random.default_rng(5), 200_000, 0.5, q)
+        g, _ = glitch_parts(np.random.default_rng(5), 200_000, 0.5, q)
         return np.linalg.norm(g[np.any(g != 0, axis=1)], axis=1)
 
     s = sizes((1.0, 1.5, 2.0, 2.2, 8.0))

@@ -405,7 +405,8 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     h_all = _corrected(calibration, m, chans)
     r_all = np.linalg.norm(h_all, axis=1)
     u_all = h_all / r_all[:, None]
-    rate, size, axis_share, hit = _glitches(m, r_all, u_all @ np.asarray(calibration.soft_iron), u_all)
+    seen_all = u_all @ np.asarray(calibration.soft_iron)  # how a jump of the reading moves |h|
+    rate, size, axis_share, hit = _glitches(m, r_all, seen_all, u_all)
     keep = ~hit
     used = {c: chans[c][keep] for c in calibration.coef_ut_per_unit}
     h = calibration.correct(m[keep], used)
@@ -443,8 +444,7 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     if rate > 0:
         rate, missed = glitch_process(model, s, hit)
         glitched, missed = along_the_field(replace(model, glitch_rate=rate), s, hit, h_all, missed,
-                                           lambda share: _glitches(m, r_all, u_all @ np.asarray(calibration.soft_iron),
-                                                                   u_all, share)[1])
+                                           lambda share: _glitches(m, r_all, seen_all, u_all, share)[1])
         model = replace(glitched, noise_ut=_less_noise(model, s, missed))
     return replace(model, noise_lag1=noise_lag1(model, s, free))
 
@@ -467,7 +467,7 @@ def noise_lag1(model: SensorModel, series: Series, free: bool = True, seeds=tupl
     gap = ts.lag1(real.e) - float(np.mean(lag))
     if abs(gap) <= NOISE_LAG1_Z * float(np.std(lag, ddof=1)):
         return 0.0
-    rho = gap * float(np.mean([np.var(x.e) for x in twins])) / max(_white_var(model, series), 1e-300)
+    rho = gap * float(np.mean([np.var(x.e) for x in twins])) / max(_white_var(model, series, u), 1e-300)
     return float(rho) if abs(rho) <= NOISE_LAG1_MAX else 0.0  # beyond what the noise can carry: not the noise's
 
 
@@ -482,9 +482,10 @@ def _less_noise(model: SensorModel, series: Series, missed: float) -> tuple:
     return tuple(float(v) for v in sigma * np.sqrt(max(white - missed, 0.1 * white) / white))
 
 
-def _white_var(model: SensorModel, series: Series) -> float:
-    """The radial variance µT² of the model's white noise along the recording's directions."""
-    u = twin_directions(model, series) @ np.asarray(model.calibration.soft_iron)
+def _white_var(model: SensorModel, series: Series, u: np.ndarray | None = None) -> float:
+    """The radial variance µT² of the model's white noise along the recording's directions
+    (``u``: ``twin_directions``, when the caller has them)."""
+    u = (twin_directions(model, series) if u is None else u) @ np.asarray(model.calibration.soft_iron)
     return float(np.mean(u * u @ np.asarray(model.noise_ut) ** 2))
 
 

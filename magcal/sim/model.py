@@ -374,11 +374,6 @@ def glitch_sizes(q: np.ndarray, size_ut: tuple) -> np.ndarray:
     return np.exp(np.interp(q, np.linspace(0.0, 1.0, len(logs)), logs))
 
 
-def glitches(rng: np.random.Generator, n: int, rate: float, size_ut: tuple, axis_share: float = 0.0) -> np.ndarray:
-    """(n, 3) glitch vectors: ``glitch_parts`` without glitches along the field."""
-    return glitch_parts(rng, n, rate, size_ut, axis_share)[0]
-
-
 def glitch_parts(rng: np.random.Generator, n: int, rate: float, size_ut: tuple, axis_share: float = 0.0,
                  radial_share: float = 0.0) -> tuple[np.ndarray, np.ndarray | None]:
     """((n, 3) glitch vectors, (n,) glitches along the field or None): with probability
