@@ -102,6 +102,11 @@ def direction_figure(final, path: Path) -> str:
     from ..diagnose.twin_names import direction_words
 
     ax.set_xticklabels([direction_words([i]) for i in x], rotation=60, fontsize=7)
+    ends = np.concatenate([cells, loc.get("cells_low", []), loc.get("cells_high", [])]).astype(float)
+    ends = ends[np.isfinite(ends)]
+    if len(ends):  # a band's end is not the axis's edge: a margin past the lowest and the highest
+        pad = 0.05 * max(float(np.ptp(ends)), 1e-9)
+        ax.set_ylim(float(ends.min()) - pad, float(ends.max()) + pad)
     ax.set_ylabel("mean residual (µT)")
     ax.set_title("mean residual per direction cell (empty cells: fewer than 10 samples)", loc="left", fontsize=10)
     ax.legend(fontsize=8)
