@@ -465,3 +465,45 @@ def test_soft_iron_beside_a_strong_current_is_neither_lost_nor_invented(seed, ti
     assert 0.01 < max(gains) - min(gains) < 0.03  # 2.25 % between the extreme gains
     assert run(0.0).effects == ["current_interference"]
 
+
+
+def _band(seed, hard, noise, tilt, period, **phys):
+    sc = Scenario(physics=Physics(hard_iron_ut=hard, noise_ut=noise, **phys),
+                  motion=Motion("tilt", max_tilt_deg=tilt, period_s=period), seed=seed)
+    return diagnose(sc.simulate(N, 50.0).series)
+
+
+@pytest.mark.parametrize("seed,hard,dist,noise,tilt,period", [
+    (7414000, (28.84, -18.15, 11.11), ((0.99605, -0.0013, 0.00411), (-0.0013, 0.99742, -0.00599), (0.00411, -0.00599, 1.00653)),
+     0.328, 16.86, 23.69),
+    (6655000, (-27.49, -29.83, -6.84), ((1.00501, 0.0022, 0.00301), (0.0022, 1.0091, 0.00222), (0.00301, 0.00222, 0.98589)),
+     0.375, 23.57, 26.59),
+])
+def test_soft_iron_on_a_band_is_not_lost_beside_the_time_term_it_resembles(seed, hard, dist, noise, tilt, period):
+    # a soft iron (gains 1 % and 1.5 % off) on a ±17° and a ±24° band swept with a period: soft
+    # iron and an offset drifting in time look alike there, and tested beside each other neither
+    # passed (soft iron p 0.08 and 0.06, time 0.02 and 0.8) though the pair together did; alone
+    # soft iron explains more, is tested without the time columns and found
+    d = _band(seed, hard, noise, tilt, period, distortion=dist)
+    assert d.effects == ["soft_iron"]
+    pair = _finding(d, "soft_iron").evidence["collinear_pair"]
+    assert pair["chosen"] == "soft_iron" and pair["joint_p"] <= 0.01
+    assert pair["p_alone"][0] < pair["p_alone"][1]
+    gains = _finding(d, "soft_iron").params["principal_gains"]
+    assert 0.01 < max(gains) - min(gains) < 0.04
+
+
+@pytest.mark.parametrize("seed,hard,drift,noise,tilt,period", [
+    (6641000, (19.4, -0.75, -7.02), (0.00446, 0.00593, 0.00097), 0.442, 23.92, 27.63),
+    (6431000, (36.99, 37.31, 36.63), (0.0045, -0.00338, 0.00114), 0.560, 22.45, 29.93),
+])
+def test_a_drift_on_a_band_is_not_taken_for_soft_iron(seed, hard, drift, noise, tilt, period):
+    # the same likeness the other way: a 0.6–0.75 µT drift over the recording on a band, no soft
+    # iron. Neither passed beside the other (time was missed); alone time explains more, and it
+    # is the one found — soft iron is not credited with the drift
+    d = _band(seed, hard, noise, tilt, period, drift_ut_per_s=drift)
+    assert d.effects == ["time_drift"]
+    f = _finding(d, "time_drift")
+    assert f.evidence["collinear_pair"]["chosen"] == "time_drift"
+    k = np.array(f.params["coef_ut_per_unit"])
+    assert np.linalg.norm(k - drift) < 0.5 * np.linalg.norm(drift)

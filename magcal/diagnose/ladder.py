@@ -35,9 +35,9 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.series import Series
-from . import channels, design, glitches, hygiene, longrun, null, selection, softiron, statements
+from . import channels, collinear, design, glitches, hygiene, longrun, null, selection, softiron, statements
 from .diagnosis import Diagnosis
-from .inference import block_wald, calibrated, contiguous_blocks, n_test_blocks
+from .inference import contiguous_blocks, n_test_blocks
 from ..fit import fit_calibration
 from .diagnosis import model_name
 from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms, from_calibration
@@ -95,6 +95,7 @@ class Selected:
     n_tests: int  # hypotheses in Holm's family
     null: null.NullDraws  # the twin's draws every test was judged against
     wander_nuisance: bool = True  # the quadratic offset wander was a nuisance of ``tests`` (the residual shows a wander)
+    pair: collinear.PairChoice | None = None  # soft iron and time, when neither passed beside the other (collinear.resolve)
 
 
 STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare_heldout",
@@ -259,15 +260,20 @@ def test_terms(a: Analysed, ref: ModelFit, twin_null: bool = True) -> tuple[desi
     dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
     draws = draw_null(a, dsg) if twin_null else null.none(len(m_kept), "the twin as the null was switched off")
     e_null = (draws.e, draws.white) if draws.count else None
-    unique = {g: softiron.MIN_UNIQUE if g == softiron.EFFECT else channels.MIN_UNIQUE for g in dsg.groups}
     seen = draws.count > 0 or wander_seen(dsg, t_kept)
-    # free, the quadratic wander takes most of a 1.3-cycle temperature swing on a band of
-    # directions even where the residual shows no wander at all (see wander_seen)
-    tests = block_wald(dsg.x if seen else dsg.x[:, : dsg.n_before_wander], dsg.residual_ut, dsg.groups,
-                       min_unique=unique, null=e_null)
-    tests = {g: calibrated(r) for g, r in tests.items()}
+    tests = tested_columns(dsg, seen, e_null).test(dsg.groups)
     rich = design.test_against_rich_wander(dsg, t_kept, e_null)
     return dsg, tests, rich, skipped, draws, seen
+
+
+def tested_columns(dsg: design.Design, seen: bool, e_null: tuple | None) -> collinear.Tested:
+    """What every test runs on: the design's columns, with the quadratic wander only where the
+    residual shows a wander (``seen``: free, the quadratic wander takes most of a 1.3-cycle
+    temperature swing on a band of directions even where the residual shows no wander at all,
+    see wander_seen), each group's coverage gate and the twin's draws ``e_null``."""
+    unique = {g: softiron.MIN_UNIQUE if g == softiron.EFFECT else channels.MIN_UNIQUE for g in dsg.groups}
+    return collinear.Tested(dsg.x if seen else dsg.x[:, : dsg.n_before_wander], dsg.residual_ut, dsg.groups, unique,
+                            e_null)
 
 
 def wander_seen(dsg: design.Design, t: np.ndarray) -> bool:
@@ -315,14 +321,19 @@ def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, fold
     dsg, tests, rich, skipped, draws, seen = test_terms(a, ref, twin_null)
     floor_ut = selection.practical_floor_ut(noise_ut)
     verdict = selection.significant(tests, rich, alpha, floor_ut)
+    e_null = (draws.e, draws.white) if draws.count else None
+    tests, pair = collinear.resolve(tested_columns(dsg, seen, e_null), tests, verdict.rejected, alpha)
+    extra = pair.family_entry() if pair is not None else {}
+    if extra:
+        verdict = selection.significant(tests, rich, alpha, floor_ut, extra)
     soft_size = softiron.fitted_size(dsg.x[:, dsg.groups[softiron.EFFECT]], dsg.soft_dirs, ref)
     survivors = selection.above_floor(tests, verdict, floor_ut, soft_size)
     _, _, chans_kept = a.kept
     survivors, wander = selection.wander_gate(dsg, chans_kept, survivors, verdict.fast)
     accepted, heldout = selection.drop_by_heldout(dsg, survivors, folds)
-    n_tests = len(selection.family(tests, rich))
+    n_tests = len(selection.family(tests, rich, extra))
     return Selected(tests, rich, verdict.fast, survivors, wander, accepted, heldout, skipped, dsg.candidates, dsg, n_tests,
-                    draws, seen)
+                    draws, seen, pair)
 
 
 def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, list]:

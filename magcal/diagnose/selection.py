@@ -39,19 +39,22 @@ class Significant:
     fast: set  # channels significant against the rich wander, above the practical floor
 
 
-def family(tests: dict, rich: dict) -> dict:
+def family(tests: dict, rich: dict, extra: dict | None = None) -> dict:
     """The p-values of Holm's family: both test families together, without the tests the design
     could not run at all (``untestable``: no direction of the term left once the other columns
     are fitted — a slow channel against the rich wander, say). Such a test's p is 1 whatever the
-    data say; counted in the family it would only make every other test's threshold stricter."""
+    data say; counted in the family it would only make every other test's threshold stricter.
+    ``extra``: further hypotheses of the family (the joint test of a collinear pair,
+    magcal.diagnose.collinear), name → p."""
     pvals = {g: r.p for g, r in tests.items() if not r.untestable}
     pvals.update({("rich", g): r.p for g, r in rich.items() if not r.untestable})
+    pvals.update(extra or {})
     return pvals
 
 
-def significant(tests: dict, rich: dict, alpha: float, floor_ut: float) -> Significant:
+def significant(tests: dict, rich: dict, alpha: float, floor_ut: float, extra: dict | None = None) -> Significant:
     """Holm's step-down over the family (``family``)."""
-    rejected_all = holm(family(tests, rich), alpha)
+    rejected_all = holm(family(tests, rich, extra), alpha)
     # fast: significant against the rich wander (Holm), and on its own at alpha against the
     # quadratic one too (two views of the same term must agree; chance rarely fools both)
     fast = {g for g, r in rich.items()

@@ -130,6 +130,8 @@ def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
         "heldout_rms_ut_without": selected.heldout.get(g),
     }
     ev["twin_inflation"] = r.inflation
+    if selected.pair is not None and selected.pair.chosen == g:
+        ev["collinear_pair"] = selected.pair.to_dict()
     if r.fallback:
         ev["test_fallback"] = r.fallback
     if g in selected.wander:
@@ -239,4 +241,5 @@ def tests_record(selected) -> dict:
         for g, r in selected.tests.items()
     }
     return {"skipped_channels": selected.skipped, "twin_null": selected.null.to_dict(), "against_rich_wander": rich, "survivors": list(selected.survivors),
-            "wander_nuisance": selected.wander_nuisance, "heldout": dict(selected.heldout), "candidates": candidates}
+            "wander_nuisance": selected.wander_nuisance, "heldout": dict(selected.heldout), "candidates": candidates,
+            "collinear": None if selected.pair is None else selected.pair.to_dict()}
