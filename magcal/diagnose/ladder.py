@@ -277,8 +277,9 @@ def tested_columns(dsg: design.Design, seen: bool, e_null: tuple | None) -> coll
 
 
 def wander_seen(dsg: design.Design, t: np.ndarray) -> bool:
-    """Whether the residual of every column but the wander nuisance shows a slow wander: its
-    block sums are not those of white noise (null.white_p, as for the twin), or an offset
+    """Whether the residual with every candidate fitted (design.Design.x_candidates: every
+    column but the wander nuisance, and soft iron along the directions the tests leave out)
+    shows a slow wander: its block sums are not those of white noise (null.white_p, as for the twin), or an offset
     following the Legendre polynomials of degree 2 (the nuisance's own) and above in time is
     significant beside every candidate term (longrun.shows_wander); either at
     null.WHITE_LEVEL. Only then is the quadratic wander a nuisance of the tests: as free
@@ -286,7 +287,7 @@ def wander_seen(dsg: design.Design, t: np.ndarray) -> bool:
     offset the temperature moves lies nearly along the band's axis, where a slow offset and a
     slow gain look alike) even where the residual shows no wander at all — on simulated bands
     without wander a temperature's noncentrality of 40–93 fell to 2–21 with it."""
-    x, q = dsg.x[:, : dsg.n_before_wander], dsg.basis_before_wander
+    x, q = dsg.x_candidates, dsg.basis_of_candidates
     residual = dsg.residual_ut - q @ (q.T @ dsg.residual_ut)
     if null.white_p(residual, contiguous_blocks(len(residual), n_test_blocks(len(residual)))) <= null.WHITE_LEVEL:
         return True
@@ -294,11 +295,12 @@ def wander_seen(dsg: design.Design, t: np.ndarray) -> bool:
 
 
 def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
-    """The recording's twin, learned from the residual the tests see (every column of the
-    design but the wander fitted out, around the full candidate model), and its draws with no
+    """The recording's twin, learned from the residual with every candidate fitted
+    (design.Design.x_candidates: every column of the design but the wander, and soft iron along
+    the directions the tests leave out), around the full candidate model, and its draws with no
     candidate term (magcal.diagnose.null)."""
     m_kept, t_kept, chans_kept = a.kept
-    q = dsg.basis_before_wander
+    q = dsg.basis_of_candidates
 
     def project(v):
         return v - q @ (q.T @ v)
