@@ -338,3 +338,28 @@ def test_noise_that_alternates_between_reads_is_drawn_at_its_correlation_and_rea
     assert SensorModel.from_dict(d).noise_lag1 == 0.0
     with pytest.raises(ValueError, match="noise_lag1"):
         _model(noise_lag1=0.6)
+
+
+def test_takes_are_written_drawn_as_a_level_per_take_and_an_older_file_reads_as_one_take():
+    """A recording of takes: the file keeps when each take starts and the spread of their
+    levels; the twin draws one level of the field's magnitude per take (the same within a take,
+    a function of the seed), and the rest of its draws are the model's without takes."""
+    from magcal.sim.takes import Takes
+
+    m = _model(takes=Takes(start_s=(2.0, 5.0, 9.0), level_sd_ut=1.5))
+    d = json.loads(json.dumps(m.to_dict()))
+    assert d["takes"] == {"count": 4, "start_s": [2.0, 5.0, 9.0], "level_sd_ut": 1.5}
+    assert SensorModel.from_dict(d).to_dict() == m.to_dict()
+    t = np.arange(600) / 50.0
+    with_takes, without = m.draws(t, seed=5), m.without("takes").draws(t, seed=5)
+    level = with_takes.field_wander_ut - without.field_wander_ut
+    take = m.takes.index(t)
+    assert [len(np.unique(level[take == k])) for k in range(4)] == [1, 1, 1, 1]
+    assert len(np.unique(level)) == 4 and np.array_equal(level, m.draws(t, seed=5).field_wander_ut - without.field_wander_ut)
+    assert np.array_equal(with_takes.noise, without.noise) and np.array_equal(with_takes.wander_ut, without.wander_ut)
+    assert "takes" in m.effects() and "takes" not in m.without("takes").effects()
+    d["schema"] = "magcal.sensor-model/7"
+    del d["takes"]
+    assert SensorModel.from_dict(d).takes is None
+    with pytest.raises(ValueError, match="start_s"):
+        Takes(start_s=(5.0, 2.0))

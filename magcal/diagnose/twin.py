@@ -36,8 +36,10 @@ from ..sim import directions
 from ..sim import wander as wander_mod
 from ..sim.disturbance import Disturbances
 from ..sim.model import TEMP, SensorModel, replace_calibration
+from ..sim.takes import Takes
 from . import twin_stats as ts
 from .twin_names import Mismatch, locate, mismatches
+from . import twin_takes
 from .lattice import quantum
 from .model import Spec, fit_model
 
@@ -82,12 +84,14 @@ def refit(model: SensorModel, m, t, channels, free: bool = True) -> Residual | N
     """Refit ``model``'s kind of calibration (sphere or ellipsoid, with its channel terms) to
     the measurements and return their residual; None when the fit fails. ``free=False`` keeps
     the model's calibration (a recording whose motion cannot determine one, e.g. a still board)
-    and only removes the mean level."""
+    and only removes the mean level. A recording of takes (``model.takes``) has a level per
+    take removed as well: each placement's own hard-iron surroundings, part of its calibration."""
     cal = model.calibration
     if not free:
         h = cal.correct(m, {c: channels[c] for c in cal.coef_ut_per_unit})
         norm = np.linalg.norm(h, axis=1)
-        return Residual(e=norm - norm.mean(), u=h / norm[:, None], m=m, t=t, channels=channels, gain=None)
+        e = norm - norm.mean() if model.takes is None else model.takes.demean(norm, t)
+        return Residual(e=e, u=h / norm[:, None], m=m, t=t, channels=channels, gain=None)
     soft = not _isotropic(cal.soft_iron)
     chans = tuple(cal.coef_ut_per_unit)
     used = {c: channels[c] for c in chans}
@@ -106,6 +110,8 @@ def refit(model: SensorModel, m, t, channels, free: bool = True) -> Residual | N
         gain = ts.gain_of(f.soft_iron) if soft else None
     norm = np.linalg.norm(h, axis=1)
     e = norm - np.sqrt(np.mean(norm * norm)) if chans else np.asarray(f.residual_ut)
+    if model.takes is not None:
+        e = model.takes.demean(e, t)
     return Residual(e=e, u=h / norm[:, None], m=m, t=t, channels=channels, gain=gain)
 
 
@@ -398,7 +404,35 @@ def _saturation(m: np.ndarray) -> float | None:
 def learn(series: Series, calibration: Calibration, source: Mapping | None = None, free: bool = True) -> SensorModel:
     """The SensorModel of ``series`` around ``calibration`` (its deterministic part).
     ``free=False``: the calibration came from elsewhere and the motion cannot determine one
-    (a still board); direction terms are not sought and the refit only removes the level."""
+    (a still board); direction terms are not sought and the refit only removes the level.
+    A recording of takes (``placements``) is learned again with a level per take removed."""
+    model = _learn(series, calibration, source, free)
+    takes = placements(model, series.only_valid(), free)
+    return model if takes is None else _learn(series, calibration, source, free, takes)
+
+
+TAKE_SEEDS = tuple(range(201, 209))
+
+
+def placements(model: SensorModel, series: Series, free: bool = True) -> Takes | None:
+    """The takes of a recording (``twin_takes``) when its level steps at their starts more than
+    the twins of ``model`` (learned without takes) step there, with the spread of its levels
+    between them; else None."""
+    real = refit(model, series.field_ut, series.t_s, with_time(series), free)
+    takes = None if real is None else twin_takes.candidate(real.u, real.t)
+    if takes is None:
+        return None
+    u = twin_directions(model, series)
+    twins = [twin_draw(model, series, seed, free, u) for seed in TAKE_SEEDS]
+    steps = [twin_takes.level_steps(x.e, x.t, takes) for x in twins if x is not None]
+    if not twin_takes.steps_exceed(twin_takes.level_steps(real.e, real.t, takes), steps):
+        return None
+    return twin_takes.with_levels(takes, real.e, real.t)
+
+
+def _learn(series: Series, calibration: Calibration, source: Mapping | None, free: bool,
+           takes: Takes | None = None) -> SensorModel:
+    """``learn`` with the takes given (None: one take)."""
     s = series.only_valid()
     m, t, chans = s.field_ut, s.t_s, with_time(s)
     q = quantum(m)
@@ -414,6 +448,7 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     u = h / r[:, None]
     e = r - calibration.field_ut
     e = e - e.mean()
+    e = e if takes is None else takes.demean(e, t[keep])  # each placement's level is its calibration's
     nonlin = np.zeros(len(directions.NAMES))
     coef, gain = _heldout_gain(e, directions.basis(u)) if free else (nonlin, 0.0)
     if gain > CV_GAIN:
@@ -431,13 +466,13 @@ def learn(series: Series, calibration: Calibration, source: Mapping | None = Non
     # the noise, the quantum and the offset wander enter the raw reading, which the residual
     # sees through the soft iron: |W(m − b)| moves by (Wᵀu)·δ for a departure δ of m
     seen = u @ np.asarray(calibration.soft_iron)
-    comps, white = wander_mod.fit(e, seen, t[keep], projector(u, used) if free else None)
+    comps, white = wander_mod.fit(e, seen, t[keep], _refit_projector(u, used, takes, t[keep], free))
     model = SensorModel(
         calibration=replace_calibration(calibration, field_ut=calibration.field_ut + float(np.mean(r - calibration.field_ut))),
         noise_ut=_axis_noise(m[keep], white, seen, q), quantum_ut=q, wander=comps,
         glitch_rate=rate, glitch_ut=size, glitch_axis_share=axis_share, **glitch_train(t[hit], wander_mod.sample_interval(t)),
         disturbances=dist, nonlinearity_ut=tuple(nonlin),
-        temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m),
+        temp_gain_per_c=temp_gain, temp_ref_c=temp_ref, saturation_ut=_saturation(m), takes=takes,
         rate_hz=1.0 / wander_mod.sample_interval(t), source=dict(source or {}),
     )
     model = replace(model, repeat_share=repeat_share(model, s))
@@ -624,10 +659,11 @@ def along_the_field(model: SensorModel, series: Series, hit: np.ndarray, h: np.n
     return out, lost
 
 
-def projector(u: np.ndarray, channels: Mapping[str, np.ndarray]):
+def projector(u: np.ndarray, channels: Mapping[str, np.ndarray], take: np.ndarray | None = None):
     """x ↦ what is left of a radial series x once a calibration is refitted: the residual of
     its least squares on the linearised model (offset, radius, soft iron: the degree ≤ 2
-    functions of the direction; and x_c·u per channel term)."""
+    functions of the direction; and x_c·u per channel term) — and then, with ``take`` (the take
+    of each sample), of a level per take, in that order, as ``refit`` removes them."""
     cols = [np.ones(len(u)), *u.T, *(u[:, [0, 0, 1]] * u[:, [1, 2, 2]]).T, *(u[:, :2] ** 2).T]  # z² = 1 − x² − y²
     for x in channels.values():
         xc = x - np.mean(x)
@@ -635,9 +671,21 @@ def projector(u: np.ndarray, channels: Mapping[str, np.ndarray]):
     q, _ = np.linalg.qr(np.column_stack(cols))
 
     def project(x: np.ndarray) -> np.ndarray:
-        return x - q @ (q.T @ x)
+        left = x - q @ (q.T @ x)
+        if take is None:
+            return left
+        n = np.maximum(np.bincount(take), 1)  # then a level per take, as ``refit`` removes it
+        return left - (np.bincount(take, weights=left) / n)[take]
 
     return project
+
+
+def _refit_projector(u: np.ndarray, channels: Mapping, takes, t: np.ndarray, free: bool):
+    """What ``refit`` leaves of a radial series, linearised (``projector``; a fixed
+    calibration removes only the level, per take when there are takes)."""
+    if free:
+        return projector(u, channels, None if takes is None else takes.index(t))
+    return None if takes is None else (lambda x: takes.demean(x, t))
 
 
 # -- the comparison -------------------------------------------------------------------------
@@ -829,7 +877,7 @@ def step_models(model: SensorModel, series: Series, free: bool = True) -> list[t
     has = set(model.effects()) | ({"quantum"} if any(model.quantum_ut) else set())
     out = [("baseline", baseline_model(model, series, free))]
     for step in ORDER:
-        present = has & {"soft_iron", *model.calibration.coef_ut_per_unit} if step == "calibration" else has & {step}
+        present = has & {"soft_iron", "takes", *model.calibration.coef_ut_per_unit} if step == "calibration" else has & {step}
         if not present:
             continue
         m = model

@@ -18,6 +18,11 @@ def format_twin(t: dict) -> str:
     lo, hi = t["band_pct"]
     lines = [f"twin        {t['draws']} draws per step; a statistic fits when the recording lies in the "
              f"twins' {lo:g}–{hi:g} % band"]
+    takes = (t.get("model") or {}).get("takes")
+    if takes:
+        lines.append(f"  takes     {takes['count']} placements (the recorder paused between them), each in its own hard-iron "
+                     f"surroundings: a level per take removed with the calibration in every refit, real and twin "
+                     f"(levels spread {takes['level_sd_ut']:.2f} µT)")
     for step in t["steps"]:
         missed = [k for k, b in step["bands"].items() if not b["inside"]]
         tail = ("   misses " + ", ".join(missed)) if missed else ""

@@ -25,7 +25,10 @@ z_i standard normal. Repeated reads: a host that reads faster than the sensor co
 data-ready flag not awaited) gets the last conversion again, bit for bit; a share
 ``repeat_share`` of reads does, in the steady pattern of two unequal rates (read i shows
 conversion ⌊i·(1 − share) + φ⌋, φ a random phase; j(i) the first read of that conversion). A
-glitch corrupts one read, repeated or not.
+glitch corrupts one read, repeated or not. A recording of takes (``takes``, ``magcal.sim.takes``):
+the recorder paused while the board was placed anew, and each placement sits in its own
+hard-iron surroundings — a level of the field's magnitude per take (drawn N(0, level_sd_ut²)),
+which every refit of such a recording removes, as it removes the calibration.
 
 The value serialises to a plain dict (YAML or JSON) with units in its keys and a schema
 version; ``from_dict`` refuses a malformed or unknown one with a message naming the key.
@@ -42,15 +45,16 @@ from ..core.calibration import Calibration
 from . import directions
 from . import wander as wander_mod
 from .disturbance import Disturbances
+from .takes import Takes
 from .wander import Wander
 
-SCHEMA = "magcal.sensor-model/7"
+SCHEMA = "magcal.sensor-model/8"
 # /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0);
 # /3: glitches at random reads only (no glitches.period_s); /4: no glitches along the field
 # (glitches.radial_share 0); /5: white noise (no noise_lag1); /6: disturbances drawn log-uniform
-# in size and duration apart (no disturbances.events)
+# in size and duration apart (no disturbances.events); /7: one take (no takes)
 READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", "magcal.sensor-model/3", "magcal.sensor-model/4",
-         "magcal.sensor-model/5", "magcal.sensor-model/6", SCHEMA)
+         "magcal.sensor-model/5", "magcal.sensor-model/6", "magcal.sensor-model/7", SCHEMA)
 TEMP = "temp_c"
 
 
@@ -86,6 +90,7 @@ class SensorModel:
     temp_ref_c: float = 25.0
     saturation_ut: float | None = None
     repeat_share: float = 0.0  # share of reads that repeat the previous conversion
+    takes: Takes | None = None  # a recording of takes: each placement at its own level (None: one take)
     rate_hz: float = 50.0
     source: Mapping = field(default_factory=dict)
 
@@ -162,6 +167,8 @@ class SensorModel:
             path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
         if self.disturbances is not None:
             field = field + self.disturbances.draw(seed, t)
+        if self.takes is not None:
+            field = field + self.takes.levels(seed, t)
         g, along = self.glitch_vectors(rng, t, seed)
         return Draws(noise, g, path, field, repeated_reads(len(t), self.repeat_share, seed), along)
 
@@ -198,8 +205,8 @@ class SensorModel:
 
     def without(self, effect: str) -> "SensorModel":
         """This model with one effect removed (``wander``, ``field_wander``, ``nonlinearity``, ``glitches``,
-        ``disturbances``, ``soft_iron``, ``temperature_gain``, ``saturation``, ``repeats``, ``quantum`` or a
-        channel name)."""
+        ``disturbances``, ``soft_iron``, ``temperature_gain``, ``saturation``, ``repeats``, ``takes``,
+        ``quantum`` or a channel name)."""
         cal = self.calibration
         if effect in ("wander", "field_wander"):
             frame = wander_mod.OFFSET if effect == "wander" else wander_mod.FIELD
@@ -216,6 +223,8 @@ class SensorModel:
             return replace(self, saturation_ut=None)
         if effect == "repeats":
             return replace(self, repeat_share=0.0)
+        if effect == "takes":
+            return replace(self, takes=None)
         if effect == "quantum":
             return replace(self, quantum_ut=(0.0, 0.0, 0.0))
         if effect == "soft_iron":
@@ -244,6 +253,7 @@ class SensorModel:
         out += ["temperature_gain"] if self.temp_gain_per_c else []
         out += ["saturation"] if self.saturation_ut is not None else []
         out += ["repeats"] if self.repeat_share > 0 else []
+        out += ["takes"] if self.takes is not None else []
         return tuple(out)
 
     # -- serialisation -------------------------------------------------------------------
@@ -266,6 +276,7 @@ class SensorModel:
             "temp_ref_c": float(self.temp_ref_c),
             "saturation_ut": None if self.saturation_ut is None else float(self.saturation_ut),
             "reads": {"repeat_share": float(self.repeat_share)},
+            "takes": None if self.takes is None else self.takes.to_dict(),
             "rate_hz": float(self.rate_hz),
         })
         if self.source:
@@ -298,6 +309,7 @@ class SensorModel:
                 temp_ref_c=float(d.get("temp_ref_c", 25.0)),
                 saturation_ut=None if d.get("saturation_ut") is None else float(d["saturation_ut"]),
                 repeat_share=float((d.get("reads") or {}).get("repeat_share", 0.0)),
+                takes=None if d.get("takes") is None else Takes.from_dict(d["takes"]),
                 rate_hz=float(d.get("rate_hz", 50.0)),
                 source=dict(d.get("source", {})),
             )
