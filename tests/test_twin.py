@@ -263,6 +263,57 @@ def test_repeated_reads_are_learned_beyond_the_repeats_a_coarse_quantum_makes_by
     assert _learned(_recording(coarse, seed=26, n=5000)).repeat_share == 0.0
 
 
+def _re_read(conversions: Series, share: float) -> Series:
+    """A host reading ``conversions`` (taken at a steady rate) 1/(1 − share) times as often:
+    read k shows conversion ⌊k·(1 − share) + 0.37⌋, a share ``share`` of reads the one before
+    again, bit for bit."""
+    n = int(len(conversions) / (1.0 - share))
+    k = np.arange(n)
+    c = np.minimum(np.floor(k * (1.0 - share) + 0.37).astype(np.int64), len(conversions) - 1)
+    dt = (conversions.t_s[1] - conversions.t_s[0]) * (1.0 - share)
+    return Series(t_s=conversions.t_s[0] + k * dt, field_ut=conversions.field_ut[c], channels={})
+
+
+def test_a_twin_of_a_turning_board_read_with_repeats_jumps_as_often_as_its_recording():
+    """A board turning steadily, its conversions read with 3 % repeats: the twin replays the
+    recording's conversions one for one in its own pattern of repeats, so the read after a
+    repeat steps to the next conversion as the recording's does, and the twins' isolated
+    jumps match the recording's (within 30 %, pooled over three recordings). Replaying a
+    direction per read, the read after each repeat stepped two conversions at once: 3–10× the
+    recording's jumps."""
+    quiet = dataclasses.replace(_truth(), noise_ut=(0.05, 0.05, 0.05), quantum_ut=(0.0, 0.0, 0.0), wander=())
+    real = twins = 0.0
+    for seed in (61, 62, 63):
+        board = Scenario(physics=Physics(), motion=Motion("sphere", period_s=5.0), seed=seed, model=quiet)
+        s = _re_read(board.simulate(4000).series, 0.03)
+        learned = _learned(s)
+        assert abs(learned.repeat_share - 0.03) < 0.005
+        chans, u = twin.with_time(s), twin.twin_directions(learned, s)
+        real += np.count_nonzero(ts.jumps(s.field_ut))
+        twins += np.mean([np.count_nonzero(ts.jumps(twin.twin_readings(learned, u, s.t_s, chans, k)[0]))
+                          for k in range(50, 56)])
+    assert real > 30
+    assert 0.7 < twins / real < 1.3
+
+
+def test_a_twin_without_repeats_takes_the_recordings_direction_at_every_read():
+    """``replayed`` with no repeats in the model is the recording's directions as they are;
+    with repeats, each twin read shows one of the recording's conversions, in order, one step
+    at a time (a repeated read the conversion before)."""
+    rng = np.random.default_rng(7)
+    u = rng.standard_normal((200, 3))
+    u[[10, 11, 50, 120]] = u[[9, 9, 49, 119]]  # the recording's own repeats
+    assert twin.replayed(u, None) is u
+    shown = np.arange(200)
+    shown[[5, 30, 31, 90]] = [4, 29, 29, 89]
+    v = twin.replayed(u, shown)
+    fresh = np.flatnonzero(~twin.repeats(u))
+    step = np.array([np.flatnonzero((u[fresh] == x).all(axis=1))[0] for x in v])
+    assert step[0] == 0 and step[-1] == len(fresh) - 1
+    assert set(np.diff(step)) <= {0, 1}
+    assert np.all(np.diff(step)[shown[1:] != np.arange(1, 200)] == 0)
+
+
 def test_a_twin_is_as_rough_from_sample_to_sample_as_its_recording():
     """The twin replays the recording's directions, which carry the noise across the field;
     it adds noise along the field only, so its second differences match the recording's."""

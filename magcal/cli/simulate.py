@@ -131,8 +131,7 @@ def _like(model, args) -> tuple[Series, dict]:
         raise InputError(f"{args.like} has {len(rec)} valid samples; a twin needs at least 2")
     from ..diagnose import twin
 
-    u = twin.twin_directions(model, rec)
-    draws = twin.twin_draws(model, u, rec.t_s, args.seed)
+    u, draws = twin.twin_draws(model, twin.twin_directions(model, rec), rec.t_s, args.seed)
     m, valid = model.distort(u, chans, draws)
     hit = np.any(draws.glitch_ut != 0, axis=1)
     rows = np.flatnonzero(hit if draws.glitch_along_ut is None else hit | (draws.glitch_along_ut != 0))
