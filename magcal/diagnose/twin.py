@@ -683,11 +683,11 @@ def along_the_field(model: SensorModel, series: Series, hit: np.ndarray, h: np.n
     return out, lost
 
 
-def projector(u: np.ndarray, channels: Mapping[str, np.ndarray], take: np.ndarray | None = None):
+def projector(u: np.ndarray, channels: Mapping[str, np.ndarray], then=None):
     """x ↦ what is left of a radial series x once a calibration is refitted: the residual of
     its least squares on the linearised model (offset, radius, soft iron: the degree ≤ 2
-    functions of the direction; and x_c·u per channel term) — and then, with ``take`` (the take
-    of each sample), of a level per take, in that order, as ``refit`` removes them."""
+    functions of the direction; and x_c·u per channel term) — and then ``then`` of what is left
+    (a level per take, ``Takes.demean``), in that order, as ``refit`` removes them."""
     cols = [np.ones(len(u)), *u.T, *(u[:, [0, 0, 1]] * u[:, [1, 2, 2]]).T, *(u[:, :2] ** 2).T]  # z² = 1 − x² − y²
     for x in channels.values():
         xc = x - np.mean(x)
@@ -696,10 +696,7 @@ def projector(u: np.ndarray, channels: Mapping[str, np.ndarray], take: np.ndarra
 
     def project(x: np.ndarray) -> np.ndarray:
         left = x - q @ (q.T @ x)
-        if take is None:
-            return left
-        n = np.maximum(np.bincount(take), 1)  # then a level per take, as ``refit`` removes it
-        return left - (np.bincount(take, weights=left) / n)[take]
+        return left if then is None else then(left)
 
     return project
 
@@ -707,9 +704,8 @@ def projector(u: np.ndarray, channels: Mapping[str, np.ndarray], take: np.ndarra
 def _refit_projector(u: np.ndarray, channels: Mapping, takes, t: np.ndarray, free: bool):
     """What ``refit`` leaves of a radial series, linearised (``projector``; a fixed
     calibration removes only the level, per take when there are takes)."""
-    if free:
-        return projector(u, channels, None if takes is None else takes.index(t))
-    return None if takes is None else (lambda x: takes.demean(x, t))
+    per_take = None if takes is None else (lambda x: takes.demean(x, t))
+    return projector(u, channels, per_take) if free else per_take
 
 
 # -- the comparison -------------------------------------------------------------------------
