@@ -263,6 +263,23 @@ def test_repeated_reads_are_learned_beyond_the_repeats_a_coarse_quantum_makes_by
     assert _learned(_recording(coarse, seed=26, n=5000)).repeat_share == 0.0
 
 
+def test_a_twin_without_the_recordings_repeated_reads_is_named_repeats_and_one_without_none_is_not_asked():
+    """The comparison asks for the share of repeated reads only where the recording has any:
+    the learned model's twins hold it; the same model without repeats is named for them; a
+    recording with no repeated read does not carry the statistic at all (0 against 0 would be
+    a pair won by nothing)."""
+    rec = _recording(dataclasses.replace(_truth(), repeat_share=0.2), seed=27, n=4000)
+    sm = _learned(rec)
+    c = twin.compare(sm, rec, draws=20, seed=400)
+    share = next(b for b in c.bands if b.name == "repeat_share")
+    assert share.inside and 0.18 < share.real < 0.22
+    less = twin.compare(sm.without("repeats"), rec, draws=20, seed=400)
+    named = {m.effect: m for m in less.mismatches}
+    assert "repeats" in named and named["repeats"].side == "high", [m.summary for m in less.mismatches]
+    plain = _recording(dataclasses.replace(_truth(), quantum_ut=(0.0, 0.0, 0.0)), seed=28, n=3000)
+    assert "repeat_share" not in {b.name for b in twin.compare(_learned(plain), plain, draws=5, seed=1).bands}
+
+
 def _re_read(conversions: Series, share: float) -> Series:
     """A host reading ``conversions`` (taken at a steady rate) 1/(1 − share) times as often:
     read k shows conversion ⌊k·(1 − share) + 0.37⌋, a share ``share`` of reads the one before

@@ -47,6 +47,8 @@ _NAMES = {
     "direction_bias_ut": ("soft_iron", "the residual depends on the field direction: soft iron or a "
                           "nonlinearity left out", "less direction-dependent error than modelled"),
     "glitch_rate": ("glitches", "more isolated jumps than modelled", "fewer isolated jumps than modelled"),
+    "repeat_share": ("repeats", "more reads repeat the one before, bit for bit, than modelled: the host reads "
+                     "faster than the sensor converts", "fewer repeated reads than modelled"),
 }
 _TIME = {"block_wander_ut", "slow_share", "lag1", "psd_slope", "tail_ratio", "rms_ut"}
 _DIRECTION = {"harmonic_share", "direction_bias_ut", "gain_deviation"}

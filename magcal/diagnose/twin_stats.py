@@ -18,6 +18,7 @@ mismatch sits.
 | gain_deviation | largest relative gain of a free ellipsoid fit | soft iron, scale mismatch |
 | direction_bias_ut | RMS of e's mean over 20 direction cells | any direction-dependent error |
 | glitch_rate | share of isolated jumps in the 3-vector trajectory | glitches |
+| repeat_share | share of reads equal to the one before on every axis (only where the recording has any) | repeated reads |
 | xcorr:<channel> | largest |correlation| of e with the channel (±2 s) | channel coupling |
 """
 
@@ -188,8 +189,16 @@ def gain_of(soft_iron: np.ndarray) -> float:
     return float(np.max(np.abs(w / np.mean(w) - 1.0)))
 
 
-def battery(e, u, m, t, channels, gain: float | None = None) -> tuple[dict, dict]:
-    """(statistics by name, located pieces: block levels, cell means, channel lags)."""
+def repeats(m: np.ndarray) -> np.ndarray:
+    """Reads equal to the one before on every axis, bit for bit."""
+    return np.concatenate([[False], np.all(np.diff(m, axis=0) == 0, axis=1)])
+
+
+def battery(e, u, m, t, channels, gain: float | None = None, with_repeats: bool = False) -> tuple[dict, dict]:
+    """(statistics by name, located pieces: block levels, cell means, channel lags).
+
+    ``with_repeats``: also the share of repeated reads — asked only where the recording has
+    any (a host polling faster than its sensor converts); elsewhere it would be 0 against 0."""
     dt = dt_of(t)
     ae = np.abs(e - np.median(e))
     stats = {
@@ -206,6 +215,8 @@ def battery(e, u, m, t, channels, gain: float | None = None) -> tuple[dict, dict
     cells = cell_means(e, u)
     stats["direction_bias_ut"] = direction_bias(cells)
     stats["gain_deviation"] = gain_deviation(m) if gain is None else float(gain)
+    if with_repeats:
+        stats["repeat_share"] = float(np.mean(repeats(m)))
     lags = {}
     for name, x in channels.items():
         stats["xcorr:" + name], lags[name] = xcorr_max(e, x, dt)
