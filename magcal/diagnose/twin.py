@@ -553,6 +553,10 @@ def _white_var(model: SensorModel, series: Series, u: np.ndarray | None = None) 
     return float(np.mean(u * u @ np.asarray(model.noise_ut) ** 2))
 
 
+# the repeats' gate, as wide as the comparison's band (and NOISE_LAG1_Z): at three σ a recording
+# with a few repeats more than chance (qmc5883l tomisuarez filtered 3 in 22745 reads, twins 0;
+# ardupilot MAG 41 in 2384, chance about 25) got none and its comparison then called them missing
+REPEAT_Z = 2.0
 REPEAT_STEPS = 3  # Newton steps of the repeat share (each a pair of twins; two were enough on every recording)
 
 
@@ -567,7 +571,8 @@ def repeat_share(model: SensorModel, series: Series, seeds=(1, 2)) -> float:
     """The share of reads that repeat the previous conversion (the host read before the next
     one was ready): the recording's share of exact repeats beyond what its twins without
     repeats make by chance (a coarse quantum and a still board repeat a reading too), when it
-    passes that chance share by three binomial σ; else 0.
+    passes that chance share by REPEAT_Z binomial σ (the recording's and the twins' own count
+    both counted); else 0.
 
     That first share is low: the twins without repeats read the recording's repeated reads
     at the direction before them, where noise alone repeats a reading far more often than after
@@ -580,7 +585,8 @@ def repeat_share(model: SensorModel, series: Series, seeds=(1, 2)) -> float:
     if seen == 0.0:
         return 0.0
     chance = _twin_repeats(replace(model, repeat_share=0.0), series, seeds)
-    if seen <= chance + 3.0 * np.sqrt(max(chance * (1.0 - chance), 1.0 / n) / n):
+    spread = np.sqrt(max(chance * (1.0 - chance), 1.0 / n) / n * (1.0 + 1.0 / len(seeds)))
+    if seen <= chance + REPEAT_Z * spread:
         return 0.0
     share = min((seen - chance) / (1.0 - chance), 0.9)
     for _ in range(REPEAT_STEPS):
