@@ -557,7 +557,7 @@ def _white_var(model: SensorModel, series: Series, u: np.ndarray | None = None) 
 # with a few repeats more than chance (qmc5883l tomisuarez filtered 3 in 22745 reads, twins 0;
 # ardupilot MAG 41 in 2384, chance about 25) got none and its comparison then called them missing
 REPEAT_Z = 2.0
-REPEAT_STEPS = 3  # Newton steps of the repeat share (each a pair of twins; two were enough on every recording)
+REPEAT_STEPS = 3  # at most this many Newton steps of the repeat share (each a pair of twins)
 
 
 def _twin_repeats(model: SensorModel, series: Series, seeds) -> float:
@@ -578,8 +578,9 @@ def repeat_share(model: SensorModel, series: Series, seeds=(1, 2)) -> float:
     at the direction before them, where noise alone repeats a reading far more often than after
     a turn, so they overstate chance. The twins with the share replay fresh conversions there;
     their chance repeats beside the share's own (c) set the step towards the share that makes
-    the twins repeat as often as the recording (Newton on s + (1 − s)·c). Without these steps the twins of seven real
-    recordings repeated 8–17 % fewer reads than their recordings."""
+    the twins repeat as often as the recording (Newton on s + (1 − s)·c). Without these steps
+    the twins of five of the seven real recordings with repeats repeated 4–16 % fewer reads
+    than their recordings."""
     n = len(series.field_ut)
     seen = float(np.mean(repeats(series.field_ut)))
     if seen == 0.0:
