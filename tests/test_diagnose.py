@@ -466,6 +466,25 @@ def test_soft_iron_beside_a_strong_current_is_neither_lost_nor_invented(seed, ti
     assert run(0.0).effects == ["current_interference"]
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_small_soft_iron_beside_a_motor_current_of_twelve_microtesla_is_found(seed):
+    # a current switching 11.7 µT of offset on and off, and 0.6 % of soft iron, on a full
+    # sphere: linearised at no current term, the offset's second-order part,
+    # (|δ|² − (u·δ)²)/2R while the current is on, is a quadratic form of the direction left in
+    # the residual — 0.14-0.32 µT of the soft-iron test's own signature on a quiet sensor — and
+    # its misfit hid the true soft iron (p 0.009-0.27 on these five seeds)
+    dist = ((1.006, 0.002, 0.0), (0.002, 0.996, 0.001), (0.0, 0.001, 0.998))
+    run = _sim(seed, distortion=dist, current_coef_ut_per_a=(3.0, -2.0, 1.5), current=Current(level_a=3.0, duty=0.4),
+               noise_ut=0.4)
+    d = diagnose(run.series)
+    assert sorted(d.effects) == ["current_interference", "soft_iron"]
+    quiet = _sim(seed, current_coef_ut_per_a=(3.0, -2.0, 1.5), current=Current(level_a=3.0, duty=0.4), noise_ut=0.05,
+                 quantize=False)
+    d = diagnose(quiet.series)
+    assert d.effects == ["current_interference"]
+    assert d.tests["candidates"]["soft_iron"]["effect_rms_ut"] < 0.01
+
+
 
 def _band(seed, hard, noise, tilt, period, **phys):
     sc = Scenario(physics=Physics(hard_iron_ut=hard, noise_ut=noise, **phys),

@@ -88,7 +88,8 @@ def column_basis(x: np.ndarray) -> np.ndarray:
     return q[:, d > 1e-10 * max(float(d.max(initial=0.0)), 1e-300)]
 
 
-def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: list) -> Design:
+def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: list,
+          at_channels: dict | None = None) -> Design:
     """The design at the reference model ``ref`` (hard iron, radius and the soft iron the data
     determine) for samples ``m`` (µT), times ``t`` and channel arrays ``chans`` (keyed by
     channel name, time included as ``channels.TIME``).
@@ -103,9 +104,19 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
     residual of every test, whose block covariance it inflates (a 2 % soft iron on a ±15–30°
     band went from F ≈ 5 to F ≈ 120–380 once those columns were left out). The direction
     harmonics are made orthogonal to every polynomial of degree ≤ 2 on the data's own
-    directions, so that on a band or any non-uniform coverage they cannot soak up soft iron."""
+    directions, so that on a band or any non-uniform coverage they cannot soak up soft iron.
+
+    The channel terms are linearised where the reference was fitted: at ``at_channels``
+    (channel → µT per unit, the offsets taken out before the reference was fitted; 0 for a
+    channel not in it), and taken back out to first order as soft iron is, so every test is
+    still of the term being zero. Linearised at zero, an offset δ that a channel switches on
+    leaves its second-order part in the residual, (|δ|² − (u·δ)²)/2R while it is on: a
+    quadratic form of the direction, soft iron's own signature (an intermittent 3.6 µT current
+    left 0.03 µT of it, soft iron at p 0.0002 in a simulation without any)."""
     spec = Spec(soft_iron=True, channels=tuple(c.channel for c in candidates))
-    params = np.concatenate([ref.offset_ut, ref.soft, [ref.field_ut], np.zeros(3 * len(candidates))])
+    at = at_channels or {}
+    coefs = np.concatenate([np.zeros(0)] + [np.asarray(at.get(c.channel, np.zeros(3)), np.float64) for c in candidates])
+    params = np.concatenate([ref.offset_ut, ref.soft, [ref.field_ut], coefs])
     residual, jac = residual_jacobian(params, spec, m, [chans[c.channel] - c.reference for c in candidates])
     # the soft-iron columns uᵀE_p d at the model's own point on the surface (|h| = radius), not at
     # the measurement: |d| carries the noise along the field that the residual carries too, and a
@@ -113,7 +124,7 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
     # scores, inflates its covariance (softiron.regressors)
     jac[:, 3:8] *= (ref.field_ut / (residual + ref.field_ut))[:, None]
     offset_radius = np.concatenate([jac[:, 0:3], jac[:, 8:9]], axis=1)
-    residual = residual - jac[:, 3:8] @ ref.soft  # the soft iron taken back out, to first order
+    residual = residual - jac[:, 3:8] @ ref.soft - jac[:, 9:] @ coefs  # soft iron and channels taken back out, to first order
     soft_dirs = ref.spec.soft_matrix
     soft = jac[:, 3:8] @ soft_dirs  # only the directions the data determine (see above)
     rest = jac[:, 3:8] @ np.linalg.svd(soft_dirs, full_matrices=True)[0][:, soft_dirs.shape[1] :]
@@ -122,7 +133,9 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
     by_effect = {c.effect: c for c in candidates}
     for j, c in enumerate(candidates):
         groups[c.effect] = np.arange(4 + k + 3 * j, 7 + k + 3 * j)
-    h = ref.calibration().correct(m)
+    shift = sum((np.outer(chans[c.channel] - c.reference, at[c.channel]) for c in candidates if c.channel in at),
+                np.zeros_like(m))
+    h = ref.calibration().correct(m - shift)  # the directions where the design is linearised
     u = h / np.linalg.norm(h, axis=1, keepdims=True)
     wu = -jac[:, 0:3]
     harm = harmonics.on_data(u)

@@ -116,10 +116,10 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     step("fit_baseline")
     baseline, base_kept = fit_baseline(analysed)
     analysed, left_out = screen_channels(analysed, base_kept) if screen else (analysed, ())
-    reference = fit_reference(analysed, base_kept)
+    reference, at_channels = fit_reference(analysed, base_kept)
     noise_ut = analysed.glitches.noise_ut
     step("select_terms")
-    selected = select_terms(analysed, reference, alpha, noise_ut, folds, twin_null)
+    selected = select_terms(analysed, reference, alpha, noise_ut, folds, twin_null, at_channels)
     step("refit")
     final, accepted = refit(analysed, reference, selected)
     selected = replace(selected, accepted=accepted)
@@ -212,18 +212,21 @@ def screen_channels(a: Analysed, base: ModelFit) -> tuple[Analysed, tuple]:
     return replace(a, chans=chans), left
 
 
-def fit_reference(a: Analysed, base: ModelFit) -> ModelFit:
+def fit_reference(a: Analysed, base: ModelFit) -> tuple[ModelFit, dict]:
     """The model every term is tested at: hard iron, radius and soft iron along every direction
     the data determine (softiron.determined_directions), fitted on the kept samples with the
     logged channels' offsets taken out (``without_channel_offsets``); the sphere when the
-    motion determines none or the ellipsoid cannot be fitted."""
+    motion determines none or the ellipsoid cannot be fitted. With it, the logged channels'
+    offset coefficients (µT per unit) that were taken out: the point, with the reference, where
+    the candidate design is linearised (design.build)."""
     m_kept, sphere = without_channel_offsets(a, base)
+    at_channels = dict(sphere.coef_ut_per_unit)
     dirs = softiron.determined_directions(m_kept, sphere.offset_ut, sphere.rms_ut)
     if dirs.shape[1] == 0:
-        return base
+        return base, {}
     spec = Spec(soft_iron=True, soft_dirs=None if dirs.shape[1] == 5 else tuple(map(tuple, dirs)))
     ref = fit_model(m_kept, {}, spec, start=sphere)
-    return base if isinstance(ref, FitFailure) else ref
+    return (base, {}) if isinstance(ref, FitFailure) else (ref, at_channels)
 
 
 def without_channel_offsets(a: Analysed, base: ModelFit) -> tuple[np.ndarray, ModelFit]:
@@ -247,17 +250,19 @@ def without_channel_offsets(a: Analysed, base: ModelFit) -> tuple[np.ndarray, Mo
     return m_kept - fit.calibration().channel_offset_ut(chans, len(m_kept)), fit
 
 
-def test_terms(a: Analysed, ref: ModelFit, twin_null: bool = True) -> tuple[design.Design, dict, dict, list, null.NullDraws, bool]:
+def test_terms(a: Analysed, ref: ModelFit, twin_null: bool = True, at_channels: dict | None = None
+               ) -> tuple[design.Design, dict, dict, list, null.NullDraws, bool]:
     """Build the candidate design at the reference model and test every term
     (magcal.diagnose.design): soft iron along the directions the data determine, every channel
     with soft iron in place (so that the soft iron a sphere leaves cannot pass for a channel),
     each test judged against the recording's twin (magcal.diagnose.null). Returns the design,
     the tests against the quadratic wander (a nuisance only where the residual shows a wander,
     ``wander_seen``), the rich-wander tests of the channels, the channels skipped as constant or
-    incomplete, the twin's draws, and whether the quadratic wander was a nuisance."""
+    incomplete, the twin's draws, and whether the quadratic wander was a nuisance. ``at_channels``:
+    the channel coefficients the design is linearised at (fit_reference)."""
     m_kept, t_kept, chans_kept = a.kept
     candidates, skipped = channels.candidates(a.t, a.logged)
-    dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates)
+    dsg = design.build(m_kept, t_kept, chans_kept, ref, candidates, at_channels)
     draws = draw_null(a, dsg) if twin_null else null.none(len(m_kept), "the twin as the null was switched off")
     e_null = (draws.e, draws.white) if draws.count else None
     seen = draws.count > 0 or wander_seen(dsg, t_kept)
@@ -317,10 +322,11 @@ def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
     return null.draws(model, dsg.directions, t_kept, chans_kept)
 
 
-def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, folds: int, twin_null: bool = True) -> Selected:
+def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, folds: int, twin_null: bool = True,
+                 at_channels: dict | None = None) -> Selected:
     """Which tested terms earn a place (magcal.diagnose.selection): significant, above the
     practical floor, past the wander gate, and helping the held-out residual."""
-    dsg, tests, rich, skipped, draws, seen = test_terms(a, ref, twin_null)
+    dsg, tests, rich, skipped, draws, seen = test_terms(a, ref, twin_null, at_channels)
     floor_ut = selection.practical_floor_ut(noise_ut)
     verdict = selection.significant(tests, rich, alpha, floor_ut)
     e_null = (draws.e, draws.white) if draws.count else None
