@@ -462,7 +462,10 @@ def test_soft_iron_beside_a_strong_current_is_neither_lost_nor_invented(seed, ti
     with_soft = run(0.015)
     assert sorted(with_soft.effects) == ["current_interference", "soft_iron"]
     gains = _finding(with_soft, "soft_iron").params["principal_gains"]
-    assert 0.01 < max(gains) - min(gains) < 0.03  # 2.25 % between the extreme gains
+    # 2.4 % between the extreme gains; estimated 2.2-2.6 % over seeds 400-411 at both tilts,
+    # 2.1-2.7 % over 300-311 at 40° but 3.0 % on seed 302 (the failure this guards against
+    # was 36 % of soft iron)
+    assert 0.01 < max(gains) - min(gains) < 0.035
     assert run(0.0).effects == ["current_interference"]
 
 
