@@ -107,8 +107,8 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
     directions, so that on a band or any non-uniform coverage they cannot soak up soft iron.
 
     The channel terms are linearised where the reference was fitted: at ``at_channels``
-    (channel → µT per unit, the offsets taken out before the reference was fitted; 0 for a
-    channel not in it), and taken back out to first order as soft iron is, so every test is
+    (channel → µT per unit, the offsets fitted jointly with the reference,
+    ladder.with_channel_offsets; 0 for a channel not in it), and taken back out to first order as soft iron is, so every test is
     still of the term being zero. Linearised at zero, an offset δ that a channel switches on
     leaves its second-order part in the residual, (|δ|² − (u·δ)²)/2R while it is on: a
     quadratic form of the direction, soft iron's own signature (an intermittent 3.6 µT current

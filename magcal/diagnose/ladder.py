@@ -217,8 +217,8 @@ def fit_reference(a: Analysed, base: ModelFit) -> tuple[ModelFit, dict]:
     the data determine (softiron.determined_directions), fitted on the kept samples with the
     logged channels' offsets taken out (``without_channel_offsets``); the sphere when the
     motion determines none or the ellipsoid cannot be fitted. With it, the logged channels'
-    offset coefficients (µT per unit) that were taken out: the point, with the reference, where
-    the candidate design is linearised (design.build)."""
+    offset coefficients (µT per unit) fitted jointly with it (``with_channel_offsets``): the
+    point, with the reference, where the candidate design is linearised (design.build)."""
     m_kept, sphere = without_channel_offsets(a, base)
     dirs = softiron.determined_directions(m_kept, sphere.offset_ut, sphere.rms_ut)
     if dirs.shape[1] == 0:
