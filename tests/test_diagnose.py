@@ -474,8 +474,8 @@ def test_a_small_soft_iron_beside_a_motor_current_of_twelve_microtesla_is_found(
     # a current switching 11.7 µT of offset on and off, and 0.6 % of soft iron, on a full
     # sphere: linearised at no current term, the offset's second-order part,
     # (|δ|² − (u·δ)²)/2R while the current is on, is a quadratic form of the direction left in
-    # the residual — 0.14-0.32 µT of the soft-iron test's own signature on a quiet sensor — and
-    # its misfit hid the true soft iron (p 0.009-0.27 on these five seeds)
+    # the residual (the quiet sensor's soft-iron test measured 0.16-0.27 µT of it on these
+    # seeds) and its misfit hid the true soft iron (p 0.015-0.11)
     dist = ((1.006, 0.002, 0.0), (0.002, 0.996, 0.001), (0.0, 0.001, 0.998))
     run = _sim(seed, distortion=dist, current_coef_ut_per_a=(3.0, -2.0, 1.5), current=Current(level_a=3.0, duty=0.4),
                noise_ut=0.4)

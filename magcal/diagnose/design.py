@@ -108,11 +108,12 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
 
     The channel terms are linearised where the reference was fitted: at ``at_channels``
     (channel → µT per unit, the offsets fitted jointly with the reference,
-    ladder.with_channel_offsets; 0 for a channel not in it), and taken back out to first order as soft iron is, so every test is
-    still of the term being zero. Linearised at zero, an offset δ that a channel switches on
-    leaves its second-order part in the residual, (|δ|² − (u·δ)²)/2R while it is on: a
-    quadratic form of the direction, soft iron's own signature (an intermittent 3.6 µT current
-    left 0.03 µT of it, soft iron at p 0.0002 in a simulation without any)."""
+    ladder.with_channel_offsets; 0 for a channel not in it), and taken back out to first order
+    as soft iron is, so every test is still of the term being zero. Linearised at zero, an
+    offset δ that a channel switches on leaves its second-order part in the residual,
+    (|δ|² − (u·δ)²)/2R while it is on: a quadratic form of the direction, soft iron's own
+    signature (a current switching 11.7 µT of offset left 0.16–0.27 µT of it in the soft-iron
+    test on a quiet simulated sensor, tests/test_diagnose.py)."""
     spec = Spec(soft_iron=True, channels=tuple(c.channel for c in candidates))
     at = at_channels or {}
     coefs = np.concatenate([np.zeros(0)] + [np.asarray(at.get(c.channel, np.zeros(3)), np.float64) for c in candidates])
