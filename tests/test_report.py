@@ -179,3 +179,26 @@ def test_a_recording_without_time_is_drawn_by_sample_number_not_in_minutes(tmp_p
     page = (tmp_path / "page" / "index.html").read_text()
     assert f"over {len(series)} samples (the recording has no time)" in page
     assert " min." not in page and " min<" not in page
+
+
+def test_every_channel_panel_of_a_level_board_shows_its_samples():
+    """A board kept level (a drone, a rover) sees the field along a narrow cone. A channel with
+    no term in the model is drawn along the direction the recording sees most, so its panel
+    holds the samples; drawn along a fixed axis or a rejected estimate's direction it was empty
+    (a PX4 log's panels showed no point at all)."""
+    from magcal.app.report import _plt
+    from magcal.app.report.figures import _channel_panel
+    from magcal.app.report.views import views_of
+    from magcal.sim.physics import Current, Motion, Physics, Scenario, Temperature
+
+    sc = Scenario(physics=Physics(hard_iron_ut=(12.0, -20.0, 5.0), noise_ut=0.4),
+                  motion=Motion("tilt", max_tilt_deg=15.0, period_s=20.0),
+                  temperature=Temperature(swing_c=10.0, period_s=60.0), current=Current(level_a=2.0), seed=5)
+    d = diagnose(sc.simulate(3000, 50.0).series)
+    v = views_of(d)
+    plt = _plt()
+    for c in ("temp_c", "current_a", "t_s"):
+        fig, ax = plt.subplots()
+        _channel_panel(ax, d, v, c, {})
+        assert len(ax.lines[0].get_xdata()) > len(d.series) / 2, c
+        plt.close(fig)

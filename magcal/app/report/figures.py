@@ -162,7 +162,7 @@ def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
         k = np.asarray(cands.get(ch.effect_name(c), {}).get("coef_ut_per_unit", np.zeros(3)))
         ref = float(np.mean(x)) if c != ch.CURRENT else 0.0
     size = float(np.linalg.norm(k))
-    kd = k / size if size > 0 else np.array([1.0, 0.0, 0.0])
+    kd = k / size if size > 0 and c in found else _seen_most(v)
     proj = v.u @ kd
     sel = v.good & (np.abs(proj) > 0.7)
     part = v.after + (v.u @ k) * (x - ref)  # the residual with this channel's term put back
@@ -178,6 +178,10 @@ def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
     spread = max(np.nanmax(np.abs(mb)) if len(mb) else 0.0, 3 * diagnosis.noise_ut / np.sqrt(max(len(xs) / 16, 1)),
                  0.2)
     ax.set_ylim(-2.5 * spread, 2.5 * spread)
+    if not sel.any():  # the term points where the recording never looked
+        ax.text(0.5, 0.5, "no sample looks along this term", transform=ax.transAxes, ha="center", color="0.4")
+        if np.ptp(shown) > 0:
+            ax.set_xlim(np.min(shown), np.max(shown))
     unit = ch.unit_of(c, v.clock)
     ax.set_xlabel(v.t_axis if c == ch.TIME
                   else f"{c} ({unit})" if unit != "unit" else c)
@@ -187,6 +191,16 @@ def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
     ax.locator_params(axis="x", nbins=5)
     ax.legend(fontsize=8, loc="upper left")
     return f"{c}: {verdict}"
+
+
+def _seen_most(v) -> np.ndarray:
+    """The direction the recording's field points along most (the mean of its directions): a
+    channel without a term in the model is drawn along it, where an offset shows in most
+    samples (along a fixed axis, or along a rejected estimate's noisy direction, a drone that
+    stays level left its panels empty)."""
+    mean = v.u[v.good].mean(axis=0) if v.good.any() else np.zeros(3)
+    norm = float(np.linalg.norm(mean))
+    return mean / norm if norm > 0.1 else np.array([1.0, 0.0, 0.0])
 
 
 def channels(diagnosis, v, plt, out) -> Figure:
