@@ -11,8 +11,9 @@
 4. Which models can this coverage determine? For the diagonal and full ellipsoid, the
    information matrix JᵀJ at the robust sphere (unit-diagonal scaled) must have condition
    ≤ ``max_condition``, else the model is not fitted; once fitted, the 1σ of its shape
-   parameters (≈ relative gains, from its own residuals) must be ≤ ``max_shape_sigma``, else
-   it is rejected. ``reason`` says which and why.
+   terms (≈ relative gains, from its own residuals; the z gain too, which the trace-free
+   parameterisation derives from the other two) must be ≤ ``max_shape_sigma``, else it is
+   rejected. ``reason`` says which and why.
 5. Each model fitted: robust fit → iterated Grubbs on its residuals (t-distribution critical
    values) → plain least squares (ML) on the kept samples → Grubbs again until nothing new.
 7. Balance: "directions" refits the chosen model with weights that give each coarse
@@ -102,11 +103,12 @@ def _gate(m, theta_sphere, kind, max_condition) -> tuple[bool, float, str]:
 
 
 def _shape_sigma(g: geometric.GeometricFit) -> float:
-    """Largest 1σ of the shape parameters (≈ relative gains) from the fit's own residuals."""
+    """Largest 1σ of the shape terms (≈ relative gains, the z gain included) from the fit's
+    own residuals."""
     if g.kind == "sphere":
         return 0.0
     cov = uncertainty.covariance(g.jac, uncertainty.residual_sigma(g.residual_ut, geometric.n_params(g.kind)))
-    return float(np.sqrt(np.max(np.diag(cov)[4:])))
+    return uncertainty.shape_sigma(cov)
 
 
 def _bic(fit: geometric.GeometricFit) -> float:

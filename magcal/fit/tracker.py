@@ -45,6 +45,7 @@ from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
 from .result import MODEL_NAMES
 from .sphere import sphere_start
 from .tracker_memory import CellBuffer, Wander
+from .uncertainty import shape_sigma
 
 LADDER = ("sphere", "diagonal", "full")
 CHANGE_ALPHA = 1e-9  # a sudden change is declared at this false-alarm probability per refit
@@ -396,7 +397,7 @@ class Tracker:
             if condition(A) > c.max_condition:
                 return
             cov = (cost / max(len(m) - len(theta), 1)) * np.linalg.pinv(A)
-            if math.sqrt(max(float(np.max(np.diag(cov)[4:])), 0.0)) > c.max_shape_sigma:
+            if shape_sigma(cov) > c.max_shape_sigma:
                 return
             self.theta, self.kind = theta, kind
             self.wander = Wander()

@@ -98,6 +98,18 @@ def crlb_offset(m_true_ut: np.ndarray, offset_ut, field_ut: float, noise_ut: flo
     return covariance(J, noise_ut)[:3, :3]
 
 
+def shape_sigma(cov: np.ndarray) -> float:
+    """Largest 1σ of an ellipsoid's shape terms (≈ relative gains) from its parameter covariance
+    ([b (3), r, s_xx, s_yy, …], ``geometric``): the fitted terms and s_zz = −s_xx − s_yy, which
+    is not a parameter — flat turns determine the x and y gains and leave z's to the few samples
+    that tilt, so a gate that looked at the parameters alone would pass an undetermined z gain."""
+    shape = np.asarray(cov, dtype=np.float64)[4:, 4:]
+    if shape.size == 0:
+        return 0.0
+    var_zz = shape[0, 0] + shape[1, 1] + 2.0 * shape[0, 1]
+    return float(np.sqrt(max(float(np.max(np.diag(shape))), var_zz, 0.0)))
+
+
 def information_condition(jac: np.ndarray) -> float:
     """Condition number of the information matrix after scaling each parameter to unit
     diagonal (so units do not matter): large = some combination of parameters is not
