@@ -31,13 +31,31 @@ DATA = Path(__file__).parent / "data"
 
 
 def _reference_jacobian(theta, m, kind, forward=None):
-    """∂e/∂θ column by column: −uᵀW, −1, uᵀ (∂W/∂s_k) d."""
+    """∂e/∂θ column by column, for e = g/s with g = |h| − r, h = W d, u = h/|h|, s = |W u|:
+    ∂e = ∂g/s − g ∂s/s², with ∂g = uᵀ ∂h and ∂s = (W u/s)ᵀ (∂W u + W (I − u uᵀ) ∂h/|h|)."""
     theta = np.asarray(theta, dtype=np.float64)
     W, dWs = geometric.expm_derivatives(kind, theta[4:])
     d = m - theta[:3]
     h = d @ W.T
-    u = h / np.linalg.norm(h, axis=1)[:, None]
-    cols = [-(u @ W), -np.ones((len(m), 1))] + [np.einsum("ij,ij->i", u, d @ dW.T)[:, None] for dW in dWs]
+    nh = np.linalg.norm(h, axis=1)
+    u = h / nh[:, None]
+    v = u @ W.T
+    s = np.linalg.norm(v, axis=1)
+    g = nh - theta[3]
+    w = v / s[:, None]
+
+    def across(x):  # (I − u uᵀ) x per row
+        return x - u * np.einsum("ij,ij->i", u, x)[:, None]
+
+    def de(dh, dWu):  # dh, dWu (n, 3): ∂h and ∂W u along one parameter
+        dg = np.einsum("ij,ij->i", u, dh)
+        ds = np.einsum("ij,ij->i", w, dWu + across(dh) @ W.T / nh[:, None])
+        return (dg / s - g * ds / s**2)[:, None]
+
+    zero = np.zeros_like(d)
+    cols = [de(np.tile(-W[:, k], (len(m), 1)), zero) for k in range(3)]
+    cols.append((-1.0 / s)[:, None])
+    cols += [de(d @ dW.T, u @ dW.T) for dW in dWs]
     return np.hstack(cols)
 
 
@@ -57,11 +75,13 @@ def _reference_lagrange(grid, pos):
 
 
 def _reference_forward(theta, mt, kind):
-    """``geometric._forward`` with W = expm(S) made for every kind, the sphere's too."""
+    """``geometric._forward`` with W = expm(S) made for every kind, the sphere's too, and the
+    raw-space scale |W u| computed for it too."""
     eig = geometric.expm_sym(geometric.shape_matrix(kind, theta[4:]))
     d = mt - theta[:3, None]
     h = eig[0] @ d
-    return d, h, np.sqrt((h[0] * h[0] + h[1] * h[1]) + h[2] * h[2]), eig
+    nh = np.sqrt((h[0] * h[0] + h[1] * h[1]) + h[2] * h[2])
+    return d, h, nh, eig, np.linalg.norm(eig[0] @ (h / nh), axis=0)
 
 
 def _cold_nnls(a, b, maxiter=None, start=None):

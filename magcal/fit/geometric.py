@@ -1,8 +1,16 @@
 """The geometric (maximum-likelihood) residual shared by the sphere and ellipsoid fits.
 
-Model: h_i = W (m_i − b) has length r, so the residual of sample i is
+Model: h_i = W (m_i − b) has length r. The noise is in the raw samples m_i (isotropic, σ µT),
+so the residual of sample i is |h_i| − r expressed in the raw space: to first order a raw
+error δm moves |h| by (W û)·δm (û = h/|h|, W symmetric), so
 
-    e_i = |W (m_i − b)| − r        (µT; Gaussian isotropic noise → least squares = ML)
+    e_i = (|W (m_i − b)| − r) / ‖W û_i‖        (µT of raw error; least squares = ML)
+
+Measured in the calibrated space instead (|h| − r alone) the sum is smallest when the gains the
+samples see most are shrunk — |h| − r is scaled by them — and, with det W = 1, the cost goes to
+the gains the samples see least: on a ±9° band of tilts that gave a fitted ellipsoid *below*
+the true one's residual and a 4 % error along the unseen directions. For a sphere ‖W û‖ = 1 and
+both residuals are the same.
 
 W = expm(S) with S symmetric and trace S = 0, so W is symmetric positive definite with det W = 1
 for every parameter value — the fit can never produce a non-PD matrix, and the overall scale,
@@ -102,17 +110,25 @@ def pack(offset_ut, field_ut, kind: str, W=None) -> np.ndarray:
 
 
 def _forward(theta: np.ndarray, mt: np.ndarray, kind: str) -> tuple:
-    """(d = m − b, h = W d, |h|, expm_sym's (W, λ, Q)) at θ for samples given as columns, ``mt``
-    (3, n): what the residual and the Jacobian share. d and h are (3, n) too — an axis at a time
-    over all samples, contiguous (a subtraction over rows of three costs seven times as much;
-    the products are the same numbers). For the sphere W = expm(0) = I exactly, so h is d
-    itself (the product by I is exact) and the eigen-decomposition is not made: None."""
+    """(d = m − b, h = W d, |h|, expm_sym's (W, λ, Q), ‖W û‖) at θ for samples given as columns,
+    ``mt`` (3, n): what the residual and the Jacobian share. d and h are (3, n) too — an axis at
+    a time over all samples, contiguous (a subtraction over rows of three costs seven times as
+    much; the products are the same numbers). For the sphere W = expm(0) = I exactly, so h is d
+    itself (the product by I is exact), the eigen-decomposition is not made and the raw-space
+    scale ‖W û‖ is one: both None."""
     d = mt - theta[:3, None]
     if kind == "sphere":
-        return d, d, _column_norm(d), None
+        return d, d, _column_norm(d), None, None
     eig = expm_sym(shape_matrix(kind, theta[4:]))
     h = eig[0] @ d
-    return d, h, _column_norm(h), eig
+    nh = _column_norm(h)
+    return d, h, nh, eig, _column_norm(eig[0] @ h) / np.where(nh > 0, nh, 1.0)
+
+
+def _residual_of(forward: tuple, r: float) -> np.ndarray:
+    """e = (|h| − r) / ‖W û‖ from ``_forward``'s values."""
+    nh, scale = forward[2], forward[4]
+    return nh - r if scale is None else (nh - r) / scale
 
 
 def _columns(m: np.ndarray) -> np.ndarray:
@@ -134,27 +150,48 @@ def _column_norm(vt: np.ndarray) -> np.ndarray:
 
 
 def residual(theta, m: np.ndarray, kind: str) -> np.ndarray:
+    """e_i (µT of raw error) of the samples ``m`` (n, 3) at θ."""
     theta = np.asarray(theta, dtype=np.float64)
-    return _forward(theta, _columns(m), kind)[2] - float(theta[3])
+    return _residual_of(_forward(theta, _columns(m), kind), float(theta[3]))
+
+
+def residual_jacobian(theta, m: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """(``residual``, ``jacobian``) at θ from one evaluation."""
+    theta = np.asarray(theta, dtype=np.float64)
+    fwd = _forward(theta, _columns(m), kind)
+    return _residual_of(fwd, float(theta[3])), jacobian(theta, m, kind, fwd)
 
 
 def jacobian(theta, m: np.ndarray, kind: str, forward=None) -> np.ndarray:
     """∂e/∂θ (n, p); ``forward``: ``_forward`` at the same θ when already computed. Built a
-    parameter at a time over all samples (rows of its transpose, each contiguous): ∂e/∂b = −Wu
-    (W symmetric), ∂e/∂r = −1, ∂e/∂s_k = uᵀ (∂W/∂s_k) d = Σ_ij u_i d_j (∂W/∂s_k)_ij."""
+    parameter at a time over all samples (rows of its transpose, each contiguous).
+
+    With g = |h| − r, u = h/|h|, v = W u and s = |v| (e = g/s): ∂g/∂b = −v, ∂g/∂r = −1,
+    ∂g/∂s_k = Σ_ij u_i d_j (∂W/∂s_k)_ij; and with p = (I − u uᵀ) W v/s (the part of W v/s across
+    u), ∂s/∂b = −W p/|h|, ∂s/∂r = 0, ∂s/∂s_k = Σ_ij (v_i u_j/s + p_i d_j/|h|) (∂W/∂s_k)_ij.
+    Then ∂e = ∂g/s − g ∂s/s². The second term is what moves the estimate off the
+    calibrated-space one: it is small per sample (g ~ σ) but not in the sum."""
     theta = np.asarray(theta, dtype=np.float64)
-    d, h, nh, eig = forward if forward is not None else _forward(theta, _columns(m), kind)
+    d, h, nh, eig, scale = forward if forward is not None else _forward(theta, _columns(m), kind)
     ut = h / np.where(nh > 0, nh, 1.0)
     jt = np.empty((n_params(kind), d.shape[1]))
-    if kind == "sphere":  # W = I: −Wu is −u exactly
-        jt[:3], dWs = -ut, []
-    else:
-        W, dWs = expm_derivatives(kind, theta[4:], eig)
-        jt[:3] = -(W.T @ ut)
     jt[3] = -1.0
-    if dWs:
-        ud = (ut[:, None, :] * d[None, :, :]).reshape(9, d.shape[1])
-        jt[4:] = np.array([dW.ravel() for dW in dWs]) @ ud
+    if kind == "sphere":  # W = I, s = 1: −Wu is −u exactly
+        jt[:3] = -ut
+        return jt.T
+    W, dWs = expm_derivatives(kind, theta[4:], eig)
+    inv_nh = 1.0 / np.where(nh > 0, nh, 1.0)
+    vt = W @ ut
+    vs = vt / scale
+    a = W @ vs
+    pt = a - ut * (ut * a).sum(axis=0)
+    g_over_s2 = (nh - float(theta[3])) / (scale * scale)
+    jt[:3] = -vt / scale + g_over_s2 * (W @ pt) * inv_nh
+    jt[3] = -1.0 / scale
+    dW = np.array([w.ravel() for w in dWs])
+    ud = (ut[:, None, :] * d[None, :, :]).reshape(9, d.shape[1])
+    sd = (vs[:, None, :] * ut[None, :, :] + (pt * inv_nh)[:, None, :] * d[None, :, :]).reshape(9, d.shape[1])
+    jt[4:] = (dW @ ud) / scale - g_over_s2 * (dW @ sd)
     return jt.T
 
 
@@ -290,7 +327,7 @@ def solve(
     if theta[3] < 0:  # |h| − r with r < 0 cannot be a minimum unless all |h| ≈ 0
         return FitFailure("degenerate", f"{kind} fit produced a negative radius")
     fwd = _forward(theta, _columns(m), kind)
-    return GeometricFit(kind=kind, theta=theta, residual_ut=fwd[2] - float(theta[3]),
+    return GeometricFit(kind=kind, theta=theta, residual_ut=_residual_of(fwd, float(theta[3])),
                         jac=jacobian(theta, m, kind, fwd), n_iter=nfev)
 
 
@@ -304,7 +341,7 @@ def _weighted(mt: np.ndarray, kind: str, sw: np.ndarray | None):
     def fun(t):
         fwd = _forward(t, mt, kind)
         last[:] = [t.copy(), fwd]
-        e = fwd[2] - float(t[3])
+        e = _residual_of(fwd, float(t[3]))
         return e if sw is None else sw * e
 
     def jac(t):

@@ -164,32 +164,6 @@ def _robust_scale(e: np.ndarray) -> float:
     return max(1.4826 * float(np.median(np.abs(e - med))), 1e-9)
 
 
-def _residual(theta, pts, kind) -> np.ndarray:
-    d = pts - theta[:3]
-    if kind != "sphere":
-        d = d @ geometric.expm_sym(geometric.shape_matrix(kind, theta[4:]))[0].T
-    return np.sqrt(np.einsum("ij,ij->i", d, d)) - theta[3]
-
-
-def _residual_jacobian(theta, pts, kind) -> tuple[np.ndarray, np.ndarray]:
-    """``geometric.residual`` and ``geometric.jacobian`` from one matrix exponential."""
-    d = pts - theta[:3]
-    J = np.empty((len(pts), len(theta)))
-    if kind == "sphere":
-        nh = np.sqrt(np.einsum("ij,ij->i", d, d))
-        J[:, :3] = -d / np.maximum(nh, 1e-300)[:, None]
-    else:
-        W, dWs = geometric.expm_derivatives(kind, theta[4:])
-        h = d @ W.T
-        nh = np.sqrt(np.einsum("ij,ij->i", h, h))
-        u = h / np.maximum(nh, 1e-300)[:, None]
-        J[:, :3] = -(u @ W)
-        P = (d @ np.concatenate(dWs).T).reshape(len(d), len(dWs), 3)  # P[i, k] = dW_k d_i
-        J[:, 4:] = np.einsum("ia,ika->ik", u, P)
-    J[:, 3] = -1.0
-    return nh - theta[3], J
-
-
 def _damped_step(pts, kind, theta, w, e, J, lam: float):
     """One Levenberg-damped Gauss–Newton step of Σ w e² from θ (residual e, Jacobian J there),
     raising the damping until the sum falls. Returns (θ, Σ w e², damping, JᵀWJ at the start);
@@ -204,7 +178,7 @@ def _damped_step(pts, kind, theta, w, e, J, lam: float):
             lam *= 100.0
             continue
         trial = theta + step
-        e2 = _residual(trial, pts, kind)
+        e2 = geometric.residual(trial, pts, kind)
         c2 = float(w @ (e2 * e2))
         if np.isfinite(c2) and c2 <= cost and trial[3] > 0:
             return trial, c2, max(lam / 10.0, 1e-9), A
@@ -216,14 +190,14 @@ def gauss_newton(pts, kind, theta, w, steps: int):
     """``steps`` damped Gauss–Newton steps (``_damped_step``) from θ. Returns (θ, JᵀWJ at the
     result, Σ w e²)."""
     lam = 1e-6
-    e, J = _residual_jacobian(theta, pts, kind)
+    e, J = geometric.residual_jacobian(theta, pts, kind)
     cost = float(w @ (e * e))
     for _ in range(steps):
         moved, cost, lam, _ = _damped_step(pts, kind, theta, w, e, J, lam)
         if moved is theta:
             break
         theta = moved
-        e, J = _residual_jacobian(theta, pts, kind)
+        e, J = geometric.residual_jacobian(theta, pts, kind)
     return theta, J.T @ (J * w[:, None]), cost
 
 
@@ -408,14 +382,14 @@ class Tracker:
         if self.theta is None and not self._start():
             return None
         idx, m, t, wc = self.memory.samples()
-        e, J = _residual_jacobian(self.theta, m, self.kind)
+        e, J = geometric.residual_jacobian(self.theta, m, self.kind)
         if condition(J.T @ (J * wc[:, None])) > self.config.max_condition:
             return self._withdraw()
         w, s2, q = self._weights(idx, t, wc, e)
         if self.kind != "full" and (self.n - self._last_ladder >= self.config.ladder_every
                                     or self.memory.occupied() > self._cells_at_ladder):
             self._climb(m, w)
-            e, J = _residual_jacobian(self.theta, m, self.kind)
+            e, J = geometric.residual_jacobian(self.theta, m, self.kind)
         theta, _, self._damping, A = _damped_step(m, self.kind, self.theta, w, e, J, self._damping)
         if theta is self.theta or condition(A) > self.config.max_condition:
             return None  # no better solution, or the weighted buffer no longer pins this model

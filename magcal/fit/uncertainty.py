@@ -2,7 +2,8 @@
 to 1σ of offset, radius and soft-iron matrix, the Cramér–Rao bound for the data's own geometry,
 and the information-matrix conditioning that decides which model the coverage can support.
 
-For residuals e = |W(m − b)| − r with independent Gaussian noise of σ per sample, the Fisher
+For residuals e = (|W(m − b)| − r)/‖W û‖ (``geometric``: the radial error in the raw samples' µT)
+with independent Gaussian noise of σ per sample, the Fisher
 information is JᵀJ/σ², so Cov(θ) ≥ σ²(JᵀJ)⁻¹ (the CRLB), which the ML fit attains to first order.
 Reported covariance uses σ̂² = Σe²/(n − p); the CRLB uses a given noise σ (or σ̂ when none).
 
