@@ -13,7 +13,8 @@
    ≤ ``max_condition``, else the model is not fitted; once fitted, the 1σ of its shape
    terms (≈ relative gains, from its own residuals; the z gain too, which the trace-free
    parameterisation derives from the other two) must be ≤ ``max_shape_sigma``, else it is
-   rejected. ``reason`` says which and why.
+   rejected — for the diagonal one, with the residuals' correlation along the recording
+   counted (``_shape_sigma``). ``reason`` says which and why.
 5. Each model fitted: robust fit → iterated Grubbs on its residuals (t-distribution critical
    values) → plain least squares (ML) on the kept samples → Grubbs again until nothing new.
 7. Balance: "directions" refits the chosen model with weights that give each coarse
@@ -104,11 +105,24 @@ def _gate(m, theta_sphere, kind, max_condition) -> tuple[bool, float, str]:
 
 def _shape_sigma(g: geometric.GeometricFit) -> float:
     """Largest 1σ of the shape terms (≈ relative gains, the z gain included) from the fit's
-    own residuals."""
+    own residuals.
+
+    The diagonal ellipsoid is the model left when the full one cannot be determined, and it is
+    wrong whenever the soft iron has off-diagonal terms: what it cannot hold stays in its
+    residuals, correlated along the recording, and on a cap of directions the offset along the
+    cap's axis, the radius and the z gain trade it between them. Its gains are judged with the
+    covariance that counts that correlation (the block sandwich ``fit`` reports) when that is
+    the larger. (The full ellipsoid is the whole linear model; judged that way too it refused
+    ellipsoids that won on real recordings.)"""
     if g.kind == "sphere":
         return 0.0
     cov = uncertainty.covariance(g.jac, uncertainty.residual_sigma(g.residual_ut, geometric.n_params(g.kind)))
-    return uncertainty.shape_sigma(cov)
+    sigma = uncertainty.shape_sigma(cov)
+    if g.kind == "diagonal":
+        block = uncertainty.block_covariance(g.jac, g.residual_ut)
+        if np.all(np.isfinite(block)):
+            sigma = max(sigma, uncertainty.shape_sigma(block))
+    return sigma
 
 
 def _bic(fit: geometric.GeometricFit) -> float:
