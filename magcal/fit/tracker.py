@@ -178,8 +178,9 @@ def _damped_step(pts, kind, theta, w, e, J, lam: float):
             lam *= 100.0
             continue
         trial = theta + step
-        e2 = geometric.residual(trial, pts, kind)
-        c2 = float(w @ (e2 * e2))
+        with np.errstate(over="ignore", invalid="ignore"):  # a wild trial: its cost is not finite, refused below
+            e2 = geometric.residual(trial, pts, kind)
+            c2 = float(w @ (e2 * e2))
         if np.isfinite(c2) and c2 <= cost and trial[3] > 0:
             return trial, c2, max(lam / 10.0, 1e-9), A
         lam *= 10.0
