@@ -411,9 +411,14 @@ class HeldOut:
     per_block: tuple  # per block: per model RMS
 
 
-def compare_heldout(a: Analysed, models: list, fold_slices: list) -> HeldOut:
+def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int | None = None) -> HeldOut:
     """``models`` (None entries skipped) refitted on the kept samples outside each contiguous
-    time block, from their own values, and judged on the block's kept samples."""
+    time block, from their own values, and judged on the block's kept samples. The entry at
+    ``procedure`` stands for ``magcal fit --model auto`` and is judged as the procedure it is:
+    fit runs again on each block's training samples, its gates and model choice included (its
+    model refitted alone, the choice made with the held-out block in hand, would be judged on a
+    shape fit may refuse without that block); where fit finds no model there, the model is
+    refitted as the others are."""
     sse = np.zeros(len(models))
     n_eval = 0
     per_block = []
@@ -425,7 +430,7 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list) -> HeldOut:
         test[: held.start] = test[held.stop :] = False
         chans_train = {c: v[train] for c, v in a.chans.items()}
         chans_test = {c: v[test] for c, v in a.chans.items()}
-        fits = [None if m is None else fit_model(a.m[train], chans_train, m.spec, m.reference, start=m, max_iter=HELDOUT_ITER) for m in models]
+        fits = [None if m is None else _refit_without(a.m[train], chans_train, m, i == procedure) for i, m in enumerate(models)]
         if not test.any() or any(m is not None and not f for m, f in zip(models, fits)):
             continue
         res = [f.residual(a.m[test], chans_test) if f else np.zeros(int(test.sum())) for f in fits]
@@ -434,6 +439,15 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list) -> HeldOut:
         per_block.append(tuple(float(np.sqrt(np.mean(r**2))) for r in res))
     rms = tuple(float(np.sqrt(v / n_eval)) if n_eval else float("nan") for v in sse)
     return HeldOut(tuple(r if m is not None else float("nan") for r, m in zip(rms, models)), tuple(per_block))
+
+
+def _refit_without(m_train: np.ndarray, chans_train: dict, model: ModelFit, as_fit: bool):
+    """``model`` refitted on a block's training samples (``compare_heldout``)."""
+    if as_fit:
+        result = fit_calibration(m_train, model="auto")
+        if result:
+            return from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
+    return fit_model(m_train, chans_train, model.spec, model.reference, start=model, max_iter=HELDOUT_ITER)
 
 
 @dataclass(frozen=True)
@@ -470,9 +484,9 @@ def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_sl
         return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), ())
     plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty)
     if not final.spec.channels:
-        return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices), ())
+        return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1), ())
     with_channels = _fit_geometry_around_channels(a, final, channel_cov, result.model) or final
-    heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices)
+    heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices, procedure=2)
     limit = never_worse(with_channels, plain, heldout)
     return Chosen(plain, "fit", heldout, (limit,)) if limit else Chosen(with_channels, "fit+channels", heldout, ())
 

@@ -10,11 +10,14 @@
    spikes cannot drag the fit.
 4. Which models can this coverage determine? For the diagonal and full ellipsoid, the
    information matrix JᵀJ at the robust sphere (unit-diagonal scaled) must have condition
-   ≤ ``max_condition``, else the model is not fitted; once fitted, the 1σ of its shape
+   ≤ ``max_ellipsoid_condition``, else the model is not fitted; once fitted, the 1σ of its shape
    terms (≈ relative gains, from its own residuals; the z gain too, which the trace-free
    parameterisation derives from the other two) must be ≤ ``max_shape_sigma``, else it is
    rejected — for the diagonal one, with the residuals' correlation along the recording
-   counted (``_shape_sigma``). ``reason`` says which and why.
+   counted (``_shape_sigma``). ``reason`` says which and why. The sphere has no second test,
+   so its condition limit carries the whole judgement and is the tighter one; an ellipsoid's
+   is only a backstop against a solve that cannot be trusted at all, and the shape-σ gate,
+   which asks exactly what a band of directions leaves open (the gains), decides.
 5. Each model fitted: robust fit → iterated Grubbs on its residuals (t-distribution critical
    values) → plain least squares (ML) on the kept samples → Grubbs again until nothing new.
 7. Balance: "directions" refits the chosen model with weights that give each coarse
@@ -47,6 +50,7 @@ from .sphere import sphere_start
 MODELS = ("sphere", "ellipsoid", "auto")
 BALANCE = ("auto", "directions", "none")
 DEFAULT_MAX_CONDITION = 1.0e4
+DEFAULT_MAX_ELLIPSOID_CONDITION = 1.0e5
 DEFAULT_MAX_SHAPE_SIGMA = 0.01
 _ROBUST_LOSS = "soft_l1"
 
@@ -135,7 +139,7 @@ def _bic(fit: geometric.GeometricFit) -> float:
 class _Limits:
     outliers: bool
     alpha: float
-    max_condition: float
+    max_ellipsoid_condition: float
     max_shape_sigma: float
 
 
@@ -148,6 +152,7 @@ def fit_calibration(
     max_condition: float = DEFAULT_MAX_CONDITION,
     max_shape_sigma: float = DEFAULT_MAX_SHAPE_SIGMA,
     balance: str = "auto",
+    max_ellipsoid_condition: float = DEFAULT_MAX_ELLIPSOID_CONDITION,
 ) -> FitResult | FitFailure:
     """Fit a calibration to magnetometer samples (µT); see the module docstring."""
     if model not in MODELS:
@@ -158,7 +163,7 @@ def fit_calibration(
     start = _robust_sphere(m, max_condition)
     if isinstance(start, FitFailure):
         return start
-    limits = _Limits(outliers, alpha, max_condition, max_shape_sigma)
+    limits = _Limits(outliers, alpha, max(max_condition, max_ellipsoid_condition), max_shape_sigma)
     notes: list[str] = []
     candidates, conds = _candidates(m, model, *start, limits, notes)
     if not candidates:
@@ -217,7 +222,7 @@ def _candidates(m, model: str, robust, cond_sphere: float, sigma_r: float, limit
         if kind == "sphere":
             ok, cond, why = True, cond_sphere, ""
         else:
-            ok, cond, why = _gate(m, robust.theta[:4], kind, limits.max_condition)
+            ok, cond, why = _gate(m, robust.theta[:4], kind, limits.max_ellipsoid_condition)
         conds[kind] = cond
         if not ok:
             notes.append(why)

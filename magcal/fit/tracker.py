@@ -20,7 +20,9 @@ ellipsoid up to date as samples arrive, with bounded memory and bounded time per
   sample time (the wander it follows lasts seconds to hours, so a faster sensor does not need
   more refits a second: the cost per second of stream is bounded whatever the rate), started
   from the previous solution, with Huber weights against spikes. The model grows sphere → diagonal → full ellipsoid when the
-  buffer's coverage determines it (the information-matrix and shape-σ gates of ``pipeline``),
+  buffer's coverage determines it (the information-matrix and shape-σ gates of ``pipeline``,
+  with the sphere's condition limit for every model: on the buffer the shape gate binds first,
+  and the ellipsoid's looser limit moved nothing but one flight log, for the worse),
   checked at most every ``ladder_every`` samples.
 
 Nothing here keeps the whole history or refits it: per sample one cell lookup and one buffer
