@@ -10,14 +10,15 @@
    spikes cannot drag the fit.
 4. Which models can this coverage determine? For the diagonal and full ellipsoid, the
    information matrix JᵀJ at the robust sphere (unit-diagonal scaled) must have condition
-   ≤ ``max_ellipsoid_condition``, else the model is not fitted; once fitted, the 1σ of its shape
-   terms (≈ relative gains, from its own residuals; the z gain too, which the trace-free
-   parameterisation derives from the other two) must be ≤ ``max_shape_sigma``, else it is
-   rejected — for the diagonal one, with the residuals' correlation along the recording
-   counted (``_shape_sigma``). ``reason`` says which and why. The sphere has no second test,
-   so its condition limit carries the whole judgement and is the tighter one; an ellipsoid's
-   is only a backstop against a solve that cannot be trusted at all, and the shape-σ gate,
-   which asks exactly what a band of directions leaves open (the gains), decides.
+   ≤ ``max_ellipsoid_condition`` (never below ``max_condition``), else the model is not
+   fitted; once fitted, the 1σ of its shape terms (≈ relative gains, from its own residuals;
+   the z gain too, which the trace-free parameterisation derives from the other two) must be
+   ≤ ``max_shape_sigma``, else it is rejected — for the diagonal one, with the residuals'
+   correlation along the recording counted (``_shape_sigma``). ``reason`` says which and why.
+   The sphere has no second test, so its condition limit carries the whole judgement and is
+   the tighter one; an ellipsoid's is only a backstop against a solve that cannot be trusted
+   at all, and the shape-σ gate, which asks exactly what a band of directions leaves open (the
+   gains), decides.
 5. Each model fitted: robust fit → iterated Grubbs on its residuals (t-distribution critical
    values) → plain least squares (ML) on the kept samples → Grubbs again until nothing new.
 7. Balance: "directions" refits the chosen model with weights that give each coarse
