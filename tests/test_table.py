@@ -103,6 +103,7 @@ def test_plausible_field_names_the_unit_that_would_fit():
     assert "mG" in plausible_field(480.0)
     assert "nT" in plausible_field(48000.0)
     assert "raw counts" in plausible_field(1730.0)
+    assert "hardly turned" in plausible_field(2.8)  # no unit makes it one: a sphere wrapping a still cloud
 
 
 def test_fit_warns_when_the_file_is_not_in_microtesla_and_reads_it_when_told(tmp_path, capsys):

@@ -56,3 +56,13 @@ def test_summary_and_failures(tmp_path, capsys):
     assert main(["track", LSM, "--rate", "0"]) == 2
     assert "--rate must be positive" in capsys.readouterr().err
     assert main(["track", str(tmp_path / "missing.csv")]) == 6
+
+
+def test_a_file_in_gauss_is_named_as_such(tmp_path, capsys):
+    m = _m()
+    gauss = tmp_path / "gauss.csv"
+    np.savetxt(gauss, m / 100.0, delimiter=",", header="mx,my,mz", comments="")
+    assert main(["track", str(gauss)]) == 3
+    err = capsys.readouterr().err
+    assert "below the Earth's 15 µT" in err and "--unit gauss" in err
+    assert main(["track", str(gauss), "--unit", "gauss"]) == 0

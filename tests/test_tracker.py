@@ -9,7 +9,7 @@ import pytest
 from magcal.fit import fit_calibration
 from magcal.fit.tracker import Estimate, Tracker, TrackerConfig, Withdrawal
 from magcal.fit.tracker_memory import Wander
-from magcal.sim.physics import Motion, demo_scenario
+from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
 
 DRIFT = np.array([0.01, -0.006, 0.004])  # µT/s
 
@@ -130,7 +130,35 @@ def test_a_faster_stream_is_refitted_no_more_often_in_time():
             assert np.all(np.diff([e.sample for e in events]) % 20 == 0)
 
 
+@pytest.mark.parametrize("seed", [3, 7, 30])
+def test_a_board_that_has_hardly_turned_puts_no_noise_sized_sphere_in_force(seed):
+    # ±30° tilts from a standing start: the first 80–100 samples are a cloud a few µT across.
+    # A sphere of 2–8 µT wraps it with every direction covered, so its condition passes; with
+    # it in force the offset was 50 µT off (one field radius), and the memory was filed about
+    # that centre. The Earth gives no field below 15 µT.
+    truth = np.array([23.5, -41.2, 12.8])
+    sc = Scenario(physics=Physics(hard_iron_ut=tuple(truth), distortion=tuple(map(tuple, np.diag([1.04, 0.97, 0.99]))),
+                                  noise_ut=0.4), motion=Motion("tilt"), seed=seed)
+    _, m, t = _run(sc, 3000)
+    events = [e for e in Tracker().add_many(m, t) if isinstance(e, Estimate)]
+    assert events
+    assert min(e.calibration.field_ut for e in events) >= 15.0
+    assert max(np.linalg.norm(e.calibration.offset_ut - truth) for e in events) < 10.0
+
+
+def test_a_recording_in_gauss_never_starts_and_says_which_field_it_saw():
+    _, m, t = _run(demo_scenario(1), 3000)
+    trk = Tracker()
+    assert trk.add_many(m / 100.0, t) == []
+    assert trk.estimate is None and 0.4 < trk.low_field_ut < 0.6
+    back = Tracker.from_state(json.loads(json.dumps(trk.to_state())))
+    assert back.low_field_ut == trk.low_field_ut
+    assert Tracker(TrackerConfig(min_field_ut=0.0)).add_many(m / 100.0, t)  # the floor can be lifted
+
+
 def test_config_refuses_nonsense():
+    with pytest.raises(ValueError, match="min_field_ut"):
+        TrackerConfig(min_field_ut=-1.0)
     with pytest.raises(ValueError, match="refit_min_s"):
         TrackerConfig(refit_min_s=float("nan"))
     with pytest.raises(ValueError, match="per_cell"):

@@ -16,7 +16,9 @@ determining a calibration the change says so: ``offset_ut``, ``soft_iron``, ``fi
 [...], "final": {...} | null, "input"}``; without either, a summary. ``--rate HZ`` times the rows
 at HZ (for a file without a time column, whose rows are otherwise one second apart).
 Exit status (``magcal --help``): 0 when a calibration came into force, 3 when none did (the
-samples never pinned one), 2 for a bad option, 6 when FILE cannot be read.
+samples never pinned one, or gave only a field below the Earth's), 2 for a bad option, 6 when
+FILE cannot be read. A final field outside the Earth's 15–100 µT is warned of on stderr, as
+``fit`` does (a file in another unit).
 """
 
 from __future__ import annotations
@@ -53,12 +55,25 @@ def _times(series, rate):
     return np.arange(len(series)) / float(rate)
 
 
-def _summary(changes: list[dict], n: int, skipped: int, source: str | None) -> str:
+def _why_none(tracker) -> str:
+    """Why no calibration came into force, in words."""
+    from ..recordings.table import unit_guess
+
+    low, floor = tracker.low_field_ut, tracker.config.min_field_ut
+    if low is None:
+        return "the samples never pinned one (too few, or too few directions)"
+    guess = unit_guess(low)
+    cause = (f"is the file in {guess}? (--unit {guess})" if guess else
+             "the board has hardly turned: a sphere of a few µT wraps its cloud of samples")
+    return f"the only spheres the samples gave had a field of {low:.3g} µT, below the Earth's {floor:.3g} µT: {cause}"
+
+
+def _summary(changes: list[dict], n: int, skipped: int, source: str | None, why: str) -> str:
     lines = [f"input       {source}"] if source else []
     good = [c for c in changes if c.get("offset_ut") is not None]
     lines.append(f"samples     {n} ({skipped} not finite, skipped); {len(changes)} changes of the calibration")
     if not good:
-        return "\n".join(lines + ["no calibration came into force (the motion never pinned one)"])
+        return "\n".join(lines + [f"no calibration came into force: {why}"])
     first, last = good[0], changes[-1]
     lines.append(f"first       after sample {first['sample']} ({first['model']})")
     step = max(1, len(good) // 8)
@@ -78,7 +93,7 @@ def run(args) -> int:
     from ..app.load import load_series
     from ..core.errors import InputError
     from ..fit.tracker import Tracker
-    from .common import print_json
+    from .common import field_warning, print_json
 
     series = load_series(args.file, table_format(args))
     if len(series) == 0:
@@ -101,8 +116,9 @@ def run(args) -> int:
                     "skipped": tracker.skipped, "changes": changes,
                     "final": None if tracker.estimate is None else tracker.estimate.to_dict()})
     elif not args.jsonl:
-        print(_summary(changes, tracker.n, tracker.skipped, series.source))
+        print(_summary(changes, tracker.n, tracker.skipped, series.source, _why_none(tracker)))
     if code:
-        print("magcal track: no calibration came into force: the samples never pinned one "
-              "(too few, or too few directions)", file=sys.stderr)
+        print(f"magcal track: no calibration came into force: {_why_none(tracker)}", file=sys.stderr)
+    elif tracker.estimate is not None:
+        field_warning(tracker.estimate.calibration.field_ut)
     return code

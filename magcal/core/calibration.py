@@ -28,6 +28,11 @@ from typing import Mapping
 import numpy as np
 
 
+# The field a magnetometer at the Earth's surface sees: 22–67 µT by the World Magnetic Model,
+# widened for nearby iron. A fitted field outside it is a wrong unit or a wrong solution.
+EARTH_FIELD_UT = (15.0, 100.0)
+
+
 def _vec3(v) -> np.ndarray:
     a = np.asarray(v, dtype=np.float64).reshape(3)
     a.setflags(write=False)

@@ -24,6 +24,11 @@ ellipsoid up to date as samples arrive, with bounded memory and bounded time per
   with the sphere's condition limit for every model: on the buffer the shape gate binds first,
   and the ellipsoid's looser limit moved nothing but one flight log, for the worse),
   checked at most every ``ladder_every`` samples.
+* **A field the Earth could give.** A first solution is also refused when its field is below
+  ``min_field_ut`` (the Earth's 15 µT, ``EARTH_FIELD_UT``). A board that has hardly turned yet
+  gives a small cloud of noisy samples, and a sphere of a few µT wraps such a cloud with every
+  direction covered: its condition passes, and its offset is one field radius from the truth.
+  A running solution that shrinks below the floor is withdrawn.
 
 Nothing here keeps the whole history or refits it: per sample one cell lookup and one buffer
 write; per refit O(cells × per_cell). ``Tracker.add`` returns a new :class:`Estimate` when the
@@ -38,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import beta, chi2
 
-from ..core.calibration import Calibration
+from ..core.calibration import EARTH_FIELD_UT, Calibration
 from . import geometric
 from .accumulator import check_state
 from .ellipsoid import algebraic_start
@@ -73,6 +78,7 @@ class TrackerConfig:
     min_share: float = 0.1
     max_condition: float = DEFAULT_MAX_CONDITION
     max_shape_sigma: float = DEFAULT_MAX_SHAPE_SIGMA
+    min_field_ut: float = EARTH_FIELD_UT[0]
 
     def __post_init__(self):
         ints = ("bands", "sectors", "per_cell", "refit_every", "ladder_every", "min_samples")
@@ -83,6 +89,8 @@ class TrackerConfig:
             raise ValueError(f"tracker refit_min_s must be finite and ≥ 0, not {self.refit_min_s!r}")
         if not 0.0 <= self.min_share <= 1.0:
             raise ValueError(f"tracker min_share must be in [0, 1], not {self.min_share!r}")
+        if not (math.isfinite(self.min_field_ut) and self.min_field_ut >= 0.0):
+            raise ValueError(f"tracker min_field_ut must be finite and ≥ 0, not {self.min_field_ut!r}")
 
     @property
     def capacity(self) -> int:
@@ -236,6 +244,7 @@ class Tracker:
         self._t_refit = -math.inf  # sample time of the last refit
         self._sum = [0.0, 0.0, 0.0]
         self.n_used = 0
+        self.low_field_ut: float | None = None  # set when the last first solution was refused for its field
 
     def coverage(self) -> float:
         return self.memory.occupied() / len(self.memory.count)
@@ -291,6 +300,10 @@ class Tracker:
             return False
         theta, A, _ = gauss_newton(m, "sphere", np.asarray(start, dtype=np.float64), wc, 10)
         if condition(A) > self.config.max_condition / START_MARGIN:
+            self.low_field_ut = None
+            return False
+        if theta[3] < self.config.min_field_ut:
+            self.low_field_ut = float(theta[3])
             return False
         self.theta, self.kind = theta, "sphere"
         self.memory.rebin(theta[:3], force=True)
@@ -396,17 +409,21 @@ class Tracker:
         theta, _, self._damping, A = _damped_step(m, self.kind, self.theta, w, e, J, self._damping)
         if theta is self.theta or condition(A) > self.config.max_condition:
             return None  # no better solution, or the weighted buffer no longer pins this model
+        if theta[3] < self.config.min_field_ut:
+            self.low_field_ut = float(theta[3])
+            return self._withdraw(f"the field the samples give, {theta[3]:.3g} µT, is below the Earth's "
+                                  f"{self.config.min_field_ut:.3g} µT")
         self.theta = theta
         if np.linalg.norm(theta[:3] - np.array(self.memory.centre)) > 0.1 * theta[3]:
             self.memory.rebin(theta[:3])
         return self._publish(A, s2, q, len(m))
 
-    def _withdraw(self) -> Withdrawal | None:
+    def _withdraw(self, reason: str = "the samples in memory no longer determine the calibration "
+                                      "(too few directions)") -> Withdrawal | None:
         """The memory no longer pins the model in force (a first solution that looked pinned
         on few samples): back to no calibration, said once."""
         had = self.estimate is not None
         self.theta, self.kind, self.estimate, self.wander = None, None, None, Wander()
-        reason = "the samples in memory no longer determine the calibration (too few directions)"
         return Withdrawal(sample=self.n - 1, t_s=self._t_last, reason=reason) if had else None
 
     def _publish(self, A, s2, q, n_buf) -> Estimate:
@@ -438,6 +455,7 @@ class Tracker:
             "last_ladder": self._last_ladder, "cells_at_ladder": self._cells_at_ladder, "t_last": self._t_last,
             "t_refit": self._t_refit if math.isfinite(self._t_refit) else None,
             "estimate": None if self.estimate is None else self.estimate.to_dict(),
+            "low_field_ut": self.low_field_ut,
         }
 
     @classmethod
@@ -459,6 +477,8 @@ class Tracker:
             t_refit = d.get("t_refit")  # (absent from states saved before the refit spacing)
             trk._t_refit = -math.inf if t_refit is None else float(t_refit)
             trk.estimate = None if d["estimate"] is None else Estimate.from_dict(d["estimate"])
+            low = d.get("low_field_ut")  # (absent from states saved before the field floor)
+            trk.low_field_ut = None if low is None else float(low)
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"tracker state is malformed: {exc}") from None
         if trk.kind not in (None, *LADDER) or (trk.theta is not None and len(trk.theta) != geometric.n_params(trk.kind)):

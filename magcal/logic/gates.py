@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.bounds import check_bounds, setting
+from ..core.calibration import EARTH_FIELD_UT
 from ..core.errors import ConfigError
 from ..fit.coverage import DEFAULT_BANDS, DEFAULT_SECTORS
 
@@ -36,7 +37,7 @@ class Gates:
     # RMS of |calibrated| − field over the kept samples
     max_rms_ut: float = setting(2.0, lo=0, lo_open=True)
     # accepted field radius (Earth: 22–67 µT)
-    field_range_ut: tuple[float, float] = setting((15.0, 100.0), lo=0, lo_open=True, hi=1e4)
+    field_range_ut: tuple[float, float] = setting(EARTH_FIELD_UT, lo=0, lo_open=True, hi=1e4)
     # |offset| beyond this is a magnet, not hard iron
     max_offset_ut: float = setting(1000.0, lo=0, lo_open=True)
     # 1σ uncertainty of each offset axis

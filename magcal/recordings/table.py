@@ -46,6 +46,7 @@ from itertools import chain, islice
 
 import numpy as np
 
+from ..core.calibration import EARTH_FIELD_UT
 from ..core.errors import InputError
 from ..core.series import Series
 from .atomic import write_atomic
@@ -70,8 +71,6 @@ _MAG_NAME = re.compile(
     re.IGNORECASE,
 )
 KNOWN_CHANNELS = ("temp_c", "current_a")  # diagnosis names these effects; taken in any case
-# Earth's field at the surface is 22–67 µT (World Magnetic Model); allow for nearby iron
-EARTH_FIELD_UT = (15.0, 100.0)
 
 
 @dataclass(frozen=True)
@@ -120,18 +119,27 @@ def unit_scale(unit: str) -> float:
     return v
 
 
+def unit_guess(field_ut: float) -> str | None:
+    """The unit (gauss, mG, nT) in which a field read as ``field_ut`` µT would be an Earth field."""
+    lo, hi = EARTH_FIELD_UT
+    return next((name for name, s in (("gauss", 100.0), ("mG", 0.1), ("nT", 1e-3)) if lo <= field_ut * s <= hi), None)
+
+
 def plausible_field(field_ut: float) -> str | None:
     """None when ``field_ut`` could be the Earth's field, else a sentence saying which unit
     would make it one — for a recording read in the wrong unit."""
     lo, hi = EARTH_FIELD_UT
     if not math.isfinite(field_ut) or lo <= field_ut <= hi:
         return None
-    guesses = [name for name, s in (("gauss", 100.0), ("mG", 0.1), ("nT", 1e-3))
-               if lo <= field_ut * s <= hi]
-    hint = (f"read in {guesses[0]} it would be {field_ut * UNITS_UT[guesses[0].lower()]:.1f} µT "
-            f"(--unit {guesses[0]})") if guesses else "if it holds raw counts, give --unit with the µT of one count"
-    return (f"the fitted field is {field_ut:.4g} µT, outside the Earth's {lo:.0f}–{hi:.0f} µT, so the "
-            f"file may be in another unit: {hint}")
+    said = f"the fitted field is {field_ut:.4g} µT, outside the Earth's {lo:.0f}–{hi:.0f} µT"
+    guess = unit_guess(field_ut)
+    if guess:
+        return (f"{said}, so the file may be in another unit: read in {guess} it would be "
+                f"{field_ut * UNITS_UT[guess.lower()]:.1f} µT (--unit {guess})")
+    if field_ut < lo:
+        return (f"{said}: the board may have hardly turned (a sphere of a few µT wraps a small cloud of "
+                "samples: turn it through more directions), or the file is in another unit (--unit)")
+    return f"{said}, so the file may be in another unit: if it holds raw counts, give --unit with the µT of one count"
 
 
 def _number(text: str) -> float | None:
