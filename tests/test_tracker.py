@@ -146,6 +146,36 @@ def test_a_board_that_has_hardly_turned_puts_no_noise_sized_sphere_in_force(seed
     assert max(np.linalg.norm(e.calibration.offset_ut - truth) for e in events) < 10.0
 
 
+def _soft_iron_board(motion, seed, truth):
+    sc = Scenario(physics=Physics(hard_iron_ut=tuple(truth), distortion=tuple(map(tuple, np.diag([1.04, 0.97, 0.99]))),
+                                  noise_ut=0.4), motion=Motion(motion), seed=seed)
+    return _run(sc, 3000)
+
+
+def test_flat_turns_where_the_field_dips_put_no_wrong_centre_in_force():
+    # The samples circle the field's cone. Every sphere through that circle fits them; the one
+    # found first has the circle as its equator (field ≈ 25 µT, centre ≈ 40 µT off along z), and
+    # at that sphere the information matrix looks well conditioned. Before the centre had to be
+    # pinned, all ten seeds put such spheres in force; one (seed 6) still does.
+    truth = np.array([23.5, -41.2, 12.8])
+    started = 0
+    for seed in range(1, 11):
+        _, m, t = _soft_iron_board("yaw", seed, truth)
+        started += any(isinstance(e, Estimate) for e in Tracker().add_many(m, t))
+    assert started <= 1
+
+
+@pytest.mark.parametrize("seed", [19, 20, 39])
+def test_a_tumble_starts_from_a_centre_its_samples_pin(seed):
+    # The first few hundred samples of these tumbles cover a patch that several spheres fit;
+    # the first one taken was 30–55 µT off (field 16–37 µT), above the Earth-field floor.
+    truth = np.array([23.5, -41.2, 12.8])
+    _, m, t = _soft_iron_board("sphere", seed, truth)
+    events = [e for e in Tracker().add_many(m, t) if isinstance(e, Estimate)]
+    assert events
+    assert max(np.linalg.norm(e.calibration.offset_ut - truth) for e in events) < 10.0
+
+
 def test_a_recording_in_gauss_never_starts_and_says_which_field_it_saw():
     _, m, t = _run(demo_scenario(1), 3000)
     trk = Tracker()

@@ -29,6 +29,12 @@ ellipsoid up to date as samples arrive, with bounded memory and bounded time per
   gives a small cloud of noisy samples, and a sphere of a few µT wraps such a cloud with every
   direction covered: its condition passes, and its offset is one field radius from the truth.
   A running solution that shrinks below the floor is withdrawn.
+* **A centre the samples pin.** A first solution is also refused when its centre could move by
+  a fifth of the field along the samples' thinnest axis, the sphere refitted about it, for less
+  than 2σ of likelihood (``centre_shift_chi2``). Samples near a circle — flat turns where the
+  field dips — lie on every sphere through that circle; the one found first is the sphere whose
+  equator the circle is, and at it the information matrix looks well conditioned while its
+  centre is tens of µT off along the circle's axis.
 
 Nothing here keeps the whole history or refits it: per sample one cell lookup and one buffer
 write; per refit O(cells × per_cell). ``Tracker.add`` returns a new :class:`Estimate` when the
@@ -59,6 +65,8 @@ CHANGE_ALPHA = 1e-9  # a sudden change is declared at this false-alarm probabili
 CHANGE_MIN_PAIRS = 5
 CHANGE_MIN_EVIDENCE = 200  # pairs in the wander record before its model judges a change
 START_MARGIN = 10.0  # a first solution needs 10× the conditioning a running one needs (hysteresis)
+PIN_SHIFT = 0.2  # a first solution's centre must be pinned to this share of its field (a heading within ~11°)…
+PIN_CHI2 = 4.0  # …at 2σ: moving it that far along the samples' thinnest axis must cost this much likelihood
 HUBER_K = 2.5  # Huber threshold in robust σ of the residual (95 % efficiency under Gaussian noise)
 _STATE_KIND = "magcal.tracker"
 _STATE_VERSION = 1
@@ -197,6 +205,46 @@ def _damped_step(pts, kind, theta, w, e, J, lam: float):
     return theta, cost, lam, A
 
 
+def _shifted_sphere_cost(m, w, centre, u, r0: float, steps: int = 20) -> float:
+    """Σ w e² of the best sphere whose centre is ``centre`` moved within the plane spanned by
+    ``u`` (3×2), radius free (Levenberg-damped Gauss–Newton from the plane's origin and r0)."""
+    p, lam = np.array([0.0, 0.0, r0]), 1e-6
+
+    def cost_jac(p):
+        d = m - (centre + u @ p[:2])
+        nd = np.linalg.norm(d, axis=1)
+        e = nd - p[2]
+        J = np.column_stack([-(d @ u) / nd[:, None], -np.ones(len(m))])
+        return e, J
+
+    e, J = cost_jac(p)
+    cost = float(w @ (e * e))
+    for _ in range(steps):
+        A, g = J.T @ (J * w[:, None]), (J * w[:, None]).T @ e
+        trial = p + np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
+        e2, J2 = cost_jac(trial)
+        c2 = float(w @ (e2 * e2))
+        if np.isfinite(c2) and c2 <= cost:
+            done = cost - c2 <= 1e-12 * cost
+            p, e, J, cost, lam = trial, e2, J2, c2, max(lam / 10.0, 1e-9)
+            if done:
+                break
+        else:
+            lam *= 10.0
+    return cost
+
+
+def centre_shift_chi2(m, w, theta, cost: float, shift: float = PIN_SHIFT) -> float:
+    """How much likelihood (Σw·ln of the cost ratio, χ² with 1 degree of freedom) it costs to move
+    the sphere θ's centre by ``shift`` × its field along the samples' thinnest axis, the sphere
+    refitted about it; ``cost`` is θ's own Σ w e² (θ converged). Small: the centre is not pinned."""
+    mu = (w @ m) / w.sum()
+    _, axes = np.linalg.eigh(((m - mu) * w[:, None]).T @ (m - mu))
+    moved = min(_shifted_sphere_cost(m, w, theta[:3] + sign * shift * theta[3] * axes[:, 0], axes[:, 1:], theta[3])
+                for sign in (1.0, -1.0))
+    return float(w.sum() * np.log(max(moved, cost) / max(cost, 1e-300)))
+
+
 def gauss_newton(pts, kind, theta, w, steps: int):
     """``steps`` damped Gauss–Newton steps (``_damped_step``) from θ. Returns (θ, JᵀWJ at the
     result, Σ w e²)."""
@@ -304,6 +352,10 @@ class Tracker:
             return False
         if theta[3] < self.config.min_field_ut:
             self.low_field_ut = float(theta[3])
+            return False
+        self.low_field_ut = None
+        theta, _, cost = gauss_newton(m, "sphere", theta, wc, 20)  # converged, for the likelihood ratio
+        if centre_shift_chi2(m, wc, theta, cost) < PIN_CHI2:
             return False
         self.theta, self.kind = theta, "sphere"
         self.memory.rebin(theta[:3], force=True)
