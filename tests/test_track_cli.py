@@ -66,3 +66,14 @@ def test_a_file_in_gauss_is_named_as_such(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "below the Earth's 15 µT" in err and "--unit gauss" in err
     assert main(["track", str(gauss), "--unit", "gauss"]) == 0
+
+
+def test_a_flight_log_s_magnetometer_is_chosen_with_mag(capsys):
+    # the log holds three; without --mag the error lists them and says to choose with --mag N,
+    # which track has to accept
+    log = os.path.join(DATA, "ardupilot_log171_excerpt.bin")
+    assert main(["track", log]) == 6
+    assert "--mag 0: MAG" in capsys.readouterr().err
+    main(["track", log, "--mag", "0", "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert d["samples"] == 1451 and "--mag 0" in d["input"]

@@ -14,7 +14,9 @@ determining a calibration the change says so: ``offset_ut``, ``soft_iron``, ``fi
 ``model`` null and a ``reason``. ``--jsonl`` prints one such object per line as they happen;
 ``--json`` one object ``{"format": "magcal.track", "version": 1, "samples", "skipped", "changes":
 [...], "final": {...} | null, "input"}``; without either, a summary. ``--rate HZ`` times the rows
-at HZ (for a file without a time column, whose rows are otherwise one second apart).
+at HZ (for a file without a time column, whose rows are otherwise one second apart). A flight
+log (PX4 ULog, ArduPilot DataFlash) is replayed as its magnetometer's raw samples, the log's own
+calibration undone; ``--mag N`` chooses the magnetometer of a log that holds several.
 Exit status (``magcal --help``): 0 when a calibration came into force, 3 when none did (the
 samples never pinned one, or gave only a field below the Earth's), 2 for a bad option, 6 when
 FILE cannot be read. A final field outside the Earth's 15–100 µT is warned of on stderr, as
@@ -27,6 +29,7 @@ import json
 import sys
 
 from .common import add_table_options, table_format
+from .options import add
 from .exits import Exit
 
 HELP = "replay a recording through the tracker: the calibration in force at every sample"
@@ -34,13 +37,14 @@ FORMAT, VERSION = "magcal.track", 1
 
 
 def add_arguments(p) -> None:
-    p.add_argument("file", metavar="FILE", help="a capture, a MotionCal log or a table")
+    p.add_argument("file", metavar="FILE", help="a capture, a MotionCal log, a table or a flight log (--mag N)")
     out = p.add_mutually_exclusive_group()
     out.add_argument("--jsonl", action="store_true", help="one JSON object per change, one per line, as they happen")
     out.add_argument("--json", action="store_true", help="one JSON object with every change")
     p.add_argument("--rate", type=float, metavar="HZ",
                    help="sample rate: time the rows at HZ instead of the file's time column")
     add_table_options(p)
+    add(p, "mag")
 
 
 def _times(series, rate):
@@ -95,7 +99,7 @@ def run(args) -> int:
     from ..fit.tracker import Tracker
     from .common import field_warning, print_json
 
-    series = load_series(args.file, table_format(args))
+    series = load_series(args.file, table_format(args), args.mag)
     if len(series) == 0:
         raise InputError(f"{args.file}: no samples")
     t = _times(series, args.rate)
