@@ -207,31 +207,20 @@ def _damped_step(pts, kind, theta, w, e, J, lam: float):
 
 def _shifted_sphere_cost(m, w, centre, u, r0: float, steps: int = 20) -> float:
     """Σ w e² of the best sphere whose centre is ``centre`` moved within the plane spanned by
-    ``u`` (3×2), radius free (Levenberg-damped Gauss–Newton from the plane's origin and r0)."""
-    p, lam = np.array([0.0, 0.0, r0]), 1e-6
+    ``u`` (3×2), radius free (``geometric.levenberg_marquardt`` from the plane's origin and r0)."""
+    sw = np.sqrt(w)
 
-    def cost_jac(p):
+    def fun(p):
+        return sw * (np.linalg.norm(m - (centre + u @ p[:2]), axis=1) - p[2])
+
+    def jac(p):
         d = m - (centre + u @ p[:2])
         nd = np.linalg.norm(d, axis=1)
-        e = nd - p[2]
-        J = np.column_stack([-(d @ u) / nd[:, None], -np.ones(len(m))])
-        return e, J
+        return sw[:, None] * np.column_stack([-(d @ u) / nd[:, None], -np.ones(len(m))])
 
-    e, J = cost_jac(p)
-    cost = float(w @ (e * e))
-    for _ in range(steps):
-        A, g = J.T @ (J * w[:, None]), (J * w[:, None]).T @ e
-        trial = p + np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
-        e2, J2 = cost_jac(trial)
-        c2 = float(w @ (e2 * e2))
-        if np.isfinite(c2) and c2 <= cost:
-            done = cost - c2 <= 1e-12 * cost
-            p, e, J, cost, lam = trial, e2, J2, c2, max(lam / 10.0, 1e-9)
-            if done:
-                break
-        else:
-            lam *= 10.0
-    return cost
+    p, _, _ = geometric.levenberg_marquardt(fun, jac, [0.0, 0.0, r0], max_iter=steps)
+    e = fun(p)
+    return float(e @ e)
 
 
 def centre_shift_chi2(m, w, theta, cost: float, shift: float = PIN_SHIFT) -> float:
