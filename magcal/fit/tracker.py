@@ -336,13 +336,12 @@ class Tracker:
         if isinstance(start, FitFailure):
             return False
         theta, A, _ = gauss_newton(m, "sphere", np.asarray(start, dtype=np.float64), wc, 10)
+        self.low_field_ut = None
         if condition(A) > self.config.max_condition / START_MARGIN:
-            self.low_field_ut = None
             return False
         if theta[3] < self.config.min_field_ut:
             self.low_field_ut = float(theta[3])
             return False
-        self.low_field_ut = None
         theta, _, cost = gauss_newton(m, "sphere", theta, wc, 20)  # converged, for the likelihood ratio
         if centre_shift_chi2(m, wc, theta, cost) < PIN_CHI2:
             return False
