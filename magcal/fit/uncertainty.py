@@ -52,14 +52,20 @@ def weighted_covariance(jac: np.ndarray, weights: np.ndarray, sigma_ut: float) -
     return sigma_ut**2 * A @ B @ A
 
 
+def block_count(n: int, requested: int | None = None) -> int:
+    """How many contiguous time blocks the batch-means sandwich cuts n samples into: as
+    requested or √n/2 within 12…40, at least 4 samples a block (1 below 8 samples: no sandwich)."""
+    b = int(requested or np.clip(np.sqrt(n) / 2.0, 12, 40))
+    return max(min(b, n // 4), 2) if n >= 8 else 1
+
+
 def block_covariance(jac: np.ndarray, residual_ut: np.ndarray, weights=None, n_blocks: int | None = None) -> np.ndarray:
     """Batch-means sandwich A (Σ_b g_b g_bᵀ) A · B/(B − 1), A = (JᵀWJ)⁻¹, g_b = J_bᵀW_b e_b over
     B contiguous blocks of the (time-ordered) samples: robust to residuals correlated over
     less than a block. B = √n/2 within 12…40 (enough blocks for a usable variance estimate)."""
     n = len(residual_ut)
     w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
-    b = int(n_blocks or np.clip(np.sqrt(n) / 2.0, 12, 40))
-    b = max(min(b, n // 4), 2) if n >= 8 else 1
+    b = block_count(n, n_blocks)
     A = np.linalg.pinv(jac.T @ (w[:, None] * jac), rcond=1e-15, hermitian=True)
     if b < 2:
         return np.full_like(A, np.nan)
@@ -69,17 +75,29 @@ def block_covariance(jac: np.ndarray, residual_ut: np.ndarray, weights=None, n_b
     return A @ (g.T @ g) @ A * (b / (b - 1.0))
 
 
-def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weights=None) -> dict:
-    """{'offset_ut': [3], 'field_ut': σ, 'soft_iron': [[3×3]]} (1σ) and the CRLB of the offset
-    (the bound of any unbiased estimator for this data's geometry — the weighted fit's own
-    covariance sits at or above it)."""
-    p = geometric.n_params(fit.kind)
-    s_hat = residual_sigma(fit.residual_ut, p)
+def _covariances(fit: geometric.GeometricFit, s_hat: float, weights=None):
+    """(independent-noise covariance, block sandwich, their offset-trace ratio's square root)."""
     cov_iid = covariance(fit.jac, s_hat) if weights is None else weighted_covariance(fit.jac, weights, s_hat)
     cov_blk = block_covariance(fit.jac, fit.residual_ut, weights)
     t_iid = float(np.trace(cov_iid[:3, :3]))
     t_blk = float(np.trace(cov_blk[:3, :3])) if np.all(np.isfinite(cov_blk)) else 0.0
     factor = float(np.sqrt(t_blk / t_iid)) if t_iid > 0 and t_blk > 0 else 1.0
+    return cov_iid, cov_blk, factor
+
+
+def autocorrelation_factor(fit: geometric.GeometricFit, weights=None) -> float:
+    """How much wider the offset's 1σ is when residuals correlated in time are counted
+    (block sandwich over independent noise), at least 1: ≈ 1 on independent noise."""
+    s_hat = residual_sigma(fit.residual_ut, geometric.n_params(fit.kind))
+    return max(_covariances(fit, s_hat, weights)[2], 1.0)
+
+
+def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weights=None) -> dict:
+    """{'offset_ut': [3], 'field_ut': σ, 'soft_iron': [[3×3]]} (1σ) and the CRLB of the offset
+    (the bound of any unbiased estimator for this data's geometry — the weighted fit's own
+    covariance sits at or above it)."""
+    s_hat = residual_sigma(fit.residual_ut, geometric.n_params(fit.kind))
+    cov_iid, cov_blk, factor = _covariances(fit, s_hat, weights)
     cov = cov_blk if factor > 1.0 else cov_iid
     crlb = covariance(fit.jac, s_hat if noise_ut is None else float(noise_ut))
     return {
