@@ -33,8 +33,8 @@ def test_without_correlation_the_balance_is_the_plain_one():
 def test_a_long_rest_gives_weight_to_the_cells_other_visits_and_the_cell_keeps_its_share():
     h, run = _one_cell_then_another()
     plain, w = direction_weights(h), direction_weights(h, visit_correlation=0.05)
-    in_x = run != 1
-    assert np.isclose(w[in_x].sum(), plain[in_x].sum()) and np.isclose(w[~in_x].sum(), plain[~in_x].sum())
+    here = run != 1
+    assert np.isclose(w[here].sum(), plain[here].sum()) and np.isclose(w[~here].sum(), plain[~here].sum())
     rest, passes = w[run == 0], w[run >= 2]
     # per visit k/(1 + kρ): the 400-sample rest weighs 400/21 ≈ 19, each 25-sample pass 25/2.25 ≈ 11
     assert np.isclose(rest.sum() / w[run == 2].sum(), (400 / 21) / (25 / 2.25))
@@ -72,6 +72,6 @@ def test_a_disturbed_rest_counts_as_one_visit_and_pulls_the_offset_less(seed):
 
 @pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
 def test_independent_noise_keeps_the_plain_balance(seed):
-    m, moving = _tumble_with_rest(seed, disturbance_ut=0.0)
+    m, _ = _tumble_with_rest(seed, disturbance_ut=0.0)
     r = fit_calibration(m)
     assert "direction cell counts equally" in r.reason and VISIT_NOTE not in r.reason
