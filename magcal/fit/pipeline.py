@@ -293,8 +293,8 @@ def _balanced(mk, g, balance: str, notes: list):
         return g, None
     notes.append("samples weighted so each direction cell counts equally")
     f = uncertainty.autocorrelation_factor(g, weights)
-    if _correlated(f, len(mk)):
-        gv, wv = _reweighted(mk, g, weights, _visit_correlation(f, len(mk)))
+    if uncertainty.beyond_independent_noise(f, len(mk)):
+        gv, wv = _reweighted(mk, g, weights, uncertainty.shared_error_ratio(f, len(mk)))
         if wv is not weights:
             g, weights = gv, wv
             notes.append("residuals correlated in time: each visit to a direction cell weighted as one shared error")
@@ -310,25 +310,3 @@ def _reweighted(mk, g, weights, rho: float):
             break
         g, weights = gw, w
     return g, weights
-
-
-_Z_1PCT = 2.326  # one-sided 1 % point of the standard normal
-
-
-def _correlated(factor: float, n: int) -> bool:
-    """Is the factor beyond what independent noise gives, at 1 %? Over B blocks the batch-means
-    variance is the independent figure times a χ² with B − 1 degrees of freedom over B − 1;
-    its 99th percentile by the Wilson–Hilferty cube (within 0.5 % for 11–39 degrees of freedom,
-    and no scipy import on the path of every ``magcal fit``)."""
-    k = uncertainty.block_count(n) - 1
-    if k < 2:
-        return False
-    a = 2.0 / (9.0 * k)
-    return factor * factor > (1.0 - a + _Z_1PCT * np.sqrt(a)) ** 3
-
-
-def _visit_correlation(factor: float, n: int) -> float:
-    """ρ, the error a sample shares with its neighbours relative to its own noise, from the
-    offset's autocorrelation factor f: over the sandwich's blocks of k̄ samples the variance
-    grows by f² = 1 + k̄ρ, so ρ = (f² − 1)/k̄ (0 on independent noise)."""
-    return (factor * factor - 1.0) * uncertainty.block_count(n) / n

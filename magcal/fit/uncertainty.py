@@ -92,6 +92,28 @@ def autocorrelation_factor(fit: geometric.GeometricFit, weights=None) -> float:
     return max(_covariances(fit, s_hat, weights)[2], 1.0)
 
 
+_Z_1PCT = 2.326  # one-sided 1 % point of the standard normal
+
+
+def beyond_independent_noise(factor: float, n: int) -> bool:
+    """Is an autocorrelation factor beyond what independent noise gives, at 1 %? Over the
+    sandwich's B blocks its variance is the independent figure times a χ² with B − 1 degrees of
+    freedom over B − 1; the 99th percentile by the Wilson–Hilferty cube (within 0.5 % for 11–39
+    degrees of freedom, and no scipy import on the path of every ``magcal fit``)."""
+    k = block_count(n) - 1
+    if k < 2:
+        return False
+    a = 2.0 / (9.0 * k)
+    return factor * factor > (1.0 - a + _Z_1PCT * np.sqrt(a)) ** 3
+
+
+def shared_error_ratio(factor: float, n: int) -> float:
+    """ρ, the error a sample shares with its neighbours relative to its own noise, from the
+    offset's autocorrelation factor f: over the sandwich's blocks of k̄ samples the variance
+    grows by f² = 1 + k̄ρ, so ρ = (f² − 1)/k̄ (0 on independent noise)."""
+    return (factor * factor - 1.0) * block_count(n) / n
+
+
 def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weights=None) -> dict:
     """{'offset_ut': [3], 'field_ut': σ, 'soft_iron': [[3×3]]} (1σ) and the CRLB of the offset
     (the bound of any unbiased estimator for this data's geometry — the weighted fit's own
