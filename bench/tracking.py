@@ -23,7 +23,7 @@ time order; judged on the samples after the split.
              50 Hz): a tracker that chases the last samples' radial error loses here;
   snapshot — the calibration in force at every 100th sample, each judged on the whole judged
              part (mean over snapshots);
-  floor    — an ellipsoid fitted to the judged part itself (in-sample): a causal figure far
+  floor    — the plain ML ellipsoid of the judged part itself (in-sample): a causal figure far
              below it would be fitting noise.
 
 ``--unseen``: the same tables on the nine other raw recordings of ``real_recordings.py`` (the
@@ -217,8 +217,10 @@ def tracker_trajectory(t, m) -> list[tuple[int, np.ndarray, np.ndarray]]:
 
 
 def floor_pct(m, k) -> float:
-    """The in-sample ellipsoid floor: an ellipsoid fitted to the judged part itself."""
-    r = fit_calibration(m[k:], model="ellipsoid")
+    """The in-sample ellipsoid floor: the plain ML ellipsoid of the judged part itself. Unweighted:
+    `fit`'s direction and visit weights give up in-sample fit for what lies off the sample, so a
+    weighted fit is no floor."""
+    r = fit_calibration(m[k:], model="ellipsoid", balance="none")
     return spread_pct(m[k:], r.calibration.offset_ut, r.calibration.soft_iron) if r else float("nan")
 
 
