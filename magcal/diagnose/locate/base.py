@@ -1,0 +1,151 @@
+"""What every locator shares: the residual it searches, and what it says back.
+
+A locator looks at one recording after its calibration and says *where* the data and the
+model disagree — in time, in frequency, along a logged channel, on an axis — and, where it
+can, *which physics* accounts for it. Each effect lives in one module of this package with an
+``EFFECT`` value (its name, kind and search function); ``magcal.diagnose.locate.EFFECTS`` is
+the one table the diagnosis loops over, so adding an effect touches one module and its test.
+
+``Residual`` is the value every search reads; ``Located`` is what it returns. Sizes are
+judged against the recording itself (``floor_ut``: the RMS radial residual of a plain
+ellipsoid on the same samples, and ``noise_ut``: the white noise of one reading), never against
+a floor the tool states for itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from ...core.calibration import Calibration
+
+# the keys a ``where`` object may carry (issue: every finding and limit says where)
+WHERE_KEYS = ("time_s", "channel", "lag_s", "frequency_hz", "axis", "direction")
+AXES = ("x", "y", "z")
+
+
+class Kind(Enum):
+    """What a located thing is."""
+
+    PHYSICS = "physics"  # a named physical effect, with a model that can be fitted
+    FAULT = "fault"  # a data fault: the samples it touches are set aside before the fit
+    REMAINDER = "remainder"  # structure located but named by no physics (unexplained_structure)
+
+
+@dataclass(frozen=True)
+class Residual:
+    """One recording seen through its calibration: what every locator searches.
+
+    ``m_ut`` (n, 3) the samples as recorded (µT, sensor frame) and ``t_s`` their times, both in
+    time order, glitches and faults already set aside; ``calibration`` the one returned;
+    ``h_ut`` the corrected field, ``r_ut`` the radial residual |h| − field, ``u`` the unit
+    directions of h; ``noise_ut`` the white noise of one reading per axis; ``floor_ut`` the RMS
+    radial residual of a plain ellipsoid on these samples (the recording's own floor);
+    ``channels`` the logged channels (no time), each (n,)."""
+
+    t_s: np.ndarray
+    m_ut: np.ndarray
+    calibration: Calibration
+    noise_ut: float
+    floor_ut: float
+    channels: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def h_ut(self) -> np.ndarray:
+        return self.calibration.correct(self.m_ut, self._used_channels())
+
+    @property
+    def r_ut(self) -> np.ndarray:
+        return np.linalg.norm(self.h_ut, axis=1) - self.calibration.field_ut
+
+    @property
+    def u(self) -> np.ndarray:
+        h = self.h_ut
+        return h / np.linalg.norm(h, axis=1, keepdims=True)
+
+    def _used_channels(self) -> dict:
+        used = getattr(self.calibration, "coef_ut_per_unit", None) or {}
+        return {c: self.channels[c] for c in used if c in self.channels}
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+@dataclass(frozen=True)
+class Located:
+    """One thing a locator found: a named effect, a data fault, or an honest remainder.
+
+    ``effect`` names the physics (``hard_iron_step``, ``narrowband_line``, ``stuck_axis`` …, or
+    ``unexplained_structure``); ``where`` holds only keys of ``WHERE_KEYS``; ``params`` the
+    fitted values with units in their names; ``evidence`` how it was judged (sizes against the
+    recording's floor, the statistic and its threshold, held-out gain); ``rows`` the positions
+    (in the searched samples) a fault touches, to be set aside."""
+
+    effect: str
+    kind: Kind
+    summary: str
+    where: Mapping[str, Any] = field(default_factory=dict)
+    params: Mapping[str, Any] = field(default_factory=dict)
+    evidence: Mapping[str, Any] = field(default_factory=dict)
+    rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False, compare=False)
+
+    def __post_init__(self):
+        unknown = set(self.where) - set(WHERE_KEYS)
+        if unknown:
+            raise ValueError(f"where has keys {sorted(unknown)}; allowed: {WHERE_KEYS}")
+
+    def to_dict(self) -> dict:
+        out = {
+            "effect": self.effect,
+            "kind": self.kind.value,
+            "summary": self.summary,
+            "where": _plain(dict(self.where)),
+            "params": _plain(dict(self.params)),
+            "evidence": _plain(dict(self.evidence)),
+        }
+        if len(self.rows):
+            out["n_samples"] = int(len(self.rows))
+        return out
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One row of the table the diagnosis loops over: the effect's name, its kind, and its
+    search (``Residual`` → found things, empty when nothing is there)."""
+
+    name: str
+    kind: Kind
+    search: Callable[[Residual], tuple[Located, ...]]
+
+
+def stretches(mask: np.ndarray, t_s: np.ndarray, min_len: int = 1) -> list[tuple[float, float]]:
+    """The [start, end] times of each run of True in ``mask`` at least ``min_len`` long."""
+    out = []
+    for a, b in runs(mask, min_len):
+        out.append((float(t_s[a]), float(t_s[b - 1])))
+    return out
+
+
+def runs(mask: np.ndarray, min_len: int = 1) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of each run of True in ``mask`` at least ``min_len`` long."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    edges = np.flatnonzero(np.diff(m.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= min_len]
+
+
+def _plain(v):
+    """JSON-ready: numpy scalars and arrays as Python numbers and lists."""
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _plain(v.tolist())
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, Enum):
+        return v.value
+    return v
