@@ -98,7 +98,7 @@ def left_out_lines(limits: list) -> list[str]:
 # the share of diagnose's time each step takes (measured on simulated recordings of 15 000 and
 # 300 000 samples: the shares hold within a few per cent), for the progress display's ETA
 STEP_SHARE = {"set_aside_glitches": 0.12, "fit_baseline": 0.03, "select_terms": 0.60, "refit": 0.03,
-              "compare_heldout": 0.15, "compare_with_simulation": 0.04, "describe": 0.03}
+              "compare_heldout": 0.15, "locate": 0.05, "compare_with_simulation": 0.04, "describe": 0.03}
 
 
 def _done_before(step: str) -> float:

@@ -60,7 +60,9 @@ class Diagnosis:
     floors: dict = field(default_factory=dict)  # channel → the size a term of it must reach to be reported
     fit_heldout_rms_ut: float = float("nan")  # magcal fit --model auto's model on the same held-out blocks
     diagnosis_model: ModelFit | None = field(default=None, repr=False)  # diagnosis's own least-squares model
-    calibration_from: str = "diagnose"  # "fit", "fit+channels" or "diagnose" (see ladder.choose_calibration)
+    calibration_from: str = "diagnose"  # "fit", "fit+channels" or "diagnose" (see ladder.choose_calibration),
+    #                                     "+located" where effects the locate step modelled changed it
+    located: object = field(default=None, repr=False)  # the locate step (magcal.diagnose.locate.step.LocateStep)
 
     @property
     def effects(self) -> list[str]:
@@ -68,6 +70,18 @@ class Diagnosis:
 
     def model_name(self, fit: ModelFit) -> str:
         return model_name(fit)
+
+    def _located_dict(self) -> dict:
+        """What the locate step searched and found: the recording's floor, every located thing
+        with its ``where``, and the held-out verdict on each named effect."""
+        step = self.located
+        if step is None:
+            return {"floor_ut": None, "found": [], "verdicts": []}
+        return {
+            "floor_ut": _num(step.floor_ut),
+            "found": [x.to_dict() for x in step.found],
+            "verdicts": [{"effect": v.located.effect, **v.evidence()} for v in step.verdicts],
+        }
 
     def to_dict(self) -> dict:
         return {
@@ -88,6 +102,7 @@ class Diagnosis:
             },
             "noise_ut": float(self.noise_ut),
             "limits": [dict(x) for x in self.limits],
+            "located": self._located_dict(),
             "floors": {c: dict(f) for c, f in self.floors.items()},
             "calibration": calibration_dict(self.final),
         }

@@ -35,7 +35,8 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.series import Series
-from . import channels, collinear, design, glitches, hygiene, longrun, null, selection, softiron, statements
+from . import channels, collinear, design, glitches, hygiene, locate, longrun, null, selection, softiron, statements
+from .locate import step as locate_step
 from .diagnosis import Diagnosis
 from .inference import contiguous_blocks, n_test_blocks
 from ..fit import fit_calibration
@@ -62,10 +63,17 @@ class Analysed:
     keep: np.ndarray  # analysed and not a glitch
     chans: dict  # analysed channel arrays, time included as channels.TIME
 
+    screened: tuple = ()  # data faults set aside before the fit (magcal.diagnose.locate, kind FAULT)
+
     @property
     def logged(self) -> dict:
         """The logged channels (without time)."""
         return {c: v for c, v in self.chans.items() if c != channels.TIME}
+
+    @property
+    def logged_kept(self) -> dict:
+        """The logged channels (without time) of the samples that are not glitches."""
+        return {c: v for c, v in self.kept[2].items() if c != channels.TIME}
 
     @cached_property
     def kept(self) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -98,7 +106,7 @@ class Selected:
     pair: collinear.PairChoice | None = None  # soft iron and time, when neither passed beside the other (collinear.resolve)
 
 
-STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare_heldout",
+STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare_heldout", "locate",
          "compare_with_simulation", "describe")
 
 
@@ -128,7 +136,11 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     channel_cov = {selected.candidates[g].channel: statements.estimating_test(g, selected).cov
                    for g in selected.accepted if g in selected.candidates}
     chosen = choose_calibration(analysed, baseline, final, fold_slices, channel_cov)
-    m_kept, _, chans_kept = analysed.kept
+    m_kept, t_kept, chans_kept = analysed.kept
+    step("locate")
+    found = locate_step.locate_and_model(m_kept, t_kept, analysed.logged_kept, chosen.model, chosen.fit_model,
+                                         noise_ut, locate.EFFECTS)
+    found = replace(found, found=analysed.screened + found.found)
     step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
     step("describe")
@@ -137,8 +149,9 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     return Diagnosis(
         n_samples=len(series),
         baseline=baseline,
-        final=chosen.model,
-        findings=statements.findings(analysed, selected, final, base_kept, alpha, noise_ut),
+        final=found.model or chosen.model,
+        findings=statements.findings(analysed, selected, final, base_kept, alpha, noise_ut)
+        + locate.as_findings(found.found, found.verdicts),
         baseline_heldout_rms_ut=chosen.heldout.rms_ut[0],
         final_heldout_rms_ut=chosen.heldout_rms_ut,
         simulated_rms_ut=simulated,
@@ -150,8 +163,9 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         fold_rms=chosen.fold_rms,
         fit_heldout_rms_ut=chosen.fit_heldout_rms_ut,
         diagnosis_model=final,
-        calibration_from=chosen.source,
-        limits=statements.left_out(left_out)
+        calibration_from=chosen.source if found.model is None else chosen.source + "+located",
+        located=found,
+        limits=statements.left_out(left_out) + locate.as_limits(found.found, found.verdicts)
         + statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut)
         + chosen.limits,
         floors={c: f.to_dict() for c, f in floors.items()},
@@ -459,6 +473,7 @@ class Chosen:
     #              diagnosis's channel terms) or "diagnose" (fit found no model)
     heldout: HeldOut  # baseline, the calibration returned, fit's plain model when it was compared
     limits: tuple
+    fit_model: str = "auto"  # the shape magcal fit chose ("sphere", "ellipsoid", …; "auto" when it found none)
 
     @property
     def heldout_rms_ut(self) -> float:
@@ -484,11 +499,14 @@ def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_sl
         return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), ())
     plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty)
     if not final.spec.channels:
-        return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1), ())
+        return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1), (),
+                      result.model)
     with_channels = _fit_geometry_around_channels(a, final, channel_cov, result.model) or final
     heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices, procedure=2)
     limit = never_worse(with_channels, plain, heldout)
-    return Chosen(plain, "fit", heldout, (limit,)) if limit else Chosen(with_channels, "fit+channels", heldout, ())
+    if limit:
+        return Chosen(plain, "fit", heldout, (limit,), result.model)
+    return Chosen(with_channels, "fit+channels", heldout, (), result.model)
 
 
 def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dict, chosen: str) -> ModelFit | None:

@@ -113,12 +113,16 @@ class Located:
 
 @dataclass(frozen=True)
 class Effect:
-    """One row of the table the diagnosis loops over: the effect's name, its kind, and its
-    search (``Residual`` → found things, empty when nothing is there)."""
+    """One row of the table the diagnosis loops over: the effect's name, its kind, its search
+    (``Residual`` → found things, empty when nothing is there) and, for a modelled effect, its
+    ``remove(m_ut, t_s, channels, located) → m_ut``: the samples with the effect taken out, so
+    that the calibration refitted on them is the one in force at the end of the recording (or
+    at the channel's reference value)."""
 
     name: str
     kind: Kind
     search: Callable[[Residual], tuple[Located, ...]]
+    remove: Callable[..., np.ndarray] | None = None
 
 
 def stretches(mask: np.ndarray, t_s: np.ndarray, min_len: int = 1) -> list[tuple[float, float]]:

@@ -1,0 +1,101 @@
+"""Keep a located effect only where modelling it improves time-blocked held-out prediction.
+
+Each named effect comes with its ``remove`` (``Effect.remove``): the samples with the effect
+taken out. The calibration is refitted (``magcal fit``'s own procedure, with the model it chose)
+on every contiguous time block's complement, with and without the effect removed, and judged on
+the block it left out; an effect is kept when its held-out RMS radial residual is lower by more
+than the scatter of that gain over the blocks allows to be chance. Effects are judged one after
+another, largest first, each on the samples with the ones already kept taken out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...fit import fit_calibration
+from .base import Effect, Kind, Located
+
+FOLDS = 5
+MIN_GAIN_SIGMAS = 2.0  # the held-out gain must exceed this many standard errors of its block scatter
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One effect judged on held-out blocks: RMS radial residual (µT) without and with it."""
+
+    located: Located
+    kept: bool
+    heldout_without_ut: float
+    heldout_with_ut: float
+    reason: str
+
+    def evidence(self) -> dict:
+        return {
+            "heldout_rms_without_ut": self.heldout_without_ut,
+            "heldout_rms_with_ut": self.heldout_with_ut,
+            "kept": self.kept,
+            "why": self.reason,
+        }
+
+
+def block_slices(n: int, folds: int = FOLDS) -> list[slice]:
+    """``folds`` contiguous time blocks covering 0..n."""
+    edges = np.linspace(0, n, folds + 1).round().astype(int)
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def heldout_sq(m_ut: np.ndarray, model: str, folds: int = FOLDS) -> np.ndarray | None:
+    """Per block, the mean square radial residual of the calibration refitted without that
+    block; None where a block's complement cannot be fitted."""
+    out = []
+    for held in block_slices(len(m_ut), folds):
+        train = np.ones(len(m_ut), bool)
+        train[held] = False
+        result = fit_calibration(m_ut[train], model=model)
+        if not result:
+            return None
+        cal = result.calibration
+        r = np.linalg.norm(cal.correct(m_ut[held]), axis=1) - cal.field_ut
+        out.append(float(np.mean(r**2)))
+    return np.asarray(out)
+
+
+def compare(before: np.ndarray, after: np.ndarray) -> tuple[bool, str]:
+    """Whether the per-block mean squares ``after`` beat ``before`` beyond chance."""
+    gain = before - after
+    se = np.std(gain, ddof=1) / np.sqrt(len(gain)) if len(gain) > 1 else np.inf
+    better = bool(gain.mean() > MIN_GAIN_SIGMAS * se and gain.mean() > 0)
+    held = f"held-out RMS {np.sqrt(before.mean()):.3f} → {np.sqrt(after.mean()):.3f} µT"
+    return better, held + (" (better on unseen blocks)" if better else " (not better beyond chance on unseen blocks)")
+
+
+def judge(m_ut, t_s, channels, found, table: dict[str, Effect], model: str) -> tuple[np.ndarray, tuple[Verdict, ...]]:
+    """(the samples with every kept effect removed, a verdict per located effect of kind
+    PHYSICS); effects without a ``remove`` are judged not modelled."""
+    base = heldout_sq(m_ut, model)
+    verdicts = []
+    for loc in sorted((f for f in found if f.kind is Kind.PHYSICS), key=_size, reverse=True):
+        effect = table.get(loc.effect)
+        if base is None or effect is None or effect.remove is None:
+            verdicts.append(Verdict(loc, False, np.nan, np.nan, "no model of this effect to refit"))
+            continue
+        cleaned = effect.remove(m_ut, t_s, channels, loc)
+        after = heldout_sq(cleaned, model)
+        if after is None:
+            verdicts.append(Verdict(loc, False, _rms(base), np.nan, "the calibration could not be refitted with it"))
+            continue
+        kept, why = compare(base, after)
+        verdicts.append(Verdict(loc, kept, _rms(base), _rms(after), why))
+        if kept:
+            m_ut, base = cleaned, after
+    return m_ut, tuple(verdicts)
+
+
+def _rms(sq: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(sq)))
+
+
+def _size(loc: Located) -> float:
+    return float(loc.evidence.get("size_ut", 0.0) or 0.0)

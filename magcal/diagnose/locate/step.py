@@ -1,0 +1,89 @@
+"""The diagnosis's locate step: search the calibrated residual, judge, and model what earns it.
+
+``locate_and_model`` builds the ``Residual`` of the calibration the diagnosis chose, runs every
+row of ``EFFECTS`` on it, keeps each named effect only where removing it improves time-blocked
+held-out prediction (``judge``), and refits the calibration on the samples with the kept
+effects removed — the calibration in force at the end of the recording, which is what ``write``
+puts on the device. Channel terms the diagnosis already found stay as they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ...fit import fit_calibration
+from ..model import ModelFit, from_calibration
+from . import judge
+from .base import Effect, Kind, Located, Residual
+
+PLAIN = {"sphere": "sphere", "ellipsoid": "ellipsoid"}
+
+
+@dataclass(frozen=True)
+class LocateStep:
+    """What the step found and did: every located thing, the verdict on each named effect,
+    and the model to return (None: the diagnosis's own stands)."""
+
+    found: tuple[Located, ...]
+    verdicts: tuple[judge.Verdict, ...]
+    model: ModelFit | None
+    floor_ut: float
+
+    @property
+    def kept(self) -> tuple[Located, ...]:
+        return tuple(v.located for v in self.verdicts if v.kept)
+
+
+def floor_of(m_ut: np.ndarray) -> float:
+    """The recording's own floor: the RMS radial residual of a plain ellipsoid (nan where none fits)."""
+    result = fit_calibration(m_ut, model="ellipsoid")
+    return float(result.rms_ut) if result else float("nan")
+
+
+def search(res: Residual, effects: tuple[Effect, ...]) -> tuple[Located, ...]:
+    """Every non-fault row of the table on one residual."""
+    return tuple(x for e in effects if e.kind is not Kind.FAULT for x in e.search(res))
+
+
+def locate_and_model(m_ut, t_s, chans: dict, final: ModelFit, fit_model_name: str, noise_ut: float,
+                     effects: tuple[Effect, ...]) -> LocateStep:
+    """See the module docstring. ``m_ut``/``t_s``/``chans`` the analysed samples that are not
+    glitches (time order; ``chans`` the logged channels), ``final`` the model the diagnosis
+    returns and ``fit_model_name`` the shape magcal fit chose for it."""
+    cal = final.calibration()
+    shift = cal.channel_offset_ut(chans, len(m_ut))
+    floor = floor_of(m_ut - shift)
+    res = Residual(t_s, m_ut, cal, noise_ut, floor, chans)
+    found = search(res, effects)
+    if not any(f.kind is Kind.PHYSICS for f in found):
+        return LocateStep(found, (), None, floor)
+    model = PLAIN.get(fit_model_name, "auto")
+    table = {e.name: e for e in effects}
+    cleaned, verdicts = judge.judge(m_ut - shift, t_s, chans, found, table, model)
+    if not any(v.kept for v in verdicts):
+        return LocateStep(found, verdicts, None, floor)
+    return LocateStep(found, verdicts, _refit(cleaned, final, model), floor)
+
+
+def _refit(cleaned: np.ndarray, final: ModelFit, model: str) -> ModelFit | None:
+    """The geometry refitted on the cleaned samples, with ``final``'s channel terms kept."""
+    result = fit_calibration(cleaned, model=model)
+    if not result:
+        return None
+    covs = {c: _channel_cov(final, j) for j, c in enumerate(final.spec.channels)}
+    geometry = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty, covs)
+    if not final.spec.channels:
+        return geometry
+    spec = replace(geometry.spec, channels=final.spec.channels)
+    params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in final.spec.channels])
+    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, geometry.cov)
+
+
+def _channel_cov(final: ModelFit, j: int) -> np.ndarray | None:
+    """The 3×3 covariance of ``final``'s j-th channel term (None where it has none)."""
+    if final.cov is None:
+        return None
+    k = 4 + final.spec.n_soft + 3 * j
+    return final.cov[k : k + 3, k : k + 3]
