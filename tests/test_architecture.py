@@ -159,7 +159,6 @@ def test_no_import_cycles():
             if imp and imp != full and not full.startswith(imp + "."):  # a package's own __init__ is no cycle
                 deps.add(imp)
         graph[full] = deps
-    sys.setrecursionlimit(10_000)
     state: dict[str, int] = {}
     stack: list[str] = []
 
@@ -175,9 +174,15 @@ def test_no_import_cycles():
         stack.pop()
         state[node] = 2
 
-    for node in graph:
-        if node not in state:
-            visit(node)
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(10_000)
+    try:  # the limit is put back: every later test would otherwise run with it (PyYAML's and
+        # json's refusals of deep input then walk 10 000 frames, seconds a test)
+        for node in graph:
+            if node not in state:
+                visit(node)
+    finally:
+        sys.setrecursionlimit(limit)
 
 
 def test_only_the_daemon_and_cli_install_signal_handlers():

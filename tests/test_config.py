@@ -111,6 +111,20 @@ def test_a_bad_config_file_is_one_line_naming_the_file_and_the_problem(tmp_path,
     _named(exc, str(f), *words)
 
 
+def test_nesting_deeper_than_any_setting_is_refused_by_depth_before_it_is_built(tmp_path):
+    """Forty levels PyYAML would build are refused for their depth, named as such (not as a
+    wrong type of ``gates``); the documented depth — a list in a section — still loads."""
+    f = tmp_path / "c.yaml"
+    f.write_text("gates: " + "[" * 40 + "]" * 40 + "\n")
+    with pytest.raises(ConfigError) as exc:
+        config.load(str(f), environ={})
+    _named(exc, str(f), "nested too deeply", f"{config.MAX_DEPTH} levels")
+    with pytest.raises(ConfigError, match="MAGCAL_GATES__FIELD_RANGE_UT.*not a value"):
+        config.load(environ={"MAGCAL_GATES__FIELD_RANGE_UT": "[" * 40 + "]" * 40})
+    f.write_text("gates:\n  field_range_ut: [20, 80]\n")
+    assert config.load(str(f), environ={}).gates.field_range_ut == (20.0, 80.0)
+
+
 def test_a_directory_or_an_unreadable_file_as_config_is_named(tmp_path):
     with pytest.raises(ConfigError) as exc:
         config.load(str(tmp_path), environ={})

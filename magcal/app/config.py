@@ -36,6 +36,11 @@ from ..wire.dialect import Dialect
 
 MAX_FILE_BYTES = 1 << 20  # the documented file is ~3 KB
 MAX_TEXT = 4096  # characters in a port or a path
+# PyYAML builds nested collections by recursion, one Python frame and more per level, so a file
+# of "[[[[…" makes it walk the stack to the recursion limit before it fails (seconds, and
+# minutes where the limit is raised); the settings nest three levels (a list in a section), and
+# the text is checked for depth in one linear pass first
+MAX_DEPTH = 32
 _short = reprlib.Repr()
 _short.maxstring, _short.maxother, _short.maxlevel, _short.maxlist, _short.maxdict = 40, 40, 2, 4, 4
 
@@ -189,6 +194,20 @@ def _merge(base: dict, over: Mapping) -> dict:
 
 
 # -- sources ---------------------------------------------------------------------------------------
+def _shallow(text: str) -> bool:
+    """Whether no collection in the YAML ``text`` nests deeper than ``MAX_DEPTH`` (the parser's
+    events, read without recursion and only as far as the first level too deep)."""
+    depth = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_DEPTH:
+                return False
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+    return True
+
+
 def read_file(path: str) -> dict:
     """The mapping in the YAML file ``path``; ConfigError naming the file for anything else."""
     try:
@@ -207,15 +226,18 @@ def read_file(path: str) -> dict:
         raise ConfigError(f"config file {path}: not UTF-8 text (byte {exc.start}): is it the right file?") from None
     if "\0" in text:
         raise ConfigError(f"config file {path}: a binary file (holds NUL bytes), not YAML settings")
+    too_deep = f"config file {path}: nested too deeply to be magcal settings (more than {MAX_DEPTH} levels)"
     try:
+        if not _shallow(text):
+            raise ConfigError(too_deep)
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         where = getattr(exc, "problem_mark", None)
         at = f" (line {where.line + 1})" if where is not None else ""
         what = " ".join(str(getattr(exc, "problem", None) or exc).split())  # one line
         raise ConfigError(f"config file {path} is not valid YAML{at}: {what}") from None
-    except RecursionError:
-        raise ConfigError(f"config file {path}: nested too deeply to be magcal settings") from None
+    except RecursionError:  # a Python stack already deep when the file is read
+        raise ConfigError(too_deep) from None
     if data is None:
         return {}
     if not isinstance(data, Mapping):
@@ -240,9 +262,11 @@ def _env_value(key: str, raw: str, typ):
     if typ is str or (isinstance(typ, type) and issubclass(typ, enum.Enum)):
         return raw
     try:
-        return yaml.safe_load(raw)
+        if _shallow(raw):
+            return yaml.safe_load(raw)
     except (yaml.YAMLError, RecursionError):
-        raise ConfigError(f"{key}={_show(raw)}: not a value (a number, true/false, or a list like [15, 100])") from None
+        pass
+    raise ConfigError(f"{key}={_show(raw)}: not a value (a number, true/false, or a list like [15, 100])")
 
 
 # MAGCAL_* variables that are not settings: where the host store and the config file are, and
