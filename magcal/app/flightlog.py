@@ -3,6 +3,8 @@ log reader (``recordings.logs``) and the fit (``fit.vector``), as a JSON-ready d
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..fit.vector import fit_vector
 from ..recordings.logs import LogMag
 
@@ -29,11 +31,57 @@ def fit_flight_log(lm: LogMag, term: str | None = "auto", blocks: int = 5) -> tu
     d = {**base, **result.to_dict(), "warnings": list(lm.warnings) + list(result.warnings)}
     d["format"] = FORMAT
     d["model"] = model_name(d)
+    _mark_calibration_terms(d)
     d["uncertainty"]["field_ut"] = 0.0 if lm.earth_field_ut else None
     if expected is None:
         d["warnings"].append("the log has no attitude or position: fitted against |m| only, "
                              "which a mostly level flight cannot pin")
     return d, True
+
+
+def _mark_calibration_terms(d: dict) -> None:
+    """Give each kept term the coefficient the calibration holds for it. A term is judged in the
+    fit that adds it (the motors-running step alone, then the current with it), and the
+    calibration is the last fit kept: where a later term joined, its coefficient moved (the step
+    and the current share the time the motors run), and this says by how much."""
+    coefs = d["calibration"].get("coef_ut_per_unit") or {}
+    for t in d["terms"]:
+        if t.get("kept") and t["channel"] in coefs:
+            t["coef_in_calibration_ut_per_unit"] = [float(v) for v in coefs[t["channel"]]]
+            t["fitted_with"] = [c for c in coefs if c != t["channel"]]
+
+
+def moved_in_calibration(t: dict) -> str:
+    """"", or where a kept term's coefficient in the calibration differs from the one it was
+    judged by (fitted together with a later term): the calibration's, and why."""
+    k, kc = t.get("coef_ut_per_unit"), t.get("coef_in_calibration_ut_per_unit")
+    if k is None or kc is None or max(abs(a - b) for a, b in zip(k, kc)) < 5e-4:
+        return ""
+    return (f"; in the calibration, fitted together with {', '.join(t['fitted_with'])}: ("
+            + ", ".join(f"{v:+.3f}" for v in kc) + ")")
+
+
+def vector_traces(lm: LogMag, calibration: dict) -> dict | None:
+    """Per sample, for a figure: time since the first sample (s), the expected field (the log's
+    attitude and the Earth model, body frame, µT), the measured field calibrated with
+    ``calibration`` (its terms included), and calibrated with no term; None without attitude."""
+    from ..core.calibration import Calibration
+    from ..fit.vector import motors_on
+
+    if lm.earth_body_ut is None:
+        return None
+    s = lm.series.only_valid()
+    expected = np.asarray(lm.earth_body_ut[lm.series.valid], np.float64)
+    ok = np.all(np.isfinite(s.field_ut), axis=1) & np.all(np.isfinite(expected), axis=1)
+    chans = {k: np.asarray(v, np.float64)[ok] for k, v in s.channels.items()}
+    step = motors_on(chans)
+    if step is not None:
+        chans["motors_on"] = step
+    cal = Calibration.from_dict(calibration)
+    plain = Calibration(offset_ut=cal.offset_ut, field_ut=cal.field_ut, soft_iron=cal.soft_iron)
+    m = s.field_ut[ok]
+    return {"t_s": s.t_s[ok] - s.t_s[ok][0], "expected_ut": expected[ok], "calibrated_ut": cal.correct(m, chans),
+            "without_terms_ut": plain.correct(m), "terms": sorted(cal.coef_ut_per_unit)}
 
 
 DIAGNOSE_FORMAT = "magcal.diagnose.log/1"
@@ -49,7 +97,7 @@ def term_summary(t: dict, unit: str) -> str:
     size = (f"|k| {k:.3f} {unit} along (" + ", ".join(f"{v / k if k else 0:+.2f}" for v in t["coef_ut_per_unit"])
             + f"), σ ({', '.join(f'{v:.3f}' for v in t['sigma_ut_per_unit'])}), floor {floor:.3f}, p {t['p_value']:.2g}")
     if t["kept"]:
-        return f"{t['channel']} kept: {size}; the held-out residual falls"
+        return f"{t['channel']} kept: {size}; the held-out residual falls{moved_in_calibration(t)}"
     why = "under its floor" if k < floor else ("the held-out residual does not fall" if not t.get("heldout_falls")
                                                else f"p above {1e-3:g}")
     return f"{t['channel']} not kept ({why}): {size}"
@@ -74,4 +122,4 @@ def diagnose_flight_log(lm: LogMag, blocks: int = 5) -> dict:
             "model": d["model"], "terms": d["terms"], "findings": findings, "heldout": ho,
             "heldout_ut": {"none": ho["none"].get(key), "chosen": ho[ho["chosen"]].get(key) if ho["chosen"] != "none"
                            else ho["none"].get(key), "measure": key},
-            "calibration": d["calibration"], "uncertainty": d["uncertainty"]}
+            "calibration": d["calibration"], "uncertainty": d["uncertainty"], "rms_ut": d["rms_ut"], "n_used": d["n_used"]}

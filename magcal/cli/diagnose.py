@@ -76,14 +76,39 @@ def format_text(d: dict) -> str:
             below = " (from |m| alone; tested against the expected field below)" if k.get("channel") in tested_below else ""
             lines.append(f"limit       {k['effect']}{below}: {k['summary']}")
     source = {"fit": "   (magcal fit's calibration)", "fit+channels": "   (magcal fit's, with the channel terms)"}
+    from_log = d.get("calibration_from") == "flight_log"
     lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT"
-                 + source.get(f.get("from", ""), ""))
-    lines += calibration_lines(d["calibration"])
+                 + ("   (|m| alone: an alternative; the calibration is below)" if from_log
+                    else source.get(f.get("from", ""), "")))
+    if not from_log:
+        lines += coefficient_lines(d["calibration"], d.get("clock", True))
+    return "\n".join(lines)
+
+
+def coefficient_lines(cal: dict, clock: bool = True, sigma: dict | None = None) -> list[str]:
+    """A calibration's rows: offset, field, soft iron (± ``sigma`` where given) and each channel term (pure)."""
     from ..diagnose.channels import unit_of
 
-    for name, coef in (d["calibration"].get("coef_ut_per_unit") or {}).items():
-        lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + f"   µT per {unit_of(name, d.get('clock', True))}")
-    return "\n".join(lines)
+    lines = calibration_lines(cal, sigma)
+    units = {"motors_on": "motors-running step", "current_a": "A"}
+    for name, coef in (cal.get("coef_ut_per_unit") or {}).items():
+        unit = units.get(name) or unit_of(name, clock)
+        lines.append(f"coef_{name:<7}" + " ".join(f"{v:9.4f}" for v in coef) + f"   µT per {unit}")
+    return lines
+
+
+def log_calibration_lines(d: dict) -> list[str]:
+    """On a flight log, the calibration (the flight-log fit's) and the alternative set aside (pure)."""
+    if d.get("calibration_from") != "flight_log":
+        return []
+    lines = [f"calibration {d['calibration_model']}: the flight-log fit's, the one write, export and the report use"]
+    lines += coefficient_lines(d["calibration"], d.get("clock", True),
+                               {"offset_ut": d["flight_log"].get("uncertainty", {}).get("offset_ut")})
+    for a in d.get("alternatives", []):
+        c = a["calibration"]
+        lines.append(f"alternative {a['name']}: offset (" + ", ".join(f"{v:.3f}" for v in c["offset_ut"])
+                     + f") µT, field {c['field_ut']:.3f} µT — {a['why']}")
+    return lines
 
 
 def left_out_lines(limits: list) -> list[str]:
@@ -148,7 +173,6 @@ def run(args) -> int:
             print(f"magcal: warning: {args.file}: {w}", file=sys.stderr)
         series = series.only_valid()
         d, diagnosis = _diagnose_magnitude(args, series, flight_log, ticker)
-        d["warnings"] = list(notes) + (field_warning(d["calibration"]["field_ut"]) if diagnosis else [])
         if series.source:
             d["input"] = series.source
         d["reading"] = reading_report(series, args.file)
@@ -158,12 +182,12 @@ def run(args) -> int:
 
             ticker.doing("testing the interference terms against the expected field")
             d["flight_log"] = diagnose_flight_log(flight_log)
-        twin = _twin(args, series, d, ticker) if diagnosis else None
+            take_log_calibration(d)
+        d["warnings"] = list(notes) + (field_warning(d["calibration"]["field_ut"]) if "calibration" in d else [])
+        twin = _twin(args, series, d, diagnosis, ticker) if diagnosis else None
         if args.report and diagnosis:
-            from ..app.report import write_report
-
             ticker.doing(f"drawing the report in {args.report}")
-            write_report(diagnosis, args.report, title=str(args.file))
+            _write_report(args, diagnosis, d, flight_log)
             if twin is not None:
                 from ..app.report_twin import write_twin_panels
 
@@ -180,6 +204,44 @@ def run(args) -> int:
                   file=sys.stderr)
             return Exit.INPUT
     return 0
+
+
+def take_log_calibration(d: dict) -> None:
+    """On a flight log whose fit against the expected field succeeded, that fit's calibration is
+    THE calibration of the result (as ``magcal fit LOG`` gives it: what ``write``, ``export`` and
+    the report use); the |m| diagnosis's own moves under ``alternatives``, with why."""
+    log = d["flight_log"]
+    if "calibration" not in log:
+        return
+    own = d.pop("calibration", None)
+    d["calibration"] = log.pop("calibration")
+    d["calibration_from"] = "flight_log"
+    d["calibration_model"] = log["model"]
+    if own is not None:
+        against = ("against the expected field vector (the log's attitude and the Earth model)" if log["mode"] == "vector"
+                   else "against the Earth model's |B|")
+        d["alternatives"] = [{
+            "name": "magnitude",
+            "model": d["final"]["model"],
+            "why": f"the diagnosis of |m| alone ({d['final']['model']}): not used, because |m| cannot test the terms "
+                   f"that follow the flight (a board that turns while the motors and current change); the "
+                   f"calibration is the flight-log fit's ({log['model']}, {against}), as magcal fit gives it",
+            "calibration": own,
+        }]
+
+
+def _write_report(args, diagnosis, d: dict, flight_log) -> None:
+    """The page, with the result's calibration and, on a flight log, the fit against the
+    expected field: its terms and the expected against the measured field per axis."""
+    from ..app.report import write_report
+
+    sections = ()
+    if d.get("calibration_from") == "flight_log":
+        from ..app.flightlog import vector_traces
+        from ..app.report.flightlog import flight_log_section
+
+        sections = (flight_log_section(d, vector_traces(flight_log, d["calibration"])),)
+    write_report(diagnosis, args.report, title=str(args.file), sections=sections, result=d)
 
 
 def _diagnose_magnitude(args, series, flight_log, ticker):
@@ -217,6 +279,8 @@ def _print(args, d: dict, series, twin, written: bool) -> None:
         from .fitlog import format_log_diagnosis
 
         print(format_log_diagnosis(d["flight_log"]))
+        for line in log_calibration_lines(d):
+            print(line)
     hint = many_channels_hint(len(series.channels), d) if "findings" in d else None
     if hint:
         print(f"note        {hint}")
@@ -225,13 +289,22 @@ def _print(args, d: dict, series, twin, written: bool) -> None:
 
         print(format_twin(d["twin"]))
     if args.model_out and written:
-        print(f"model       {args.model_out}")
+        print(f"model       {args.model_out}: {d['model_out']['why']}")
     if args.report and written:
         print(f"report      {args.report}/index.html")
     sys.stdout.flush()
 
 
-def _twin(args, series, d: dict, ticker):
+def model_out_note(path: str, model_field_ut: float, radius_ut: float, from_log: bool) -> dict:
+    """What --model-out wrote, and why its field is not the calibration's radius (pure)."""
+    why = (f"a sensor model; its field {model_field_ut:.3f} µT is the mean calibrated |m| of the samples it was "
+           f"learned on (what its twins draw), against the calibration's fitted radius {radius_ut:.3f} µT")
+    if from_log:
+        why += "; learned around the |m| diagnosis's calibration (the alternative), not the flight-log fit's"
+    return {"file": str(path), "field_ut": model_field_ut, "radius_ut": radius_ut, "why": why}
+
+
+def _twin(args, series, d: dict, diagnosis, ticker):
     """The sensor model around the final calibration (written with --model-out) and, with
     --twin, its step-by-step comparison with the recording (added to ``d`` as "twin";
     magcal.diagnose.twin, docs/sensor-model.md)."""
@@ -239,14 +312,18 @@ def _twin(args, series, d: dict, ticker):
         return None
     from ..core.calibration import Calibration
     from ..diagnose import twin
+    from ..diagnose.diagnosis import calibration_dict
 
     ticker.doing("learning the sensor model")
     source = {"recording": str(args.file), **({} if series.clock else {"clock": False})}  # no time: rates per sample
-    model = twin.learn(series, Calibration.from_dict(d["calibration"]), source=source)
+    around = calibration_dict(diagnosis.final)  # the |m| diagnosis's: on a flight log, its alternative
+    model = twin.learn(series, Calibration.from_dict(around), source=source)
     if args.model_out:
         from ..app.sensor_file import save_model
 
         save_model(model, args.model_out)
+        d["model_out"] = model_out_note(args.model_out, float(model.calibration.field_ut), around["field_ut"],
+                                        d.get("calibration_from") == "flight_log")
     if not args.twin:
         return None
     ticker.doing(f"comparing with {args.draws} twins per step")

@@ -26,11 +26,22 @@ def _read_result(path: str) -> dict:
             raise InputError(f"{path}: holds {len(fits)} fits with a calibration; export one "
                              "('magcal fit FILE --json > RESULT.json')")
         d = fits[0]
-    if isinstance(d, dict) and "calibration" in (d.get("flight_log") or {}):  # magcal diagnose LOG --json
-        d = d["flight_log"]  # the calibration against the expected field, with the log's frame and slot
+    if isinstance(d, dict) and isinstance(d.get("flight_log"), dict):  # magcal diagnose LOG --json
+        d = _from_log_diagnosis(d, path)
     if not isinstance(d, dict) or "calibration" not in d:
         raise InputError(f"{path}: no 'calibration' in it: not the JSON of a successful 'magcal fit'")
     return d
+
+
+def _from_log_diagnosis(d: dict, path: str) -> dict:
+    """The result's calibration (the flight-log fit's) with the log's frame, slot and terms."""
+    log = d["flight_log"]
+    if d.get("calibration_from") == "flight_log":
+        return {**log, "calibration": d["calibration"]}
+    if "calibration" in log:  # a result written before the calibration moved to the top
+        return log
+    raise InputError(f"{path}: its flight-log fit did not succeed ({log.get('failure', 'no calibration')}): "
+                     "no calibration in the log's frame to export")
 
 
 def export_params(args) -> int:

@@ -50,7 +50,7 @@ def fit_log_file(path: str, args) -> tuple[dict, int]:
 
 
 def _term_line(t: dict) -> str:
-    from ..app.flightlog import UNIT
+    from ..app.flightlog import UNIT, moved_in_calibration
 
     unit = UNIT.get(t["channel"], "µT per unit")
     if "coef_ut_per_unit" not in t:
@@ -60,7 +60,7 @@ def _term_line(t: dict) -> str:
     return (f"term        {t['channel']} ({t['role']}): {verdict} — |k| {t['norm_ut_per_unit']:.3f} {unit}, floor "
             f"{t['floor_ut_per_unit']:.3f}, p {t['p_value']:.2g}, {why}; k = ("
             + ", ".join(f"{v:+.3f}" for v in t["coef_ut_per_unit"]) + ") ± ("
-            + ", ".join(f"{v:.3f}" for v in t["sigma_ut_per_unit"]) + ")")
+            + ", ".join(f"{v:.3f}" for v in t["sigma_ut_per_unit"]) + ")" + moved_in_calibration(t))
 
 
 def format_log_text(d: dict) -> str:

@@ -147,6 +147,8 @@ def evidence_from_json(obj, cal: Calibration, name: str = "<json>") -> Evidence:
     if isinstance(top.get("fits"), list):
         fitted = [f for f in top["fits"] if isinstance(f, dict) and isinstance(f.get("calibration"), dict)]
         top = fitted[-1] if fitted else {}
+    if top.get("calibration_from") == "flight_log" and isinstance(top.get("flight_log"), dict):
+        top = top["flight_log"]  # diagnose on a flight log: its calibration is the flight-log fit's
     quality = top.get("quality") if isinstance(top.get("quality"), dict) else {}
     final = top.get("final") if isinstance(top.get("final"), dict) else {}
     rms = next((v for v in (_number(top, "rms_ut", name), _number(quality, "rms_ut", name),

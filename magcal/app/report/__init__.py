@@ -18,6 +18,7 @@ the order given, and get a link at the top of the page.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from ...core.errors import InputError
@@ -43,12 +44,13 @@ def _plt():
     return plt
 
 
-def builtin_sections(diagnosis, out: Path, plt) -> list[Section]:
+def builtin_sections(diagnosis, out: Path, plt, result: dict | None = None) -> list[Section]:
     v = views_of(diagnosis)
     draw = {f.__name__: f(diagnosis, v, plt, out) for f in figures.ALL}
+    draw["channels"] = _log_terms_said(draw["channels"], result)
     return [
-        Section("The calibration", html=calibration_table(diagnosis), key="calibration"),
-        Section("What was found", html=findings_html(diagnosis.to_dict()), key="findings"),
+        Section("The calibration", html=calibration_table(diagnosis, result), key="calibration"),
+        Section("What was found", html=findings_html(diagnosis.to_dict(), result), key="findings"),
         Section("Coverage and magnitude", (draw["coverage"], draw["magnitude"]), key="coverage"),
         Section("Where the model and the data disagree", (draw["directions"], draw["over_time"], draw["channels"]),
                 key="residuals"),
@@ -57,12 +59,25 @@ def builtin_sections(diagnosis, out: Path, plt) -> list[Section]:
     ]
 
 
-def write_report(diagnosis, directory, title: str = "recording", sections=()) -> Path:
-    """Draw the figures into ``directory`` and write ``index.html``; its path."""
+def _log_terms_said(fig: Figure, result: dict | None) -> Figure:
+    """On a flight log, the channel panels are |m| alone's: their caption names the terms the fit
+    against the expected field kept, which |m| cannot see on a flight."""
+    kept = [t["channel"] for t in ((result or {}).get("flight_log") or {}).get("terms", []) if t.get("kept")]
+    if not kept:
+        return fig
+    return replace(fig, found=f"From |m| alone: {fig.found} Against the expected field, the flight-log fit keeps "
+                              f"{', '.join(kept)} (its section below): terms |m| cannot test on a flight, where the "
+                              "board turns while they change.")
+
+
+def write_report(diagnosis, directory, title: str = "recording", sections=(), result: dict | None = None) -> Path:
+    """Draw the figures into ``directory`` and write ``index.html``; its path. ``result``: the
+    command's JSON (``magcal diagnose --json``), whose calibration the page shows — on a flight
+    log, the flight-log fit's — so that the page, the text and the JSON carry the same numbers."""
     plt = _plt()
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
-    parts = builtin_sections(diagnosis, out, plt)
+    parts = builtin_sections(diagnosis, out, plt, result)
     for extra in sections:
         made = extra(diagnosis, out, plt) if callable(extra) else extra
         if made is not None:

@@ -10,6 +10,7 @@ import numpy as np
 
 from ... import __version__
 from ...diagnose import channels as ch
+from ..flightlog import moved_in_calibration
 from .section import Figure, Section
 
 esc = html.escape
@@ -42,39 +43,99 @@ def _pm(value: float, sigma, fmt: str = ".3f") -> str:
     return f"{format(value, fmt)} ± {format(float(sigma), fmt)}"
 
 
-def calibration_table(diagnosis) -> str:
-    """Offset, field, soft iron and channel terms of the final model, with 1σ where known."""
-    f = diagnosis.final
-    sd = _sigma(f)
-    ns = f.spec.n_soft
+def calibration_of(diagnosis, result: dict | None = None) -> tuple[dict, dict]:
+    """(the calibration the page shows — the result's, as its JSON prints it and ``write`` and
+    ``export`` take it — and its 1σ per part where known: offset, field, each term)."""
+    from ...diagnose.diagnosis import calibration_dict
+
+    cal = (result or {}).get("calibration") or calibration_dict(diagnosis.final)
+    if (result or {}).get("calibration_from") == "flight_log":
+        log = result["flight_log"]
+        terms = {t["channel"]: t for t in log.get("terms", []) if t.get("kept")}
+        return cal, {"offset_ut": log.get("uncertainty", {}).get("offset_ut"),
+                     **{c: t.get("sigma_ut_per_unit") for c, t in terms.items()
+                        if "coef_in_calibration_ut_per_unit" in t and not moved_in_calibration(t)}}
+    f, sd = diagnosis.final, _sigma(diagnosis.final)
+    if sd is None:
+        return cal, {}
+    ns, scale = f.spec.n_soft, cal["field_ut"] / f.field_ut if f.field_ut else 1.0
+    sigma = {"offset_ut": sd[:3].tolist(), "field_ut": float(sd[3 + ns] * scale)}
+    for j, c in enumerate(f.coef_ut_per_unit):
+        sigma[c] = sd[4 + ns + 3 * j: 7 + ns + 3 * j].tolist()
+    return cal, sigma
+
+
+def _term_row(diagnosis, c: str, k, ref: float, sigma) -> str:
+    clock = diagnosis.series.clock
+    unit = {"motors_on": "motors-running step", "current_a": "A"}.get(c) or ch.unit_of(c, clock)
+    vals = ", ".join(_pm(float(k[i]), None if sigma is None else sigma[i], ".4f") for i in range(3))
+    after = "s" if clock else "samples"
+    about = (f"about {ref - float(diagnosis.series.t_s[0]):.0f} {after} after the first sample" if c == ch.TIME
+             else "0 with the motors stopped, 1 running" if c == "motors_on" else f"about {ref:.3g} {unit}")
+    return (f"<tr><th>{esc(c)} term</th><td class='num'>{vals}</td><td class='l'>µT per {esc(unit)}, "
+            f"{esc(about)}</td></tr>")
+
+
+def calibration_table(diagnosis, result: dict | None = None) -> str:
+    """Offset, field, soft iron and channel terms of the result's calibration — the numbers its
+    JSON and text print — with 1σ where known, and any alternative set aside, with why."""
+    cal, sd = calibration_of(diagnosis, result)
     rows = [f"<tr><th>offset (hard iron)</th><td class='num'>"
-            + ", ".join(_pm(float(f.offset_ut[i]), None if sd is None else sd[i]) for i in range(3))
+            + ", ".join(_pm(float(cal["offset_ut"][i]), None if sd.get("offset_ut") is None else sd["offset_ut"][i])
+                        for i in range(3))
             + "</td><td class='l'>µT, x, y, z; 1σ</td></tr>",
-            f"<tr><th>field</th><td class='num'>{_pm(f.field_ut, None if sd is None else sd[3 + ns])}</td>"
+            f"<tr><th>field</th><td class='num'>{_pm(cal['field_ut'], sd.get('field_ut'))}</td>"
             "<td class='l'>µT: the magnitude every calibrated sample should have</td></tr>"]
-    w = f.soft_iron
+    w = np.asarray(cal["soft_iron"], np.float64)
     soft = "<br>".join(" ".join(f"{x:+.5f}" for x in row) for row in w)
-    note = "fitted" if ns else "not fitted (identity): the recording did not call for it"
-    rows.append(f"<tr><th>soft iron</th><td class='num'>{soft}</td><td class='l'>calibrated = W (m − offset); {note}</td></tr>")
-    for j, (c, k) in enumerate(f.coef_ut_per_unit.items()):
-        base = 4 + ns + 3 * j
-        unit = ch.unit_of(c, diagnosis.series.clock)
-        vals = ", ".join(_pm(float(k[i]), None if sd is None else sd[base + i], ".4f") for i in range(3))
-        ref = f.reference.get(c, 0.0)
-        after = "s" if diagnosis.series.clock else "samples"
-        about = (f"about {ref - float(diagnosis.series.t_s[0]):.0f} {after} after the first sample" if c == ch.TIME
-                 else f"about {ref:.3g} {unit}")
-        rows.append(f"<tr><th>{esc(c)} term</th><td class='num'>{vals}</td><td class='l'>µT per {esc(unit)}, "
-                    f"{esc(about)}</td></tr>")
-    b = diagnosis
-    rows.append(f"<tr><th>residual RMS</th><td class='num'>{b.baseline.rms_ut:.3f} → {f.rms_ut:.3f}</td>"
-                f"<td class='l'>µT, sphere → final; held out: {b.baseline_heldout_rms_ut:.3f} → "
-                f"{b.final_heldout_rms_ut:.3f}; noise {b.noise_ut:.3f} per axis</td></tr>")
-    return f"<table>{''.join(rows)}</table>"
+    note = "fitted" if np.abs(w - np.eye(3)).max() > 0 else "not fitted (identity): the recording did not call for it"
+    rows.append(f"<tr><th>soft iron</th><td class='num'>{soft}</td><td class='l'>calibrated = W (m − offset"
+                + (" − Σ term·x" if cal.get("coef_ut_per_unit") else "") + f"); {note}</td></tr>")
+    for c, k in (cal.get("coef_ut_per_unit") or {}).items():
+        rows.append(_term_row(diagnosis, c, k, float((cal.get("reference") or {}).get(c, 0.0)), sd.get(c)))
+    rows += _residual_rows(diagnosis, result)
+    return f"<p>{esc(_whose(result))}</p><table>{''.join(rows)}</table>" + _alternatives_html(result)
 
 
-def findings_html(d: dict) -> str:
+def _residual_rows(diagnosis, result: dict | None) -> list[str]:
+    b, f = diagnosis, diagnosis.final
+    rows = [f"<tr><th>residual RMS{' of |m| alone' if (result or {}).get('calibration_from') else ''}</th>"
+            f"<td class='num'>{b.baseline.rms_ut:.3f} → {f.rms_ut:.3f}</td>"
+            f"<td class='l'>µT, |m|: sphere → final; held out: {b.baseline_heldout_rms_ut:.3f} → "
+            f"{b.final_heldout_rms_ut:.3f}; noise {b.noise_ut:.3f} per axis</td></tr>"]
+    if (result or {}).get("calibration_from") == "flight_log":
+        log = result["flight_log"]
+        h = log["heldout_ut"]
+        what = h["measure"].split("_")[1]
+        rows.insert(0, f"<tr><th>residual RMS</th><td class='num'>{log['rms_ut']:.3f}</td><td class='l'>µT, {what} "
+                       f"against the expected field, {log['n_used']} samples; held out: {h['none']:.3f} without "
+                       f"terms → {h['chosen']:.3f} with {esc(log['heldout']['chosen'])}</td></tr>")
+    return rows
+
+
+def _whose(result: dict | None) -> str:
+    if (result or {}).get("calibration_from") == "flight_log":
+        return (f"The flight-log fit's calibration ({result['calibration_model']}), fitted against the expected "
+                "field: the one magcal fit gives, write puts on a device and export turns into parameters. "
+                "The |m| figures further down are of the |m| diagnosis, an alternative (below).")
+    return "The calibration the result's JSON holds: the one write puts on a device and export turns into parameters."
+
+
+def _alternatives_html(result: dict | None) -> str:
+    items = "".join(f"<li><b>{esc(a['name'])}</b> — offset ("
+                    + ", ".join(f"{v:.3f}" for v in a["calibration"]["offset_ut"])
+                    + f") µT, field {a['calibration']['field_ut']:.3f} µT: {esc(a['why'])}</li>"
+                    for a in (result or {}).get("alternatives", []))
+    return f"<h3>Set aside</h3><ul>{items}</ul>" if items else ""
+
+
+def findings_html(d: dict, result: dict | None = None) -> str:
+    """What the |m| diagnosis found and could not test; on a flight log, then each term judged
+    against the expected field (what |m| alone cannot test)."""
     rows = "".join(f"<li class='finding'><b>{esc(f['effect'])}</b> — {esc(f['summary'])}</li>" for f in d["findings"])
+    log = [f for f in ((result or {}).get("flight_log") or {}).get("findings", [])]
+    rows += "".join(f"<li class='{'finding' if f['kept'] else ''}'><b>{esc(f['effect'])}</b> (against the expected "
+                    f"field) — {esc(f['summary'])}</li>" for f in log)
     if not rows:
         suspected = any(x.get("suspected") for x in d.get("limits", []))
         rows = ("<li>Nothing proven — but see the limits below.</li>" if suspected else
