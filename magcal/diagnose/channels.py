@@ -323,7 +323,7 @@ def offset_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> tuple[flo
     """The offset's slow wander in a model's residual: (RMS beyond noise in µT, p-value of
     "no wander"). Under independent noise the block offsets' energy × n / σ² is χ² with
     3(B − 1) degrees of freedom (σ² from the scatter inside the blocks)."""
-    from .distributions import chi2_sf
+    from ..fit.tails import chi2_sf
 
     fitted = _block_offsets(e, u, {}, n_blocks)
     if fitted is None:

@@ -27,7 +27,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .distributions import f_isf
+from ..fit.tails import f_isf
 from .inference import WaldResult
 
 

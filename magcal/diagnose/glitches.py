@@ -31,7 +31,7 @@ import numpy as np
 
 from ..fit.failure import FitFailure
 from ..fit.sphere import sphere_start
-from .distributions import chi2_isf
+from ..fit.tails import chi2_isf
 from .finding import Finding
 
 _LOCAL = 128  # samples per block of the local scale

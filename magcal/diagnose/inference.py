@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .distributions import f_isf, f_sf
+from ..fit.tails import f_isf, f_sf
 
 
 def contiguous_blocks(n: int, k: int) -> list[slice]:

@@ -168,7 +168,7 @@ def shows_wander(x: np.ndarray, e: np.ndarray, t_s: np.ndarray, offset_direction
     n = len(e)
     if n < 10 * (x.shape[1] + 3 * DEGREE):
         return True
-    from .distributions import f_sf
+    from ..fit.tails import f_sf
 
     q = column_basis(x) if q is None else q
     w = np.concatenate(list(shapes(t_s, offset_directions)[first - 1 :]), axis=1)

@@ -69,7 +69,7 @@ def white_p(residual_ut: np.ndarray, blocks: list) -> float:
     one degree of freedom per block less one (the level is fitted). A residual with no sign
     of wander gets no twin: a wander fitted to chance structure would only cost the tests
     power, and the bias-corrected block covariance keeps the F distribution for white noise."""
-    from .distributions import chi2_sf
+    from ..fit.tails import chi2_sf
 
     r = np.asarray(residual_ut, np.float64)
     var = float(r @ r) / max(len(r), 1)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import channels, design, floors, glitches, limits as limits_, longrun, selection, softiron
-from .distributions import f_isf, t_isf
+from ..fit.tails import f_isf, t_isf
 from .finding import Finding
 from .model import ModelFit
 

@@ -11,17 +11,11 @@ changes with place, not with the board.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from .tails import chi2_sf
+
 ALPHA = 0.01
-
-
-def chi2_sf_3(x: float) -> float:
-    """P(χ²₃ > x): erfc(√(x/2)) + √(2x/π)·e^(−x/2), the closed form for 3 degrees of freedom."""
-    x = max(float(x), 0.0)
-    return math.erfc(math.sqrt(x / 2.0)) + math.sqrt(2.0 * x / math.pi) * math.exp(-x / 2.0)
 
 
 def compare_fits(a: dict, b: dict, alpha: float = ALPHA) -> dict:
@@ -30,7 +24,7 @@ def compare_fits(a: dict, b: dict, alpha: float = ALPHA) -> dict:
     d = ob - oa
     s = np.hypot(sa, sb)
     chi2 = float(np.sum((d / np.maximum(s, 1e-12)) ** 2))
-    p = chi2_sf_3(chi2)
+    p = float(chi2_sf(chi2, 3))
     fa, fb = a["calibration"]["field_ut"], b["calibration"]["field_ut"]
     sf = float(np.hypot(a["uncertainty"]["field_ut"], b["uncertainty"]["field_ut"]))
     return {

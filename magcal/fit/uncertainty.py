@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import geometric
+from .tails import chi2_isf
 
 
 def covariance(jac: np.ndarray, sigma_ut: float) -> np.ndarray:
@@ -92,19 +93,14 @@ def autocorrelation_factor(fit: geometric.GeometricFit, weights=None) -> float:
     return max(_covariances(fit, s_hat, weights)[2], 1.0)
 
 
-_Z_1PCT = 2.326  # one-sided 1 % point of the standard normal
-
-
 def beyond_independent_noise(factor: float, n: int) -> bool:
     """Is an autocorrelation factor beyond what independent noise gives, at 1 %? Over the
     sandwich's B blocks its variance is the independent figure times a χ² with B − 1 degrees of
-    freedom over B − 1; the 99th percentile by the Wilson–Hilferty cube (within 0.5 % for 11–39
-    degrees of freedom, and no scipy import on the path of every ``magcal fit``)."""
+    freedom over B − 1, compared with that χ²'s 99th percentile."""
     k = block_count(n) - 1
     if k < 2:
         return False
-    a = 2.0 / (9.0 * k)
-    return factor * factor > (1.0 - a + _Z_1PCT * np.sqrt(a)) ** 3
+    return factor * factor > float(chi2_isf(0.01, k)) / k
 
 
 def shared_error_ratio(factor: float, n: int) -> float:
