@@ -1,7 +1,7 @@
 # magcal — the two commands a new user needs:
 #   make demo   calibrate the embedded default (the simulated MPU-9150 — through the real
 #               firmware under the AVR emulator when the toolchain is present) end to end
-#   make test   run the test suite
+#   make test   run the test suite (every test; make check: the fast tier, the slow ones left out)
 # Both create .venv and install what they need (the AVR toolchain via apt-get when run as
 # root or with password-less sudo; without it the demo falls back to the pure-Python board).
 
@@ -13,7 +13,7 @@ AVR_PACKAGES := gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-
 # the report's test opens the page in a real browser (headless)
 BROWSER_PACKAGES := chromium
 
-.PHONY: demo test bench firmware emulator toolchain systemd-tools clean
+.PHONY: demo test check bench firmware emulator toolchain systemd-tools clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -52,8 +52,17 @@ systemd-tools:
 demo: $(STAMP) toolchain
 	@$(BIN)/python -m magcal.cli.demo
 
+# pytest-xdist spreads the tests over the machine's cores (-n auto); loadgroup keeps the tests of
+# one xdist_group (an expensive module fixture) on one worker
+PYTEST_PARALLEL := -n auto --dist loadgroup
+
+# the whole suite, what CI runs
 test: $(STAMP) toolchain systemd-tools
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q $(PYTEST_PARALLEL)
+
+# the fast tier: every module still imported and exercised, the tests marked slow left out
+check: $(STAMP) toolchain systemd-tools
+	$(BIN)/python -m pytest -q $(PYTEST_PARALLEL) -m "not slow"
 
 bench: $(STAMP)
 	@for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

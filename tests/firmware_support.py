@@ -6,6 +6,7 @@ When the toolchain is missing the firmware tests skip with the reason — except
 
 from __future__ import annotations
 
+import fcntl
 import os
 import subprocess
 import time
@@ -28,9 +29,16 @@ def require_firmware() -> None:
             pytest.fail(f"CI=true but the firmware cannot be built: {problem}")
         pytest.skip(problem)
     if not _built:
-        for target in (FIRMWARE_DIR, FIRMWARE_DIR / "emulator"):
-            r = subprocess.run(["make", "-C", str(target)], capture_output=True, text=True)
-            assert r.returncode == 0, f"make -C {target} failed:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+        # the test processes (pytest -n) share one build directory: one make at a time, the
+        # others then find everything up to date
+        lock_dir = FIRMWARE_DIR / "build"
+        lock_dir.mkdir(exist_ok=True)
+        with open(lock_dir / ".tests.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            for target in (FIRMWARE_DIR, FIRMWARE_DIR / "emulator"):
+                r = subprocess.run(["make", "-C", str(target)], capture_output=True, text=True)
+                assert r.returncode == 0, f"make -C {target} failed:\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+            ensure_built()
         _built = True
     ensure_built()
 
