@@ -6,25 +6,6 @@ import json
 import sys
 
 from ..core.errors import ConfigError
-from .options import DEVICE_OPTIONS, add, add_table_options, table_format  # noqa: F401 - re-exported
-
-
-def add_port_options(p) -> None:
-    """--port, --baud, --dialect (``magcal.cli.options``)."""
-    add(p, "port", "baud", "dialect")
-
-
-def add_config_option(p) -> None:
-    add(p, "config")
-
-
-def add_json_option(p) -> None:
-    add(p, "json")
-
-
-def add_device_options(p) -> None:
-    """What every command that talks to a device takes: --port, --baud, --dialect, --config."""
-    add(p, *DEVICE_OPTIONS)
 
 
 def load_settings(args, **extra):

@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import sys
 
-from .common import add_table_options, table_format
+from .options import add_table_options, table_format
 from .options import add
 from .exits import Exit
 

@@ -75,10 +75,6 @@ class Design:
         """Channel effects other than time (time always goes through the wander gate)."""
         return {g: c for g, c in self.groups.items() if g != softiron.EFFECT and self.candidates[g].channel != channels.TIME}
 
-    def channel_columns(self, x: np.ndarray, reference: float, rows=slice(None)) -> np.ndarray:
-        """The three columns of an offset following channel values ``x`` (on ``rows``)."""
-        return -(np.asarray(x, np.float64) - reference)[:, None] * self.offset_directions[rows]
-
 
 def column_basis(x: np.ndarray) -> np.ndarray:
     """An orthonormal basis (n, rank) of x's column space (columns scaled to unit norm first; a

@@ -183,12 +183,6 @@ class SphereAccumulator:
     def copy(self) -> "SphereAccumulator":
         return SphereAccumulator.from_state(self.to_state())
 
-    @property
-    def mean_ut(self) -> np.ndarray | None:
-        if self.n == 0:
-            return None
-        return self.reference_ut + self._s1 / self.n
-
     # -- solving ---------------------------------------------------------------------------
     def solve(
         self, min_samples: int = DEFAULT_MIN_SAMPLES, max_condition: float = DEFAULT_MAX_CONDITION

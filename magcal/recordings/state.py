@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 from pathlib import Path
 
@@ -166,11 +165,3 @@ class StateFiles:
             raise StateError("no valid state: " + "; ".join(errors))
         self.last_load_note = "no state yet"
         return None
-
-
-def finite_or_none(x) -> float | None:
-    """A float for JSON, or None when it is not finite (state files refuse NaN/inf)."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None

@@ -246,14 +246,6 @@ def px4_mag(params: Mapping[str, float], n: int, external: bool | None = None) -
                   px4_rotation(rot), int(params.get("CAL_MAG_COMP_TYP", 0)))
 
 
-def px4_correct(raw_ga, c: Px4Mag, power=None) -> np.ndarray:
-    """PX4's correction of raw sensor fields (n, 3) gauss → body frame; power as COMP_TYP says."""
-    raw = np.atleast_2d(np.asarray(raw_ga, np.float64))
-    if power is not None:
-        raw = raw + np.outer(np.asarray(power, np.float64).reshape(-1), c.comp_ga)
-    return (raw - c.off_ga) @ c.scale.T @ c.rotation.T
-
-
 def px4_uncorrect(body_ga, c: Px4Mag, power=None) -> np.ndarray:
     """Raw sensor fields (gauss) from PX4's corrected body-frame ones."""
     v = np.atleast_2d(np.asarray(body_ga, np.float64)) @ c.rotation
