@@ -1,0 +1,421 @@
+"""Narrowband lines in frequency: a sinusoid added to the sensor axes (mains hum, a rotor, a servo).
+
+A line of amplitude vector ``a`` (sensor frame, µT) at apparent frequency f — the frequency as the
+sampling sees it, after aliasing — shows in the radial residual as ``u(t)·W·a·cos(2πft + φ)``: the
+six columns ``u_k cos 2πft``, ``u_k sin 2πft`` (k = x, y, z, u the corrected direction) carry it.
+The search scans every frequency from ``MIN_CYCLES`` cycles over the recording up to just below
+the median sampling rate's Nyquist frequency with the FFT of ``r·u_k`` (uneven timestamps are
+gridded on a finer clock; samples that share a grid cell add), whitened by the direction
+covariance so that, on white noise, each frequency's explained square is σ²·χ² with six degrees
+of freedom. Each frequency is judged against the LOCAL level of that statistic (the running
+median over its neighbours, the line's own bins left out): real residuals have a red spectrum
+(hand motion, slow offset wander), a line is narrow and a motion misfit broad. The threshold
+holds the chance of any false line at ``ALPHA`` over every frequency scanned (Bonferroni over
+the independent bins). The strongest passing frequency is refined by least squares on the true
+timestamps; a candidate that degree-``DIRECTION_DEGREE`` polynomials of the direction explain
+(the motion itself periodic: a calibration-shape misfit, not interference) is set aside and
+said so; a line that passes is taken out and the search repeats until none passes.
+
+``remove`` subtracts each fitted sinusoid from the raw samples. The line has zero mean and does
+not depend on orientation, so the calibration refitted on the cleaned samples is the sensor's
+own, the same at every time of the recording, with the interference absent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import fft as sfft
+from scipy import ndimage, stats
+
+from .base import AXES, Effect, Kind, Located, Residual
+
+NAME = "narrowband_line"
+ALPHA = 0.01  # chance of any false line over all frequencies scanned, per search
+MAX_LINES = 4
+MAX_SET_ASIDE = 6  # direction-harmonic candidates looked past before the search stops
+PAD = 4  # frequency grid oversampling
+HALF_WINDOW = 40  # independent bins each side that set the local level
+GAP = 3  # independent bins each side of the candidate left out of its local level
+GRID_TRIALS = 2.0  # the maximum over the oversampled grid, counted as this many tries per independent bin
+LEVEL_EFFICIENCY = 0.6  # a median of χ² values is worth this share of their number in degrees of freedom
+MIN_CYCLES = 8.0  # lowest frequency scanned: this many cycles over the recording
+TOP_NYQUIST = 0.97  # highest frequency scanned, as a share of the Nyquist frequency
+MAX_PHASE_RAD = 0.3  # gridding error allowed at the highest frequency scanned
+DIRECTION_DEGREE = 4
+BROAD_SHARE = 0.05  # excess left around a removed line, as a share of its statistic, that makes it broad
+AXIS_SHARE = 0.3  # an axis carries the line when its amplitude is this share of the largest
+MAINS_HZ = (50.0, 60.0)
+MAINS_HARMONICS = 3
+MIN_SAMPLES = 64
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """The whitened line statistic on a frequency grid, and its local level."""
+
+    freq_hz: np.ndarray
+    stat: np.ndarray  # explained square of the six columns / local σ², per frequency
+    level: np.ndarray  # local σ² (µT²) of the radial residual near each frequency
+    dof: int
+    n_independent: float
+
+    @property
+    def threshold(self) -> float:
+        """The statistic a line must exceed: ALPHA over every frequency scanned. On white noise
+        the statistic is χ²(dof) over a level known to ``LEVEL_DOF`` degrees of freedom, so
+        stat/dof is F(dof, LEVEL_DOF); the oversampled grid's maximum counts GRID_TRIALS tries
+        per independent bin."""
+        trials = max(self.n_independent, 1.0) * GRID_TRIALS
+        return float(self.dof * stats.f.isf(ALPHA / trials, self.dof, LEVEL_EFFICIENCY * self.dof * 2 * (HALF_WINDOW - GAP)))
+
+
+@dataclass(frozen=True)
+class Line:
+    """One fitted line: its frequency and the corrected-frame cos/sin coefficients (3, 2)."""
+
+    frequency_hz: float
+    coef: np.ndarray
+    cov: np.ndarray  # (6, 6) of the coefficients, columns ordered x cos, y cos, z cos, x sin …
+    stat: float  # explained square / local σ²
+    level_ut2: float
+    explained_ut: np.ndarray  # the line's part of the radial residual, per sample
+    t_ref_s: float  # the time of phase zero
+
+
+# -- the grid -----------------------------------------------------------------------------
+
+
+def sample_interval_s(t_s: np.ndarray) -> float:
+    """The median interval between samples (s); ValueError when time does not advance."""
+    dt = np.diff(t_s)
+    if len(dt) == 0 or not np.all(np.isfinite(t_s)):
+        raise ValueError("t_s must hold finite times of at least two samples")
+    d = float(np.median(dt))
+    if d <= 0 or np.any(dt < 0):
+        raise ValueError("t_s must increase (samples in time order, median interval > 0)")
+    return d
+
+
+def grid_of(t_s: np.ndarray, dt_s: float, f_max_hz: float) -> tuple[np.ndarray, float]:
+    """(grid cell of each sample, cell width): the coarsest of dt, dt/2 … dt/8 whose rounding
+    of the timestamps costs at most MAX_PHASE_RAD at ``f_max_hz``."""
+    rel = t_s - t_s[0]
+    for q in (1, 2, 4, 8):
+        step = dt_s / q
+        idx = np.round(rel / step).astype(np.int64)
+        if 2 * np.pi * f_max_hz * np.max(np.abs(rel - idx * step)) <= MAX_PHASE_RAD:
+            break
+    return idx, step
+
+
+def spectrum(t_s: np.ndarray, r_ut: np.ndarray, u: np.ndarray) -> Spectrum | None:
+    """The line statistic over every scanned frequency; None when the span holds too few cycles."""
+    dt = sample_interval_s(t_s)
+    span = float(t_s[-1] - t_s[0])
+    f_lo, f_hi = MIN_CYCLES / span, TOP_NYQUIST * 0.5 / dt
+    if f_lo >= f_hi:
+        return None
+    idx, step = grid_of(t_s, dt, f_hi)
+    size = sfft.next_fast_len(int(PAD * (idx[-1] + 1)))
+    x = np.zeros((3, size))
+    for k in range(3):
+        np.add.at(x[k], idx, r_ut * u[:, k])
+    z = sfft.rfft(x, axis=1)
+    freq = np.arange(z.shape[1]) / (size * step)
+    keep = (freq >= f_lo) & (freq <= f_hi)
+    minv, rank = _direction_inverse(u)
+    ess = 2.0 / len(t_s) * np.real(np.einsum("kf,kj,jf->f", np.conj(z[:, keep]), minv, z[:, keep]))
+    dof = 2 * rank
+    level = local_level(ess, dof)
+    return Spectrum(freq[keep], ess / level, level, dof, keep.sum() / (size * step / span))
+
+
+def _direction_inverse(u: np.ndarray) -> tuple[np.ndarray, int]:
+    """The pseudo-inverse of the mean direction outer product and its rank."""
+    m = u.T @ u / len(u)
+    w, v = np.linalg.eigh(m)
+    ok = w > 1e-3 * w.max()
+    return (v[:, ok] / w[ok]) @ v[:, ok].T, int(ok.sum())
+
+
+def local_level(ess: np.ndarray, dof: int) -> np.ndarray:
+    """σ² near each frequency: the running median of the explained square over HALF_WINDOW
+    independent bins each side (GAP bins each side of the centre left out), as σ²."""
+    coarse = ess[::PAD]
+    foot = np.ones(2 * HALF_WINDOW + 1, bool)
+    foot[HALF_WINDOW - GAP : HALF_WINDOW + GAP + 1] = False
+    med = ndimage.median_filter(coarse, footprint=foot, mode="mirror")
+    med = np.maximum(med, np.finfo(float).tiny)
+    fine = np.exp(np.interp(np.arange(len(ess)) / PAD, np.arange(len(coarse)), np.log(med)))
+    return fine / stats.chi2.median(dof)
+
+
+# -- one line -----------------------------------------------------------------------------
+
+
+def columns(t_s: np.ndarray, u: np.ndarray, f_hz: float) -> np.ndarray:
+    """The six columns u_k cos 2πf(t − t₀), u_k sin 2πf(t − t₀) (t₀ the first time)."""
+    ph = 2 * np.pi * f_hz * (t_s - t_s[0])
+    return np.hstack([u * np.cos(ph)[:, None], u * np.sin(ph)[:, None]])
+
+
+def explained(x: np.ndarray, r_ut: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """(explained square, coefficients, (XᵀX)⁻¹) of the least-squares fit of r on x."""
+    g = np.linalg.pinv(x.T @ x, rcond=1e-10)
+    beta = g @ (x.T @ r_ut)
+    return float(beta @ (x.T @ r_ut)), beta, g
+
+
+def refine(t_s, r_ut, u, f0_hz: float, df_hz: float) -> float:
+    """The frequency within ±df of f0 where the six columns explain most (a fine scan, then a
+    parabola through the best three)."""
+    fs = np.linspace(f0_hz - df_hz, f0_hz + df_hz, 17)
+    e = np.array([explained(columns(t_s, u, f), r_ut)[0] for f in fs])
+    i = int(np.clip(np.argmax(e), 1, len(fs) - 2))
+    den = e[i - 1] - 2 * e[i] + e[i + 1]
+    shift = 0.5 * (e[i - 1] - e[i + 1]) / den if den < 0 else 0.0
+    return float(fs[i] + np.clip(shift, -1, 1) * (fs[1] - fs[0]))
+
+
+def fit_line(t_s, r_ut, u, f_hz: float, level_ut2: float) -> Line:
+    """The six-column fit at ``f_hz`` judged against the local σ² ``level_ut2``."""
+    x = columns(t_s, u, f_hz)
+    ess, beta, g = explained(x, r_ut)
+    coef = np.stack([beta[:3], beta[3:]], axis=1)
+    return Line(f_hz, coef, g * level_ut2, ess / level_ut2, level_ut2, x @ beta, float(t_s[0]))
+
+
+def direction_basis(u: np.ndarray, degree: int = DIRECTION_DEGREE) -> np.ndarray:
+    """An orthonormal basis of every polynomial of the direction up to ``degree``: the
+    monomials u_x^a u_y^b u_z^c with c ≤ 1 (on the unit sphere u_z² = 1 − u_x² − u_y², so these
+    span them all, (degree + 1)² of them)."""
+    cols = [u[:, 0] ** a * u[:, 1] ** b * u[:, 2] ** c
+            for c in (0, 1) for a in range(degree + 1) for b in range(degree + 1 - a - c)]
+    x = np.column_stack(cols)
+    w, v = np.linalg.eigh(x.T @ x)
+    keep = w > 1e-10 * w.max()
+    return x @ (v[:, keep] / np.sqrt(w[keep]))
+
+
+def beyond_direction(t_s, r_ut, u, basis: np.ndarray, line: Line) -> float:
+    """The line's statistic once every polynomial of the direction has had its say."""
+    x = columns(t_s, u, line.frequency_hz)
+    x = x - basis @ (basis.T @ x)
+    r = r_ut - basis @ (basis.T @ r_ut)
+    return explained(x, r)[0] / line.level_ut2
+
+
+# -- the search ---------------------------------------------------------------------------
+
+
+@dataclass
+class _Scan:
+    """The state of one search: the recording with the lines found so far taken out of its raw
+    samples, what was found, what was set aside."""
+
+    res: Residual
+    lines: list = field(default_factory=list)
+    set_aside_hz: list = field(default_factory=list)  # explained by the direction: the motion's own
+    passed_hz: list = field(default_factory=list)  # broad, or not holding on the true timestamps
+    threshold: float = np.inf
+
+    def __post_init__(self):
+        self.refresh()
+
+    def refresh(self):
+        self.t_s, self.r_ut, self.u = self.res.t_s, self.res.r_ut, self.res.u
+        self.basis = None
+
+    def direction_basis(self) -> np.ndarray:
+        if self.basis is None:
+            self.basis = direction_basis(self.u)
+        return self.basis
+
+
+def find_lines(res: Residual) -> tuple[list[Line], list[float], float]:
+    """(the lines that pass, strongest first; the frequencies set aside as direction harmonics;
+    the threshold) in the radial residual of ``res``."""
+    scan = _Scan(res)
+    while len(scan.lines) < MAX_LINES and len(scan.set_aside_hz) + len(scan.passed_hz) <= MAX_SET_ASIDE:
+        if not _next(scan):
+            break
+    return scan.lines, scan.set_aside_hz, scan.threshold
+
+
+def _next(scan: _Scan) -> bool:
+    """Find, refine and judge the strongest remaining candidate; False when none passes."""
+    sp = spectrum(scan.t_s, scan.r_ut, scan.u)
+    if sp is None:
+        return False
+    scan.threshold = sp.threshold
+    stat = _masked(sp, scan.set_aside_hz + scan.passed_hz)
+    i = int(np.argmax(stat))
+    if stat[i] <= sp.threshold:
+        return False
+    df = (sp.freq_hz[1] - sp.freq_hz[0]) if len(sp.freq_hz) > 1 else 0.0
+    f = refine(scan.t_s, scan.r_ut, scan.u, float(sp.freq_hz[i]), df)
+    line = fit_line(scan.t_s, scan.r_ut, scan.u, f, float(sp.level[i]))
+    if line.stat <= sp.threshold:
+        scan.passed_hz.append(f)  # the grid's peak does not hold on the true timestamps
+    elif beyond_direction(scan.t_s, scan.r_ut, scan.u, scan.direction_basis(), line) <= sp.threshold:
+        scan.set_aside_hz.append(f)
+    else:
+        _take_out(scan, line)
+    return True
+
+
+def _take_out(scan: _Scan, line: Line) -> None:
+    """Keep the line when it is narrow, and take it out of the raw samples (so that its second
+    order in |h|, at twice its frequency, goes with it)."""
+    rest = replace(scan.res, m_ut=scan.res.m_ut - wave_ut(scan.t_s, line, scan.res.calibration.soft_iron))
+    if broad(spectrum(scan.t_s, rest.r_ut, rest.u), line):
+        scan.passed_hz.append(line.frequency_hz)
+        return
+    scan.lines.append(line)
+    scan.res = rest
+    scan.refresh()
+
+
+def wave_ut(t_s: np.ndarray, line: Line, soft_iron: np.ndarray) -> np.ndarray:
+    """The line in the sensor frame at times ``t_s`` (n, 3), µT."""
+    coef = np.linalg.solve(np.asarray(soft_iron, float), line.coef)
+    ph = 2 * np.pi * line.frequency_hz * (t_s - line.t_ref_s)
+    return np.outer(np.cos(ph), coef[:, 0]) + np.outer(np.sin(ph), coef[:, 1])
+
+
+def broad(after: Spectrum, line: Line) -> bool:
+    """Whether the excess around the line outlives it: with the sinusoid taken out, the
+    independent bins 2 … GAP + 3 away on either side still hold more than BROAD_SHARE of its
+    statistic, and more than chance — a motion misfit or a wandering tone, not a line."""
+    df = after.freq_hz[1] - after.freq_hz[0]
+    off = np.abs(after.freq_hz - line.frequency_hz) / (PAD * df)
+    ring = (off >= 2) & (off <= GAP + 3)
+    if not ring.any():
+        return False
+    excess = float(np.mean(after.stat[ring][::PAD]) - after.dof)
+    chance = 3.0 * after.dof * np.sqrt(2.0 / after.dof / max(ring.sum() / PAD, 1))
+    return excess > max(BROAD_SHARE * line.stat, chance)
+
+
+def _masked(sp: Spectrum, set_aside_hz: list) -> np.ndarray:
+    """The statistic with the bins of set-aside frequencies (± GAP independent bins) cleared."""
+    stat = sp.stat.copy()
+    width = GAP * PAD * (sp.freq_hz[1] - sp.freq_hz[0]) if len(sp.freq_hz) > 1 else 0.0
+    for f in set_aside_hz:
+        stat[np.abs(sp.freq_hz - f) <= width] = 0.0
+    return stat
+
+
+# -- what is said -------------------------------------------------------------------------
+
+
+def mains_alias(f_hz: float, rate_hz: float, span_s: float) -> tuple[float, int] | None:
+    """(mains frequency, harmonic) whose alias at the sampling rate ``rate_hz`` lands on
+    ``f_hz`` (within 2 %, the recording's resolution or 0.1 % of the mains frequency); None
+    when none does. A hint: the sampling clock is known only as the median interval."""
+    best = None
+    for base in MAINS_HZ:
+        for h in range(1, MAINS_HARMONICS + 1):
+            src = base * h
+            alias = abs(src - rate_hz * round(src / rate_hz))
+            miss = abs(alias - f_hz)
+            if miss <= max(0.02 * f_hz, 1.5 / span_s, 1e-3 * src) and (best is None or miss < best[0]):
+                best = (miss, base, h)
+    return None if best is None else (best[1], best[2])
+
+
+def raw_frame(line: Line, soft_iron: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cos and sin amplitude (3, 2) in the sensor frame, µT; their standard errors (3, 2))."""
+    back = np.linalg.inv(np.asarray(soft_iron, float))
+    coef = back @ line.coef
+    big = np.kron(np.eye(2), back)
+    sd = np.sqrt(np.clip(np.diag(big @ line.cov @ big.T), 0, None))
+    return coef, np.stack([sd[:3], sd[3:]], axis=1)
+
+
+def loaded_axes(amp_ut: np.ndarray, sd_ut: np.ndarray) -> list[str]:
+    """The axes that carry the line: significant, and at least AXIS_SHARE of the largest."""
+    ok = (amp_ut >= AXIS_SHARE * amp_ut.max()) & (amp_ut > 3.0 * sd_ut)
+    if not ok.any():
+        ok = amp_ut == amp_ut.max()
+    return [AXES[k] for k in np.flatnonzero(ok)]
+
+
+def major_direction(coef_ut: np.ndarray) -> tuple[np.ndarray, float]:
+    """(the unit direction of the line's largest swing, its ellipticity: minor / major axis)."""
+    v, s, _ = np.linalg.svd(coef_ut)
+    d = v[:, 0] * np.sign(v[np.argmax(np.abs(v[:, 0])), 0])
+    return d, float(s[1] / s[0]) if s[0] > 0 else 0.0
+
+
+def located(line: Line, res: Residual, threshold: float, set_aside_hz: list) -> Located:
+    """One line as the typed value the diagnosis reads."""
+    t = res.t_s
+    span = float(t[-1] - t[0])
+    rate = 1.0 / sample_interval_s(t)
+    coef, sd = raw_frame(line, res.calibration.soft_iron)
+    amp = np.hypot(coef[:, 0], coef[:, 1])
+    amp_sd = np.hypot(sd[:, 0], sd[:, 1]) / np.sqrt(2)
+    axes = loaded_axes(amp, amp_sd)
+    direction, ellipticity = major_direction(coef)
+    f_sd = np.sqrt(12.0 / max(line.stat, 1e-12)) / (2 * np.pi * span)
+    mains = mains_alias(line.frequency_hz, rate, span)
+    size = float(np.linalg.norm(amp))
+    where = {"frequency_hz": line.frequency_hz, "axis": axes[0] if len(axes) == 1 else axes,
+             "direction": direction.tolist()}
+    params = {"frequency_hz": line.frequency_hz, "frequency_sd_hz": float(f_sd), "amplitude_ut": amp.tolist(),
+              "amplitude_sd_ut": amp_sd.tolist(), "cos_ut": coef[:, 0].tolist(), "sin_ut": coef[:, 1].tolist(),
+              "t_ref_s": line.t_ref_s, "ellipticity": ellipticity, "sample_rate_hz": rate,
+              "mains_hz": mains[0] if mains else None, "mains_harmonic": mains[1] if mains else None}
+    evidence = {"statistic": line.stat, "threshold": threshold, "alpha": ALPHA, "dof": 6,
+                "local_level_ut": float(np.sqrt(line.level_ut2)), "amplitude_over_floor": size / res.floor_ut,
+                "set_aside_direction_harmonics_hz": [float(f) for f in set_aside_hz]}
+    return Located(NAME, Kind.PHYSICS, _summary(line, f_sd, amp, axes, size / res.floor_ut, mains, rate, set_aside_hz),
+                   where, params, evidence)
+
+
+def _summary(line, f_sd, amp, axes, over_floor, mains, rate, set_aside_hz) -> str:
+    on = f"the {axes[0]} axis" if len(axes) == 1 else "the " + "/".join(axes) + " axes"
+    amps = ", ".join(f"{a:.2f}" for a in amp)
+    s = (f"a narrowband line at {line.frequency_hz:.3f} Hz (±{f_sd:.3f} Hz) on {on}, amplitude ({amps}) µT, "
+         f"{over_floor:.1f}× the recording's floor and {line.stat / 6:.0f}× the local spectral level")
+    if mains:
+        which = f"{mains[0]:.0f} Hz mains" if mains[1] == 1 else f"harmonic {mains[1]} of {mains[0]:.0f} Hz mains"
+        s += f"; consistent with {which} aliased by the {rate:.1f} Hz sample clock (a hint, not a fact)"
+    if set_aside_hz:
+        s += ("; set aside as harmonics of the motion's own directions (shape misfit, not interference): "
+              + ", ".join(f"{f:.3f}" for f in set_aside_hz) + " Hz")
+    return s
+
+
+def search(res: Residual) -> tuple[Located, ...]:
+    """Every narrowband line in the calibrated residual, strongest first (empty when none
+    passes the local-level test)."""
+    if len(res) < MIN_SAMPLES:
+        return ()
+    ok = np.isfinite(res.r_ut) & np.isfinite(res.t_s)
+    if ok.sum() < MIN_SAMPLES:
+        return ()
+    if not ok.all():
+        res = replace(res, t_s=res.t_s[ok], m_ut=res.m_ut[ok], channels={k: v[ok] for k, v in res.channels.items()})
+    lines, aside, threshold = find_lines(res)
+    return tuple(located(x, res, threshold, aside) for x in lines)
+
+
+def remove(m_ut: np.ndarray, t_s: np.ndarray, channels, found: Located) -> np.ndarray:
+    """The raw samples with the located line subtracted from each axis (the fitted sinusoid,
+    phase referred to ``t_ref_s``). The calibration refitted on them is the sensor's own, the
+    same at every time of the recording: the interference it carried is gone."""
+    m = np.asarray(m_ut, dtype=np.float64)
+    t = np.asarray(t_s, dtype=np.float64)
+    if m.ndim != 2 or m.shape[1] != 3 or len(t) != len(m):
+        raise ValueError(f"m_ut must be (n, 3) with one time each; got {m.shape} and {t.shape}")
+    p = found.params
+    ph = 2 * np.pi * float(p["frequency_hz"]) * (t - float(p["t_ref_s"]))
+    wave = np.outer(np.cos(ph), p["cos_ut"]) + np.outer(np.sin(ph), p["sin_ut"])
+    return m - wave
+
+
+EFFECT = Effect(NAME, Kind.PHYSICS, search, remove)
