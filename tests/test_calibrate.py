@@ -63,6 +63,7 @@ def test_no_write_reports_but_leaves_the_board_alone(capsys, tmp_path):
     assert not eeprom.exists()
 
 
+@pytest.mark.slow
 def test_timeout_names_the_gate_that_failed(capsys):
     # flat turns only: the direction coverage can never pass
     code, out, _ = run_cli(

@@ -132,6 +132,7 @@ def _calibrated_then(tmp_path, faults, samples=12500):
     return t, d
 
 
+@pytest.mark.slow
 def test_new_hard_iron_is_detected_and_recalibrated(tmp_path):
     t, d = _calibrated_then(tmp_path, "")
     assert d.writer.count == 2  # the first one on a blank board, then after the payload
@@ -143,6 +144,7 @@ def test_new_hard_iron_is_detected_and_recalibrated(tmp_path):
     assert Decision.DRIFTED in d.journal.decisions()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fault", ["mute", "no_write_ack", "corrupt_write"])
 def test_a_write_that_is_not_verified_is_never_reported(tmp_path, fault):
     t, d = _calibrated_then(tmp_path, f"&fault={fault}@50")

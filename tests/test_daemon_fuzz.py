@@ -12,6 +12,7 @@ Hypothesis draws raw bytes and a seed; the seed interleaves well-formed lines in
 
 import random
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -48,6 +49,7 @@ def mix(noise: bytes, seed: int, make) -> list[bytes]:
     return out
 
 
+@pytest.mark.slow
 @settings(max_examples=3000, **FAST)
 @given(st.binary(max_size=300), st.integers(0, 2**32 - 1), st.integers(1, 64))
 def test_framer_never_raises_and_is_split_invariant(noise, seed, step):

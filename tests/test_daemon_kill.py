@@ -65,6 +65,7 @@ def _check(payload: dict, before: dict | None) -> None:
         assert r["epoch"] > before["resume"]["epoch"]  # it resumed (and connected again)
 
 
+@pytest.mark.slow
 def test_kill_9_at_random_points_always_resumes(tmp_path):
     if not hasattr(os, "fork"):  # a real platform condition (Windows); never skipped in CI
         if os.environ.get("CI") == "true":

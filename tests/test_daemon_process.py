@@ -49,6 +49,7 @@ def _stop(proc) -> str:
     return err
 
 
+@pytest.mark.slow
 def test_signals_and_status(tmp_path):
     if not hasattr(signal, "SIGHUP"):  # a real platform condition (Windows); never skipped in CI
         if os.environ.get("CI") == "true":
@@ -101,6 +102,7 @@ def test_status_without_state_says_so(tmp_path):
     assert code == 1 and "no daemon state" in out  # not running, said plainly
 
 
+@pytest.mark.slow
 def test_a_live_daemon_shows_every_framing_defect_in_status(tmp_path):
     """Garbage on the line and a board reset (a torn line) while ``magcal run`` is running: the
     framer's counts are among the faults of ``magcal status`` (text and --json, from the live

@@ -174,6 +174,7 @@ def test_outlier_indices_are_data_rows_of_the_file(tmp_path):
     assert len(rows & truth) >= 0.9 * len(truth) and len(rows - truth) <= 1
 
 
+@pytest.mark.slow
 def test_report_writes_pictures_and_a_page(tmp_path):
     run = _sim(121, temperature=Temperature(swing_c=20.0, period_s=60.0), temp_coef_ut_per_c=(0.08, -0.04, 0.05), glitch_rate=0.003)
     path = tmp_path / "rec.csv"

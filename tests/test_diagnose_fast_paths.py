@@ -238,6 +238,7 @@ def _same(a, b, path=""):
         assert a == b, path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("recording", [_simulated, _real_excerpt], ids=["simulated", "hmc5883l_excerpt"])
 def test_a_diagnosis_is_the_one_the_straightforward_forms_make(recording, straightforward):
     series = recording()

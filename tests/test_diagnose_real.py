@@ -34,6 +34,7 @@ def _current(t, seed):
     return sc.current_a(t)
 
 
+@pytest.mark.slow
 def test_an_unrelated_current_column_is_not_credited_with_real_residual_structure(tilt_sphere):
     t, h = tilt_sphere
     credited = []
@@ -69,6 +70,7 @@ def test_the_real_recordings_own_offset_wander_is_stated_as_a_limit_not_a_findin
     assert "temp_c" in w["summary"]
 
 
+@pytest.mark.slow
 def test_the_wander_limit_names_how_large_a_slow_term_would_have_had_to_be(tilt_sphere):
     """The limit's per-channel floor is the detector's real boundary on this recording: a
     temperature term of half the stated size is not reported, one of twice the size is."""

@@ -52,6 +52,7 @@ def random_line(rng: random.Random) -> bytes:
     return bytes(rng.randrange(256) for _ in range(rng.randrange(1, 30))).replace(b"\n", b"") + b"\r\n"
 
 
+@pytest.mark.slow
 def test_firmware_replies_to_every_random_line(tmp_path):
     rng = random.Random(9150)
     b = RawBoard(tmp_path)

@@ -47,6 +47,7 @@ def _is_subsequence(small, big) -> bool:
     return all(any(x == y for y in it) for x in small)
 
 
+@pytest.mark.slow
 def test_stream_3000_samples_none_lost_with_a_host_that_pauses(tmp_path):
     dev = open_device(f"emu://?seed=4&eeprom={tmp_path / 'ee.bin'}")
     with dev:
@@ -113,6 +114,7 @@ def test_reset_mid_stream_is_seen_as_a_reset_and_no_sample_is_invented(tmp_path)
     assert all(b > a for a, b in zip(t, t[1:])), "host time keeps increasing across the reset"
 
 
+@pytest.mark.slow
 def test_calibrate_write_restart_read_back_and_calibrated_stream(tmp_path, capsys):
     ee = tmp_path / "ee.bin"
     url = f"emu://?seed=1&eeprom={ee}"
@@ -174,6 +176,7 @@ def test_overflow_is_flagged_in_st2_exactly_when_the_sensor_overflowed(tmp_path)
     assert all(not s.valid for s in samples if s.st2 & 0x08)
 
 
+@pytest.mark.slow
 def test_a_magnetometer_that_never_finishes_is_logged_and_the_board_stays_responsive(tmp_path):
     dev = open_device(f"emu://?fault=stuck_drdy&eeprom={tmp_path / 'ee.bin'}")
     with dev:

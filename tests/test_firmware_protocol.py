@@ -80,6 +80,7 @@ def test_missing_magnetometer_is_reported_in_the_hello(tmp_path):
         b.close()
 
 
+@pytest.mark.slow
 def test_bad_lines_get_error_replies_and_the_stream_goes_on(board):
     _boot(board)
     board.send("R", 100)

@@ -47,6 +47,7 @@ def _run_fit(dev, naive: bool):
     return board_c, board_r, ref_c, ref_r, fit
 
 
+@pytest.mark.slow
 def test_centred_float32_sums_keep_precision_that_naive_sums_lose(tmp_path):
     sc = demo_scenario(5).with_physics(hard_iron_ut=OFFSET_UT,
                                        distortion=((1, 0, 0), (0, 1, 0), (0, 0, 1)))

@@ -77,6 +77,7 @@ def test_dataflash_lists_its_compasses_and_names_channels_physically():
     assert log.decimal_year is not None and 2015.8 < log.decimal_year < 2016.0
 
 
+@pytest.mark.slow
 def test_several_magnetometers_and_no_choice_lists_them():
     from magcal.cli.exits import Exit
 
@@ -95,6 +96,7 @@ def test_every_stream_is_on_the_magnetometer_clock_and_orientation_is_no_channel
     assert all(len(v) == len(s) for v in s.channels.values())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path, mag", [(BIN, ["--mag", "1"]), (ULG, [])], ids=["dataflash", "ulog"])
 def test_a_log_read_twice_gives_identical_numbers(tmp_path, path, mag):
     outs = [magcal("fit", path, *mag, "--json") for _ in range(2)]
@@ -148,6 +150,7 @@ def test_px4_undo_reapplied_by_its_formula_gives_the_logged_field():
 
 
 # -- damaged logs -------------------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", ["truncate", "corrupt"])
 @pytest.mark.parametrize("path", [BIN, ULG], ids=["dataflash", "ulog"])
 def test_a_damaged_log_is_read_up_to_the_damage(tmp_path, path, damage):
@@ -219,6 +222,7 @@ def test_internal_compass_gets_a_current_term_the_external_none():
         assert ho[ho["chosen"]]["rms_vector_ut"] < ho["none"]["rms_vector_ut"]
 
 
+@pytest.mark.slow
 def test_diagnose_tests_the_current_against_the_expected_field():
     """|m| alone cannot test a current term on a flight; diagnose on a log judges it against the
     expected field vector, and still does so where |m| alone cannot be diagnosed (level flight)."""
@@ -248,6 +252,7 @@ def test_diagnose_tests_the_current_against_the_expected_field():
     assert "finding     current_interference: current_a kept" in text
 
 
+@pytest.mark.slow
 def test_export_of_a_log_diagnosis_writes_its_vector_calibration(tmp_path):
     diag, fit = tmp_path / "diag.json", tmp_path / "fit.json"
     diag.write_text(magcal("diagnose", BIN, "--mag", "1", "--json").stdout)

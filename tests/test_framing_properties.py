@@ -2,6 +2,7 @@
 never raises, never yields a message that was not sent intact, counts every defect, and the
 bulk parser used for replays gives exactly the same answer."""
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -109,6 +110,7 @@ def payload_of(msg):
     return None
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(streams(), st.lists(st.integers(0, 10**6), max_size=12))
 def test_any_split_gives_the_same_items_and_counters(data, cuts):
@@ -129,6 +131,7 @@ def test_arbitrary_bytes_never_raise_and_memory_stays_bounded(data, cuts):
     assert sum(v for k, v in f.counters.items() if v < 0) == 0
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(streams(), st.lists(st.integers(0, 10**6), max_size=12))
 def test_every_sample_was_sent_intact(data, cuts):
@@ -141,6 +144,7 @@ def test_every_sample_was_sent_intact(data, cuts):
             assert p.encode() in intact
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(streams())
 def test_bulk_parser_matches_the_incremental_framer(data):
@@ -172,6 +176,7 @@ big = st.one_of(
 
 
 @SETTINGS
+@pytest.mark.slow
 @given(st.lists(st.tuples(st.sampled_from(["+", "-", "", "0", "00"]), big), min_size=7, max_size=7),
        st.sampled_from([b"S", b"U"]))
 def test_bulk_fast_path_agrees_on_odd_but_legal_numbers(tokens, kind):
@@ -285,6 +290,7 @@ def numbered_streams(draw):
     return b"".join(parts)
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(numbered_streams(), st.lists(st.integers(0, 10**6), max_size=8))
 def test_sequence_rules_are_the_same_in_bulk_and_never_deliver_a_line_twice(data, cuts):

@@ -64,6 +64,7 @@ def _yaml(doc) -> str:
 
 
 @FUZZ
+@pytest.mark.slow
 @given(st.one_of(documents.map(_yaml).map(lambda t: t.encode("utf-8")), st.binary(max_size=300),
                  st.text(max_size=300).map(lambda t: t.encode("utf-8", "surrogatepass"))))
 def test_a_config_document_is_settings_or_a_named_error(tmp_path, blob):
@@ -315,6 +316,7 @@ def test_a_device_record_is_a_calibration_or_a_named_state(values, status, crc_o
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@pytest.mark.slow
 @given(st.one_of(st.binary(min_size=75, max_size=75),
                  st.tuples(st.sampled_from([1, 2]), *[int32] * (RECORD_FIELDS - 1)).map(
                      lambda v: bytes([0x4D]) + struct.pack("<18i", *v) + struct.pack("<H", record_crc(v)))))
@@ -358,6 +360,7 @@ def test_a_host_store_file_is_a_calibration_or_a_named_record_state(tmp_path, ca
         one_line_naming(r.problem, str(store.path_for(ident)))
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.dictionaries(st.sampled_from(["kind", "generation", "saved_utc", "status", "resume"]), json_docs, max_size=5))
 def test_a_state_file_that_checks_out_is_status_or_a_named_error(tmp_path, capsys, payload):

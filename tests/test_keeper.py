@@ -39,6 +39,7 @@ def test_a_steady_sensor_is_written_once():
     assert k.writes == 1 and k.cycles == 1
 
 
+@pytest.mark.slow
 def test_after_a_new_hard_iron_the_restarted_tracker_is_written_once_its_gates_pass():
     sc = demo_scenario(4)
     a = sc.simulate(15000, 50.0).series
@@ -55,6 +56,7 @@ def test_after_a_new_hard_iron_the_restarted_tracker_is_written_once_its_gates_p
     assert k.writes <= 1 + Budget().burst  # the burst, no more
 
 
+@pytest.mark.slow
 def test_the_budget_holds_writes_back():
     sc = demo_scenario(4)
     a = sc.simulate(15000, 50.0).series

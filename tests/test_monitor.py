@@ -122,6 +122,7 @@ def _wandering(sc, cal):
                                        Wander(sigma_ut=(0.5,) * 3, band_hz=(0.002, 0.01), frame="field")))
 
 
+@pytest.mark.slow
 def test_the_field_magnitude_wandering_is_not_a_new_hard_iron(calibrated):
     """The local field's magnitude wanders (iron nearby moves): |h| − r moves by the same amount
     whichever way the board faces — a change of radius, which the hard-iron test leaves free."""
@@ -170,6 +171,7 @@ def _band_wander(rng, t_s, sigma_ut, band_hz=(0.03, 0.09), k=40):
     return sigma_ut * np.sqrt(2.0 / k) * np.sin(2.0 * np.pi * f * t_s[None, :, None] + phase).sum(axis=0)
 
 
+@pytest.mark.slow
 def test_a_wander_that_pauses_and_resumes_raises_about_alpha_alarms(calibrated):
     """A narrow-band wander has calm stretches. The spread the monitor allows must outlast
     one — a spread as short-lived as the reference read "no wander" in the calm, and the

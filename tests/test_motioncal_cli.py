@@ -139,6 +139,7 @@ def test_fit_and_diagnose_read_a_motioncal_log(tmp_path, capsys, command):
         assert out["model"] == "ellipsoid"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dialect", ["motioncal", "auto"])
 def test_a_recorded_motioncal_session_replays_as_it_was_live(capsys, tmp_path, dialect):
     """``record`` keeps a MotionCal sketch's bytes; ``replay://`` and ``fit FILE`` then read the

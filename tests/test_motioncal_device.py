@@ -154,6 +154,7 @@ def test_read_calibration_waits_for_the_next_echo_after_open():
             assert len(dev.read(0.0)) > 0  # the readings that arrived meanwhile are kept
 
 
+@pytest.mark.slow
 def test_device_that_never_echoes_gets_a_plain_no_reply():
     with AdafruitBoard(echo="never") as board:
         with open_device(board.port, dialect="motioncal", echo_timeout_s=0.6, tries=3) as dev:

@@ -9,6 +9,8 @@ import tomllib
 import zipfile
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -21,6 +23,7 @@ def test_the_license_file_is_the_mit_license_the_metadata_names():
     assert not any(c.startswith("License ::") for c in project["classifiers"])  # the SPDX expression says it
 
 
+@pytest.mark.slow
 def test_building_the_package_warns_of_nothing_and_carries_the_license(tmp_path):
     p = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-v", "-w", str(tmp_path), str(REPO)],
                        capture_output=True, text=True, timeout=600)
@@ -64,6 +67,7 @@ def _run_daemon(tmp_path, journal: bool) -> str:
     return log.read_text()
 
 
+@pytest.mark.slow
 def test_log_lines_leave_the_time_to_the_journal(tmp_path):
     stamp = re.compile(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d")
     journal = _run_daemon(tmp_path, journal=True).splitlines()

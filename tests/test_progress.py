@@ -51,6 +51,7 @@ def in_pipe(*argv, timeout=600) -> subprocess.CompletedProcess:
                           env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=timeout, stdin=subprocess.DEVNULL)
 
 
+@pytest.mark.slow
 def test_calibrate_in_a_terminal_maps_the_directions_and_says_where_to_turn(tmp_path):
     code, out = in_terminal("calibrate", "--port", f"sim://?pace=4&eeprom={tmp_path}/e.bin")
     assert code == 0, out[-2000:]
@@ -63,6 +64,7 @@ def test_calibrate_in_a_terminal_maps_the_directions_and_says_where_to_turn(tmp_
     assert "VERIFIED" in plain
 
 
+@pytest.mark.slow
 def test_calibrate_quiet_or_piped_shows_no_map(tmp_path):
     code, out = in_terminal("calibrate", "--quiet", "--port", f"sim://?pace=0&eeprom={tmp_path}/e.bin")
     assert code == 0 and "│" not in out and "next: aim" not in out and "VERIFIED" in out
@@ -70,6 +72,7 @@ def test_calibrate_quiet_or_piped_shows_no_map(tmp_path):
     assert p.returncode == 0 and "│" not in p.stderr and "\x1b[" not in p.stderr + p.stdout
 
 
+@pytest.mark.slow
 def test_record_shows_rate_and_time_left_in_a_terminal_only(tmp_path):
     # a short output name: the line is clipped to the terminal's 120 columns, and a long
     # temporary path (as under pytest -n) pushed "left" past the edge
@@ -99,6 +102,7 @@ class _Terminal(io.StringIO):
         return True
 
 
+@pytest.mark.slow
 def test_a_long_fit_says_what_it_is_doing(big, monkeypatch, capsys):
     """What a fit is doing, drawn while it works. The display waits a second before it draws
     (nothing flashes past on short work); this 200 000-sample fit now takes about that long, so
@@ -117,6 +121,7 @@ def test_a_long_fit_says_what_it_is_doing(big, monkeypatch, capsys):
     assert p.returncode == 0 and p.stderr == ""
 
 
+@pytest.mark.slow
 def test_a_long_diagnosis_gives_its_step_and_an_eta(long):
     code, out = in_terminal("diagnose", str(long))
     plain = ANSI.sub("", out)

@@ -65,6 +65,7 @@ def test_the_page_leads_with_the_calibration_and_captions_every_figure(temperatu
     assert "<canvas" in page and "cloud-data" in page
 
 
+@pytest.mark.slow
 def test_chromium_shows_the_page_with_its_point_cloud_drawn(temperature_report, tmp_path):
     from PIL import Image
 
@@ -82,6 +83,7 @@ def test_chromium_shows_the_page_with_its_point_cloud_drawn(temperature_report, 
     assert rows_with_ink > 0.5  # the page fills the window: figures, captions, the cloud
 
 
+@pytest.mark.slow
 def test_figures_are_readable_shapes_with_relative_time(tmp_path):
     """A wide log (many channels, unix time) still gives a grid, and time from its start."""
     from PIL import Image
@@ -119,6 +121,7 @@ def test_a_clipped_title_is_refused_not_saved(tmp_path):
     assert not (tmp_path / "clipped.png").exists()
 
 
+@pytest.mark.slow
 def test_more_sections_join_the_page_through_the_hook(tmp_path):
     from magcal.cli import main
 
@@ -140,6 +143,7 @@ def test_more_sections_join_the_page_through_the_hook(tmp_path):
     assert text.index("The samples in 3-D") < text.index("The sensor twin") < text.index("Notes")
 
 
+@pytest.mark.slow
 def test_a_channel_left_out_of_the_tests_is_said_so_not_drawn_as_tested(tmp_path):
     """The same field in raw counts is screened out of the candidates; the channel figure must not
     show it as a panel saying 'nothing found' (it was never tested) and must say why."""
@@ -160,6 +164,7 @@ def test_a_channel_left_out_of_the_tests_is_said_so_not_drawn_as_tested(tmp_path
     assert "mag_x_counts: nothing found" not in page
 
 
+@pytest.mark.slow
 def test_a_recording_without_time_is_drawn_by_sample_number_not_in_minutes(tmp_path):
     """A table with no time column is read by sample index; the page must not turn that index
     into seconds or minutes (4960 samples were once shown as '82.7 min')."""

@@ -183,6 +183,7 @@ def test_disturbances_with_events_hold_one_pair_each_and_survive_the_file(tmp_pa
         Disturbances(0.05, (2.0, 6.0), (0.2, 1.0), events=((2.0, 3.0),))
 
 
+@pytest.mark.slow
 def test_disturbances_learned_from_a_recording_that_has_them_and_not_from_one_without():
     from magcal.diagnose import twin
 

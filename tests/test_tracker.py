@@ -34,6 +34,7 @@ def test_converges_to_the_truth_of_a_steady_sensor():
     assert events[-1].sample <= len(m) - 1
 
 
+@pytest.mark.slow
 def test_follows_a_drifting_offset_that_a_static_fit_averages_away():
     sc = demo_scenario(5).with_physics(drift_ut_per_s=tuple(DRIFT))
     run, m, t = _run(sc, 30000)
@@ -152,6 +153,7 @@ def _soft_iron_board(motion, seed, truth):
     return _run(sc, 3000)
 
 
+@pytest.mark.slow
 def test_flat_turns_where_the_field_dips_put_no_wrong_centre_in_force():
     # The samples circle the field's cone. Every sphere through that circle fits them; the one
     # found first has the circle as its equator (field ≈ 25 µT, centre ≈ 40 µT off along z), and

@@ -66,6 +66,7 @@ def test_learn_recovers_noise_quantum_and_wander_of_a_known_sensor():
     assert "wander" in sm.effects() and "soft_iron" in sm.effects()
 
 
+@pytest.mark.slow
 def test_learn_finds_no_wander_in_white_noise():
     sm = _learned(_recording(dataclasses.replace(_truth(), wander=()), n=8000))
     assert _slow_var(sm.wander) < 0.1 * np.mean(sm.noise_ut) ** 2
@@ -94,6 +95,7 @@ def test_a_twin_without_soft_iron_is_named_soft_iron():
     assert "soft_iron" in {m.effect for m in c.mismatches}
 
 
+@pytest.mark.slow
 def test_real_excerpt_final_model_beats_the_baseline():
     series = load_series(REAL)
     sm = _learned(series)
@@ -111,6 +113,7 @@ def _run(*args, cwd):
     return subprocess.run([sys.executable, "-m", "magcal", *args], cwd=cwd, capture_output=True, text=True, env=env)
 
 
+@pytest.mark.slow
 def test_diagnose_writes_a_model_that_simulate_draws_twins_from(tmp_path):
     r = _run("diagnose", REAL, "--model-out", "m.yaml", "--twin", "--draws", "20", "--json", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -134,6 +137,7 @@ def test_diagnose_writes_a_model_that_simulate_draws_twins_from(tmp_path):
     assert "note: the model was learned from a recording without time" in r.stdout and "--like REC" in r.stdout
 
 
+@pytest.mark.slow
 def test_diagnose_twin_text_shows_the_steps(tmp_path):
     r = _run("diagnose", REAL, "--twin", "--draws", "12", "--report", "rep", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -172,6 +176,7 @@ def test_twin_page_heads_with_the_counts_and_leaves_out_statistics_a_constant_ch
     assert "<b>3 of 3</b>" in headline(d) and "1 of 3" in headline(d)
 
 
+@pytest.mark.slow
 def test_learned_glitches_make_as_many_spikes_as_the_recording():
     """Glitches near the noise cannot be told from it: what the learned process must give is
     the recording's count of spikes the detector sees, at sizes the truth has."""
@@ -190,6 +195,7 @@ def test_learned_glitches_make_as_many_spikes_as_the_recording():
     assert plain.glitch_rate < 0.001
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [41, 42])
 def test_the_learned_glitch_rate_is_the_true_rate_where_the_detector_misses_some(seed):
     """Glitches of 2–8 µT over 0.25 µT of noise: the detector sees about two thirds of them
@@ -203,6 +209,7 @@ def test_the_learned_glitch_rate_is_the_true_rate_where_the_detector_misses_some
     assert abs(learned.glitch_rate - 0.004) < abs(seen - 0.004)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [43, 44])
 def test_glitches_from_a_pulse_train_are_learned_at_its_period_and_random_ones_are_not(seed):
     """A source firing every 0.3 s (15 reads at 50 Hz) glitching 80 % of its pulses with 2–8 µT:
@@ -220,6 +227,7 @@ def test_glitches_from_a_pulse_train_are_learned_at_its_period_and_random_ones_a
     assert _learned(_recording(_truth(), seed=seed, n=6000)).glitch_period_s is None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [45, 46])
 def test_glitches_along_one_sensor_axis_are_read_at_their_size(seed):
     """A corrupted register: glitches of 2–8 µT (log-uniform, median 4) along one sensor axis
@@ -234,6 +242,7 @@ def test_glitches_along_one_sensor_axis_are_read_at_their_size(seed):
     assert abs(sizes[len(sizes) // 2] / 4.0 - 1.0) < 0.25 and sizes[-1] < 9.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [47, 48])
 def test_glitches_along_the_field_are_learned_so_and_give_the_twins_the_recordings_jumps(seed):
     """The field's magnitude read wrong for one read: glitches of 2–8 µT along the field move
@@ -519,6 +528,7 @@ def _bursty_still(noise_lag1: float, seed: int, n: int = 12000):
     return cal, Series(t_s=t, field_ut=m, channels={})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [31, 32])
 def test_noise_that_alternates_between_reads_is_learned_and_white_noise_stays_white(seed):
     """A still board read in bursts whose noise anti-correlates between reads (−0.2): the
@@ -550,6 +560,7 @@ def _takes_recording(offset_sd_ut: float, seed: int, takes: int = 40, reads: int
     return fit(m, model="sphere").calibration, Series(t_s=t, field_ut=m, channels={})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [41, 42])
 def test_a_recording_of_takes_learns_a_level_per_placement_and_its_twins_hold_it(seed):
     """Takes whose placements carry hard irons of their own (1.5 µT per axis, as gearvr

@@ -51,6 +51,7 @@ def test_a_weak_band_above_a_steep_red_end_is_kept():
     assert 0.5 < mid / 0.15**2 < 2.0
 
 
+@pytest.mark.slow
 def test_the_noise_learned_through_a_strong_soft_iron_is_the_sensors_own():
     """Noise enters the raw reading ahead of the soft iron: learned through the field
     direction alone, a sensor whose soft iron stretches one axis by 1.45 and shrinks another by
