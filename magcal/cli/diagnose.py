@@ -81,8 +81,18 @@ def format_text(d: dict) -> str:
                  + ("   (|m| alone: an alternative; the calibration is below)" if from_log
                     else source.get(f.get("from", ""), "")))
     if not from_log:
-        lines += coefficient_lines(d["calibration"], d.get("clock", True))
+        lines += coefficient_lines(d["calibration"], d.get("clock", True)) + alternative_lines(d)
     return "\n".join(lines)
+
+
+def alternative_lines(d: dict) -> list[str]:
+    """One line per calibration set aside: its offset and field, and why it is not the one (pure)."""
+    lines = []
+    for a in d.get("alternatives", []):
+        c = a["calibration"]
+        lines.append(f"alternative {a['name']}: offset (" + ", ".join(f"{v:.3f}" for v in c["offset_ut"])
+                     + f") µT, field {c['field_ut']:.3f} µT — {a['why']}")
+    return lines
 
 
 def coefficient_lines(cal: dict, clock: bool = True, sigma: dict | None = None) -> list[str]:
@@ -104,11 +114,7 @@ def log_calibration_lines(d: dict) -> list[str]:
     lines = [f"calibration {d['calibration_model']}: the flight-log fit's, the one write, export and the report use"]
     lines += coefficient_lines(d["calibration"], d.get("clock", True),
                                {"offset_ut": d["flight_log"].get("uncertainty", {}).get("offset_ut")})
-    for a in d.get("alternatives", []):
-        c = a["calibration"]
-        lines.append(f"alternative {a['name']}: offset (" + ", ".join(f"{v:.3f}" for v in c["offset_ut"])
-                     + f") µT, field {c['field_ut']:.3f} µT — {a['why']}")
-    return lines
+    return lines + alternative_lines(d)
 
 
 def left_out_lines(limits: list) -> list[str]:
@@ -173,6 +179,8 @@ def run(args) -> int:
             print(f"magcal: warning: {args.file}: {w}", file=sys.stderr)
         series = series.only_valid()
         d, diagnosis = _diagnose_magnitude(args, series, flight_log, ticker)
+        if diagnosis is not None:
+            add_fit_alternative(d, series)
         if series.source:
             d["input"] = series.source
         d["reading"] = reading_report(series, args.file)
@@ -206,6 +214,29 @@ def run(args) -> int:
     return 0
 
 
+def add_fit_alternative(d: dict, series) -> None:
+    """Where diagnosis's calibration is not magcal fit's own (channel terms added, or its own
+    model), fit's on the same samples joins ``alternatives`` with what differs and why."""
+    from ..fit import fit_calibration
+
+    if d["final"].get("from") == "fit":
+        return  # fit's calibration itself, in fit's numbers
+    result = fit_calibration(series, model="auto")
+    if not result:
+        return
+    fit, own = result.to_dict()["calibration"], d["calibration"]
+    terms = sorted(own.get("coef_ut_per_unit") or {})
+    what = (f"adds the {', '.join(terms)} term(s), and the geometry fitted around them" if terms
+            else "is diagnosis's own model")
+    d.setdefault("alternatives", []).append({
+        "name": "fit",
+        "model": result.model,
+        "why": f"magcal fit's calibration of the same samples ({result.model}); diagnosis's {what} "
+               f"({d['final']['from']}): field {own['field_ut']:.3f} µT against fit's {fit['field_ut']:.3f} µT",
+        "calibration": fit,
+    })
+
+
 def take_log_calibration(d: dict) -> None:
     """On a flight log whose fit against the expected field succeeded, that fit's calibration is
     THE calibration of the result (as ``magcal fit LOG`` gives it: what ``write``, ``export`` and
@@ -220,7 +251,7 @@ def take_log_calibration(d: dict) -> None:
     if own is not None:
         against = ("against the expected field vector (the log's attitude and the Earth model)" if log["mode"] == "vector"
                    else "against the Earth model's |B|")
-        d["alternatives"] = [{
+        d["alternatives"] = [*d.get("alternatives", []), {
             "name": "magnitude",
             "model": d["final"]["model"],
             "why": f"the diagnosis of |m| alone ({d['final']['model']}): not used, because |m| cannot test the terms "
