@@ -35,7 +35,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.series import Series
-from . import channels, collinear, design, glitches, hygiene, locate, longrun, null, selection, softiron, statements
+from . import channels, claims, collinear, design, glitches, hygiene, locate, longrun, null, selection, softiron, statements
 from .locate import step as locate_step
 from .diagnosis import Diagnosis
 from .inference import contiguous_blocks, n_test_blocks
@@ -129,8 +129,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     step("select_terms")
     selected = select_terms(analysed, reference, alpha, noise_ut, folds, twin_null, at_channels)
     step("refit")
-    final, accepted = refit(analysed, reference, selected)
-    selected = replace(selected, accepted=accepted)
+    final, selected, refused = refit_claims(analysed, reference, selected)
     fold_slices = contiguous_blocks(len(analysed.m), folds)
     step("compare_heldout")
     channel_cov = {selected.candidates[g].channel: statements.estimating_test(g, selected).cov
@@ -165,7 +164,8 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         diagnosis_model=final,
         calibration_from=chosen.source if found.model is None else chosen.source + "+located",
         located=found,
-        limits=statements.left_out(left_out) + locate.as_limits(found.found, found.verdicts)
+        limits=statements.left_out(left_out) + tuple(r.limit() for r in refused)
+        + locate.as_limits(found.found, found.verdicts)
         + statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut)
         + chosen.limits,
         floors={c: f.to_dict() for c, f in floors.items()},
@@ -403,6 +403,19 @@ def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, lis
     if isinstance(final, FitFailure):
         return ref, [softiron.EFFECT] if ref.spec.soft_iron else []
     return final, list(accepted)
+
+
+def refit_claims(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, Selected, tuple]:
+    """``refit``, then the claims check (magcal.diagnose.claims): a term whose halves in time
+    disagree, or whose size is implausible, is dropped and the rest refitted without it."""
+    final, accepted = refit(a, ref, selected)
+    selected = replace(selected, accepted=accepted)
+    m_kept, t_kept, chans_kept = a.kept
+    kept, refused = claims.screen(m_kept, t_kept, chans_kept, final, accepted, selected.candidates)
+    if not refused:
+        return final, selected, ()
+    final, accepted = refit(a, ref, claims.without(selected, kept))
+    return final, replace(selected, accepted=accepted), refused
 
 
 def full_model(a: Analysed, ref: ModelFit, final: ModelFit) -> ModelFit:

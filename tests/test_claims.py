@@ -1,0 +1,59 @@
+"""Claims only where the data determine them (magcal.diagnose.claims): a term the tests accept
+is stated as a finding only when its size is plausible and the recording's halves agree on it;
+otherwise it is a limit with its reason and the calibration is returned without it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from magcal.core.series import Series
+from magcal.diagnose import diagnose
+from magcal.diagnose.claims import correlation_factor
+from magcal.sim.physics import Motion, Physics, Scenario
+
+HARD = (21.0, -33.0, 8.0)
+
+
+def _run(seed=5, n=5000):
+    sc = Scenario(physics=Physics(hard_iron_ut=HARD, noise_ut=0.3), motion=Motion("sphere", period_s=20.0), seed=seed)
+    return sc.simulate(n, 50.0).series
+
+
+def _claims_limits(d):
+    return [x for x in d.to_dict()["limits"] if x.get("check") == "claims"]
+
+
+def test_a_true_modest_drift_is_a_finding():
+    s = _run()
+    m = s.field_ut + np.outer(s.t_s - s.t_s.mean(), (0.02, -0.015, 0.01))  # 2.7 µT over 100 s
+    d = diagnose(Series(t_s=s.t_s, field_ut=m))
+    assert "time_drift" in d.effects
+    assert _claims_limits(d) == []
+
+
+def test_an_implausibly_large_drift_is_a_limit_not_a_finding():
+    s = _run()
+    m = s.field_ut + np.outer(s.t_s - s.t_s.mean(), (0.3, -0.25, 0.1))  # 40 µT over 100 s
+    d = diagnose(Series(t_s=s.t_s, field_ut=m))
+    assert "time_drift" not in d.effects
+    (limit,) = _claims_limits(d)
+    assert limit["effect"] == "time_drift" and "more than 15% of the" in limit["summary"]
+    assert "t_s" not in d.to_dict()["calibration"].get("coef_ut_per_unit", {})
+
+
+def test_a_drift_only_in_the_first_half_is_not_claimed_as_a_drift():
+    s = _run(seed=7)
+    ramp = np.clip(s.t_s - s.t_s[0], 0, 50.0) - 25.0  # moves for 50 s, then holds
+    m = s.field_ut + np.outer(ramp, (0.06, -0.05, 0.03))
+    d = diagnose(Series(t_s=s.t_s, field_ut=m))
+    assert "time_drift" not in d.effects
+    (limit,) = _claims_limits(d)
+    assert "halves" in limit["summary"] or "half" in limit["summary"]
+
+
+def test_correlation_factor_is_one_on_white_noise_and_large_on_a_slow_wander():
+    rng = np.random.default_rng(1)
+    white = rng.standard_normal(4000)
+    assert correlation_factor(white) < 2.0
+    slow = np.repeat(rng.standard_normal(8), 500) + 0.1 * white
+    assert correlation_factor(slow) > 20.0
