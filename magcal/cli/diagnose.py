@@ -18,9 +18,18 @@ fit`` does, each with its coefficient, σ, floor, p-value and verdict under ``fi
 |m| alone cannot be diagnosed at all (a mostly level flight) the JSON has ``magnitude_failure``
 (the reason) instead of the |m| diagnosis, and the flight-log section still runs.
 
+The JSON has ONE ``calibration``: the one ``write`` puts on a device, ``export`` turns into
+parameters and the report shows. On a flight log whose fit against the expected field succeeded
+it is that fit's — ``magcal fit LOG``'s, with ``"calibration_from": "flight_log"`` and
+``calibration_model`` — and the |m| diagnosis's own is kept under ``alternatives`` (``[{name,
+model, why, calibration}]``); where diagnosis added channel terms to fit's calibration, fit's is
+there too, with both fields. The calibration is in fit's convention (det W = 1), so where it is
+fit's its numbers are fit's.
+
 ``--model-out M.yaml`` writes the sensor model learned around the final calibration (noise,
 quantum, offset wander, glitches, nonlinearity …; ``magcal simulate --model M.yaml`` draws from
-it). ``--twin`` compares the recording with ``--draws`` twins of that model, step by step from
+it); ``model_out`` in the JSON says why its field (the mean calibrated |m|) is not the
+calibration's radius. ``--twin`` compares the recording with ``--draws`` twins of that model, step by step from
 the baseline (hard iron + white noise), in the text, as ``"twin"`` in the JSON and, with
 ``--report``, as twin.html beside the report (magcal.diagnose.twin, docs/sensor-model.md).
 """

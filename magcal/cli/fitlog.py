@@ -9,7 +9,9 @@ The JSON (``format`` ``magcal.fit.log/1``)::
      "uncertainty": {"offset_ut", "field_ut", "autocorrelation_factor"},
      "terms": [{"channel", "role": "nuisance"|"interference", "kept", "coef_ut_per_unit",
                 "sigma_ut_per_unit", "norm_ut_per_unit", "floor_ut_per_unit", "p_value",
-                "heldout_falls", "heldout_model"}],
+                "heldout_falls", "heldout_model",
+                "coef_in_calibration_ut_per_unit", "fitted_with"}],  # kept: its coefficient in the
+                # calibration (the last fit kept), which moves where a later term joined it
      "heldout": {"blocks": 5, "none": {"rms_vector_ut", "rms_magnitude_ut", ...}, ..., "chosen"},
      "rms_ut", "n_used", "warnings": [...]}
 
