@@ -5,6 +5,8 @@ import pytest
 
 from magcal.core.events import Event
 from magcal.core.sample import Sample
+from magcal.logic import failures
+from magcal.logic.failures import Failure, Reason
 from magcal.logic.gates import Gates
 from magcal.logic.session import Session, Status
 from magcal.sim.physics import Motion, Scenario, demo_scenario
@@ -51,8 +53,10 @@ def test_transitions_outside_the_diagram_are_refused():
     s = Session()
     with pytest.raises(RuntimeError, match="collecting to writing"):
         s.begin_write()
-    s.fail("timeout", "gave up")
-    assert s.status is Status.FAILED and s.failure == "timeout"
+    with pytest.raises(TypeError, match="Failure"):
+        s.fail("timeout", "gave up")  # a code as text is refused: the failure is a typed value
+    s.fail(failures.TIMEOUT, "gave up")
+    assert s.status is Status.FAILED and s.failure.reason is Reason.TIMEOUT
     with pytest.raises(RuntimeError):
         s.solve()
 
@@ -62,5 +66,5 @@ def test_final_gates_can_refuse_a_fit():
     s = Session(Gates(field_range_ut=(60.0, 100.0), min_samples=50, min_coverage=0.3, max_offset_sigma_ut=5))
     s.add_many(samples_from(sc, 3000))
     s.solve()
-    assert s.status is Status.FAILED and s.failure == "gate:field_range"
+    assert s.status is Status.FAILED and s.failure == Failure(Reason.GATE, "field_range")
     assert "field radius" in s.failure_message

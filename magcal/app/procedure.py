@@ -12,28 +12,15 @@ from typing import Callable
 
 from ..core.calibration import Calibration, RecordState, StoredRecord
 from ..core.errors import DeviceError
-from ..core.events import Code, Identity
+from ..core.events import Identity
 from ..devices.base import Device, batches
+from ..logic import failures
+from ..logic.failures import Failure, Reason
 from ..logic.gates import Clearance
 from ..logic.session import Session, Status
 from .config import Settings
 
 PROGRESS_EVERY_S = 0.25
-
-
-class Ended(Code):
-    """Why collecting stopped before every gate passed (the session's failure code)."""
-
-    TIMEOUT = "timeout"
-    END_OF_DATA = "end_of_data"
-
-
-class WriteFailure(Code):
-    """Why a calibration is not on the device as sent (the session's failure code)."""
-
-    WRITE_FAILED = "write_failed"  # refused, no reply, port lost
-    VERIFY_MISMATCH = "verify_mismatch"  # the echo or the read-back differs
-    VERIFY_FAILED = "verify_failed"  # written, but it could not be read back
 
 
 @dataclass
@@ -58,7 +45,7 @@ class Outcome:
         n_in = int(s.counters["samples_in"])
         out = {
             "status": s.status.value,
-            "failure": s.failure,
+            **failures.fields(s.failure),
             "message": s.failure_message,
             "model": None,
             "calibration": None,
@@ -87,7 +74,7 @@ class Outcome:
         return out
 
 
-def _collect(device: Device, session: Session, settings: Settings, clock, on_progress) -> Ended | None:
+def _collect(device: Device, session: Session, settings: Settings, clock, on_progress) -> Failure | None:
     """Read until every gate passes (None), or the source ends or the time is up (why, unless
     every gate passes on what was collected by then)."""
     deadline = clock() + settings.timeout_s
@@ -101,11 +88,11 @@ def _collect(device: Device, session: Session, settings: Settings, clock, on_pro
         if session.ready():
             return None
         if now >= deadline:
-            return _unless_ready(session, Ended.TIMEOUT)
-    return _unless_ready(session, Ended.END_OF_DATA)
+            return _unless_ready(session, failures.TIMEOUT)
+    return _unless_ready(session, failures.END_OF_DATA)
 
 
-def _unless_ready(session: Session, ended: Ended) -> Ended | None:
+def _unless_ready(session: Session, ended: Failure) -> Failure | None:
     """The gates are judged at fixed sample counts; the last samples may have passed them all."""
     session.update_estimate()
     return None if session.counters["samples_in"] and not session.failing_gates() else ended
@@ -152,11 +139,11 @@ def calibrate(
     return write_and_verify(device, session, out)
 
 
-def _give_up(session: Session, ended: Ended, timeout_s: float) -> None:
+def _give_up(session: Session, ended: Failure, timeout_s: float) -> None:
     failing = session.failing_gates()
     names = ", ".join(g.name for g in failing)
     detail = "; ".join(g.message for g in failing)
-    why = f"timed out after {timeout_s:g} s" if ended is Ended.TIMEOUT else "the recording ended"
+    why = f"timed out after {timeout_s:g} s" if ended.reason is Reason.TIMEOUT else "the recording ended"
     session.fail(ended, f"{why} before every gate passed — failing: {names} ({detail})")
 
 
@@ -169,7 +156,7 @@ class WriteResult:
     verified: bool = False  # and read back equal
     stored: Calibration | None = None  # what the device read back
     restored: bool | None = None  # after a failure: is the store back to what it held before?
-    failure: WriteFailure | None = None
+    failure: Failure | None = None  # a write's reason: WRITE_FAILED, VERIFY_MISMATCH, VERIFY_FAILED
     message: str = ""
     discarded: bool = False  # the record that failed was discarded: the device holds no calibration
     previous: StoredRecord | None = None  # what the store held before (None: it could not be read)
@@ -193,12 +180,12 @@ def write_verified(device: Device, cal: Calibration, clearance: Clearance) -> Wr
     try:
         echoed = device.write_calibration(out.sent)
     except DeviceError as exc:  # refused, no reply, port lost, or the store holds no calibration after W
-        out.failure, out.message = WriteFailure.WRITE_FAILED, str(exc)
+        out.failure, out.message = failures.WRITE_FAILED, str(exc)
         if _touched(device, out.previous):
             _undo(device, out)
         return out
     if not device.matches(out.sent, echoed):
-        out.failure = WriteFailure.VERIFY_MISMATCH
+        out.failure = failures.VERIFY_MISMATCH
         out.message = "the device echoed a different calibration than the one sent"
         _undo(device, out)
         return out
@@ -206,12 +193,12 @@ def write_verified(device: Device, cal: Calibration, clearance: Clearance) -> Wr
     try:
         readback = device.read_calibration()
     except DeviceError as exc:
-        out.failure, out.message = WriteFailure.VERIFY_FAILED, f"could not read the calibration back: {exc}"
+        out.failure, out.message = failures.VERIFY_FAILED, f"could not read the calibration back: {exc}"
         return out
     out.stored = readback
     out.verified = device.matches(out.sent, readback)
     if not out.verified:
-        out.failure = WriteFailure.VERIFY_MISMATCH
+        out.failure = failures.VERIFY_MISMATCH
         out.message = "the calibration read back from the device differs from the one sent"
         out.written = False
         _undo(device, out)
@@ -255,11 +242,11 @@ def write_and_verify(device: Device, session: Session, out: Outcome) -> Outcome:
     out.written, out.verified, out.stored, out.restored = r.written, r.verified, r.stored, r.restored
     out.discarded = r.discarded
     out.link = device.stats()
-    if r.failure is WriteFailure.WRITE_FAILED or (r.failure is WriteFailure.VERIFY_MISMATCH and r.stored is None):
+    if r.failure == failures.WRITE_FAILED or (r.failure == failures.VERIFY_MISMATCH and r.stored is None):
         session.fail(r.failure, r.message)  # refused, or the echo already differed
     else:
         session.written()
-        if r.failure is WriteFailure.VERIFY_FAILED:
+        if r.failure == failures.VERIFY_FAILED:
             session.fail(r.failure, r.message)
         else:
             session.verified(r.verified, r.message)

@@ -18,7 +18,7 @@ direction cells), ``rate_hz`` (the rate the device took), ``measured_rate_hz``, 
 
 from __future__ import annotations
 
-from .exits import Exit
+from .exits import Exit, exit_for
 from .options import add
 
 HELP = "calibrate a device end to end and write the result back (verified by read-back)"
@@ -104,14 +104,13 @@ def run(args) -> int:
 
 def exit_status(outcome, no_write: bool) -> Exit:
     """0 only for a verified write (or a passed fit with --no-write); 3 when the data did not
-    pass; 4 when the calibration did not reach the device as sent."""
-    from ..app.procedure import WriteFailure
+    pass; 4 when the calibration did not reach the device as sent (``exits.exit_for``)."""
     from ..logic.session import Status
 
     s = outcome.session
     if s.status is Status.DONE:
         return Exit.OK if (outcome.verified or no_write) else Exit.WRITE
-    return Exit.WRITE if s.failure in tuple(WriteFailure) else Exit.GATE
+    return exit_for(s.failure)
 
 
 def format_text(r: dict) -> str:

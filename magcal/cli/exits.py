@@ -8,6 +8,7 @@ whether to look at the command line (2), the device (5) or a file (6).
 
 from __future__ import annotations
 
+import functools
 from enum import IntEnum
 
 
@@ -45,6 +46,23 @@ def code_for(exc: BaseException) -> Exit:
     if isinstance(exc, DeviceError):
         return Exit.DEVICE
     return Exit.INPUT  # InputError, StateError, a capture that cannot be written
+
+
+@functools.cache
+def failure_exits() -> dict:
+    """The exit status of each reason a calibration is not on the device (``logic.failures``):
+    the data did not pass (3), or the write did not stick (4). Built on first use, so that
+    ``--help`` imports nothing of magcal's values."""
+    from ..logic.failures import Reason
+
+    return {Reason.TIMEOUT: Exit.GATE, Reason.END_OF_DATA: Exit.GATE, Reason.FIT_FAILED: Exit.GATE,
+            Reason.GATE: Exit.GATE, Reason.WRITE_FAILED: Exit.WRITE, Reason.VERIFY_MISMATCH: Exit.WRITE,
+            Reason.VERIFY_FAILED: Exit.WRITE}
+
+
+def exit_for(failure) -> Exit:
+    """The exit status of a ``logic.failures.Failure``."""
+    return failure_exits()[failure.reason]
 
 
 def epilog() -> str:

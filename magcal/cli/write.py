@@ -34,9 +34,11 @@ import numpy as np
 
 from ..core.calibration import Calibration
 from ..core.errors import InputError
+from ..logic import failures
+from ..logic.failures import Failure
 from ..logic.gates import Evidence, clear_for_write
 from .common import document, load_settings, open_from_settings, print_json
-from .exits import Exit
+from .exits import Exit, exit_for
 from .options import add
 
 HELP = "write a calibration from fit/diagnose JSON to a device (verified by read-back)"
@@ -174,15 +176,16 @@ def _left(r) -> str:
 
 
 def _refused(args, clearance) -> int:
+    failure = Failure.of_gate(clearance.failing[0].name)
     if args.json:
-        print_json(document("write", {"written": False, "verified": False, "failure": "gates",
+        print_json(document("write", {"written": False, "verified": False, **failure.to_dict(),
                                       "message": clearance.summary(), "gates": clearance.to_dict()}))
     else:
         for r in clearance.results:
             if r.passed is not None:
                 print(f"gate       {'pass' if r.passed else 'FAIL'}  {r.message}")
         print(f"not written: {clearance.summary()}; nothing was sent (--force writes it anyway)")
-    return Exit.GATE
+    return exit_for(failure)
 
 
 def run(args) -> int:
@@ -221,7 +224,7 @@ def run(args) -> int:
         "restored_previous": r.restored,
         "discarded_unverified": r.discarded,
         "previous_record": None if r.previous is None else r.previous.to_dict(),
-        "failure": r.failure,
+        **failures.fields(r.failure),
         "message": r.message,
         "notes": notes,
         "gates": clearance.to_dict(),
@@ -240,4 +243,4 @@ def run(args) -> int:
             print(f"written    yes, and VERIFIED by read-back ({settings.port})")
         else:
             print(f"not written: {r.message}{_left(r)}")
-    return Exit.OK if r.verified else Exit.WRITE
+    return Exit.OK if r.verified else exit_for(r.failure)

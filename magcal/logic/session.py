@@ -2,11 +2,12 @@
 
     COLLECTING ──ready()──▶ SOLVING ──fit ok, gates pass──▶ WRITING ──stored──▶ VERIFYING ──▶ DONE
          │                     │                               │                    │
-         └────── fail(reason) ─┴───────────────────────────────┴────────────────────┴──▶ FAILED
+         └───── fail(failure) ─┴───────────────────────────────┴────────────────────┴──▶ FAILED
 
 Every change of state goes through ``_set_status``, which refuses transitions the diagram does
 not have. Lifecycle (``status``) and failure reasons (``failure``) are separate: a FAILED
-session says *why* in ``failure`` (a short code) and ``failure_message`` (a sentence).
+session says *why* in ``failure`` (a ``logic.failures.Failure``: the reason, and the gate when
+a gate refused) and ``failure_message`` (a sentence).
 
 The session takes samples and link events and keeps three things: the tracker
 (``fit.tracker``: the calibration in force so far, the live estimate shown and judged while
@@ -29,6 +30,8 @@ from ..core.sample import Sample
 from ..fit import SphereAccumulator, fit_calibration
 from ..fit.coverage import SampleSet
 from ..fit.tracker import Tracker
+from . import failures
+from .failures import Failure
 from .gates import Clearance, Evidence, GateResult, Gates, clear_for_write, data_gates, model_gates
 
 ESTIMATE_EVERY = 50  # samples between live re-solves (cheap: a 4×4 solve)
@@ -59,7 +62,7 @@ class Session:
         self.gates_cfg = gates or Gates()
         self.model = model
         self.status = Status.COLLECTING
-        self.failure: str | None = None
+        self.failure: Failure | None = None
         self.failure_message = ""
         self.counters: Counter = Counter()
         self.accumulator = SphereAccumulator()
@@ -76,22 +79,24 @@ class Session:
         self.last_field_ut = None  # the latest valid sample (µT): where the board points now
 
     # -- the one choke point -------------------------------------------------------------------
-    def _set_status(self, new: Status, reason: str | None = None, message: str = "") -> None:
+    def _set_status(self, new: Status, failure: Failure | None = None, message: str = "") -> None:
         if new not in _ALLOWED[self.status]:
             raise RuntimeError(f"session cannot go from {self.status.value} to {new.value}")
         self.history.append((self.status.value, new.value))
         self.status = new
         if new is Status.FAILED:
-            self.failure = reason or "failed"
+            self.failure = failure
             self.failure_message = message
 
     def retune(self, gates: Gates, model: str) -> None:
         """New gates and model judge the samples collected so far (a settings reload)."""
         self.gates_cfg, self.model = gates, model
 
-    def fail(self, reason: str, message: str) -> None:
+    def fail(self, failure: Failure, message: str) -> None:
+        if not isinstance(failure, Failure):
+            raise TypeError(f"a session fails with a Failure (magcal.logic.failures), not {failure!r}")
         if self.status not in (Status.DONE, Status.FAILED):
-            self._set_status(Status.FAILED, reason, message)
+            self._set_status(Status.FAILED, failure, message)
 
     # -- collecting ----------------------------------------------------------------------------
     def add(self, item) -> None:
@@ -152,7 +157,7 @@ class Session:
         est = self.estimate
         out = data_gates(g, len(self.kept), self.kept.coverage(), float(est.condition) if est else None)
         if not est:
-            why = getattr(est, "message", "no estimate yet")
+            why = "no estimate yet" if est is None else est.message
             return out[:2] + [GateResult("solvable", False, None, None, why)]
         live = self.tracker.estimate
         if live is None:
@@ -189,14 +194,14 @@ class Session:
         self.update_estimate()
         result = fit_calibration(self.kept.field_ut, model=self.model, outliers=True)
         if not result:
-            self.fail("fit_failed", f"the fit failed: {getattr(result, 'message', result)}")
+            self.fail(failures.FIT_FAILED, f"the fit failed: {result.message}")
             return result
         self.clearance = clear_for_write(self.gates_cfg, self.evidence(result))
         self.final_gates = list(self.clearance.results)
         self.result = result
         failing = self.clearance.failing
         if failing:
-            self.fail("gate:" + failing[0].name, "final fit fails gate: " + "; ".join(r.message for r in failing))
+            self.fail(Failure.of_gate(failing[0].name), "final fit fails gate: " + "; ".join(r.message for r in failing))
         return result
 
     def evidence(self, result) -> Evidence:
@@ -219,7 +224,7 @@ class Session:
         if ok:
             self._set_status(Status.DONE)
         else:
-            self.fail("verify_mismatch", message or "the calibration read back differs from the one sent")
+            self.fail(failures.VERIFY_MISMATCH, message or "the calibration read back differs from the one sent")
 
     def finish_without_write(self) -> None:
         self._set_status(Status.DONE)

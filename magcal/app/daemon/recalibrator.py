@@ -17,8 +17,9 @@ from ...core.calibration import Calibration
 from ...core.errors import DeviceError
 from ...core.events import Item
 from ...devices.base import Device
+from ...logic import failures
 from ...logic.session import Session, Status
-from ..procedure import Outcome, WriteFailure, write_and_verify
+from ..procedure import Outcome, write_and_verify
 from .journal import Decision, Journal
 
 READY_EVERY = 100  # samples between gate checks while a recalibration waits for data
@@ -65,7 +66,7 @@ class Recalibrator:
         session.solve()
         if session.status is Status.FAILED:
             self._faults["gate_failed"] += 1
-            self._journal.record(Decision.REFUSED, failure=session.failure, message=session.failure_message)
+            self._journal.record(Decision.REFUSED, **session.failure.to_dict(), message=session.failure_message)
             return None
         return session
 
@@ -104,12 +105,13 @@ class CalibrationWriter:
         try:
             outcome = write_and_verify(device, session, outcome)
         except DeviceError as exc:  # anything write_and_verify did not turn into a failure
-            session.fail(WriteFailure.WRITE_FAILED, str(exc))
+            session.fail(failures.WRITE_FAILED, str(exc))
         if session.status is Status.DONE and outcome.verified:
             self._verified(outcome.stored, session)
             return outcome.stored
-        self._faults[session.failure or WriteFailure.WRITE_FAILED.value] += 1
-        self._journal.record(Decision.NOT_WRITTEN, failure=session.failure, message=session.failure_message,
+        failure = session.failure or failures.WRITE_FAILED
+        self._faults[failure.reason.value] += 1
+        self._journal.record(Decision.NOT_WRITTEN, **failure.to_dict(), message=session.failure_message,
                              previous_restored=outcome.restored, discarded_unverified=outcome.discarded)
         return None
 

@@ -18,6 +18,8 @@ from typing import Callable
 from ...core.calibration import Calibration
 from ...devices.base import Device
 from ...fit.accumulator import SphereAccumulator
+from ...logic import failures
+from ...logic.failures import Failure
 from ...logic.gates import Clearance, Evidence, clear_for_write
 from ...logic.keeper import Budget, Keeper, Reason
 from ..procedure import write_verified
@@ -81,7 +83,8 @@ class TrackingDecider:
             return None
         clearance = self._clearance(decision.calibration)
         if not clearance.allowed:
-            self._journal.record(Decision.REFUSED, failure="gate", message=clearance.summary())
+            self._journal.record(Decision.REFUSED, **Failure.of_gate(clearance.failing[0].name).to_dict(),
+                                 message=clearance.summary())
             return None
         self._journal.record(Decision.KEEPING, reason=decision.reason.value, message=decision.message)
         result = write_verified(device, decision.calibration, clearance)
@@ -90,9 +93,10 @@ class TrackingDecider:
         self.keeper.spent(now, 1 + int(bool(result.restored) or result.discarded), result.verified)
         if result.verified:
             return result.stored
-        self._faults[result.failure.value if result.failure else "write_failed"] += 1
-        self._journal.record(Decision.NOT_WRITTEN, failure=result.failure.value if result.failure else None,
-                             message=result.message, previous_restored=result.restored)
+        failure = result.failure or failures.WRITE_FAILED
+        self._faults[failure.reason.value] += 1
+        self._journal.record(Decision.NOT_WRITTEN, **failure.to_dict(), message=result.message,
+                             previous_restored=result.restored)
         return None
 
     def keep(self, device: Device | None, held: Calibration | None, may_write: bool, writer) -> Calibration | None:
