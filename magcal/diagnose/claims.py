@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
+from ..fit.tails import chi2_sf
 
 from . import channels, softiron
 from .model import FitFailure, ModelFit, fit_model
@@ -96,7 +96,7 @@ def _chi2_p(d: np.ndarray, s: np.ndarray) -> tuple[float, float]:
         chi2 = float(d @ np.linalg.solve(s, d))
     except np.linalg.LinAlgError:
         return 1.0, 0.0
-    return float(stats.chi2.sf(chi2, len(d))), chi2
+    return float(chi2_sf(chi2, len(d))), chi2
 
 
 def _half_fits(m, t, chans, final: ModelFit, group: str, channel: str | None) -> list | None:
