@@ -141,3 +141,16 @@ def test_a_term_whose_coefficient_moved_says_so_and_export_and_write_take_the_on
         written, _ = calibration_from_json(obj)
         np.testing.assert_allclose(written.offset_ut, doc["calibration"]["offset_ut"])
         assert evidence_from_json(obj, written).rms_ut == pytest.approx(fit["rms_ut"])
+
+
+def test_a_px4_log_diagnosis_and_fit_export_the_same_parameters(tmp_path):
+    ulog = DATA / "px4_esc_status_excerpt.ulg"
+    diag, fit = tmp_path / "d.json", tmp_path / "f.json"
+    diag.write_text(magcal("diagnose", ulog, "--json"))
+    fit.write_text(magcal("fit", ulog, "--json"))
+    doc = json.loads(diag.read_text())
+    assert calibration_keys(doc) == [""] and doc["calibration_from"] == "flight_log"
+    assert_same(doc["calibration"], json.loads(fit.read_text())["fits"][0]["calibration"])
+    for src in (diag, fit):
+        magcal("export", src, "--px4", "-o", src.with_suffix(".params"))
+    assert diag.with_suffix(".params").read_text() == fit.with_suffix(".params").read_text()
