@@ -12,9 +12,9 @@ median over its neighbours, the line's own bins left out): real residuals have a
 (hand motion, slow offset wander), a line is narrow and a motion misfit broad. The threshold
 holds the chance of any false line at ``ALPHA`` over every frequency scanned (Bonferroni over
 the independent bins). The strongest passing frequency is refined by least squares on the true
-timestamps; a candidate that degree-``DIRECTION_DEGREE`` polynomials of the direction explain
-(the motion itself periodic: a calibration-shape misfit, not interference) is set aside and
-said so; a line that passes is taken out and the search repeats until none passes.
+timestamps; a candidate that degree-``DIRECTION_DEGREE`` polynomials of the direction, and
+the direction times a slow offset, explain (the motion itself periodic: a calibration-shape
+misfit or a wandering hard iron, not interference) is set aside and said so; a line that passes is taken out and the search repeats until none passes.
 
 ``remove`` subtracts each fitted sinusoid from the raw samples. The line has zero mean and does
 not depend on orientation, so the calibration refitted on the cleaned samples is the sensor's
@@ -32,7 +32,7 @@ from scipy import ndimage, stats
 from .base import AXES, Effect, Kind, Located, Residual
 
 NAME = "narrowband_line"
-ALPHA = 0.01  # chance of any false line over all frequencies scanned, per search
+ALPHA = 0.002  # chance of any false line over all frequencies scanned, per search
 MAX_LINES = 4
 MAX_SET_ASIDE = 6  # direction-harmonic candidates looked past before the search stops
 PAD = 4  # frequency grid oversampling
@@ -44,10 +44,12 @@ MIN_CYCLES = 8.0  # lowest frequency scanned: this many cycles over the recordin
 TOP_NYQUIST = 0.97  # highest frequency scanned, as a share of the Nyquist frequency
 MAX_PHASE_RAD = 0.3  # gridding error allowed at the highest frequency scanned
 DIRECTION_DEGREE = 4
+WANDER_DEGREE = 3
 BROAD_SHARE = 0.05  # excess left around a removed line, as a share of its statistic, that makes it broad
 AXIS_SHARE = 0.3  # an axis carries the line when its amplitude is this share of the largest
 MAINS_HZ = (50.0, 60.0)
 MAINS_HARMONICS = 3
+CLOCK_SHARE = 2e-4  # how far the median interval may be off the sampling clock
 MIN_SAMPLES = 64
 
 
@@ -124,12 +126,13 @@ def spectrum(t_s: np.ndarray, r_ut: np.ndarray, u: np.ndarray) -> Spectrum | Non
         np.add.at(x[k], idx, r_ut * u[:, k])
     z = sfft.rfft(x, axis=1)
     freq = np.arange(z.shape[1]) / (size * step)
-    keep = (freq >= f_lo) & (freq <= f_hi)
+    band = (freq >= 1.0 / span) & (freq <= f_hi)  # the level below f_lo is read, not scanned
     minv, rank = _direction_inverse(u)
-    ess = 2.0 / len(t_s) * np.real(np.einsum("kf,kj,jf->f", np.conj(z[:, keep]), minv, z[:, keep]))
+    ess = 2.0 / len(t_s) * np.real(np.einsum("kf,kj,jf->f", np.conj(z[:, band]), minv, z[:, band]))
     dof = 2 * rank
     level = local_level(ess, dof)
-    return Spectrum(freq[keep], ess / level, level, dof, keep.sum() / (size * step / span))
+    keep = freq[band] >= f_lo
+    return Spectrum(freq[band][keep], ess[keep] / level[keep], level[keep], dof, keep.sum() / (size * step / span))
 
 
 def _direction_inverse(u: np.ndarray) -> tuple[np.ndarray, int]:
@@ -187,12 +190,16 @@ def fit_line(t_s, r_ut, u, f_hz: float, level_ut2: float) -> Line:
     return Line(f_hz, coef, g * level_ut2, ess / level_ut2, level_ut2, x @ beta, float(t_s[0]))
 
 
-def direction_basis(u: np.ndarray, degree: int = DIRECTION_DEGREE) -> np.ndarray:
-    """An orthonormal basis of every polynomial of the direction up to ``degree``: the
-    monomials u_x^a u_y^b u_z^c with c ≤ 1 (on the unit sphere u_z² = 1 − u_x² − u_y², so these
-    span them all, (degree + 1)² of them)."""
+def direction_basis(u: np.ndarray, t_s: np.ndarray, degree: int = DIRECTION_DEGREE) -> np.ndarray:
+    """An orthonormal basis of what the motion itself explains: every polynomial of the
+    direction up to ``degree`` (the monomials u_x^a u_y^b u_z^c with c ≤ 1 — on the unit sphere
+    u_z² = 1 − u_x² − u_y², so these span them all) and the direction times a slow offset
+    (u_k · τ^j, τ time over the span, j ≤ WANDER_DEGREE): a shape misfit and a wandering
+    hard iron, both at the motion's own frequencies."""
     cols = [u[:, 0] ** a * u[:, 1] ** b * u[:, 2] ** c
             for c in (0, 1) for a in range(degree + 1) for b in range(degree + 1 - a - c)]
+    tau = (t_s - t_s[0]) / max(float(t_s[-1] - t_s[0]), 1e-12) * 2 - 1
+    cols += [u[:, k] * tau**j for k in range(3) for j in range(1, WANDER_DEGREE + 1)]
     x = np.column_stack(cols)
     w, v = np.linalg.eigh(x.T @ x)
     keep = w > 1e-10 * w.max()
@@ -230,7 +237,7 @@ class _Scan:
 
     def direction_basis(self) -> np.ndarray:
         if self.basis is None:
-            self.basis = direction_basis(self.u)
+            self.basis = direction_basis(self.u, self.t_s)
         return self.basis
 
 
@@ -254,9 +261,7 @@ def _next(scan: _Scan) -> bool:
     i = int(np.argmax(stat))
     if stat[i] <= sp.threshold:
         return False
-    df = (sp.freq_hz[1] - sp.freq_hz[0]) if len(sp.freq_hz) > 1 else 0.0
-    f = refine(scan.t_s, scan.r_ut, scan.u, float(sp.freq_hz[i]), df)
-    line = fit_line(scan.t_s, scan.r_ut, scan.u, f, float(sp.level[i]))
+    line = _plainest(scan, sp, stat, i)
     if line.stat <= sp.threshold:
         scan.passed_hz.append(f)  # the grid's peak does not hold on the true timestamps
     elif beyond_direction(scan.t_s, scan.r_ut, scan.u, scan.direction_basis(), line) <= sp.threshold:
@@ -264,6 +269,24 @@ def _next(scan: _Scan) -> bool:
     else:
         _take_out(scan, line)
     return True
+
+
+def _plainest(scan: _Scan, sp: Spectrum, stat: np.ndarray, i: int) -> Line:
+    """The line behind the peak at bin i. Where the directions turn at a steady rate (flat
+    turns), a line on one axis and one turning with the body at its frequency ± the turn rate
+    fit the radial residual alike; every strong local peak nearby is fitted on the true
+    timestamps and, among those that explain as much as the best (within chance), the one of
+    least amplitude is taken: the plainest account."""
+    df = sp.freq_hz[1] - sp.freq_hz[0]
+    near = np.flatnonzero(np.abs(np.arange(len(stat)) - i) <= HALF_WINDOW * PAD)
+    peaks = [j for j in near[1:-1] if stat[j] >= 0.5 * stat[i] and stat[j] >= stat[j - 1] and stat[j] >= stat[j + 1]]
+    fits = []
+    for j in sorted(set(peaks) | {i}, key=lambda j: -stat[j])[:4]:
+        f = refine(scan.t_s, scan.r_ut, scan.u, float(sp.freq_hz[j]), df)
+        fits.append(fit_line(scan.t_s, scan.r_ut, scan.u, f, float(sp.level[i])))
+    best = max(x.stat for x in fits)
+    alike = [x for x in fits if x.stat >= best - 2.0 * sp.dof]
+    return min(alike, key=lambda x: float(np.linalg.norm(x.coef)))
 
 
 def _take_out(scan: _Scan, line: Line) -> None:
@@ -311,9 +334,9 @@ def _masked(sp: Spectrum, set_aside_hz: list) -> np.ndarray:
 # -- what is said -------------------------------------------------------------------------
 
 
-def mains_alias(f_hz: float, rate_hz: float, span_s: float) -> tuple[float, int] | None:
+def mains_alias(f_hz: float, rate_hz: float) -> tuple[float, int] | None:
     """(mains frequency, harmonic) whose alias at the sampling rate ``rate_hz`` lands on
-    ``f_hz`` (within 2 %, the recording's resolution or 0.1 % of the mains frequency); None
+    ``f_hz`` (within 2 %, or what a clock off by CLOCK_SHARE moves the alias by); None
     when none does. A hint: the sampling clock is known only as the median interval."""
     best = None
     for base in MAINS_HZ:
@@ -321,7 +344,7 @@ def mains_alias(f_hz: float, rate_hz: float, span_s: float) -> tuple[float, int]
             src = base * h
             alias = abs(src - rate_hz * round(src / rate_hz))
             miss = abs(alias - f_hz)
-            if miss <= max(0.02 * f_hz, 1.5 / span_s, 1e-3 * src) and (best is None or miss < best[0]):
+            if miss <= max(0.02 * f_hz, CLOCK_SHARE * src) and (best is None or miss < best[0]):
                 best = (miss, base, h)
     return None if best is None else (best[1], best[2])
 
@@ -361,7 +384,7 @@ def located(line: Line, res: Residual, threshold: float, set_aside_hz: list) -> 
     axes = loaded_axes(amp, amp_sd)
     direction, ellipticity = major_direction(coef)
     f_sd = np.sqrt(12.0 / max(line.stat, 1e-12)) / (2 * np.pi * span)
-    mains = mains_alias(line.frequency_hz, rate, span)
+    mains = mains_alias(line.frequency_hz, rate)
     size = float(np.linalg.norm(amp))
     where = {"frequency_hz": line.frequency_hz, "axis": axes[0] if len(axes) == 1 else axes,
              "direction": direction.tolist()}
@@ -385,7 +408,7 @@ def _summary(line, f_sd, amp, axes, over_floor, mains, rate, set_aside_hz) -> st
         which = f"{mains[0]:.0f} Hz mains" if mains[1] == 1 else f"harmonic {mains[1]} of {mains[0]:.0f} Hz mains"
         s += f"; consistent with {which} aliased by the {rate:.1f} Hz sample clock (a hint, not a fact)"
     if set_aside_hz:
-        s += ("; set aside as harmonics of the motion's own directions (shape misfit, not interference): "
+        s += ("; set aside as explained by the motion itself (shape misfit or offset wander at its own frequencies, not interference): "
               + ", ".join(f"{f:.3f}" for f in set_aside_hz) + " Hz")
     return s
 
