@@ -41,12 +41,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
 from ..core.calibration import Calibration
 from ..core.series import Series
-from . import geometric, uncertainty
+from . import geometric, holdout, uncertainty
 from . import outliers as _outliers
 from .ellipsoid import algebraic_start
 from .failure import FitFailure
@@ -114,8 +115,8 @@ def _gate(m, theta_sphere, kind, max_condition) -> tuple[bool, float, str]:
     return True, cond, ""
 
 
-def _shape_sigma(g: geometric.GeometricFit) -> float:
-    """Largest 1σ of the shape terms (≈ relative gains, the z gain included) from the fit's
+def _shape_sigma(g: geometric.GeometricFit) -> tuple[float, float]:
+    """(plain, widened): the largest 1σ of the shape terms (≈ relative gains, the z gain included) from the fit's
     own residuals.
 
     The diagonal ellipsoid is the model left when the full one cannot be determined, and it is
@@ -126,14 +127,15 @@ def _shape_sigma(g: geometric.GeometricFit) -> float:
     the larger. (The full ellipsoid is the whole linear model; judged that way too it refused
     ellipsoids that won on real recordings.)"""
     if g.kind == "sphere":
-        return 0.0
+        return 0.0, 0.0
     cov = uncertainty.covariance(g.jac, uncertainty.residual_sigma(g.residual_ut, geometric.n_params(g.kind)))
-    sigma = uncertainty.shape_sigma(cov)
+    plain = uncertainty.shape_sigma(cov)
+    widened = plain
     if g.kind == "diagonal":
         block = uncertainty.block_covariance(g.jac, g.residual_ut)
         if np.all(np.isfinite(block)):
-            sigma = max(sigma, uncertainty.shape_sigma(block))
-    return sigma
+            widened = max(plain, uncertainty.shape_sigma(block))
+    return plain, widened
 
 
 def _bic(fit: geometric.GeometricFit) -> float:
@@ -175,7 +177,7 @@ def fit_calibration(
     candidates, conds = _candidates(m, model, *start, limits, notes)
     if not candidates:
         return FitFailure("no_convergence", "; ".join(notes) or "no model could be fitted")
-    chosen = _choose(model, candidates, notes)
+    chosen, balance = _choose(model, candidates, notes, m, balance)
     g, keep = candidates[chosen]
     g, weights = _balanced(m[keep], g, balance, notes)
     u = uncertainty.summarise(g, noise_ut, weights)
@@ -219,38 +221,92 @@ def _robust_sphere(m, max_condition: float):
     return robust, cond_sphere, sigma_r
 
 
+class Refusal(Enum):
+    """Why a model was left out: its coverage cannot determine it (then no superset of it can
+    be trusted either), its residuals show what it cannot hold, or its solve failed."""
+
+    UNDETERMINED = "undetermined"
+    MISFIT = "misfit"
+    FAILED = "failed"
+
+
 def _candidates(m, model: str, robust, cond_sphere: float, sigma_r: float, limits: _Limits, notes: list):
     """Step 4–5: each model the coverage can determine, fitted — ({kind: (fit, kept mask)},
-    {kind: condition}); why any was left out goes to ``notes``."""
-    kinds = ["sphere"] if model == "sphere" else ["full", "diagonal", "sphere"]
-    candidates: dict[str, tuple] = {}
-    conds: dict[str, float] = {}
-    for kind in kinds:
-        if kind == "sphere":
-            ok, cond, why = True, cond_sphere, ""
-        else:
-            ok, cond, why = _gate(m, robust.theta[:4], kind, limits.max_ellipsoid_condition)
-        conds[kind] = cond
+    {kind: condition}); why any was left out goes to ``notes``. Both ellipsoids are judged at
+    the noise of the better-fitting one, so what decides "undetermined" is the coverage, not
+    a misfit; where the diagonal one is undetermined, the full one (its superset) is too."""
+    conds: dict[str, float] = {"sphere": cond_sphere}
+    fits: dict[str, tuple] = {}
+    refused: dict[str, Refusal] = {}
+    for kind in [] if model == "sphere" else ["full", "diagonal"]:
+        ok, conds[kind], why = _gate(m, robust.theta[:4], kind, limits.max_ellipsoid_condition)
         if not ok:
             notes.append(why)
+            refused[kind] = Refusal.UNDETERMINED
             continue
         f, keep = _fit_kind(m, kind, _start_of(m, kind, robust, notes), sigma_r, limits.outliers, limits.alpha)
         if isinstance(f, FitFailure):
             notes.append(f"{MODEL_NAMES[kind]} failed: {f.message}")
+            refused[kind] = Refusal.FAILED
             continue
-        ss = _shape_sigma(f)
-        if ss > limits.max_shape_sigma:
-            notes.append(
-                f"{MODEL_NAMES[kind]} rejected: the data determine its gains only to ±{100 * ss:.2g} %"
-                f" (limit {100 * limits.max_shape_sigma:.2g} %)"
-            )
-            continue
-        candidates[kind] = (f, keep)
-        if model == "ellipsoid" and kind != "sphere":
-            break  # the fullest determinable ellipsoid
-        if model == "ellipsoid" and kind == "sphere":
-            notes.append("fell back to the sphere")
+        fits[kind] = (f, keep)
+    candidates = _determined(fits, refused, limits.max_shape_sigma, notes)
+    sphere, keep = _fit_kind(m, "sphere", robust.theta, sigma_r, limits.outliers, limits.alpha)
+    if isinstance(sphere, FitFailure):
+        notes.append(f"sphere failed: {sphere.message}")
+    else:
+        candidates["sphere"] = (sphere, keep)
+    if model == "ellipsoid":
+        candidates = _fullest(candidates, notes)
     return candidates, conds
+
+
+def _determined(fits: dict, refused: dict, limit: float, notes: list) -> dict:
+    """The fitted ellipsoids that pass the shape-σ gate, subset first ({kind: (fit, keep)})."""
+    noise_ut = min(uncertainty.residual_sigma(f.residual_ut, geometric.n_params(f.kind)) for f, _ in fits.values()) \
+        if fits else 0.0
+    out: dict[str, tuple] = {}
+    for kind in ("diagonal", "full"):
+        if kind not in fits:
+            continue
+        if kind == "full" and refused.get("diagonal") is Refusal.UNDETERMINED:
+            notes.append(f"{MODEL_NAMES[kind]} rejected: its subset, the diagonal ellipsoid, is already undetermined")
+            continue
+        verdict = _shape_verdict(fits[kind][0], noise_ut, limit)
+        if verdict is None:
+            out[kind] = fits[kind]
+        else:
+            refused[kind], why = verdict
+            notes.append(f"{MODEL_NAMES[kind]} rejected: {why} (limit {100 * limit:.2g} %)")
+    return out
+
+
+def _shape_verdict(f: geometric.GeometricFit, noise_ut: float, limit: float):
+    """None where the model's gains are pinned to ``limit``; else (Refusal, why). Undetermined:
+    the coverage leaves them open at the shared noise level. Misfit: the model's own residuals
+    (and, for the diagonal, their correlation along the recording) leave them open — what it
+    cannot hold, which a fuller model may."""
+    cov = uncertainty.covariance(f.jac, noise_ut)
+    pinned = uncertainty.shape_sigma(cov)
+    if pinned > limit:
+        return Refusal.UNDETERMINED, f"the coverage determines its gains only to ±{100 * pinned:.2g} %"
+    plain, widened = _shape_sigma(f)
+    if max(plain, widened) > limit:
+        return Refusal.MISFIT, (
+            f"its own residuals, which hold what its shape cannot, leave its gains open to ±{100 * max(plain, widened):.2g} %"
+            f" (±{100 * pinned:.2g} % at the noise of the better ellipsoid)"
+        )
+    return None
+
+
+def _fullest(candidates: dict, notes: list) -> dict:
+    """``model="ellipsoid"``: the fullest model left (full → diagonal → sphere)."""
+    for kind in ("full", "diagonal", "sphere"):
+        if kind in candidates:
+            if kind == "sphere":
+                notes.append("fell back to the sphere")
+            return {kind: candidates[kind]}
+    return {}
 
 
 def _start_of(m, kind: str, robust, notes: list) -> np.ndarray:
@@ -264,14 +320,24 @@ def _start_of(m, kind: str, robust, notes: list) -> np.ndarray:
     return alg
 
 
-def _choose(model: str, candidates: dict, notes: list) -> str:
-    """Step 6: the model reported — by BIC for "auto" — and why."""
+def _choose(model: str, candidates: dict, notes: list, m, balance: str) -> tuple[str, str]:
+    """Step 6: the model reported — for "auto", the one that best predicts held-out time blocks
+    of the recording (by BIC where it is too short to cut into blocks) — and why; with the
+    balance to give it ("auto" balance: an ellipsoid is balanced unless its held-out blocks
+    say the plain fit predicts better)."""
     if model == "auto" and len(candidates) > 1:
-        bics = {k: _bic(f) for k, (f, _) in candidates.items()}
-        chosen = min(bics, key=bics.get)
-        others = ", ".join(f"{MODEL_NAMES[k]} {bics[k] - bics[chosen]:+.1f}" for k in bics if k != chosen)
-        notes.append(f"{MODEL_NAMES[chosen]} has the lowest BIC (ΔBIC: {others})")
-        return chosen
+        held = holdout.judge(m, candidates)
+        if held is None:
+            return _by_bic(candidates, notes), balance
+        chosen = _by_holdout(held, notes)
+        if balance == "auto" and chosen != "sphere" and not held.balanced[chosen]:
+            notes.append("no direction balance: unweighted, it predicts the held-out blocks better")
+            balance = "none"
+        return chosen, balance
+    return _only(model, candidates, notes), balance
+
+
+def _only(model: str, candidates: dict, notes: list) -> str:
     chosen = next(iter(candidates))
     if model == "sphere":
         notes.append("sphere requested")
@@ -279,6 +345,28 @@ def _choose(model: str, candidates: dict, notes: list) -> str:
         notes.append(f"{MODEL_NAMES[chosen]} is the fullest model the coverage determines")
     elif model == "auto":
         notes.append(f"{MODEL_NAMES[chosen]} is the only model the coverage determines")
+    return chosen
+
+
+def _by_holdout(held: holdout.HeldOut, notes: list) -> str:
+    chosen = held.best()
+    others = ", ".join(f"{MODEL_NAMES[k]} {100 * v:.3g} %" for k, v in held.spread.items() if k != chosen)
+    notes.append(
+        f"{MODEL_NAMES[chosen]} predicts the recording's held-out time blocks best: |field| spread"
+        f" {100 * held.spread[chosen]:.3g} % (refitted without each of {held.n_blocks} blocks; {others})"
+    )
+    if held.unseen_blocks:
+        which = ", ".join(str(j + 1) for j in held.unseen_blocks)
+        notes.append(f"time block {which} of {held.n_blocks} holds directions the rest of the recording"
+                     " hardly shows: judged there, a model extrapolates")
+    return chosen
+
+
+def _by_bic(candidates: dict, notes: list) -> str:
+    bics = {k: _bic(f) for k, (f, _) in candidates.items()}
+    chosen = min(bics, key=bics.get)
+    others = ", ".join(f"{MODEL_NAMES[k]} {bics[k] - bics[chosen]:+.1f}" for k in bics if k != chosen)
+    notes.append(f"{MODEL_NAMES[chosen]} has the lowest BIC (ΔBIC: {others}; too few samples for held-out blocks)")
     return chosen
 
 
