@@ -69,6 +69,7 @@ def plain(tmp_path_factory):
     return doc, magcal("diagnose", PLAIN), out / "page" / "index.html", fit
 
 
+@pytest.mark.slow
 def test_a_plain_recording_shows_one_calibration_in_text_report_and_json(plain):
     doc, text, page, fit = plain
     assert calibration_keys(doc) == [""]
@@ -97,6 +98,7 @@ def flight(tmp_path_factory):
             magcal("fit", LOG, "--mag", "1"), out)
 
 
+@pytest.mark.slow
 def test_a_flight_log_shows_the_flight_log_fits_calibration_everywhere(flight):
     doc, text, page, fit, fit_text, _ = flight
     assert calibration_keys(doc) == [""]
@@ -124,6 +126,7 @@ def test_a_flight_log_shows_the_flight_log_fits_calibration_everywhere(flight):
     assert "carries an offset of its own" not in shown or "the flight-log fit keeps" in shown
 
 
+@pytest.mark.slow
 def test_a_term_whose_coefficient_moved_says_so_and_export_and_write_take_the_one(flight):
     doc, text, _, fit, fit_text, out = flight
     from magcal.cli.write import calibration_from_json, evidence_from_json
@@ -143,6 +146,7 @@ def test_a_term_whose_coefficient_moved_says_so_and_export_and_write_take_the_on
         assert evidence_from_json(obj, written).rms_ut == pytest.approx(fit["rms_ut"])
 
 
+@pytest.mark.slow
 def test_a_px4_log_diagnosis_and_fit_export_the_same_parameters(tmp_path):
     ulog = DATA / "px4_esc_status_excerpt.ulg"
     diag, fit = tmp_path / "d.json", tmp_path / "f.json"
@@ -154,3 +158,36 @@ def test_a_px4_log_diagnosis_and_fit_export_the_same_parameters(tmp_path):
     for src in (diag, fit):
         magcal("export", src, "--px4", "-o", src.with_suffix(".params"))
     assert diag.with_suffix(".params").read_text() == fit.with_suffix(".params").read_text()
+
+
+def test_diagnosis_gives_fits_calibration_in_fits_numbers():
+    """A calibration diagnosis takes from fit is written with fit's field and soft iron (det W = 1),
+    not rescaled by the model's own trace-3 convention: 2 % soft iron already moved the field."""
+    from magcal.diagnose.diagnosis import calibration_dict
+    from magcal.diagnose.model import from_calibration
+    from magcal.fit import fit_calibration
+    from magcal.recordings.table import load_table
+
+    series = load_table(str(PLAIN))
+    result = fit_calibration(series, model="ellipsoid")
+    theirs = result.to_dict()["calibration"]
+    model = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
+    assert abs(model.field_ut - theirs["field_ut"]) > 1e-3  # the model's own scale differs …
+    assert_same(calibration_dict(model), theirs)  # … and the JSON's calibration is fit's
+
+
+def test_a_log_result_keeps_the_magnitude_calibration_only_as_an_alternative():
+    from magcal.cli.diagnose import log_calibration_lines, take_log_calibration
+
+    vector = {"offset_ut": [1.0, 2.0, 3.0], "field_ut": 50.0, "soft_iron": np.eye(3).tolist(),
+              "coef_ut_per_unit": {"current_a": [0.1, 0.2, 0.3]}, "reference": {"current_a": 0.0}}
+    magnitude = {"offset_ut": [4.0, 5.0, 6.0], "field_ut": 49.0, "soft_iron": np.eye(3).tolist()}
+    d = {"final": {"model": "sphere", "from": "fit"}, "calibration": magnitude,
+         "flight_log": {"model": "vector+current_a", "mode": "vector", "calibration": vector,
+                        "uncertainty": {"offset_ut": [0.1, 0.1, 0.1]}}}
+    take_log_calibration(d)
+    assert calibration_keys(d) == [""] and d["calibration"] is vector
+    assert [a["calibration"] for a in d["alternatives"]] == [magnitude]
+    text = "\n".join(log_calibration_lines(d))
+    assert "offset_ut       1.000     2.000     3.000   ± 0.100 0.100 0.100" in text
+    assert "alternative magnitude: offset (4.000, 5.000, 6.000) µT, field 49.000 µT" in text
