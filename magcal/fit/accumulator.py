@@ -39,6 +39,11 @@ from .failure import FitFailure
 DEFAULT_MIN_SAMPLES = 10
 DEFAULT_MAX_CONDITION = 300.0  # ±5° tilt ≈ 170; flat turns ≈ 700 (simulated)
 MAX_RMS_OVER_SPREAD = 0.25  # a sphere's residual is far below the samples' spread; a still cloud's is not
+# ... but only a cloud is judged so: turning a board ~20° in the weakest Earth field (15 µT) spreads its
+# samples this far, and samples that spread further moved — a residual that is large against their
+# spread then says the data hold a faulty stretch (a swapped, stuck or clipped axis), not that the
+# board was held still, and the robust fits that start from this sphere deal with it
+CLOUD_MAX_SPREAD_UT = 5.0
 _STATE_KIND = "magcal.sphere_accumulator"
 _STATE_VERSION = 1
 
@@ -237,7 +242,7 @@ class SphereAccumulator:
         ssr_w = max(ssr_w, 0.0) * n
         rms_alg = np.sqrt(ssr_w / n) * scale2
         spread = np.sqrt(3.0) * s  # RMS distance of the samples from their mean
-        if rms_alg / (2.0 * radius) > MAX_RMS_OVER_SPREAD * spread:
+        if spread < CLOUD_MAX_SPREAD_UT and rms_alg / (2.0 * radius) > MAX_RMS_OVER_SPREAD * spread:
             return FitFailure(
                 "degenerate",
                 f"residual RMS {rms_alg / (2.0 * radius):.3g} µT is not small against the samples' spread"
