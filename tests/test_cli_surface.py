@@ -38,6 +38,7 @@ def subparsers():
 # -- which device -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["calibrate", "show", "record", "run"])
 def test_no_port_is_never_the_simulator(tmp_path, command):
     extra = {"record": ["-o", str(tmp_path / "x.cap"), "--seconds", "1"], "run": ["--state-dir", str(tmp_path)]}
@@ -156,6 +157,7 @@ def test_readme_gives_the_same_exit_status_table():
         assert re.search(rf"^\| {int(code)} \| {re.escape(meaning)} \|$", readme, re.M), f"README lacks exit {int(code)}"
 
 
+@pytest.mark.slow
 def test_each_exit_status_means_one_thing(tmp_path):
     assert magcal("fit", "--model", "round", "x.csv").returncode == Exit.USAGE
     assert magcal("show", "--port", str(tmp_path / "ttyNONE")).returncode == Exit.DEVICE
@@ -182,6 +184,7 @@ def _keys(obj, path=""):
             yield from _keys(v, path)
 
 
+@pytest.mark.slow
 def test_every_command_prints_one_versioned_json_shape_with_one_vocabulary(tmp_path):
     sim, cap, csv, js = "sim://?speed=0&seed=2", tmp_path / "r.cap", tmp_path / "r.csv", tmp_path / "f.json"
     eeprom = f"sim://?speed=0&seed=2&eeprom={tmp_path}/e.bin"
@@ -213,6 +216,7 @@ def test_every_command_prints_one_versioned_json_shape_with_one_vocabulary(tmp_p
     assert status["running"] is False and status["source"] == "none"
 
 
+@pytest.mark.slow
 def test_calibrate_json_reports_the_rate_it_used(tmp_path):
     p = magcal("calibrate", "--port", "sim://?speed=0", "--rate", "20", "--no-write", "--json")
     d = json.loads(p.stdout)
@@ -223,6 +227,7 @@ def test_calibrate_json_reports_the_rate_it_used(tmp_path):
 # -- the simulated board keeps time ---------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_sim_runs_in_real_time_unless_asked_not_to(tmp_path):
     p = magcal("record", "--port", "sim://", "--rate", "20", "--seconds", "2", "-o", str(tmp_path / "a.cap"), "--json")
     d = json.loads(p.stdout)
@@ -264,6 +269,7 @@ def test_a_fit_loads_only_its_own_command_and_of_scipy_only_special(tmp_path):
 # -- emu:// remembers, as a board does ------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_emu_keeps_its_eeprom_in_the_users_state_directory(tmp_path):
     from firmware_support import require_firmware
 
@@ -281,6 +287,7 @@ def test_emu_keeps_its_eeprom_in_the_users_state_directory(tmp_path):
     assert magcal("show", "--port", f"emu://?seed=3&eeprom={tmp_path}/own.bin", env=env).returncode == 1
 
 
+@pytest.mark.slow
 def test_a_short_timeout_names_the_gate_it_stopped_on_or_calibrates():
     for _ in range(3):
         p = magcal("calibrate", "--port", "sim://?pace=0", "--timeout", "0.2", "--no-write")

@@ -158,6 +158,7 @@ def test_a_write_that_is_not_verified_is_never_reported(tmp_path, fault):
     assert d.writer.last["calibration"] == d.drift.calibration.to_dict()
 
 
+@pytest.mark.slow
 def test_a_calibration_failing_a_gate_is_never_written(tmp_path):
     t = Tracked("seed=8")
     settings = config.load(None, {"port": t.url, "gates": {"max_rms_ut": 0.05},
@@ -194,6 +195,7 @@ def test_full_disk_for_captures_keeps_streaming(tmp_path, monkeypatch):
     assert "disk full" in d.capture.stats()["error"]
 
 
+@pytest.mark.slow
 def test_rolling_capture_stays_within_its_bound(tmp_path):
     t = Tracked("seed=10")
     d = t.run(tmp_path, 3000, capture_max_bytes=40_000)

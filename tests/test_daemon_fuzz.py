@@ -81,6 +81,7 @@ def host_line(rng: random.Random) -> bytes:
     return b"$" + bytes(rng.randrange(32, 127) for _ in range(rng.randrange(200))) + b"\n"
 
 
+@pytest.mark.slow
 @settings(max_examples=2000, **FAST)
 @given(st.binary(max_size=200), st.integers(0, 2**32 - 1))
 def test_sim_board_replies_to_every_line(noise, seed):

@@ -2,6 +2,7 @@
 every write verified and charged to the EEPROM budget."""
 
 import numpy as np
+import pytest
 
 from magcal.app.daemon import Daemon, Decision
 from magcal.devices.simboard import SimEeprom
@@ -30,6 +31,7 @@ def _codes(d):
     return [e["decision"] for e in d.journal.entries]
 
 
+@pytest.mark.slow
 def test_blank_board_then_a_payload_every_write_verified_and_within_budget(tmp_path, monkeypatch):
     saved = _count_eeprom_writes(monkeypatch)
     # the payload after the drift monitor has learnt its baseline (about 60 s in), so that both
@@ -54,6 +56,7 @@ def test_blank_board_then_a_payload_every_write_verified_and_within_budget(tmp_p
     assert st["writes"] == k.writes and st["eeprom_cycles"] == len(saved)
 
 
+@pytest.mark.slow
 def test_a_write_that_is_not_verified_is_charged_and_not_reported(tmp_path, monkeypatch):
     saved = _count_eeprom_writes(monkeypatch)
     t = Tracked("seed=7&fault=corrupt_write@0")
@@ -67,6 +70,7 @@ def test_a_write_that_is_not_verified_is_charged_and_not_reported(tmp_path, monk
         assert status == "OK" and values == record_from_calibration(d.drift.calibration)
 
 
+@pytest.mark.slow
 def test_no_write_without_recalibrate_and_the_keeper_resumes(tmp_path):
     t = Tracked("seed=12")
     d = t.run(tmp_path, 3000)  # recalibrate is off by default: nothing is written

@@ -97,6 +97,7 @@ def test_signals_and_status(tmp_path):
     assert "not running" in out and "samples" in out
 
 
+@pytest.mark.slow
 def test_status_without_state_says_so(tmp_path):
     code, out, err = _status(tmp_path / "nothing")
     assert code == 1 and "no daemon state" in out  # not running, said plainly

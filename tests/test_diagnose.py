@@ -31,6 +31,7 @@ def _finding(d, effect):
     return found[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "seed,kwargs",
     [
@@ -48,6 +49,7 @@ def test_clean_recordings_have_no_findings(seed, kwargs):
     assert np.allclose(d.final.offset_ut, HARD, atol=0.3)
 
 
+@pytest.mark.slow
 def test_soft_iron_found_and_modelled():
     a = ((1.012, 0.004, 0.0), (0.004, 0.993, -0.003), (0.0, -0.003, 0.995))
     run = _sim(111, distortion=a)
@@ -60,6 +62,7 @@ def test_soft_iron_found_and_modelled():
     assert d.final_heldout_rms_ut < d.baseline_heldout_rms_ut
 
 
+@pytest.mark.slow
 def test_temperature_drift_found_with_its_coefficient():
     k = np.array([0.07, -0.05, 0.04])
     run = _sim(112, temperature=Temperature(swing_c=20.0, period_s=60.0), temp_coef_ut_per_c=tuple(k))
@@ -71,6 +74,7 @@ def test_temperature_drift_found_with_its_coefficient():
     assert d.final_heldout_rms_ut < d.baseline_heldout_rms_ut
 
 
+@pytest.mark.slow
 def test_current_interference_found_on_an_intermittent_channel():
     k = np.array([0.4, 0.3, -0.2])
     run = _sim(113, current=Current(level_a=2.0), current_coef_ut_per_a=tuple(k))
@@ -80,6 +84,7 @@ def test_current_interference_found_on_an_intermittent_channel():
     assert np.linalg.norm(np.array(f.params["coef_ut_per_unit"]) - k) < 0.3 * np.linalg.norm(k)
 
 
+@pytest.mark.slow
 def test_any_other_channel_is_a_candidate_covariate():
     k = np.array([0.3, -0.3, 0.2])
     run = _sim(114, current=Current(level_a=2.0), current_coef_ut_per_a=tuple(k))
@@ -90,6 +95,7 @@ def test_any_other_channel_is_a_candidate_covariate():
     assert _finding(d, "covariate:throttle").params["channel"] == "throttle"
 
 
+@pytest.mark.slow
 def test_time_drift_found():
     k = np.array([0.012, -0.006, 0.005])
     run = _sim(115, drift_ut_per_s=tuple(k))
@@ -99,6 +105,7 @@ def test_time_drift_found():
     assert np.linalg.norm(np.array(f.params["coef_ut_per_unit"]) - k) < 0.3 * np.linalg.norm(k)
 
 
+@pytest.mark.slow
 def test_monotone_warm_up_is_reported_as_confounded_not_guessed():
     run = _sim(116, drift_ut_per_s=(0.01, 0.0, -0.008))
     s = run.series
@@ -121,6 +128,7 @@ def test_glitches_found_including_sideways_ones():
     assert f1 >= 0.9
 
 
+@pytest.mark.slow
 def test_a_pair_of_effects_is_found_together():
     run = _sim(118, temperature=Temperature(swing_c=18.0, period_s=60.0), temp_coef_ut_per_c=(0.06, 0.05, -0.04), glitch_rate=0.004)
     d = diagnose(run.series)
@@ -134,6 +142,7 @@ def _cli_json(argv) -> dict:
     return json.loads(buf.getvalue())
 
 
+@pytest.mark.slow
 def test_json_output_has_the_documented_shape(tmp_path):
     run = _sim(119, temperature=Temperature(swing_c=20.0, period_s=60.0), temp_coef_ut_per_c=(0.08, -0.04, 0.05))
     path = tmp_path / "rec.csv"
@@ -157,6 +166,7 @@ def test_json_output_has_the_documented_shape(tmp_path):
     assert np.sqrt(np.mean((np.linalg.norm(h, axis=1) - cal["field_ut"]) ** 2)) < 0.5
 
 
+@pytest.mark.slow
 def test_outlier_indices_are_data_rows_of_the_file(tmp_path):
     run = _sim(120, glitch_rate=0.006)
     s = run.series
@@ -209,6 +219,7 @@ def _wandering(run, seed, amp_ut=0.6):
     return Series(t_s=s.t_s, field_ut=s.field_ut + w, channels=s.channels)
 
 
+@pytest.mark.slow
 def test_intermittent_current_found_through_slow_wander():
     k = np.array([0.35, -0.3, 0.2])
     run = _sim(131, current=Current(level_a=2.0, segment_s=4.0), current_coef_ut_per_a=tuple(k))
@@ -218,12 +229,14 @@ def test_intermittent_current_found_through_slow_wander():
     assert np.linalg.norm(coef - k) <= 0.3 * np.linalg.norm(k)
 
 
+@pytest.mark.slow
 def test_slow_unrelated_temperature_is_not_credited_with_wander():
     run = _sim(132, temperature=Temperature(swing_c=20.0, period_s=80.0))
     d = diagnose(_wandering(run, 132, amp_ut=0.8))
     assert "temperature_drift" not in d.effects
 
 
+@pytest.mark.slow
 def test_wander_alone_is_not_reported_as_drift_or_current():
     run = _sim(133, current=Current(level_a=2.0, segment_s=4.0))
     d = diagnose(_wandering(run, 133, amp_ut=0.8))
@@ -317,6 +330,7 @@ def test_a_simulated_recording_without_wander_states_none(seed):
     assert not [x for x in limits if x["effect"] == "offset_wander"]
 
 
+@pytest.mark.slow
 def test_several_channels_that_only_drift_with_time_are_tested_as_one_term_and_named():
     # an outdoor warm-up: die temperature, ambient temperature and humidity all move
     # monotonically; tested against one another none of them could be tested at all
@@ -368,6 +382,7 @@ def test_the_floor_by_direction_says_when_a_direction_is_never_pinned():
     assert json.dumps([lo, hi], allow_nan=False)  # no infinity in the JSON
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,tilt", [(181, 20.0), (182, 30.0), (183, 45.0)])
 def test_soft_iron_on_a_band_of_directions_is_found_and_modelled_not_called_wander(seed, tilt):
     # level ±20–45°, yaw free: over this band the degree-3/4 direction harmonics share much with
@@ -386,6 +401,7 @@ def test_soft_iron_on_a_band_of_directions_is_found_and_modelled_not_called_wand
     assert d.final_heldout_rms_ut <= d.baseline_heldout_rms_ut * (1 + 1e-12)
 
 
+@pytest.mark.slow
 def test_soft_iron_on_a_partial_sphere_is_not_hidden_by_the_noise_along_the_field():
     # a 1.7 % soft iron on a partial sphere (±42°) with 0.59 µT noise: when the soft-iron columns
     # were evaluated at the measurement, |d| carried the same radial noise as the residual, and
@@ -424,6 +440,7 @@ def _band_with_temperature(seed, coef):
     return sc.simulate(N, 50.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [13, 20])
 def test_a_temperature_on_a_band_of_directions_is_found_where_the_residual_shows_no_wander(seed):
     # on a band the offset the temperature moves lies nearly along the band's axis, where a slow
@@ -437,6 +454,7 @@ def test_a_temperature_on_a_band_of_directions_is_found_where_the_residual_shows
     assert np.linalg.norm(k - coef) < 0.2 * np.linalg.norm(coef)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [13, 15])
 def test_a_temperature_channel_on_a_band_of_directions_is_not_credited_with_wander(seed):
     # the same band and swing with no temperature gain: silent without wander; with a slow
@@ -447,6 +465,7 @@ def test_a_temperature_channel_on_a_band_of_directions_is_not_credited_with_wand
     assert "temperature_drift" not in diagnose(_wandering(run, seed, amp_ut=0.8)).effects
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,tilt", [(302, 40.0), (301, 25.0)])
 def test_soft_iron_beside_a_strong_current_is_neither_lost_nor_invented(seed, tilt):
     # an intermittent 3 A current moving the offset by 3.7 µT on a band or partial sphere: left
@@ -470,6 +489,7 @@ def test_soft_iron_beside_a_strong_current_is_neither_lost_nor_invented(seed, ti
     assert run(0.0).effects == ["current_interference"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_small_soft_iron_beside_a_motor_current_of_twelve_microtesla_is_found(seed):
     # a current switching 11.7 µT of offset on and off, and 0.6 % of soft iron, on a full
@@ -516,6 +536,7 @@ def test_soft_iron_on_a_band_is_not_lost_beside_the_time_term_it_resembles(seed,
     assert 0.01 < max(gains) - min(gains) < 0.04
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,hard,dist,coef,noise,tilt,period,temp_c", [
     (918277645, (4.21, 10.59, -32.14), ((1.00556, -0.00381, -0.01392), (-0.00381, 0.99587, 0.00137), (-0.01392, 0.00137, 0.99856)),
      (0.0518, 0.0442, 0.0062), 0.422, 18.47, 27.87, (18.42, 21.25)),

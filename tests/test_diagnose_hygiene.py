@@ -42,6 +42,7 @@ def board():
     return sc, s, _imu(sc, s.t_s)
 
 
+@pytest.mark.slow
 def test_named_orientation_and_reading_channels_are_left_out_and_the_real_effect_found(board):
     sc, s, imu = board
     chans = {"temp_c": s.channels["temp_c"], "acc_x_g": imu["acc"][:, 0], "acc_y_g": imu["acc"][:, 1],
@@ -55,6 +56,7 @@ def test_named_orientation_and_reading_channels_are_left_out_and_the_real_effect
     assert "estimator" in left["fc_bias_est_x"] and "quaternion" in left["q0"] and "attitude" in left["roll"]
 
 
+@pytest.mark.slow
 def test_unnamed_orientation_channels_are_recognised_by_test(board):
     sc, s, imu = board
     slow = 12.0 - 0.5 * (s.t_s / s.t_s[-1]) + 0.01 * np.sin(s.t_s / 7.0)  # a battery voltage: kept
@@ -66,6 +68,7 @@ def test_unnamed_orientation_channels_are_recognised_by_test(board):
     assert "covariate:col20" not in d.effects
 
 
+@pytest.mark.slow
 def test_naming_the_channels_tests_them_anyway(board, tmp_path, capsys):
     sc, s, imu = board
     path = tmp_path / "imu.csv"

@@ -45,6 +45,7 @@ def test_an_unrelated_current_column_is_not_credited_with_real_residual_structur
     assert credited == []
 
 
+@pytest.mark.slow
 def test_a_current_that_acts_on_the_real_recording_is_found_with_its_coefficient(tilt_sphere):
     """Placed against the floor diagnosis states on the plain recording with the same channel:
     twice its upper end (its largest over directions) is found, within 30 %."""
@@ -61,6 +62,7 @@ def test_a_current_that_acts_on_the_real_recording_is_found_with_its_coefficient
     assert np.linalg.norm(got - coef) / np.linalg.norm(coef) < 0.3
 
 
+@pytest.mark.slow
 def test_the_real_recordings_own_offset_wander_is_stated_as_a_limit_not_a_finding(tilt_sphere):
     t, h = tilt_sphere
     d = diagnose(Series(t_s=t, field_ut=h, channels={"temp_c": 25.0 + 10.0 * np.sin(2 * np.pi * t / 40.0)}))
@@ -94,6 +96,7 @@ def test_the_wander_limit_names_how_large_a_slow_term_would_have_had_to_be(tilt_
         assert "temperature_drift" in large.effects
 
 
+@pytest.mark.slow
 def test_a_current_twice_the_stated_floor_on_the_raw_recording_is_found_inside_its_interval():
     """On the raw excerpt (its own hard and soft iron kept), a current term of 2.5 × the upper
     floor diagnose states for that channel is found, its coefficient within 30 % and inside the
@@ -139,6 +142,7 @@ def test_a_clock_that_repeats_its_stamps_is_diagnosed_as_the_fine_one(tilt_spher
     assert "time_drift" not in d.effects
 
 
+@pytest.mark.slow
 def test_a_recording_without_time_states_its_drift_floor_per_sample(tilt_sphere):
     """Without a time column t_s is the sample index: a drift in time is then per sample, and
     the wander limit must say so (it said µT/s, as if the recording ran at 1 Hz)."""

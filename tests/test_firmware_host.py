@@ -155,6 +155,7 @@ def test_calibrate_write_restart_read_back_and_calibrated_stream(tmp_path, capsy
     np.testing.assert_allclose(stored.offset_ut, truth.hard_iron_ut, atol=0.5)
 
 
+@pytest.mark.slow
 def test_overflow_is_flagged_in_st2_exactly_when_the_sensor_overflowed(tmp_path):
     # a still board whose |x|+|y|+|z| sits on the AK8975's 2400 µT overflow limit: noise decides
     still = replace(demo_scenario(2), motion=Motion("still"))
@@ -236,6 +237,7 @@ def test_an_emulated_board_at_an_impossible_address_is_refused_plainly():
         open_device("emu://?addr=0x70")
 
 
+@pytest.mark.slow
 def test_the_firmware_self_test_reads_the_coil_and_streaming_goes_on(tmp_path):
     """``T`` on the real sketch: the coil's registers as the chip holds them, judged with the
     board's ASA; a dead coil fails on z alone; a self-test in the middle of a stream loses and

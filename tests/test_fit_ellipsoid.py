@@ -79,6 +79,7 @@ def test_hyperboloid_start_on_poor_coverage_is_detected_and_the_fit_stays_positi
 
 
 @settings(max_examples=25, deadline=None)
+@pytest.mark.slow
 @given(
     seed=st.integers(0, 10_000),
     tilt=st.sampled_from([5.0, 20.0, 45.0, 90.0]),

@@ -185,6 +185,7 @@ def test_a_damaged_log_is_read_up_to_the_damage(tmp_path, path, damage):
         assert "magcal diagnose:" in r.stderr
 
 
+@pytest.mark.slow
 def test_a_file_that_only_starts_like_a_log_is_a_named_error(tmp_path):
     bad = tmp_path / "x.ulg"
     bad.write_bytes(b"ULog\x01\x12\x35" + b"\x00" * 40)
@@ -360,6 +361,7 @@ def test_px4_parameters_round_trip_through_a_rotation(tmp_path):
     np.testing.assert_allclose(theirs, ours, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_export_of_a_log_fit_writes_the_logs_compass(tmp_path):
     r = magcal("fit", BIN, "--mag", "2", "--json")
     res = tmp_path / "r.json"

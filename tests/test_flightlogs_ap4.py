@@ -153,6 +153,7 @@ def test_samples_are_placed_at_the_compass_s_own_time(ap4):
     assert abs(t[0] - (5.0 - 0.015)) < 1e-6  # the S field, not the time of writing
 
 
+@pytest.mark.slow
 def test_fit_recovers_the_offset_and_export_writes_the_device_s_slot(ap4, tmp_path):
     r = subprocess.run([sys.executable, "-m", "magcal", "fit", ap4, "--mag", "0", "--json"],
                        capture_output=True, text=True)

@@ -174,6 +174,7 @@ def _run_main(argv) -> int:
         return exc.code
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_an_option_vector_ends_in_a_documented_status_and_a_named_error(command, files, capsys, monkeypatch):
     from magcal.cli.exits import Exit
@@ -340,6 +341,7 @@ def _digest(body: dict) -> str:
     return hashlib.sha256(canon.encode("ascii")).hexdigest()
 
 
+@pytest.mark.slow
 @FUZZ
 @given(json_docs, st.booleans())
 def test_a_host_store_file_is_a_calibration_or_a_named_record_state(tmp_path, calib, sign):

@@ -46,6 +46,7 @@ def run_json(capsys, argv):
     return rc, out
 
 
+@pytest.mark.slow
 def test_calibrate_on_i2c_recovers_the_offset_within_its_uncertainty_and_stores_it(rig, capsys):
     scenario, buses, store = rig
     rc, out = run_json(capsys, ["calibrate", "--port", "i2c:1", "--json"])
@@ -111,6 +112,7 @@ def test_show_with_nothing_stored_exits_1_and_says_so(rig, capsys):
     assert rc == 1 and "none stored" in out and "0x48" in out
 
 
+@pytest.mark.slow
 def test_show_refuses_an_edited_store_file(rig, capsys):
     _, _, store = rig
     assert main(["calibrate", "--port", "i2c:1", "--json"]) == 0
@@ -135,6 +137,7 @@ def test_calibrate_without_the_bus_device_file_exits_with_the_device_status_and_
     assert "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_the_command_line_on_a_missing_bus_prints_one_line_not_a_traceback(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO), MAGCAL_STORE_DIR=str(tmp_path))
     proc = subprocess.run(

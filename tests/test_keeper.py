@@ -27,6 +27,7 @@ def _stream(keeper, m, t, device=None, every=100, log=None):
     return device
 
 
+@pytest.mark.slow
 def test_a_steady_sensor_is_written_once():
     run = demo_scenario(3).simulate(20000, 50.0)
     k, log = Keeper(Gates()), []

@@ -84,6 +84,7 @@ def test_bad_settings_are_refused(calibrated):
         DriftMonitor.from_state({"calibration": cal.to_dict()})
 
 
+@pytest.mark.slow
 def test_a_sensor_whose_offset_wanders_raises_about_alpha_alarms(calibrated):
     """A real sensor's offset wanders slowly (an OU process, as fitted to real recordings): that
     is the sensor's normal state, not a new hard iron, and must not raise alarms beyond alpha."""

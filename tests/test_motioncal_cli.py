@@ -56,6 +56,7 @@ def test_calibrate_over_motioncal_recovers_the_board_and_verifies_the_echo(capsy
     assert len(replayed) >= rep["n_samples"]
 
 
+@pytest.mark.slow
 def test_motioncal_report_has_the_native_shape(capsys):
     """Scripts that read the native protocol's JSON read this one unchanged."""
     rc_n, native = run_json(["calibrate", "--port", "sim://?pace=0", "--json", "--timeout", "60"], capsys)

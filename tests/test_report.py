@@ -52,6 +52,8 @@ def temperature_report(tmp_path_factory):
     return d / "page"
 
 
+@pytest.mark.slow
+@pytest.mark.xdist_group("temperature_report")  # one diagnosis with its report for both (make test -n)
 def test_the_page_leads_with_the_calibration_and_captions_every_figure(temperature_report):
     page = (temperature_report / "index.html").read_text()
     assert page.index("The calibration") < page.index("What was found") < page.index("coverage.png")
@@ -66,6 +68,7 @@ def test_the_page_leads_with_the_calibration_and_captions_every_figure(temperatu
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("temperature_report")
 def test_chromium_shows_the_page_with_its_point_cloud_drawn(temperature_report, tmp_path):
     from PIL import Image
 

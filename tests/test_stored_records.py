@@ -68,6 +68,7 @@ def test_calibrate_repairs_an_invalid_record(tmp_path, capsys):
     assert run_cli(capsys, "show", "--port", port)[0] == 0
 
 
+@pytest.mark.slow
 def test_the_daemon_names_an_invalid_record_and_a_recalibration_replaces_it(tmp_path):
     ee = eeprom_with(tmp_path / "e.bin", BAD["not_positive_definite"])
     port = f"sim://?pace=0&seed=4&eeprom={ee}"

@@ -47,6 +47,7 @@ def test_follows_a_drifting_offset_that_a_static_fit_averages_away():
     assert tracked < 0.4 * static
 
 
+@pytest.mark.slow
 def test_a_sudden_change_is_followed_not_taken_for_outliers():
     sc = demo_scenario(4)
     a = sc.simulate(12000, 50.0).series
