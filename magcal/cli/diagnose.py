@@ -88,10 +88,16 @@ def format_text(d: dict) -> str:
     from_log = d.get("calibration_from") == "flight_log"
     lines.append(f"final       {f['model']:<28} rms {f['rms_ut']:.3f} µT   held-out {f['heldout_rms_ut']:.3f} µT"
                  + ("   (|m| alone: an alternative; the calibration is below)" if from_log
-                    else source.get(f.get("from", ""), "")))
+                    else _source_label(f.get("from", ""), source)))
     if not from_log:
         lines += coefficient_lines(d["calibration"], d.get("clock", True)) + alternative_lines(d)
     return "\n".join(lines)
+
+
+def _source_label(origin: str, source: dict) -> str:
+    base = origin.removesuffix("+located")
+    label = source.get(base, "")
+    return label[:-1] + ", with the located effects)" if label and base != origin else label
 
 
 def alternative_lines(d: dict) -> list[str]:
@@ -236,6 +242,7 @@ def add_fit_alternative(d: dict, series) -> None:
     fit, own = result.to_dict()["calibration"], d["calibration"]
     terms = sorted(own.get("coef_ut_per_unit") or {})
     what = (f"adds the {', '.join(terms)} term(s), and the geometry fitted around them" if terms
+            else "was changed by the effects the locate step modelled" if "located" in d["final"]["from"]
             else "is diagnosis's own model")
     d.setdefault("alternatives", []).append({
         "name": "fit",
