@@ -1,5 +1,6 @@
 """narrowband_line: a sinusoid added to the sensor axes, found in frequency, sized and taken out."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -97,3 +98,15 @@ def test_remove_rejects_samples_of_the_wrong_shape():
     x = lines.search(Residual(t, m + _line(t, (5.0, 0.0, 0.0), 7.0), fit_calibration(m).calibration, 0.4, 0.4))[0]
     with pytest.raises(ValueError, match="m_ut must be"):
         lines.remove(m[:, :2], t, {}, x)
+
+
+def test_a_misfit_at_the_motions_own_turn_rate_is_set_aside_not_claimed():
+    # flat turns at a steady rate: a hard-iron error of 1.5 µT makes the radial residual a pure
+    # sinusoid at the turn rate — a function of the direction, so not a line
+    sc = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0)), motion=Motion("yaw", period_s=8.0), seed=9)
+    run = sc.simulate(1500, 50.0)
+    cal = replace(run.truth, offset_ut=np.asarray(run.truth.offset_ut) + (1.5, 0.0, 0.0))
+    res = Residual(run.series.t_s, run.series.field_ut, cal, 0.4, 0.5, {})
+    found, set_aside, _ = lines.find_lines(res)
+    assert found == [] and len(set_aside) == 1
+    assert lines.search(res) == ()

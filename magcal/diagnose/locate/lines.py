@@ -263,9 +263,9 @@ def _next(scan: _Scan) -> bool:
         return False
     line = _plainest(scan, sp, stat, i)
     if line.stat <= sp.threshold:
-        scan.passed_hz.append(f)  # the grid's peak does not hold on the true timestamps
+        scan.passed_hz.append(line.frequency_hz)  # the grid's peak does not hold on the true timestamps
     elif beyond_direction(scan.t_s, scan.r_ut, scan.u, scan.direction_basis(), line) <= sp.threshold:
-        scan.set_aside_hz.append(f)
+        scan.set_aside_hz.append(line.frequency_hz)
     else:
         _take_out(scan, line)
     return True
