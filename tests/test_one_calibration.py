@@ -191,3 +191,23 @@ def test_a_log_result_keeps_the_magnitude_calibration_only_as_an_alternative():
     text = "\n".join(log_calibration_lines(d))
     assert "offset_ut       1.000     2.000     3.000   ± 0.100 0.100 0.100" in text
     assert "alternative magnitude: offset (4.000, 5.000, 6.000) µT, field 49.000 µT" in text
+
+
+@pytest.mark.slow
+def test_a_log_whose_magnitude_was_not_diagnosed_still_gets_its_page(tmp_path):
+    """A mostly level flight: |m| alone cannot be diagnosed, but the page of the flight-log fit
+    — its calibration, terms and expected against measured field — is still written."""
+    from magcal.app.flightlog import diagnose_flight_log, vector_traces
+    from magcal.app.report import write_log_report
+    from magcal.cli.diagnose import take_log_calibration
+    from magcal.recordings.logs import load_log
+
+    lm = load_log(str(LOG), 2)
+    d = {"n_samples": len(lm.series), "magnitude_failure": "a cloud, not a sphere", "flight_log": diagnose_flight_log(lm)}
+    take_log_calibration(d)
+    assert calibration_keys(d) == [""] and "alternatives" not in d
+    page = write_log_report(d, vector_traces(lm, d["calibration"]), tmp_path / "page", title="log")
+    shown = plain_page(page)
+    assert_page_shows(shown, d["calibration"])
+    assert "a cloud, not a sphere" in shown and (tmp_path / "page" / "expected.png").exists()
+    assert "current_interference (against the expected field)" in shown

@@ -194,7 +194,7 @@ def run(args) -> int:
             print(f"magcal: warning: {args.file}: {w}", file=sys.stderr)
         series = series.only_valid()
         d, diagnosis = _diagnose_magnitude(args, series, flight_log, ticker)
-        if diagnosis is not None:
+        if diagnosis is not None and flight_log is None:  # on a log, magcal fit's is the flight-log fit's
             add_fit_alternative(d, series)
         if series.source:
             d["input"] = series.source
@@ -208,18 +208,19 @@ def run(args) -> int:
             take_log_calibration(d)
         d["warnings"] = list(notes) + (field_warning(d["calibration"]["field_ut"]) if "calibration" in d else [])
         twin = _twin(args, series, d, diagnosis, ticker) if diagnosis else None
-        if args.report and diagnosis:
+        if args.report and (diagnosis or d.get("calibration_from") == "flight_log"):
             ticker.doing(f"drawing the report in {args.report}")
             _write_report(args, diagnosis, d, flight_log)
             if twin is not None:
                 from ..app.report_twin import write_twin_panels
 
                 write_twin_panels(twin, args.report)
-    _print(args, d, series, twin, written=bool(diagnosis))
+    reported = bool(args.report) and (diagnosis is not None or d.get("calibration_from") == "flight_log")
+    _print(args, d, series, twin, written=bool(diagnosis), reported=reported)
     if diagnosis is None:
-        if args.report or args.model_out or args.twin:
-            print(f"magcal diagnose: {args.file}: no report, sensor model or twin: they need the |m| diagnosis",
-                  file=sys.stderr)
+        if (args.report and not reported) or args.model_out or args.twin:
+            print(f"magcal diagnose: {args.file}: no {'report, ' if not reported else ''}sensor model or twin: "
+                  "they need the |m| diagnosis", file=sys.stderr)
         if "failure" in d["flight_log"]:
             from .exits import Exit
 
@@ -280,14 +281,18 @@ def take_log_calibration(d: dict) -> None:
 def _write_report(args, diagnosis, d: dict, flight_log) -> None:
     """The page, with the result's calibration and, on a flight log, the fit against the
     expected field: its terms and the expected against the measured field per axis."""
-    from ..app.report import write_report
+    from ..app.report import write_log_report, write_report
 
     sections = ()
     if d.get("calibration_from") == "flight_log":
         from ..app.flightlog import vector_traces
         from ..app.report.flightlog import flight_log_section
 
-        sections = (flight_log_section(d, vector_traces(flight_log, d["calibration"])),)
+        traces = vector_traces(flight_log, d["calibration"])
+        if diagnosis is None:  # |m| alone not diagnosed: the page of the flight-log fit alone
+            write_log_report(d, traces, args.report, title=str(args.file))
+            return
+        sections = (flight_log_section(d, traces),)
     write_report(diagnosis, args.report, title=str(args.file), sections=sections, result=d)
 
 
@@ -310,7 +315,7 @@ def _diagnose_magnitude(args, series, flight_log, ticker):
     return diagnosis.to_dict(), diagnosis
 
 
-def _print(args, d: dict, series, twin, written: bool) -> None:
+def _print(args, d: dict, series, twin, written: bool, reported: bool) -> None:
     if args.json:
         from .common import document, print_json
 

@@ -24,11 +24,11 @@ from pathlib import Path
 from ...core.errors import InputError
 from . import figures
 from .cloud import cloud_html
-from .page import calibration_table, findings_html, page
+from .page import calibration_table, esc, findings_html, page, page_html
 from .section import Figure, Section, save, wrap
 from .views import Views, views_of
 
-__all__ = ["Figure", "Section", "Views", "save", "views_of", "wrap", "write_report"]
+__all__ = ["Figure", "Section", "Views", "save", "views_of", "wrap", "write_log_report", "write_report"]
 
 
 def _plt():
@@ -84,4 +84,23 @@ def write_report(diagnosis, directory, title: str = "recording", sections=(), re
             parts.append(made)
     path = out / "index.html"
     path.write_text(page(diagnosis, title, parts), encoding="utf-8")
+    return path
+
+
+def write_log_report(result: dict, traces: dict | None, directory, title: str = "flight log") -> Path:
+    """The page of a flight log whose |m| alone could not be diagnosed (a mostly level flight):
+    the calibration the result holds — the flight-log fit's — and that fit's terms and figure."""
+    from .flightlog import flight_log_section
+
+    plt = _plt()
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    found = (f"<p>|m| alone was not diagnosed: {esc(result.get('magnitude_failure', ''))}</p>"
+             + findings_html({"findings": [], "limits": []}, result))
+    parts = [Section("The calibration", html=calibration_table(None, result), key="calibration"),
+             Section("What was found", html=found, key="findings"),
+             flight_log_section(result, traces)(None, out, plt)]
+    sub = f"{result.get('n_samples', 0)} samples. Read as: {esc(str(result.get('input', title)))}."
+    path = out / "index.html"
+    path.write_text(page_html(title, sub, parts), encoding="utf-8")
     return path

@@ -66,7 +66,7 @@ def calibration_of(diagnosis, result: dict | None = None) -> tuple[dict, dict]:
 
 
 def _term_row(diagnosis, c: str, k, ref: float, sigma) -> str:
-    clock = diagnosis.series.clock
+    clock = diagnosis.series.clock if diagnosis is not None else True
     unit = {"motors_on": "motors-running step", "current_a": "A"}.get(c) or ch.unit_of(c, clock)
     vals = ", ".join(_pm(float(k[i]), None if sigma is None else sigma[i], ".4f") for i in range(3))
     after = "s" if clock else "samples"
@@ -98,26 +98,33 @@ def calibration_table(diagnosis, result: dict | None = None) -> str:
 
 
 def _residual_rows(diagnosis, result: dict | None) -> list[str]:
+    if diagnosis is None:  # a flight log whose |m| alone could not be diagnosed
+        return _log_residual_rows(result)
     b, f = diagnosis, diagnosis.final
     rows = [f"<tr><th>residual RMS{' of |m| alone' if (result or {}).get('calibration_from') else ''}</th>"
             f"<td class='num'>{b.baseline.rms_ut:.3f} → {f.rms_ut:.3f}</td>"
             f"<td class='l'>µT, |m|: sphere → final; held out: {b.baseline_heldout_rms_ut:.3f} → "
             f"{b.final_heldout_rms_ut:.3f}; noise {b.noise_ut:.3f} per axis</td></tr>"]
-    if (result or {}).get("calibration_from") == "flight_log":
-        log = result["flight_log"]
-        h = log["heldout_ut"]
-        what = h["measure"].split("_")[1]
-        rows.insert(0, f"<tr><th>residual RMS</th><td class='num'>{log['rms_ut']:.3f}</td><td class='l'>µT, {what} "
-                       f"against the expected field, {log['n_used']} samples; held out: {h['none']:.3f} without "
-                       f"terms → {h['chosen']:.3f} with {esc(log['heldout']['chosen'])}</td></tr>")
-    return rows
+    return _log_residual_rows(result) + rows
+
+
+def _log_residual_rows(result: dict | None) -> list[str]:
+    if (result or {}).get("calibration_from") != "flight_log":
+        return []
+    log = result["flight_log"]
+    h = log["heldout_ut"]
+    what = h["measure"].split("_")[1]
+    return [f"<tr><th>residual RMS</th><td class='num'>{log['rms_ut']:.3f}</td><td class='l'>µT, {what} "
+            f"against the expected field, {log['n_used']} samples; held out: {h['none']:.3f} without "
+            f"terms → {h['chosen']:.3f} with {esc(log['heldout']['chosen'])}</td></tr>"]
 
 
 def _whose(result: dict | None) -> str:
     if (result or {}).get("calibration_from") == "flight_log":
         return (f"The flight-log fit's calibration ({result['calibration_model']}), fitted against the expected "
                 "field: the one magcal fit gives, write puts on a device and export turns into parameters. "
-                "The |m| figures further down are of the |m| diagnosis, an alternative (below).")
+                + ("The |m| figures further down are of the |m| diagnosis, an alternative (below)."
+                   if "magnitude_failure" not in result else f"|m| alone was not diagnosed: {result['magnitude_failure']}."))
     return "The calibration the result's JSON holds: the one write puts on a device and export turns into parameters."
 
 
@@ -162,13 +169,19 @@ def page(diagnosis, title: str, sections: list[Section]) -> str:
     s = diagnosis.series
     span = float(s.t_s[-1] - s.t_s[0]) if len(s) else 0.0
     src = f" Read as: {esc(s.source)}." if s.source else ""
+    return page_html(title, f"{diagnosis.n_samples} samples over {span:.1f} s; white noise "
+                            f"{diagnosis.noise_ut:.3f} µT per axis.{src}", sections)
+
+
+def page_html(title: str, sub: str, sections: list[Section]) -> str:
+    """The page around its sections; ``sub`` the line under the title (HTML, data escaped)."""
     nav = "".join(f'<a href="#{esc(x.key or f"section-{i}")}">{esc(x.title)}</a>' for i, x in enumerate(sections))
     body = "".join(section_html(x, i) for i, x in enumerate(sections))
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width,initial-scale=1">
 <title>magcal diagnose — {esc(title)}</title><style>{STYLE}</style></head><body>
 <h1>What the calibration left out — {esc(title)}</h1>
-<p class="sub">{diagnosis.n_samples} samples over {span:.1f} s; white noise {diagnosis.noise_ut:.3f} µT per axis.{src}</p>
+<p class="sub">{sub}</p>
 <nav>{nav}</nav>
 {body}
 <p class="sub">magcal {esc(__version__)} · every picture and script of this page is in its folder</p>
