@@ -342,7 +342,7 @@ def _print(args, d: dict, series, twin, written: bool, reported: bool) -> None:
         print(format_twin(d["twin"]))
     if args.model_out and written:
         print(f"model       {args.model_out}: {d['model_out']['why']}")
-    if args.report and written:
+    if args.report and reported:
         print(f"report      {args.report}/index.html")
     sys.stdout.flush()
 
