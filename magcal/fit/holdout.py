@@ -7,16 +7,23 @@ user sees is how the calibration does on samples it was not fitted to, later in 
 
 ``judge`` cuts the samples into ``N_BLOCKS`` contiguous time blocks. For each block, each
 candidate model is refitted on the other blocks (plain least squares from its whole-recording
-solution; an ellipsoid with the direction balance, and without it, which is kept only where it
-predicts ``BALANCE_MARGIN`` times better: time blocks mostly judge directions the rest also
-holds, while the balance is for the ones it holds least) and judged on the block by
-the spread of |calibrated field| (std/mean, what a held-out check measures). A model's score is
-the root mean square of its blocks' spreads, weighted by block size.
+solution) and judged on the block by the spread of |calibrated field| (std/mean, what a
+held-out check measures); a model's score is the root mean square of its blocks' spreads,
+weighted by the samples judged.
 
-A block whose directions the other blocks hardly show (less than ``SEEN_SHARE`` of its samples
-in a direction cell the rest also visits) judges extrapolation, not prediction. Such blocks
-are kept in the score — how a model extrapolates is what the next recording tests — and named
-(``HeldOut.unseen_blocks``) so the reason can say so.
+Two sets of samples are judged. The model is chosen on the samples of each block whose
+direction cell the other blocks also visit: a block whose directions the rest never saw
+judges extrapolation, which on a short recording is a handful of samples deciding against the
+model the rest determines well (such blocks, under ``SEEN_SHARE`` of their samples seen, are
+named in ``HeldOut.unseen_blocks`` so the reason can say so). The direction balance is judged
+on all of them, since the directions a recording holds least are what it is for: an
+ellipsoid is refitted with it and without, and the balance is dropped only where the plain
+fit predicts ``BALANCE_MARGIN`` times better.
+
+The blocks are few and short, so their figures carry noise of several per cent: a model the
+in-sample criterion (``fit``'s BIC) prefers is replaced only by one that predicts its blocks
+better by more than ``MARGIN`` — never kept where the sphere, or any other determined model,
+is that much better on them.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ N_BLOCKS = 5
 MIN_BLOCK = 30
 SEEN_SHARE = 0.5
 BALANCE_MARGIN = 1.25
+MARGIN = 0.05
 SIMPLER_FIRST = ("sphere", "diagonal", "full")
 
 
@@ -48,10 +56,11 @@ class HeldOut:
     unseen_blocks: tuple[int, ...]
     balanced: dict
 
-    def best(self) -> str:
-        """The kind with the lowest held-out spread; a tie goes to the simpler model."""
-        kinds = [k for k in SIMPLER_FIRST if k in self.spread]
-        return min(kinds, key=lambda k: (self.spread[k], SIMPLER_FIRST.index(k)))
+    def choose(self, default: str, margin: float = MARGIN) -> str:
+        """``default`` unless another kind predicts the held-out blocks better by more than
+        ``margin`` (relative); then the best of those (a tie goes to the simpler model)."""
+        better = [k for k in SIMPLER_FIRST if k in self.spread and self.spread[k] * (1 + margin) < self.spread[default]]
+        return min(better, key=lambda k: (self.spread[k], SIMPLER_FIRST.index(k))) if better else default
 
 
 def block_edges(n: int, n_blocks: int = N_BLOCKS) -> np.ndarray:
@@ -65,11 +74,6 @@ def spread(m: np.ndarray, theta: np.ndarray, kind: str) -> float:
     return float(np.std(h) / np.mean(h))
 
 
-def seen_share(cells: np.ndarray, test: np.ndarray, train: np.ndarray) -> float:
-    """Share of the test samples whose direction cell the training samples also visit."""
-    return float(np.mean(np.isin(cells[test], np.unique(cells[train]))))
-
-
 def _refit(m_train: np.ndarray, g: geometric.GeometricFit, balanced: bool):
     """The model refitted on a training part, from its whole-recording solution."""
     weights = None
@@ -78,19 +82,42 @@ def _refit(m_train: np.ndarray, g: geometric.GeometricFit, balanced: bool):
     return geometric.solve(m_train, g.kind, g.theta, weights=weights)
 
 
-def _score(m, g, keep, judged, edges, balanced: bool) -> float:
-    """RMS over blocks (weighted by judged samples) of the held-out spread of one model."""
-    total, weight = 0.0, 0
+def _rms(parts: list) -> float:
+    n = sum(k for k, _ in parts)
+    return float(np.sqrt(sum(k * v**2 for k, v in parts) / n)) if n else float("inf")
+
+
+def _score(m, g, keep, tests: dict, edges, balanced: bool) -> dict:
+    """{name: RMS over blocks (weighted by judged samples) of one model's held-out spread} for
+    each set of judged samples in ``tests`` ({name: per-block masks}); one refit per block."""
+    parts: dict = {name: [] for name in tests}
     for j in range(len(edges) - 1):
         inside = np.zeros(len(m), bool)
         inside[edges[j] : edges[j + 1]] = True
         f = _refit(m[keep & ~inside], g, balanced)
         if isinstance(f, FitFailure):
-            return float("inf")
-        test = judged & inside
-        total += test.sum() * spread(m[test], f.theta, g.kind) ** 2
-        weight += test.sum()
-    return float(np.sqrt(total / max(weight, 1)))
+            return {name: float("inf") for name in tests}
+        for name, masks in tests.items():
+            if masks[j].sum() >= MIN_BLOCK:
+                parts[name].append((int(masks[j].sum()), spread(m[masks[j]], f.theta, g.kind)))
+    return {name: _rms(p) for name, p in parts.items()}
+
+
+def _tests(m, judged, edges, offset_ut) -> tuple[dict, list]:
+    """Per block, the samples it judges — "all" kept by every model, "seen" those of them in a
+    direction cell the other blocks also visit — and the blocks that mostly lie elsewhere."""
+    cells = cell_index(m - offset_ut)
+    tests: dict = {"all": [], "seen": []}
+    unseen = []
+    for j in range(len(edges) - 1):
+        inside = np.zeros(len(m), bool)
+        inside[edges[j] : edges[j + 1]] = True
+        seen = np.isin(cells, np.unique(cells[~inside]))
+        if np.mean(seen[inside]) < SEEN_SHARE:
+            unseen.append(j)
+        tests["all"].append(judged & inside)
+        tests["seen"].append(judged & inside & seen)
+    return tests, unseen
 
 
 def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOut | None:
@@ -101,17 +128,13 @@ def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOut 
     if np.min(np.add.reduceat(judged, edges[:-1])) < MIN_BLOCK:
         return None
     sphere = candidates.get("sphere", next(iter(candidates.values())))[0]
-    cells = cell_index(m - sphere.offset_ut)
-    unseen = []
-    for j in range(n_blocks):
-        idx = np.arange(edges[j], edges[j + 1])
-        rest = np.r_[0 : edges[j], edges[j + 1] : len(m)]
-        if seen_share(cells, idx, rest) < SEEN_SHARE:
-            unseen.append(j)
+    tests, unseen = _tests(m, judged, edges, sphere.offset_ut)
     scores, balanced = {}, {}
     for k, (g, keep) in candidates.items():
-        plain = _score(m, g, keep, judged, edges, False)
-        weighted = plain if k == "sphere" else _score(m, g, keep, judged, edges, True)
-        balanced[k] = k != "sphere" and weighted <= BALANCE_MARGIN * plain
-        scores[k] = weighted if balanced[k] else plain
+        plain = _score(m, g, keep, tests, edges, False)
+        weighted = plain if k == "sphere" else _score(m, g, keep, tests, edges, True)
+        balanced[k] = k != "sphere" and weighted["all"] <= BALANCE_MARGIN * plain["all"]
+        scores[k] = (weighted if balanced[k] else plain)["seen"]
+    if not np.isfinite(min(scores.values())):
+        return None
     return HeldOut(scores, n_blocks, tuple(unseen), balanced)

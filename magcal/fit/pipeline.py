@@ -49,6 +49,7 @@ from ..core.calibration import Calibration
 from ..core.series import Series
 from . import geometric, holdout, uncertainty
 from . import outliers as _outliers
+from .coverage import side_name
 from .ellipsoid import algebraic_start
 from .failure import FitFailure
 from .result import MODEL_NAMES, FitResult
@@ -216,9 +217,20 @@ def _robust_sphere(m, max_condition: float):
         return FitFailure(
             "ill_conditioned",
             f"coverage too thin even for a sphere: information-matrix condition {cond_sphere:.3g}"
-            f" > {max_condition:.3g} (e.g. flat turns only: tilt the board as well)",
+            f" > {max_condition:.3g}; {_motion_hint(robust)}",
         )
     return robust, cond_sphere, sigma_r
+
+
+def _motion_hint(robust: geometric.GeometricFit) -> str:
+    """Which motion would determine the sphere: the offset component its information matrix
+    leaves open (where the centre is open, so is which side the field never came from)."""
+    j = robust.jac / np.maximum(np.linalg.norm(robust.jac, axis=0), 1e-300)
+    axis = np.linalg.eigh(j.T @ j)[1][:3, 0]
+    name = side_name(axis).replace("+", "").replace("−", "")
+    return (f"the samples leave the offset along the sensor's {name} axis open (the field's directions stay on"
+            f" a band or cone about that axis): turn the board so its {name} axis also points along and against"
+            " the field, e.g. roll it upside down and back")
 
 
 class Refusal(Enum):
@@ -329,7 +341,7 @@ def _choose(model: str, candidates: dict, notes: list, m, balance: str) -> tuple
         held = holdout.judge(m, candidates)
         if held is None:
             return _by_bic(candidates, notes), balance
-        chosen = _by_holdout(held, notes)
+        chosen = _by_holdout(held, _by_bic(candidates, []), notes)
         if balance == "auto" and chosen != "sphere" and not held.balanced[chosen]:
             notes.append("no direction balance: unweighted, it predicts the held-out blocks better")
             balance = "none"
@@ -348,17 +360,23 @@ def _only(model: str, candidates: dict, notes: list) -> str:
     return chosen
 
 
-def _by_holdout(held: holdout.HeldOut, notes: list) -> str:
-    chosen = held.best()
+def _by_holdout(held: holdout.HeldOut, default: str, notes: list) -> str:
+    """The model the held-out blocks choose over ``default`` (the lowest BIC), and why."""
+    chosen = held.choose(default)
     others = ", ".join(f"{MODEL_NAMES[k]} {100 * v:.3g} %" for k, v in held.spread.items() if k != chosen)
+    pct = f"{100 * holdout.MARGIN:.2g} %"
+    if chosen == default:
+        verdict = f"has the lowest BIC, and no model predicts the recording's held-out time blocks {pct} better"
+    else:
+        verdict = f"predicts the recording's held-out time blocks over {pct} better than {MODEL_NAMES[default]} (lowest BIC)"
     notes.append(
-        f"{MODEL_NAMES[chosen]} predicts the recording's held-out time blocks best: |field| spread"
-        f" {100 * held.spread[chosen]:.3g} % (refitted without each of {held.n_blocks} blocks; {others})"
+        f"{MODEL_NAMES[chosen]} {verdict}: |field| spread {100 * held.spread[chosen]:.3g} % (refitted without"
+        f" each of {held.n_blocks} blocks; {others})"
     )
     if held.unseen_blocks:
         which = ", ".join(str(j + 1) for j in held.unseen_blocks)
         notes.append(f"time block {which} of {held.n_blocks} holds directions the rest of the recording"
-                     " hardly shows: judged there, a model extrapolates")
+                     " hardly shows: judged only where the rest saw them")
     return chosen
 
 
