@@ -284,7 +284,11 @@ def _determined(fits: dict, refused: dict, limit: float, notes: list) -> dict:
         if kind == "full" and refused.get("diagonal") is Refusal.UNDETERMINED:
             notes.append(f"{MODEL_NAMES[kind]} rejected: its subset, the diagonal ellipsoid, is already undetermined")
             continue
-        verdict = _shape_verdict(fits[kind][0], noise_ut, limit)
+        # the diagonal's terms as the full model's information holds them (its off-diagonal terms
+        # known): never more open than the full model's own, so a superset cannot pass where
+        # its subset is undetermined
+        jac = fits["full"][0].jac[:, : geometric.n_params(kind)] if "full" in fits else fits[kind][0].jac
+        verdict = _shape_verdict(fits[kind][0], jac, noise_ut, limit)
         if verdict is None:
             out[kind] = fits[kind]
         else:
@@ -293,20 +297,19 @@ def _determined(fits: dict, refused: dict, limit: float, notes: list) -> dict:
     return out
 
 
-def _shape_verdict(f: geometric.GeometricFit, noise_ut: float, limit: float):
+def _shape_verdict(f: geometric.GeometricFit, jac: np.ndarray, noise_ut: float, limit: float):
     """None where the model's gains are pinned to ``limit``; else (Refusal, why). Undetermined:
-    the coverage leaves them open at the shared noise level. Misfit: the model's own residuals
-    (and, for the diagonal, their correlation along the recording) leave them open — what it
-    cannot hold, which a fuller model may."""
-    cov = uncertainty.covariance(f.jac, noise_ut)
-    pinned = uncertainty.shape_sigma(cov)
+    the coverage (``jac``, at the shared noise level) leaves them open. Misfit: the model's own
+    residuals (and, for the diagonal, their correlation along the recording) leave them open —
+    what it cannot hold, which a fuller model may."""
+    pinned = uncertainty.shape_sigma(uncertainty.covariance(jac, noise_ut))
     if pinned > limit:
         return Refusal.UNDETERMINED, f"the coverage determines its gains only to ±{100 * pinned:.2g} %"
     plain, widened = _shape_sigma(f)
     if max(plain, widened) > limit:
         return Refusal.MISFIT, (
             f"its own residuals, which hold what its shape cannot, leave its gains open to ±{100 * max(plain, widened):.2g} %"
-            f" (±{100 * pinned:.2g} % at the noise of the better ellipsoid)"
+            f" (±{100 * pinned:.2g} % from the coverage alone)"
         )
     return None
 
