@@ -1,0 +1,280 @@
+"""Logged channels with lags, gains and nonlinear forms: what the plain channel offset misses.
+
+The catalogue tests each logged channel c (``temp_c``, ``current_a``, a throttle, a servo angle …)
+only as an offset proportional to c, with no lag (``diagnose/channels.py``). Here every usable
+channel is searched over forms, each judged on the radial residual of the calibration after the
+calibration's own linearised refit is projected out:
+
+* ``OFFSET_DELAY`` — an offset vector β·c(t − lag), lag 0 included (lag 0 is the catalogue's term);
+* ``OFFSET_FIRST_ORDER`` — β·(c low-passed with time constant τ), the field of a current through
+  an inductance or a heat path;
+* ``GAIN`` / ``AXIS_GAIN`` — the field scale changes with c: |h| ∝ 1 + g·Δc, so the radial
+  residual is F·g·Δc (isotropic) or F·Σ g_k u_k²·Δc (per axis) — told apart from an offset ∝ Δc
+  (u·β·Δc) because the two have different columns and the better one wins;
+* ``SQUARE`` — β₁Δc + β₂Δc²; ``STEP`` — β·[c > threshold]; ``ANGLE`` — v₁ cos c + v₂ sin c for a
+  channel named as an angle (a servo arm), in degrees or in radians, whichever fits.
+
+Lags and time constants run on a geometric grid from one sample period to a sixth of the span;
+an optimum on the grid's upper edge is not reported as a lag. The error rate is controlled over
+every channel × form × lag × threshold at once: the largest score (−log₁₀ p) of all candidates is
+compared with the largest score of the same search with each channel circularly shifted against
+the residual (which keeps the residual's own autocorrelation and slow wander). Only shifts at
+which the best candidate's series is nearly uncorrelated with itself are used: a shift that
+still lines the channel up with an effect that is there would learn the null from the effect
+and raise it (learning the null on the residual with the best term taken out instead removes
+the residual's own slow structure too, and under no effect claims it on most recordings). Found
+terms are taken out one at a time (at most one per channel) before the next search.
+
+Coefficients come with a 95 % interval from the block (HAC) covariance, widened over every lag
+within the 95 % profile of the best (the lag's own uncertainty); the lag gets that profile's range.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from .. import channels as catalogue
+from .. import hygiene
+from . import channel_scores as cs
+from .channel_report import describe
+from .channel_terms import ANGLE_UNITS, N_LAGS, Form, angle_scale, delayed, lag_grid, low_passed, term_ut
+from .base import Effect, Kind, Located, Residual
+
+MAX_SAMPLES = 4000  # the search runs on at most this many evenly spaced samples
+N_THRESHOLDS = 17  # step thresholds at the 10 … 90 % quantiles of the channel
+N_SHIFTS = 39  # circular shifts of each channel for the null
+N_SHIFT_GRID = 160  # … chosen among this many evenly spread
+N_MIN_SHIFTS = 12
+MAX_SHIFT_CORR = 0.3
+WANDER_RATIO = catalogue.WANDER_RATIO  # a slow term carries ≥ 4× the slow wander it leaves
+N_FINE = 21  # lags of the refined grid about the best coarse lag (± two coarse steps)
+CLEAN_RATIO = 2.5  # the best must beat the null learned without it by this factor (see module doc)
+ALPHA = 0.01  # family-wise false-claim rate over everything searched
+MAX_FOUND = 3
+ANGLE_WORDS = ("angle", "servo", "deg", "rad", "theta", "phi", "arm", "gimbal", "pan", "rotor")
+
+
+# -- the forms of one channel -----------------------------------------------------------------
+def is_angle(name: str) -> bool:
+    return any(w in hygiene.tokens(name) or w in name.lower() for w in ANGLE_WORDS)
+
+
+def families(name: str, c: np.ndarray, t_s: np.ndarray, rows: np.ndarray) -> list[cs.Family]:
+    """Every form tried for channel ``name`` (series on the searched ``rows``)."""
+    x = c - c.mean()
+    lags = lag_grid(t_s)
+    delay = np.column_stack([x] + [delayed(x, t_s, v) for v in lags])[rows]
+    first = np.column_stack([low_passed(x, t_s, v) for v in lags])[rows]
+    xs = x[rows][:, None]
+    q = x[rows] ** 2
+    thr = np.quantile(c, np.linspace(0.1, 0.9, N_THRESHOLDS))
+    steps = (c[rows][:, None] > thr[None, :]).astype(np.float64)
+    steps -= steps.mean(axis=0)
+    out = [
+        cs.Family(Form.OFFSET_DELAY, name, "offset", delay[:, :, None], np.concatenate([[0.0], lags])),
+        cs.Family(Form.OFFSET_FIRST_ORDER, name, "offset", first[:, :, None], lags),
+        cs.Family(Form.GAIN, name, "gain", xs[:, :, None], np.zeros(1)),
+        cs.Family(Form.AXIS_GAIN, name, "axis_gain", xs[:, :, None], np.zeros(1)),
+        cs.Family(Form.SQUARE, name, "offset", np.stack([xs[:, 0], q - q.mean()], axis=1)[:, None, :], np.zeros(1)),
+        cs.Family(Form.STEP, name, "offset", steps[:, :, None], thr),
+    ]
+    if is_angle(name):
+        ang = [np.stack([np.cos(c[rows] * angle_scale(k)), np.sin(c[rows] * angle_scale(k))], axis=1) for k in (0, 1)]
+        out.append(cs.Family(Form.ANGLE, name, "offset", np.stack(ang, axis=1), np.arange(2.0)))
+    return out
+
+
+def candidates(res: Residual) -> dict[str, np.ndarray]:
+    """The channels searched: usable, not time, not one that follows the orientation."""
+    chans = {k: np.asarray(v, np.float64) for k, v in res.channels.items() if k != catalogue.TIME}
+    chans = {k: v for k, v in chans.items() if catalogue.usable(v)}
+    if not chans:
+        return {}
+    kept, left = hygiene.screen(chans, res.u, res.t_s)
+    # a servo angle can follow a slow motion by chance: an angle named as such is kept unless its
+    # name says it is an attitude angle
+    kept.update({lo.channel: chans[lo.channel] for lo in left if not lo.kind and is_angle(lo.channel)})
+    return kept
+
+
+def tried(channels: Mapping[str, np.ndarray]) -> list[str]:
+    """What was tried for each channel, to be said before "explained by no logged channel"."""
+    out = []
+    for name, c in channels.items():
+        if name == catalogue.TIME:
+            continue
+        if not catalogue.usable(np.asarray(c, np.float64)):
+            out.append(f"{name}: not tried (constant or with missing values)")
+            continue
+        forms = (
+            f"an offset delayed by 0 or {N_LAGS} lags up to a sixth of the span, the same through a first-order "
+            f"lag of {N_LAGS} time constants, a gain (isotropic and per axis), a square term and a step at "
+            f"{N_THRESHOLDS} thresholds"
+        )
+        if is_angle(name):
+            forms += ", and the cosine and sine of it as an angle in degrees and in radians"
+        out.append(f"{name}: {forms}")
+    return out
+
+
+# -- the search ------------------------------------------------------------------------------
+def best(fr: cs.Frame, fams: list[cs.Family]) -> cs.Pick | None:
+    top = None
+    for fam in fams:
+        ess, _ = cs.scores(fr, fam)
+        z = cs.log10_p(fr.f_ratio(ess, cs.n_columns(fam)), cs.n_columns(fam))
+        j = int(np.argmax(z))
+        if top is None or z[j] > top.score:
+            top = cs.Pick(fam, j, float(z[j]), ess)
+    return top
+
+
+NESTED = {Form.SQUARE: Form.OFFSET_DELAY, Form.AXIS_GAIN: Form.GAIN}  # form → the simpler form inside it
+NESTED_LOG10_P = 3.0  # the extra columns of a bigger form must be significant at 0.1 %
+
+
+def simpler(fr: cs.Frame, pick: cs.Pick, fams: list[cs.Family]) -> cs.Pick:
+    """The nested simpler form of the same channel (a straight line inside the square, one gain
+    inside the per-axis gains) unless the extra columns explain significantly more, judged with
+    the residual's own autocorrelation (the block covariance's inflation); for a channel named
+    as an angle, the arm (cos, sin) whenever it fits within the profile of the best."""
+    same = {f.form: f for f in fams if f.channel == pick.fam.channel}
+    _, _, infl = cs.hac_cov(fr, pick.fam, pick.j)
+    s2 = fr.s2_after(pick.ess[pick.j], cs.n_columns(pick.fam)) * infl
+    if Form.ANGLE in same and pick.fam.form is not Form.ANGLE:
+        ess, _ = cs.scores(fr, same[Form.ANGLE])
+        j = int(np.argmax(ess))
+        if ess[j] >= pick.ess[pick.j] - cs.CHI2_1_95 * s2:
+            return cs.Pick(same[Form.ANGLE], j, float(cs.log10_p(fr.f_ratio(ess[j], 6), 6)), ess)
+    small_form = NESTED.get(pick.fam.form)
+    if small_form is None:
+        return pick
+    small = same[small_form]
+    ess, _ = cs.scores(fr, small)
+    extra = (pick.ess[pick.j] - ess[0]) / s2
+    if cs.log10_p(extra, cs.n_columns(pick.fam) - cs.n_columns(small)) >= NESTED_LOG10_P:
+        return pick
+    return cs.Pick(small, 0, float(cs.log10_p(fr.f_ratio(ess[0], cs.n_columns(small)), cs.n_columns(small))), ess)
+
+
+def refined(fr: cs.Frame, pick: cs.Pick, c: np.ndarray, t_s: np.ndarray) -> cs.Pick:
+    """A lag pick on a fine grid about its coarse lag (± two coarse steps), unless it is at an
+    edge of the coarse grid (no lag, or beyond the longest tried)."""
+    v, j = pick.fam.values, pick.j
+    if pick.fam.form not in (Form.OFFSET_DELAY, Form.OFFSET_FIRST_ORDER) or v[j] <= 0 or j == len(v) - 1:
+        return pick
+    lo, hi = v[max(j - 2, 0)], v[min(j + 2, len(v) - 1)]
+    lo = lo if lo > 0 else v[j] / 4
+    lags = np.concatenate([[0.0], np.geomspace(lo, hi, N_FINE)])  # 0: the no-lag fit it must beat
+    x = c - c.mean()
+    make = delayed if pick.fam.form is Form.OFFSET_DELAY else low_passed
+    series = np.column_stack([x] + [make(x, t_s, lag) for lag in lags[1:]])[fr.rows]
+    fam = cs.Family(pick.fam.form, pick.fam.channel, "offset", series[:, :, None], lags)
+    ess, _ = cs.scores(fr, fam)
+    k = int(np.argmax(ess))
+    return cs.Pick(fam, k, float(cs.log10_p(fr.f_ratio(ess[k], 3), 3)), ess)
+
+
+def slow_enough(fr: cs.Frame, pick: cs.Pick, clean: cs.Frame) -> bool:
+    """False when the pick's series is slow (a smooth curve in time carries most of it) and its
+    term carries less than WANDER_RATIO × the slow wander it leaves: one slow channel matches
+    real wander by chance."""
+    if catalogue.slow_block_energy(pick.fam.series[:, pick.j, 0], fr.bases["offset"]) is None:
+        return True
+    term_e, rem_e = cs.slow_energies(fr, fr.r - clean.r)
+    return term_e >= WANDER_RATIO * rem_e
+
+
+def shifts_for(g: np.ndarray, max_lag: int) -> np.ndarray:
+    """Circular shifts for the null, evenly spread among those at which the picked candidate's
+    series ``g`` — shifted, then delayed by any lag the search tries (up to ``max_lag`` samples)
+    — is nearly uncorrelated with itself (|ρ| ≤ MAX_SHIFT_CORR), so that an effect that is there
+    cannot line up with its own null; the N_MIN_SHIFTS least correlated when too few are."""
+    n = len(g)
+    gc = g - g.mean()
+    acf = np.fft.irfft(np.abs(np.fft.rfft(gc)) ** 2, n) / max(float(gc @ gc), 1e-300)
+    grid = np.unique(np.linspace(0, n - 1, N_SHIFT_GRID).astype(int))
+    win = np.arange(-2, max_lag + 3)
+    rho = np.array([np.max(np.abs(acf[(k + win) % n])) for k in grid])
+    keep = grid[rho <= MAX_SHIFT_CORR]
+    if len(keep) < N_MIN_SHIFTS:
+        keep = np.sort(grid[np.argsort(rho)[:N_MIN_SHIFTS]])
+    return keep[np.unique(np.linspace(0, len(keep) - 1, min(len(keep), N_SHIFTS)).astype(int))]
+
+
+def max_lag_rows(fr: cs.Frame, t_s: np.ndarray) -> int:
+    """The longest lag tried, in searched samples."""
+    dt = float(np.median(np.diff(fr.t_s)))
+    return int(np.ceil(lag_grid(t_s)[-1] / dt))
+
+
+def null_maxima(fr: cs.Frame, fams: list[cs.Family], shifts: np.ndarray) -> np.ndarray:
+    """The largest score of the whole search with every channel circularly shifted by each shift,
+    against the same residual (its own autocorrelation and slow wander kept)."""
+    return np.array([best(fr, [f.rolled(int(k)) for f in fams]).score for k in shifts])
+
+
+def search(res: Residual) -> tuple[Located, ...]:
+    """Channel terms in ``res``'s residual, each with its form, lag and coefficient interval."""
+    chans = candidates(res)
+    if not chans or len(res) < 200:
+        return ()
+    t = np.asarray(res.t_s, np.float64)
+    rows = np.unique(np.linspace(0, len(t) - 1, min(len(t), MAX_SAMPLES)).astype(int))
+    cal = res.calibration
+    fr = cs.frame(res.r_ut, res.u, np.asarray(cal.soft_iron), cal.field_ut, rows, t)
+    fams = [f for name, c in chans.items() for f in families(name, c, t, rows)]
+    found = []
+    for _ in range(MAX_FOUND):
+        pick = best(fr, fams)
+        if pick is None:
+            break
+        score = pick.score
+        clean = fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
+        shifts = shifts_for(pick.fam.series[:, pick.j, 0], max_lag_rows(fr, t))
+        null_raw, null_clean = null_maxima(fr, fams, shifts), null_maxima(clean, fams, shifts)
+        threshold = min(cs.gumbel_threshold(null_raw, ALPHA), CLEAN_RATIO * cs.gumbel_threshold(null_clean, ALPHA))
+        if score <= threshold:
+            break
+        pick = refined(fr, simpler(fr, pick, fams), chans[pick.fam.channel], t)
+        clean = fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
+        if not slow_enough(fr, pick, clean):
+            break
+        null = null_raw
+        evidence = {"score": score, "threshold": threshold, "null_max": float(np.max(null)), "n_shifts": len(null)}
+        found.append(describe(res, fr, pick, chans[pick.fam.channel], evidence))
+        fr = clean
+        fams = [f for f in fams if f.channel != pick.fam.channel]
+        if not fams:
+            break
+    return tuple(found)
+
+
+def remove(m_ut: np.ndarray, t_s: np.ndarray, channels: Mapping[str, np.ndarray], located: Located) -> np.ndarray:
+    """The samples with the located channel term taken out about the channel's reference value.
+
+    An offset term (any lag, square, step, angle) is subtracted as f(c) − f(reference); a gain is
+    divided out about the reference, around the calibration's offset. The calibration refitted
+    on what is returned is the one in force when the channel sits at its reference value: no
+    current (``current_a`` at 0 A) for a current, and the channel's value at the end of the
+    recording for every other channel (the calibration in force at the end)."""
+    m = np.asarray(m_ut, np.float64).reshape(-1, 3)
+    p = located.params
+    name = p["channel"]
+    if name not in channels:
+        raise ValueError(f"remove: channel {name!r} of the located term is not among the channels given")
+    c = np.asarray(channels[name], np.float64)
+    if len(c) != len(m) or len(np.asarray(t_s)) != len(m):
+        raise ValueError(f"remove: {len(m)} samples, {len(c)} channel values and {len(t_s)} times differ")
+    form = Form(p["form"])
+    if form in (Form.GAIN, Form.AXIS_GAIN):
+        b = np.asarray(p["center_ut"], np.float64)
+        g = np.asarray(p["gain_per_unit"], np.float64).reshape(-1)
+        scale = 1.0 + np.outer(c - p["reference"], g * np.ones(3))
+        return b + (m - b) / scale
+    return m - term_ut(form, p, c, np.asarray(t_s, np.float64))
+
+
+EFFECT = Effect("channel_forms", Kind.PHYSICS, search)

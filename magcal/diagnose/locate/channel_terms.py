@@ -1,0 +1,81 @@
+"""The forms a logged channel can take in the offset, and the offset term each one adds.
+
+A located channel term is stored in ``Located.params`` with its ``form`` (a ``Form`` value) and
+what that form needs; ``term_ut`` turns those params and the channel back into the (n, 3) µT
+the term adds to the raw samples, relative to the channel's reference value.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+from typing import Mapping
+
+import numpy as np
+from scipy.signal import lfilter
+
+ANGLE_UNITS = ("deg", "rad")
+
+
+class Form(Enum):
+    """How a channel enters the measured field."""
+
+    OFFSET_DELAY = "offset_delay"  # β·c(t − lag), lag ≥ 0
+    OFFSET_FIRST_ORDER = "offset_first_order"  # β·(c through a first-order lag τ)
+    GAIN = "gain"  # |h| ∝ 1 + g·Δc, the same on every axis
+    AXIS_GAIN = "axis_gain"  # the scale of axis k ∝ 1 + g_k·Δc
+    SQUARE = "square"  # β₁·Δc + β₂·Δc²
+    STEP = "step"  # β·[c > threshold]
+    ANGLE = "angle"  # v₁ cos c + v₂ sin c
+
+
+N_LAGS = 24  # lags / time constants on the geometric grid (plus 0 for the delay)
+MAX_LAG_SHARE = 1.0 / 6.0  # the longest lag tried, as a share of the recording's span
+
+
+def lag_grid(t_s: np.ndarray) -> np.ndarray:
+    """Lags and time constants tried (s): one sample period to a sixth of the span."""
+    dt = float(np.median(np.diff(t_s)))
+    top = max(float(np.ptp(t_s)) * MAX_LAG_SHARE, 3 * dt)
+    return np.geomspace(dt, top, N_LAGS)
+
+
+def delayed(c: np.ndarray, t_s: np.ndarray, lag_s: float) -> np.ndarray:
+    """c(t − lag), held at its first value before the start."""
+    return np.interp(t_s - lag_s, t_s, c)
+
+
+def low_passed(c: np.ndarray, t_s: np.ndarray, tau_s: float) -> np.ndarray:
+    """c through a first-order lag exp(−dt/τ) (at the median sample period), started settled."""
+    dt = float(np.median(np.diff(t_s)))
+    a = 1.0 - np.exp(-dt / tau_s)
+    y, _ = lfilter([a], [1.0, a - 1.0], c, zi=[(1.0 - a) * c[0]])
+    return y
+
+
+def angle_scale(unit_code: float) -> float:
+    """Radians per unit of an angle channel in ``ANGLE_UNITS[unit_code]``."""
+    return np.pi / 180.0 if ANGLE_UNITS[int(unit_code)] == "deg" else 1.0
+
+
+def term_ut(form: Form, p: Mapping, c: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """The offset (n, 3) µT an offset-type term adds, as f(c) − f(reference)."""
+    ref = float(p["reference"])
+    if form is Form.OFFSET_DELAY:
+        return np.outer(delayed(c, t_s, float(p.get("lag_s") or 0.0)) - ref, p["coef_ut_per_unit"])
+    if form is Form.OFFSET_FIRST_ORDER:
+        lag = float(p.get("lag_s") or 0.0)
+        x = low_passed(c, t_s, lag) if lag > 0 else c
+        return np.outer(x - ref, p["coef_ut_per_unit"])
+    if form is Form.SQUARE:
+        mu = float(p["mean"])
+        lin, sq = np.asarray(p["coef_ut_per_unit"]), np.asarray(p["coef_ut_per_unit2"])
+        return np.outer(c - ref, lin) + np.outer((c - mu) ** 2 - (ref - mu) ** 2, sq)
+    if form is Form.STEP:
+        thr = float(p["threshold"])
+        return np.outer((c > thr).astype(np.float64) - float(ref > thr), p["step_ut"])
+    if form is Form.ANGLE:
+        s = angle_scale(ANGLE_UNITS.index(p["angle_unit"]))
+        cos = np.cos(c * s) - np.cos(ref * s)
+        sin = np.sin(c * s) - np.sin(ref * s)
+        return np.outer(cos, p["cos_ut"]) + np.outer(sin, p["sin_ut"])
+    raise ValueError(f"{form.value} is a gain, not an offset term")
