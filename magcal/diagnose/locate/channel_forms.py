@@ -51,7 +51,7 @@ MAX_SHIFT_CORR = 0.3
 WANDER_RATIO = catalogue.WANDER_RATIO  # a slow term carries ≥ 4× the slow wander it leaves
 N_FINE = 21  # lags of the refined grid about the best coarse lag (± two coarse steps)
 CLEAN_RATIO = 2.5  # the best must beat the null learned without it by this factor (see module doc)
-ALPHA = 0.01  # family-wise false-claim rate over everything searched
+ALPHA = 0.002  # family-wise false-claim rate over everything searched
 MAX_FOUND = 3
 ANGLE_WORDS = ("angle", "servo", "deg", "rad", "theta", "phi", "arm", "gimbal", "pan", "rotor")
 

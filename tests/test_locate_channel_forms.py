@@ -1,0 +1,149 @@
+"""Logged channels with lags, gains and nonlinear forms (magcal.diagnose.locate.channel_forms)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from magcal.diagnose.locate import Kind, Residual
+from magcal.diagnose.locate import channel_forms as cf
+from magcal.diagnose.locate.channel_terms import low_passed
+from magcal.fit import fit_calibration
+from magcal.sim.physics import Motion, Physics, Scenario
+
+DATA = Path(__file__).parent / "data" / "lsm9ds1_ckexplorer_every4th.csv"
+HARD = (12.0, -7.0, 4.0)
+
+
+def _residual(m, t, chans) -> Residual:
+    cal = fit_calibration(m, model="ellipsoid", outliers=False).calibration
+    r = np.linalg.norm(cal.correct(m), axis=1) - cal.field_ut
+    return Residual(t, m, cal, 0.4, float(np.sqrt(np.mean(r**2))), chans)
+
+
+def _sim(seed, n=2000):
+    sc = Scenario(physics=Physics(hard_iron_ut=HARD), motion=Motion("sphere", period_s=15.0), seed=seed)
+    s = sc.simulate(n, 50.0).series
+    return s.field_ut, s.t_s
+
+
+def _temp(t, periods=1.6):
+    return 22.5 + 7.5 * np.sin(2 * np.pi * periods * (t - t[0]) / np.ptp(t) + 0.4)
+
+
+def _current(t, seed):
+    rng = np.random.default_rng(seed)
+    c, s = np.zeros(len(t)), t[0]
+    while s < t[-1]:
+        d = rng.uniform(1.0, 4.0)
+        c[(t >= s) & (t < s + d)] = rng.uniform(1.0, 3.0) * (rng.random() < 0.5)
+        s += d
+    return c
+
+
+def _servo(t, seed):
+    rng = np.random.default_rng(seed)
+    th, s = np.zeros(len(t)), t[0]
+    while s < t[-1]:
+        d = rng.uniform(1.5, 4.0)
+        th[(t >= s) & (t < s + d)] = rng.uniform(-70, 70)
+        s += d
+    return th
+
+
+def _only(found, effect):
+    assert [f.effect for f in found] == [effect], [f.summary for f in found]
+    assert found[0].kind is Kind.PHYSICS
+    return found[0]
+
+
+def test_current_through_a_first_order_lag_is_found_with_its_lag_and_coefficient():
+    m, t = _sim(1)
+    c = _current(t, 1)
+    beta = np.array([0.3, -0.45, 0.2])  # µT/A
+    f = _only(cf.search(_residual(m + np.outer(low_passed(c, t, 0.6), beta), t, {"current_a": c})), "lagged_channel")
+    assert f.where["channel"] == "current_a"
+    assert f.params["lag_kind"] == "first_order"
+    assert abs(f.where["lag_s"] - 0.6) <= 0.3 * 0.6
+    got = np.asarray(f.params["coef_ut_per_unit"])
+    assert np.linalg.norm(got - beta) <= 0.2 * np.linalg.norm(beta)
+    lo, hi = f.params["coef_magnitude_interval"]
+    assert lo <= np.linalg.norm(beta) <= hi
+    assert "first-order lag of" in f.summary and "µT/A" in f.summary
+
+
+def test_a_gain_that_follows_temperature_is_told_from_an_offset():
+    m, t = _sim(2)
+    temp = _temp(t)
+    g = 0.004  # 0.4 %/°C
+    mg = HARD + (m - HARD) * (1.0 + g * (temp - temp.mean()))[:, None]
+    f = _only(cf.search(_residual(mg, t, {"temp_c": temp})), "temperature_gain")
+    assert f.params["form"] == "gain"
+    assert abs(f.params["gain_pct_per_unit"][0] - 100 * g) <= 0.3 * 100 * g
+    assert "%/°C" in f.summary
+
+
+def test_a_servo_arm_is_found_as_the_cosine_and_sine_of_its_angle():
+    m, t = _sim(3)
+    th = _servo(t, 3)
+    v1, v2 = np.array([1.2, 0.3, -0.5]), np.array([-0.4, 0.9, 0.6])
+    arm = np.outer(np.cos(np.deg2rad(th)), v1) + np.outer(np.sin(np.deg2rad(th)), v2)
+    f = _only(cf.search(_residual(m + arm, t, {"servo_angle_deg": th})), "channel_angle")
+    assert f.params["angle_unit"] == "deg"
+    assert np.linalg.norm(np.asarray(f.params["sin_ut"]) - v2) <= 0.3 * np.linalg.norm(v2)
+
+
+def test_a_clean_simulation_with_channels_claims_nothing():
+    m, t = _sim(4)
+    chans = {"temp_c": _temp(t), "current_a": _current(t, 4), "servo_angle_deg": _servo(t, 4)}
+    assert cf.search(_residual(m, t, chans)) == ()
+
+
+@pytest.fixture(scope="module")
+def real():
+    a = np.loadtxt(DATA, delimiter=",", skiprows=1)
+    m = a[:, -3:]
+    t = np.arange(len(m)) / 50.0
+    return m, t
+
+
+def test_a_temperature_offset_injected_into_a_real_recording_is_found_and_removed(real):
+    m, t = real
+    temp = _temp(t, 1.3)
+    floor = _residual(m, t, {}).floor_ut
+    beta = np.array([0.5, -0.3, 0.6])
+    beta *= 6 * floor / (np.linalg.norm(beta) * 7.5)  # the largest offset 6× the recording's floor
+    mm = m + np.outer(temp - temp.mean(), beta)
+    res = _residual(mm, t, {"temp_c": temp})
+    f = _only(cf.search(res), "temperature_drift")
+    assert f.where["channel"] == "temp_c"
+    assert abs(f.params["coef_magnitude_ut_per_unit"] - np.linalg.norm(beta)) <= 0.3 * np.linalg.norm(beta)
+    cleaned = cf.remove(mm, t, {"temp_c": temp}, f)
+    assert cf.search(_residual(cleaned, t, {"temp_c": temp})) == ()
+    # the calibration refitted on the cleaned samples is the one at the reference (the end value)
+    at_end = fit_calibration(m + np.outer(np.full(len(t), temp[-1]) - temp.mean(), beta), model="ellipsoid",
+                             outliers=False).calibration.offset_ut
+    refit = fit_calibration(cleaned, model="ellipsoid", outliers=False).calibration.offset_ut
+    assert np.linalg.norm(refit - at_end) <= 0.3 * 6 * floor
+
+
+def test_a_real_recording_with_synthetic_channels_claims_nothing(real):
+    m, t = real
+    chans = {"temp_c": _temp(t, 1.3), "current_a": _current(t, 7)}
+    assert cf.search(_residual(m, t, chans)) == ()
+
+
+def test_tried_names_every_form_for_every_channel_and_remove_refuses_a_missing_channel():
+    t = np.arange(100) / 10.0
+    lines = cf.tried({"temp_c": np.linspace(20, 30, 100), "servo_angle_deg": np.sin(t), "flat": np.ones(100)})
+    assert any(s.startswith("temp_c:") and "first-order" in s and "gain" in s and "step" in s for s in lines)
+    assert any(s.startswith("servo_angle_deg:") and "cosine and sine" in s for s in lines)
+    assert any(s.startswith("flat:") and "not tried" in s for s in lines)
+    from magcal.diagnose.locate import Located
+
+    loc = Located("lagged_channel", Kind.PHYSICS, "x", {"channel": "current_a"},
+                  {"channel": "current_a", "form": "offset_delay", "reference": 0.0, "coef_ut_per_unit": [1, 0, 0]})
+    with pytest.raises(ValueError, match="current_a"):
+        cf.remove(np.zeros((100, 3)), t, {"temp_c": t}, loc)
