@@ -11,14 +11,21 @@
 4. Which models can this coverage determine? For the diagonal and full ellipsoid, the
    information matrix JᵀJ at the robust sphere (unit-diagonal scaled) must have condition
    ≤ ``max_ellipsoid_condition`` (never below ``max_condition``), else the model is not
-   fitted; once fitted, the 1σ of its shape terms (≈ relative gains, from its own residuals;
-   the z gain too, which the trace-free parameterisation derives from the other two) must be
-   ≤ ``max_shape_sigma``, else it is rejected — for the diagonal one, with the residuals'
-   correlation along the recording counted (``_shape_sigma``). ``reason`` says which and why.
+   fitted; once fitted, the 1σ of its shape terms (≈ relative gains; the z gain too, which the
+   trace-free parameterisation derives from the other two) must be ≤ ``max_shape_sigma``.
+   Two questions, two reasons (``Refusal``): *undetermined* — at the noise of the
+   better-fitting ellipsoid, does the coverage pin the gains? (the diagonal's terms taken from
+   the full model's information with its off-diagonal terms held, so they are never more open
+   than the full model's own: a superset is never kept where its subset is undetermined, and
+   where the diagonal is, the full one is refused too); *misfit* — judged with its own
+   residuals (for the diagonal, their correlation along the recording counted,
+   ``_shape_sigma``), are they still pinned? A diagonal ellipsoid on off-diagonal soft iron
+   fails only the second, and the full one may then hold what it cannot. ``reason`` says which.
    The sphere has no second test, so its condition limit carries the whole judgement and is
    the tighter one; an ellipsoid's is only a backstop against a solve that cannot be trusted
    at all, and the shape-σ gate, which asks exactly what a band of directions leaves open (the
-   gains), decides.
+   gains), decides. A refused sphere names the offset axis its coverage leaves open and the
+   turn that would determine it.
 5. Each model fitted: robust fit → iterated Grubbs on its residuals (t-distribution critical
    values) → plain least squares (ML) on the kept samples → Grubbs again until nothing new.
 7. Balance: "directions" refits the chosen model with weights that give each coarse
@@ -34,8 +41,16 @@
    consecutive samples in a cell then weighs k/(1 + kρ) of that cell's share, with
    ρ = (f² − 1)/k̄ from the sandwich's blocks of k̄ samples (``direction_weights``), and the fit
    is redone. On independent noise nothing changes.
-6. "auto" picks by BIC (n·ln(mean e²) + p·ln n) among the determinable models; "ellipsoid"
-   takes the fullest determinable ellipsoid and falls back (full → diagonal → sphere).
+6. "auto": the model that predicts the recording's own held-out time blocks (``holdout``: five
+   contiguous blocks, each model refitted without each block and judged there by the spread
+   of |calibrated field|, on the samples whose directions the rest of the recording also
+   holds). The lowest-BIC model (n·ln(mean e²) + p·ln n) stands unless another determinable
+   model predicts the blocks over ``holdout.MARGIN`` better — so the model kept is never that
+   much worse than the sphere on them; by BIC alone where the recording is too short for
+   blocks. The same blocks, judged on all their samples, keep the direction balance of step 7
+   for an ellipsoid unless the unweighted fit predicts them ``holdout.BALANCE_MARGIN`` times
+   better. "ellipsoid" takes the fullest determinable ellipsoid and falls back
+   (full → diagonal → sphere).
 """
 
 from __future__ import annotations
