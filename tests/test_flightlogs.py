@@ -361,8 +361,7 @@ def test_px4_parameters_round_trip_through_a_rotation(tmp_path):
     np.testing.assert_allclose(theirs, ours, atol=1e-7)
 
 
-@pytest.mark.slow
-def test_export_of_a_log_fit_writes_the_logs_compass(tmp_path):
+def test_export_of_a_log_fit_writes_the_logs_compass(tmp_path):  # make check's one run of exportparams
     r = magcal("fit", BIN, "--mag", "2", "--json")
     res = tmp_path / "r.json"
     res.write_text(r.stdout)
