@@ -1,0 +1,393 @@
+"""Data faults, screened on the raw series before any fit: stuck axes, clipped rails, swapped
+or sign-flipped axes, and timestamps that repeat or run backwards.
+
+``screen(t_s, m_ut, valid=None) -> Screen`` returns ``keep`` (the samples to use) and ``found``
+(one ``Located`` of kind ``Kind.FAULT`` per fault, with the rows it sets aside, the stretches in
+time and the axis). Every threshold is judged against the recording itself:
+
+- ``repeated_timestamps`` / ``out_of_order_timestamps``: a sample whose time is not later than
+  every time before it. Set aside (its time says nothing about where it belongs).
+- ``saturation``: a pile-up at an axis's extreme value — the same raw value at the max (or
+  min) in at least ``RAIL_MIN_SHARE`` of the distinct readings and ``RAIL_OVER_LEVEL`` times the
+  typical (median) level just inside it. Quantised real data visit their extreme level a few
+  times (the field only brushes it); a rail collects every sample the sensor could not reach.
+- ``stuck_axis``: one axis repeating its exact value for a run while the other two move (by
+  ``MOVE_QUANTA`` of their own quantisation step and beyond what the residual scatter spans)
+  and the surface fitted on the rest of the data says that axis should have changed: the
+  run's radial residual is ``STUCK_OVER_FLOOR`` times the recording's robust scatter and
+  ``STUCK_OVER_LOCAL`` times that of the samples around it. A slow board turning about that
+  axis, or one held nearly still, repeats an axis legitimately and stays on the surface.
+- ``axis_swap``: a stretch the surface fitted on the rest of the data misses as read
+  (``SWAP_MISS`` × scatter) but fits (within ``SWAP_FIT`` × scatter) with two axes exchanged
+  or one axis negated, for at least ``SWAP_MIN_SAMPLES`` samples with no sample in between
+  that fits as read. Where the offset is near zero a swap maps the sphere onto itself: then it
+  is invisible, and harmless to the calibration.
+
+The surface is ``magcal.fit.fit_calibration`` (robust start, Grubbs, ML; an ellipsoid where the
+coverage determines one), taken as the one with the least median radial residual over all
+samples among the fits on all samples and on all but one or two adjacent blocks of
+``FIT_BLOCKS``, so that a faulty stretch up to two fifths long cannot bend it; once faults are
+found the fits are redone without them and the search repeated once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...core.calibration import Calibration
+from ...fit import fit_calibration
+from .base import AXES, Effect, Kind, Located, Residual, runs
+
+RAIL_MIN_SHARE = 0.005  # share of distinct readings a rail must hold
+RAIL_MIN_COUNT = 8
+RAIL_OVER_LEVEL = 3.0  # the rail against the typical (median) level just inside it
+RAIL_BAND = 0.02  # "just inside": this share of the axis's range
+STUCK_MIN_SAMPLES = 5
+MOVE_QUANTA = 10.0
+STUCK_OVER_FLOOR = 4.0
+STUCK_OVER_LOCAL = 3.0
+SWAP_MISS = 10.0  # a sample missed by this × scatter as read ...
+SWAP_FIT = 3.0  # ... and fitted within this × scatter transformed favours the transform
+SWAP_RATIO = 5.0  # the stretch: RMS as read against RMS transformed
+SWAP_OVER_LOCAL = 3.0  # the stretch as read against the samples around it
+SWAP_MIN_SAMPLES = 10
+FIT_MAX_N = 4000
+FIT_BLOCKS = 5
+FIT_MODEL = "ellipsoid"
+MAD_TO_SIGMA = 1.4826
+
+# the readings a stretch may have been taken in: (name, permutation, signs); each is its own inverse
+TRANSFORMS = (
+    ("x↔y", (1, 0, 2), (1, 1, 1)),
+    ("x↔z", (2, 1, 0), (1, 1, 1)),
+    ("y↔z", (0, 2, 1), (1, 1, 1)),
+    ("−x", (0, 1, 2), (-1, 1, 1)),
+    ("−y", (0, 1, 2), (1, -1, 1)),
+    ("−z", (0, 1, 2), (1, 1, -1)),
+)
+
+
+@dataclass(frozen=True)
+class Screen:
+    """What the screen decided: ``keep`` (n,) the samples to use; ``found`` the faults."""
+
+    keep: np.ndarray
+    found: tuple[Located, ...]
+
+    @property
+    def n_set_aside(self) -> int:
+        return int(len(self.keep) - np.count_nonzero(self.keep))
+
+
+def screen(t_s, m_ut, valid=None) -> Screen:
+    """Screen the raw series (rows in acquisition order) for data faults; see the module docstring."""
+    t, m, keep = _inputs(t_s, m_ut, valid)
+    found = list(_timestamps(t, keep))
+    keep = _without(keep, found)
+    found += _saturation(t, m, keep)
+    keep = _without(keep, found)
+    shape, fit_on = [], keep
+    for _ in range(2):  # the second pass fits without what the first found
+        held = _held_out(m, keep, fit_on)
+        if held is None:
+            break
+        shape = _shape_faults(t, m, keep, *held)
+        if not shape or fit_on is not keep:
+            break
+        fit_on = _without(keep, shape)
+    return Screen(_without(keep, shape), tuple(found + shape))
+
+
+def _shape_faults(t, m, keep, r_all, sigma) -> list[Located]:
+    stuck = _stuck(t, m, keep, r_all[0], sigma)
+    return stuck + _swaps(t, keep & _without(keep, stuck), r_all, sigma)
+
+
+def _inputs(t_s, m_ut, valid):
+    t = np.asarray(t_s, dtype=np.float64).reshape(-1)
+    m = np.asarray(m_ut, dtype=np.float64)
+    if m.ndim != 2 or m.shape[1] != 3:
+        raise ValueError(f"m_ut must be (n, 3) µT, got shape {m.shape}")
+    if len(t) != len(m):
+        raise ValueError(f"t_s has {len(t)} rows but m_ut has {len(m)}")
+    keep = np.all(np.isfinite(m), axis=1) & np.isfinite(t)
+    if valid is not None:
+        v = np.asarray(valid, dtype=bool).reshape(-1)
+        if len(v) != len(m):
+            raise ValueError(f"valid has {len(v)} rows but m_ut has {len(m)}")
+        keep &= v
+    return t, m, keep
+
+
+def _without(keep: np.ndarray, found) -> np.ndarray:
+    out = keep.copy()
+    for x in found:
+        out[x.rows] = False
+    return out
+
+
+def _where(t: np.ndarray, rows: np.ndarray, axis=None, gap: int = 1) -> dict:
+    """Stretches [start, end] s of ``rows`` (runs broken where rows are more than ``gap`` apart)."""
+    rows = np.sort(rows)
+    cut = np.flatnonzero(np.diff(rows) > gap)
+    starts, ends = np.r_[rows[:1], rows[cut + 1]], np.r_[rows[cut], rows[-1:]]
+    out = {"time_s": [[float(t[a]), float(t[b])] for a, b in zip(starts, ends)]}
+    if axis is not None:
+        out["axis"] = axis
+    return out
+
+
+# -- timestamps ---------------------------------------------------------------------------------
+def _timestamps(t: np.ndarray, keep: np.ndarray) -> list[Located]:
+    """Samples whose time is not later than every time before them (among usable samples)."""
+    idx = np.flatnonzero(keep)
+    if len(idx) < 2:
+        return []
+    tk = t[idx]
+    before = np.maximum.accumulate(tk)[:-1]
+    same, back = tk[1:] == before, tk[1:] < before
+    out = []
+    for mask, name, what in ((same, "repeated_timestamps", "repeat the time of an earlier sample"),
+                             (back, "out_of_order_timestamps", "go back in time")):
+        rows = idx[1:][mask]
+        if len(rows):
+            where = _where(t, rows, gap=1)
+            step = np.median(np.diff(tk)[np.diff(tk) > 0]) if np.any(np.diff(tk) > 0) else float("nan")
+            summary = (f"{len(rows)} samples {what} ({len(where['time_s'])} places, first at {t[rows[0]]:.3f} s);"
+                       " set aside")
+            out.append(Located(name, Kind.FAULT, summary, where, {"n_samples": len(rows)},
+                               {"median_step_s": float(step)}, rows))
+    return out
+
+
+# -- saturation ---------------------------------------------------------------------------------
+def _saturation(t: np.ndarray, m: np.ndarray, keep: np.ndarray) -> list[Located]:
+    idx = np.flatnonzero(keep)
+    if len(idx) < 4 * RAIL_MIN_COUNT:
+        return []
+    fresh = _fresh(m[idx])
+    out = []
+    for a in range(3):
+        for side in (1.0, -1.0):
+            hit = _rail(m[idx, a], fresh, side)
+            if hit is not None:
+                out.append(_rail_found(t, m, idx[hit[0]], a, side, hit[1]))
+    return out
+
+
+def _fresh(m: np.ndarray) -> np.ndarray:
+    """True for a reading that is not an exact repeat of the one before (repeated reads of one
+    conversion count once)."""
+    return np.r_[True, np.any(np.diff(m, axis=0) != 0, axis=1)]
+
+
+def _rail(x: np.ndarray, fresh: np.ndarray, side: float):
+    """(positions at the rail, evidence) when the extreme value on ``side`` is a pile-up."""
+    e = x.max() if side > 0 else x.min()
+    at = x == e
+    n_at = int(np.count_nonzero(at & fresh))
+    lo, hi = np.percentile(x, [0.5, 99.5])
+    band = RAIL_BAND * max(hi - lo, np.finfo(float).tiny)
+    near = (~at) & fresh & (np.abs(x - e) <= band)
+    level = float(np.median(np.unique(x[near], return_counts=True)[1])) if np.any(near) else 0.0
+    need = max(RAIL_MIN_COUNT, RAIL_MIN_SHARE * np.count_nonzero(fresh), RAIL_OVER_LEVEL * max(level, 1.0))
+    if n_at < need:
+        return None
+    return np.flatnonzero(at), {"rail_value_ut": float(e), "n_distinct_at_rail": n_at,
+                                "median_level_inside": level, "needed": float(need)}
+
+
+def _rail_found(t, m, rows, a: int, side: float, ev: dict) -> Located:
+    share = len(rows) / len(m)
+    where = _where(t, rows, AXES[a], gap=2)
+    end = "maximum" if side > 0 else "minimum"
+    summary = (f"the {AXES[a]} axis sits at its {end} {ev['rail_value_ut']:.4g} µT in {len(rows)} samples"
+               f" ({100 * share:.1f} %, {len(where['time_s'])} stretches), {ev['n_distinct_at_rail']} distinct"
+               f" readings against {ev['median_level_inside']:.0f} at a typical level just inside: a clipped rail;"
+               " set aside")
+    return Located("saturation", Kind.FAULT, summary, where,
+                   {"rail_ut": ev["rail_value_ut"], "n_samples": len(rows), "share": share}, ev, rows)
+
+
+# -- the surface the rest of the data describes --------------------------------------------------
+def _held_out(m: np.ndarray, keep: np.ndarray, fit_on: np.ndarray):
+    """Each kept sample's radial residual (µT) against the surface the rest of the data
+    describes, as read (row 0) and read through each of ``TRANSFORMS`` (rows 1…), nan where not
+    kept; and the robust scatter of the as-read residual. None where no surface fits."""
+    idx = np.flatnonzero(keep)
+    cal = _least_median(m, idx, fit_on)
+    if cal is None:
+        return None
+    out = np.full((len(TRANSFORMS) + 1, len(m)), np.nan)
+    out[0, idx] = _radial(cal, m[idx])
+    for j, (_, perm, signs) in enumerate(TRANSFORMS):
+        out[j + 1, idx] = _radial(cal, m[idx][:, perm] * np.asarray(signs, float))
+    r = out[0, fit_on & keep]
+    return out, float(MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
+
+
+def _least_median(m: np.ndarray, idx: np.ndarray, fit_on: np.ndarray) -> Calibration | None:
+    """Of the fits on all of ``fit_on`` and on it without each one or two adjacent blocks of
+    ``FIT_BLOCKS``, the one with the least median |radial residual| over the samples ``idx``."""
+    if len(idx) < 20:
+        return None
+    best, best_med = None, np.inf
+    blocks = np.array_split(np.flatnonzero(fit_on), FIT_BLOCKS)
+    leave = [()] + [(k,) for k in range(FIT_BLOCKS)] + [(k, k + 1) for k in range(FIT_BLOCKS - 1)]
+    for out in leave:
+        use = fit_on.copy()
+        for k in out:
+            use[blocks[k]] = False
+        cal = _fit(m, use)
+        med = float(np.median(np.abs(_radial(cal, m[idx])))) if cal is not None else np.inf
+        if med < best_med:
+            best, best_med = cal, med
+    return best
+
+
+def _fit(m: np.ndarray, use: np.ndarray) -> Calibration | None:
+    idx = np.flatnonzero(use)
+    if len(idx) < 20:
+        return None
+    res = fit_calibration(m[idx[:: max(1, len(idx) // FIT_MAX_N)]], model=FIT_MODEL)
+    return res.calibration if res else None
+
+
+def _radial(cal: Calibration, m: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(cal.correct(m), axis=1) - cal.field_ut
+
+
+# -- stuck axes -----------------------------------------------------------------------------------
+def _quantum(x: np.ndarray) -> float:
+    d = np.diff(np.unique(x))
+    d = d[d > 1e-9 * max(1.0, float(np.max(np.abs(x))))]
+    return float(d.min()) if len(d) else 0.0
+
+
+def _stuck(t, m, keep, r0, sigma) -> list[Located]:
+    idx = np.flatnonzero(keep)
+    mk = m[idx]
+    q = [_quantum(mk[:, a]) for a in range(3)]
+    out = []
+    for a in range(3):
+        same = np.r_[False, np.diff(mk[:, a]) == 0]
+        for s, e in runs(same, STUCK_MIN_SAMPLES - 1):
+            run = np.arange(s - 1, e)
+            ev = _stuck_evidence(mk, r0[idx], run, a, q, sigma)
+            if ev is not None:
+                out.append(_stuck_found(t, m, idx[run], a, ev))
+    return out
+
+
+def _stuck_evidence(mk, rk, run, a, q, sigma):
+    """Evidence that a run of one repeated value on axis ``a`` is a stuck axis, or None."""
+    others = [b for b in range(3) if b != a]
+    moved = float(max(np.ptp(mk[run][:, b]) for b in others))
+    if any(np.ptp(mk[run][:, b]) < MOVE_QUANTA * q[b] for b in others) or moved < 2 * STUCK_OVER_FLOOR * sigma:
+        return None
+    if not np.all(np.isfinite(rk[run])):
+        return None
+    rms_in = float(np.sqrt(np.mean(rk[run] ** 2)))
+    rms_out = _around(rk, run)
+    if rms_in < STUCK_OVER_FLOOR * sigma or rms_in < STUCK_OVER_LOCAL * rms_out:
+        return None
+    return {"others_moved_ut": moved, "rms_residual_ut": rms_in, "rms_residual_around_ut": rms_out,
+            "scatter_ut": sigma, "over_scatter": rms_in / sigma if sigma > 0 else float("inf")}
+
+
+def _stuck_found(t, m, rows, a: int, ev: dict) -> Located:
+    value = float(m[rows[0], a])
+    span = float(t[rows[-1]] - t[rows[0]])
+    summary = (f"the {AXES[a]} axis stuck at {value:.4g} µT for {span:.2f} s ({len(rows)} samples,"
+               f" {t[rows[0]]:.2f}–{t[rows[-1]]:.2f} s) while the other axes moved {ev['others_moved_ut']:.3g} µT;"
+               f" the fitted surface misses those samples by {ev['rms_residual_ut']:.3g} µT RMS,"
+               f" {ev['over_scatter']:.1f}× the recording's scatter; set aside")
+    where = {"time_s": [[float(t[rows[0]]), float(t[rows[-1]])]], "axis": AXES[a]}
+    return Located("stuck_axis", Kind.FAULT, summary, where,
+                   {"value_ut": value, "duration_s": span, "n_samples": len(rows)}, ev, rows)
+
+
+# -- swapped or flipped axes ---------------------------------------------------------------------
+def _swaps(t, keep, r_all, sigma) -> list[Located]:
+    if not sigma > 0:
+        return []
+    idx = np.flatnonzero(keep)
+    a0 = np.abs(r_all[0, idx])
+    out = []
+    for j, (name, perm, signs) in enumerate(TRANSFORMS):
+        at = np.abs(r_all[j + 1, idx])
+        favour = (a0 > SWAP_MISS * sigma) & (at < SWAP_FIT * sigma)
+        against = (a0 < SWAP_FIT * sigma) & (at > SWAP_MISS * sigma)
+        for run in _favoured_runs(favour, against):
+            if np.count_nonzero(favour[run]) >= SWAP_MIN_SAMPLES:
+                x = _swap_found(t, idx[run], name, perm, signs, a0[run], at[run], sigma, _around(a0, run))
+                if _swap_holds(x.evidence):
+                    out.append(x)
+    return _strongest_per_stretch(out)
+
+
+def _around(a: np.ndarray, run: np.ndarray) -> float:
+    """RMS of ``a`` over the 2·len(run) samples on each side of ``run``."""
+    k = len(run)
+    around = np.r_[np.arange(max(0, run[0] - 2 * k), run[0]), np.arange(run[-1] + 1, min(len(a), run[-1] + 1 + 2 * k))]
+    return float(np.sqrt(np.mean(a[around] ** 2))) if len(around) else 0.0
+
+
+def _favoured_runs(favour: np.ndarray, against: np.ndarray) -> list[np.ndarray]:
+    """Runs of favoured samples joined across samples that are neither (as read and transformed
+    both miss, or both fit: a swap leaves the points where the surface meets its mirror image on
+    it) but never across one that fits as read and misses transformed."""
+    state = np.where(favour, 1, np.where(against, -1, 0))
+    out = []
+    for s, e in runs(state >= 0):
+        inside = s + np.flatnonzero(state[s:e] == 1)
+        if len(inside):
+            out.append(np.arange(inside[0], inside[-1] + 1))
+    return out
+
+
+def _swap_holds(ev: dict) -> bool:
+    rms0, rmst = ev["rms_as_read_ut"], ev["rms_as_transformed_ut"]
+    return rms0 >= SWAP_RATIO * rmst and rms0 >= SWAP_OVER_LOCAL * ev["rms_around_ut"]
+
+
+def _swap_found(t, rows, name, perm, signs, a0, at, sigma, rms_around) -> Located:
+    span = [float(t[rows[0]]), float(t[rows[-1]])]
+    rms0, rmst = float(np.sqrt(np.mean(a0 ** 2))), float(np.sqrt(np.mean(at ** 2)))
+    summary = (f"{len(rows)} samples ({span[0]:.2f}–{span[1]:.2f} s) fit the surface of the rest of the recording"
+               f" read as {name} ({rmst:.3g} µT RMS) but not as recorded ({rms0:.3g} µT RMS,"
+               f" {rms0 / sigma:.1f}× the recording's scatter): axes swapped or flipped; set aside")
+    axes = [AXES[i] for i in range(3) if perm[i] != i or signs[i] < 0]
+    return Located("axis_swap", Kind.FAULT, summary, {"time_s": [span], "axis": axes},
+                   {"reading": name, "permutation": list(perm), "signs": list(signs), "n_samples": len(rows)},
+                   {"rms_as_read_ut": rms0, "rms_as_transformed_ut": rmst, "scatter_ut": sigma,
+                    "rms_around_ut": rms_around}, rows)
+
+
+def _strongest_per_stretch(found: list[Located]) -> list[Located]:
+    """Where two readings claim overlapping samples, the one that fits them better stands."""
+    order = sorted(found, key=lambda x: x.evidence["rms_as_transformed_ut"] / x.evidence["rms_as_read_ut"])
+    out, taken = [], np.zeros(0, np.int64)
+    for x in order:
+        if not np.intersect1d(x.rows, taken).size:
+            out.append(x)
+            taken = np.r_[taken, x.rows]
+    return out
+
+
+# -- the table's rows ----------------------------------------------------------------------------
+FAULT_NAMES = ("stuck_axis", "saturation", "axis_swap", "repeated_timestamps", "out_of_order_timestamps")
+
+
+def _search_for(name: str):
+    def search(res: Residual) -> tuple[Located, ...]:
+        return tuple(x for x in screen(res.t_s, res.m_ut).found if x.effect == name)
+    search.__name__ = f"search_{name}"
+    return search
+
+
+EFFECTS: tuple[Effect, ...] = tuple(Effect(name, Kind.FAULT, _search_for(name)) for name in FAULT_NAMES)
+
+__all__ = ["EFFECTS", "FAULT_NAMES", "Screen", "TRANSFORMS", "screen"]
