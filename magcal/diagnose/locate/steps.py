@@ -1,0 +1,394 @@
+"""Change points in time: a hard-iron step, a soft-iron change, and stretches where the data misbehave.
+
+- ``hard_iron_step``: something magnetic put down or picked up mid-recording moves the offset
+  by δ at τ. After it the radial residual is ≈ u·(Wδ) (u the direction, W the soft iron)
+  relative to the level before. Every candidate τ is judged in a window of ±``half_window_s``
+  around it: the offset there may wander as a quadratic in time (a slow wander or a ramp is
+  absorbed — it is not a step), and the step must add beyond it. The statistic (the drop in
+  residual sum of squares, over the local variance and the recording's own inflation f² of
+  direction-weighted sums, ``steps_scan.inflation``) is χ²₃ under no step; the threshold is
+  Bonferroni over the span's independent windows at family-wise ``ALPHA``. Found steps are
+  taken out one at a time and the scan repeated (up to ``MAX_STEPS``). δ comes with its 1σ and
+  τ with the interval of times whose fit is within χ²₁(95 %) of the best.
+- ``soft_iron_change``: the shape (gains, soft iron) changes at τ. With the offset free to
+  wander (piecewise linear in time) and to step at τ, the 6 shape terms after τ (r moves by
+  F·uᵀEu under h → (I + E)h) are tested on a grid of τ (χ²₆, Bonferroni over the grid, the
+  same inflation on shape-weighted sums). Stated as a change only where each side's own
+  coverage determines the shape to ``SHAPE_SIGMA_MAX``; otherwise said to be undeterminable.
+- ``unexplained_structure``: a stretch whose residual RMS (after the wander and any found step)
+  is ``STRUCTURE_OVER_TYPICAL`` times the recording's typical window and above its floor,
+  explained by no step — returned as the honest remainder, with its size over the floor.
+
+``remove`` for a step shifts the samples before τ by δ, and for a soft-iron change maps the
+samples before τ through the calibration fitted on them into the calibration fitted on the
+samples after τ: the calibration refitted on the result is the one in force at the END of the
+recording, which is what ``write`` puts on the device.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...fit import fit_calibration
+from ...fit.tails import chi2_isf
+from . import steps_scan as scan
+from .base import Effect, Kind, Located, Residual, runs
+
+STEP = "hard_iron_step"
+SOFT = "soft_iron_change"
+REST = "unexplained_structure"
+ALPHA = 0.01  # family-wise false-claim rate over every time scanned
+MAX_STEPS = 3
+HALF_SHARE = 1.0 / 15.0  # the local window's half-width as a share of the span …
+HALF_RANGE_S = (3.0, 15.0)  # … within these bounds
+MIN_SIDE = 25  # samples each side of τ within its window
+INTERVAL_CHI2 = float(chi2_isf(0.05, 1))
+SOFT_GRID = 40  # soft-iron candidate times over the middle of the span
+SOFT_EDGE = 0.1  # … leaving this share of the span at each end
+SOFT_KNOT_SHARE = 0.25  # the offset may wander piecewise-linearly with knots this share of the span apart
+SOFT_MAX_N = 3000  # samples the soft-iron scan uses (evenly thinned)
+SHAPE_SIGMA_MAX = 0.01  # 1σ of a shape term (relative gain) a side's coverage must reach
+STRUCTURE_OVER_TYPICAL = 3.0
+STRUCTURE_OVER_FLOOR = 2.0
+STRUCTURE_WINDOW_S = 1.0
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step found: its time, interval, change of the local offset (h frame) and its
+    covariance, the level before it, and the statistic against its threshold."""
+
+    tau_s: float
+    interval_s: tuple[float, float]
+    d_h: np.ndarray
+    cov_h: np.ndarray
+    level_h: np.ndarray
+    stat: float
+    threshold: float
+
+
+def half_window_s(t_s: np.ndarray) -> float:
+    """The local window's half-width for this recording's span."""
+    span = float(t_s[-1] - t_s[0])
+    return float(np.clip(span * HALF_SHARE, *HALF_RANGE_S))
+
+
+def _check(res: Residual) -> None:
+    t = np.asarray(res.t_s, float)
+    if len(t) != len(res.m_ut) or len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise ValueError("t_s must hold one finite, non-decreasing time per sample")
+
+
+# -- hard-iron steps ----------------------------------------------------------------------
+
+
+def _stat_at(u, t, r, tau, half, f2) -> tuple[float, scan.Fit] | None:
+    w = scan.window(t, tau, half)
+    if not scan.support(t, tau, half, MIN_SIDE):
+        return None
+    gain, f1 = scan.step_gain(u[w], t[w], r[w], tau, half)
+    var = f1.rss / max(f1.n - f1.p, 1)
+    return gain / max(var * f2, 1e-300), f1
+
+
+def _best(u, t, r, half, f2) -> tuple[float, float]:
+    """(largest statistic, its time) over the candidate grid."""
+    best = (0.0, float("nan"))
+    for tau in scan.candidates(t, half):
+        got = _stat_at(u, t, r, tau, half, f2)
+        if got is not None and got[0] > best[0]:
+            best = (got[0], float(tau))
+    return best
+
+
+def _refine(u, t, r, half, tau0, f2, threshold) -> Step:
+    """The best sample time near ``tau0`` (window fixed at tau0), its interval and the step."""
+    w = scan.window(t, tau0, half)
+    uw, tw, rw = u[w], t[w], r[w]
+    near = tw[np.abs(tw - tau0) <= half / 5.0]
+    taus = np.unique(np.concatenate([near, [tau0]]))
+    fits = [scan.step_gain(uw, tw, rw, tau, half)[1] for tau in taus]
+    rss = np.array([f.rss for f in fits])
+    k = int(np.argmin(rss))
+    f1 = fits[k]
+    var = f1.rss / max(f1.n - f1.p, 1) * f2
+    inside = taus[rss <= rss[k] + INTERVAL_CHI2 * var]
+    tau = float(taus[k])
+    d = f1.coef[-3:]
+    stat = (scan.lsq(scan.local_design(uw, tw, tau, half), rw).rss - f1.rss) / var
+    return Step(tau, (float(inside.min()), float(inside.max())), d, var * f1.xtx_inv[-3:, -3:], f1.coef[:3], stat, threshold)
+
+
+def measure(u, t, r, q, f2, steps: list[Step]) -> list[Step]:
+    """Each step's vector from the segments between the steps: a constant offset per segment
+    (3 columns each) with the calibration's shape misfit (Q) shared — the jump alone fixes only
+    the step's part along the direction at τ; the segments see every direction."""
+    cuts = [s.tau_s for s in steps]
+    seg = np.searchsorted(cuts, t, "right")
+    x = np.hstack([q] + [u * (seg == k)[:, None] for k in range(len(steps) + 1)])
+    f = scan.lsq(x, r)
+    var = f.rss / max(f.n - f.p, 1) * f2
+    out = []
+    for k, s in enumerate(steps):
+        a, b = 6 + 3 * k, 6 + 3 * (k + 1)
+        d = f.coef[b : b + 3] - f.coef[a : a + 3]
+        c = f.xtx_inv
+        cov = var * (c[a : a + 3, a : a + 3] + c[b : b + 3, b : b + 3] - c[a : a + 3, b : b + 3] - c[b : b + 3, a : a + 3])
+        out.append(Step(s.tau_s, s.interval_s, d, cov, f.coef[a : a + 3], s.stat, s.threshold))
+    return out
+
+
+def find_steps(u, t, r, half, f2) -> tuple[list[Step], np.ndarray]:
+    """The steps found (time order) and the residual with them taken out."""
+    span = float(t[-1] - t[0])
+    threshold = float(chi2_isf(ALPHA / max(1.0, span / half), 3))
+    steps: list[Step] = []
+    r = r.copy()
+    for _ in range(MAX_STEPS):
+        stat, tau = _best(u, t, r, half, f2)
+        if not stat >= threshold:
+            break
+        s = _refine(u, t, r, half, tau, f2, threshold)
+        steps.append(s)
+        r = r - (u @ s.d_h) * (t >= s.tau_s)
+    return sorted(steps, key=lambda s: s.tau_s), r
+
+
+def _step_located(s: Step, cal, floor_ut: float) -> Located:
+    w_inv = np.linalg.inv(cal.soft_iron)
+    d = w_inv @ s.d_h
+    cov = w_inv @ s.cov_h @ w_inv.T
+    sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    before = cal.offset_ut + w_inv @ s.level_h
+    size = float(np.linalg.norm(d))
+    half = max(s.tau_s - s.interval_s[0], s.interval_s[1] - s.tau_s)
+    over = size / floor_ut if floor_ut > 0 else float("inf")
+    summary = (f"a hard-iron step of ({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f}) µT at {s.tau_s:.1f} s (±{half:.1f} s), "
+               f"{over:.1f}× the recording's floor")
+    return Located(STEP, Kind.PHYSICS, summary, {"time_s": [s.tau_s], "direction": (d / size).tolist()},
+                   {"step_ut": d, "step_sigma_ut": sigma, "offset_before_ut": before, "offset_after_ut": before + d,
+                    "time_s": s.tau_s, "time_interval_s": list(s.interval_s)},
+                   {"size_ut": size, "size_over_floor": over, "statistic": s.stat, "threshold": s.threshold,
+                    "alpha": ALPHA})
+
+
+def remove_step(m_ut, t_s, channels, located: Located) -> np.ndarray:
+    """The samples before the step shifted by it: the offset after the step in force throughout,
+    so a calibration refitted on them is the one in force at the end of the recording."""
+    m = np.array(m_ut, dtype=np.float64, copy=True)
+    before = np.asarray(t_s, float) < float(located.params["time_s"])
+    m[before] += np.asarray(located.params["step_ut"], float)
+    return m
+
+
+# -- soft-iron change ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ShapeChange:
+    """The best soft-iron change time, its interval over the grid, the change E of the shape
+    terms (xx, yy, zz, xy, xz, yz) with 1σ, the statistic, and whether each side determines it."""
+
+    tau_s: float
+    interval_s: tuple[float, float]
+    e: np.ndarray
+    sigma: np.ndarray
+    stat: float
+    threshold: float
+    determined: tuple[bool, bool]
+
+
+def _thin(n: int) -> np.ndarray:
+    return np.arange(0, n, max(1, int(np.ceil(n / SOFT_MAX_N))))
+
+
+def _shape_scan(base, u, q, t, r, taus) -> tuple[np.ndarray, np.ndarray, list]:
+    """Per τ: RSS with an offset step at τ, RSS with the shape changing too, and the latter's
+    (coefficients, (XᵀX)⁻¹) — from tail Gram matrices, one pass over the samples."""
+    z = np.hstack([base, u, q])
+    nb = base.shape[1]
+    full, fcross = z.T @ z, z.T @ r
+    rtr = float(r @ r)
+    grams, cross = scan.tail_grams(z, r, np.searchsorted(t, taus, "left"))
+    rss0, rss1, fits = [], [], []
+    for g, c in zip(grams, cross):
+        xtx = np.block([[full[:nb, :nb], g[:nb, nb:]], [g[nb:, :nb], g[nb:, nb:]]])
+        xtr = np.concatenate([fcross[:nb], c[nb:]])
+        rss0.append(scan.solve_rss(xtx[: nb + 3, : nb + 3], xtr[: nb + 3], rtr)[0])
+        rss, coef, inv = scan.solve_rss(xtx, xtr, rtr)
+        rss1.append(rss)
+        fits.append((coef, inv))
+    return np.array(rss0), np.array(rss1), fits
+
+
+def shape_change(u, t, r, field_ut: float, half: float, step_times=()) -> ShapeChange | None:
+    """The soft-iron change scan (module docstring), with the offset stepping at ``step_times``
+    too; None when the span is too short to scan."""
+    k = _thin(len(t))
+    u, t, r = u[k], t[k], r[k]
+    q = scan.quad(u, field_ut)
+    span = float(t[-1] - t[0])
+    steps = [u * (t >= x)[:, None] for x in step_times]
+    base = np.hstack([scan.wander_columns(u, t, span * SOFT_KNOT_SHARE), q] + steps)
+    taus = t[0] + span * np.linspace(SOFT_EDGE, 1 - SOFT_EDGE, SOFT_GRID)
+    taus = taus[[min(np.sum(t < x), np.sum(t >= x)) >= 6 * MIN_SIDE for x in taus]]
+    if len(taus) < 3:
+        return None
+    rss0, rss1, fits = _shape_scan(base, u, q, t, r, taus)
+    i = int(np.argmax((rss0 - rss1) / rss1))
+    after = (t >= taus[i])[:, None]
+    e1 = r - np.hstack([base, u * after, q * after]) @ fits[i][0]
+    f2 = scan.inflation(e1, q / field_ut, max(1, int(np.sum(t - t[0] < half))))
+    var = rss1 / max(len(t) - base.shape[1] - 9, 1) * f2
+    stats = (rss0 - rss1) / var
+    inside = taus[rss1 <= rss1[i] + INTERVAL_CHI2 * var[i]]
+    threshold = float(chi2_isf(ALPHA / len(taus), 6))
+    width = taus[1] - taus[0]
+    taus = np.linspace(taus[i] - width, taus[i] + width, 21)
+    rss0, rss1, fits = _shape_scan(base, u, q, t, r, taus)
+    var = rss1 / max(len(t) - base.shape[1] - 9, 1) * f2
+    stats = (rss0 - rss1) / var
+    i = int(np.argmax(stats))
+    coef, inv = fits[i]
+    sigma = np.sqrt(np.clip(np.diag(var[i] * inv)[-6:], 0.0, None))
+    det = (_determined(u, q, t, r, t < taus[i], f2), _determined(u, q, t, r, t >= taus[i], f2))
+    return ShapeChange(float(taus[i]), (float(inside.min()), float(inside.max())), coef[-6:], sigma,
+                       float(stats[i]), threshold, det)
+
+
+def _determined(u, q, t, r, side: np.ndarray, f2: float) -> bool:
+    """Whether this side's own coverage fixes every shape term to SHAPE_SIGMA_MAX (1σ)."""
+    if side.sum() < 6 * MIN_SIDE:
+        return False
+    x = np.hstack([scan.wander_columns(u[side], t[side], float(np.ptp(t[side])) + 1.0), q[side] / np.max(np.abs(q))])
+    f = scan.lsq(x, r[side])
+    var = f.rss / max(f.n - f.p, 1) * f2
+    scale = np.max(np.abs(q))
+    sig = np.sqrt(np.clip(np.diag(f.xtx_inv)[-6:] * var, 0.0, None)) / scale
+    return bool(np.all(sig <= SHAPE_SIGMA_MAX))
+
+
+def _soft_located(c: ShapeChange, floor_ut: float, field_ut: float) -> Located:
+    gains = c.e[:3]
+    size_ut = float(np.max(np.abs(c.e)) * field_ut)
+    half = max(c.tau_s - c.interval_s[0], c.interval_s[1] - c.tau_s)
+    where = {"time_s": [c.tau_s], "axis": ["x", "y", "z"][int(np.argmax(np.abs(gains)))]}
+    evidence = {"size_ut": size_ut, "size_over_floor": size_ut / floor_ut if floor_ut > 0 else float("inf"),
+                "statistic": c.stat, "threshold": c.threshold, "alpha": ALPHA}
+    params = {"time_s": c.tau_s, "time_interval_s": list(c.interval_s), "gain_change": gains,
+              "gain_change_sigma": c.sigma[:3], "shape_change": c.e, "shape_change_sigma": c.sigma}
+    g = ", ".join(f"{100 * x:+.1f} %" for x in gains)
+    if all(c.determined):
+        summary = f"the soft iron changed at {c.tau_s:.1f} s (±{half:.1f} s): gains x, y, z by {g}"
+        return Located(SOFT, Kind.PHYSICS, summary, where, params, evidence)
+    side = "before" if not c.determined[0] else "after"
+    summary = (f"the calibration's shape seems to change at {c.tau_s:.1f} s (±{half:.1f} s), but the coverage "
+               f"{side} it cannot determine the gains, so the change cannot be told")
+    return Located(REST, Kind.REMAINDER, summary, where, params, evidence)
+
+
+def remove_soft(m_ut, t_s, channels, located: Located) -> np.ndarray:
+    """The samples before τ mapped through their own calibration into the one fitted on the
+    samples after τ alone (full ellipsoid): a calibration refitted on the result is the one in
+    force at the end of the recording. Unchanged where either side cannot be fitted."""
+    m = np.asarray(m_ut, dtype=np.float64)
+    before = np.asarray(t_s, float) < float(located.params["time_s"])
+    fb = fit_calibration(m[before], model="ellipsoid")
+    fa = fit_calibration(m[~before], model="ellipsoid")
+    if not fb or not fa:
+        return m.copy()
+    cb, ca = fb.calibration, fa.calibration
+    h = cb.correct(m[before]) * (ca.field_ut / cb.field_ut)
+    out = m.copy()
+    out[before] = ca.distort(h)
+    return out
+
+
+# -- the remainder --------------------------------------------------------------------------
+
+
+def structure(u, t, r, half, floor_ut: float) -> list[Located]:
+    """Stretches whose RMS residual (after the wander) stands far above the recording's typical
+    window and its floor, explained by no step."""
+    x = scan.wander_columns(u, t, half)
+    e = r - x @ scan.lsq(x, r).coef
+    edges = np.arange(t[0], t[-1] + STRUCTURE_WINDOW_S, STRUCTURE_WINDOW_S)
+    cell = np.clip(np.searchsorted(edges, t, "right") - 1, 0, len(edges) - 1)
+    n = np.bincount(cell, minlength=len(edges))
+    ms = np.bincount(cell, e * e, minlength=len(edges)) / np.maximum(n, 1)
+    rms = np.sqrt(ms)
+    typical = float(np.median(rms[n >= 5])) if np.any(n >= 5) else 0.0
+    bad = (n >= 5) & (rms > STRUCTURE_OVER_TYPICAL * typical) & (rms > STRUCTURE_OVER_FLOOR * floor_ut)
+    out = []
+    for a, b in runs(bad):
+        inside = (cell >= a) & (cell < b)
+        level = float(np.sqrt(np.mean(e[inside] ** 2)))
+        t0, t1 = float(t[inside][0]), float(t[inside][-1])
+        over = level / floor_ut
+        summary = f"unexplained structure remains: {over:.1f}× the noise, at {t0:.1f}–{t1:.1f} s"
+        out.append(Located(REST, Kind.REMAINDER, summary, {"time_s": [[t0, t1]]}, {"rms_ut": level},
+                           {"size_over_floor": over, "typical_rms_ut": typical, "size_ut": level}))
+    return out
+
+
+# -- the search -----------------------------------------------------------------------------
+
+
+def _shape_corrected(u, t, r, shape_cols: np.ndarray, half, steps: list[Step]) -> np.ndarray:
+    """r with the calibration's shape misfit (``shape_cols``: Q, and Q after a soft-iron change)
+    taken out, fitted with the wander and the steps found so far, so a local offset search
+    does not chase it."""
+    cols = [shape_cols, scan.wander_columns(u, t, half)] + [u * (t >= s.tau_s)[:, None] for s in steps]
+    coef = scan.lsq(np.hstack(cols), r).coef
+    return r - shape_cols @ coef[: shape_cols.shape[1]]
+
+
+def _all_steps(u, t, r, shape_cols, half, f2) -> tuple[list[Step], np.ndarray]:
+    steps, rest = find_steps(u, t, _shape_corrected(u, t, r, shape_cols, half, []), half, f2)
+    if steps:
+        steps, rest = find_steps(u, t, _shape_corrected(u, t, r, shape_cols, half, steps), half, f2)
+    return steps, rest
+
+
+def _soft_change(u, t, r, field_ut, half, steps: list[Step]) -> ShapeChange | None:
+    """A soft-iron change, claimed only where the shape changes beyond chance both with the
+    offset steps found allowed for (a step is not a change of shape) and without them (a
+    change of shape seen through a local offset model can look like steps); placed by the
+    latter, which such false steps cannot pull."""
+    with_steps = shape_change(u, t, r, field_ut, half, [s.tau_s for s in steps])
+    if with_steps is None or with_steps.stat < with_steps.threshold:
+        return None
+    alone = shape_change(u, t, r, field_ut, half) if steps else with_steps
+    return alone if alone is not None and alone.stat >= alone.threshold else None
+
+
+def search(res: Residual) -> tuple[Located, ...]:
+    """Every step, soft-iron change and misbehaving stretch in one residual (module docstring)."""
+    _check(res)
+    t = np.asarray(res.t_s, float)
+    u, r = res.u, res.r_ut
+    if float(t[-1] - t[0]) < 4 * HALF_RANGE_S[0]:
+        return ()
+    half = half_window_s(t)
+    cal, floor = res.calibration, float(res.floor_ut)
+    q = scan.quad(u, cal.field_ut)
+    x = np.hstack([scan.wander_columns(u, t, half), q])
+    f2 = scan.inflation(r - x @ scan.lsq(x, r).coef, u, max(1, int(np.sum(t - t[0] < half))))
+    steps, rest = _all_steps(u, t, r, q, half, f2)
+    shape = _soft_change(u, t, r, cal.field_ut, half, steps)
+    found: list[Located] = []
+    if shape is not None:
+        found.append(_soft_located(shape, floor, cal.field_ut))
+        steps, rest = _all_steps(u, t, r, np.hstack([q, q * (t >= shape.tau_s)[:, None]]), half, f2)
+        steps = [s for s in steps if abs(s.tau_s - shape.tau_s) > half]
+    steps = measure(u, t, r, q, f2, steps) if steps else steps
+    found += [_step_located(s, cal, floor) for s in steps]
+    return tuple(found) + tuple(structure(u, t, rest, half, floor))
+
+
+EFFECTS: tuple[Effect, ...] = (
+    Effect(STEP, Kind.PHYSICS, search, remove_step),
+    Effect(SOFT, Kind.PHYSICS, lambda res: (), remove_soft),
+)

@@ -1,0 +1,138 @@
+"""The arithmetic behind ``steps``: local regressions of the radial residual on the directions.
+
+After a calibration h = W(m − b), a change δ of the raw offset moves the radial residual by
+u·(Wδ) and a small change E of the shape (h → (I + E)h) by F·uᵀEu, u the unit direction and F
+the field. So offsets and shapes are regressions of r on ``U`` (3 columns) and ``Q`` (the 6
+quadratic terms of u, times F). A step is judged locally, in a window of ±``half_s`` around the
+candidate time, against an offset that wanders as a quadratic in time over that window (a slow
+wander or a ramp is absorbed; a jump is not). ``inflation`` measures how much more the
+recording's own residual wanders than white noise would, on the same direction-weighted sums
+the tests use, so every χ² is judged against the recording's structure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+CHI2_1_MEDIAN = 0.4549364231195724  # median of χ²₁: a block sum's variance from the median of its squares
+
+
+@dataclass(frozen=True)
+class Fit:
+    """One least-squares fit: coefficients, residual sum of squares, (XᵀX)⁻¹, samples, columns."""
+
+    coef: np.ndarray
+    rss: float
+    xtx_inv: np.ndarray
+    n: int
+    p: int
+
+
+def lsq(x: np.ndarray, r: np.ndarray) -> Fit:
+    """Least squares of ``r`` on the columns of ``x`` (pseudo-inverse where a column is undetermined)."""
+    coef, *_ = np.linalg.lstsq(x, r, rcond=None)
+    e = r - x @ coef
+    return Fit(coef, float(e @ e), np.linalg.pinv(x.T @ x), len(r), x.shape[1])
+
+
+def quad(u: np.ndarray, field_ut: float) -> np.ndarray:
+    """The 6 shape columns F·(ux², uy², uz², 2uxuy, 2uxuz, 2uyuz): r's change under h → (I + E)h."""
+    x, y, z = u.T
+    return field_ut * np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z])
+
+
+def hats(t_s: np.ndarray, knot_s: float) -> np.ndarray:
+    """Piecewise-linear (hat) basis in time with knots every ``knot_s``: a slowly wandering level."""
+    t0, t1 = float(t_s[0]), float(t_s[-1])
+    k = max(1, int(np.ceil((t1 - t0) / knot_s)))
+    knots = np.linspace(t0, t1, k + 1)
+    step = knots[1] - knots[0] if k else 1.0
+    return np.clip(1.0 - np.abs(t_s[:, None] - knots[None, :]) / step, 0.0, None)
+
+
+def wander_columns(u: np.ndarray, t_s: np.ndarray, knot_s: float) -> np.ndarray:
+    """U times each hat: an offset that wanders piecewise-linearly in time."""
+    h = hats(t_s, knot_s)
+    return (h[:, :, None] * u[:, None, :]).reshape(len(u), -1)
+
+
+def inflation(e: np.ndarray, cols: np.ndarray, block: int) -> float:
+    """f² ≥ 1: how much the variance of a sum of ``block`` neighbouring residuals weighted by
+    ``cols`` (U for offsets, Q for shapes) exceeds ``block`` times that of one — the
+    recording's own autocorrelation, on the sums a regression on those columns adds up. Robust
+    (median of squared block sums), so one stretch with a step or a burst in it does not set it."""
+    block = max(1, int(block))
+    nb = len(e) // block
+    k = cols.shape[1]
+    if nb < 4:
+        return 1.0
+    z = (e[: nb * block, None] * cols[: nb * block]).reshape(nb, block, k)
+    sums = z.sum(axis=1)
+    one = np.median(z.reshape(-1, k) ** 2, axis=0) / CHI2_1_MEDIAN
+    many = np.median(sums**2, axis=0) / CHI2_1_MEDIAN
+    ratio = many / np.maximum(block * one, 1e-300)
+    return float(max(1.0, np.median(ratio)))
+
+
+def local_design(u: np.ndarray, t_s: np.ndarray, tau_s: float, half_s: float) -> np.ndarray:
+    """[U, U·s, U·s²] with s = (t − τ)/half: a local offset wandering as a quadratic in time."""
+    s = ((t_s - tau_s) / half_s)[:, None]
+    return np.hstack([u, u * s, u * s * s])
+
+
+def step_gain(u, t_s, r, tau_s: float, half_s: float) -> tuple[float, Fit]:
+    """(ΔRSS of adding an offset step at τ to the local wander, the fit with the step): the
+    step's coefficients are the last three."""
+    base = local_design(u, t_s, tau_s, half_s)
+    after = u * (t_s >= tau_s)[:, None]
+    f0 = lsq(base, r)
+    f1 = lsq(np.hstack([base, after]), r)
+    return f0.rss - f1.rss, f1
+
+
+def window(t_s: np.ndarray, tau_s: float, half_s: float) -> slice:
+    """The samples within ±half of τ."""
+    a = int(np.searchsorted(t_s, tau_s - half_s, "left"))
+    b = int(np.searchsorted(t_s, tau_s + half_s, "right"))
+    return slice(a, b)
+
+
+def candidates(t_s: np.ndarray, half_s: float, per_half: int = 10) -> np.ndarray:
+    """Candidate times every half/``per_half``, at least half/2 from either end."""
+    lo, hi = t_s[0] + 0.5 * half_s, t_s[-1] - 0.5 * half_s
+    if hi <= lo:
+        return np.zeros(0)
+    return np.arange(lo, hi, half_s / per_half)
+
+
+def support(t_s: np.ndarray, tau_s: float, half_s: float, min_n: int) -> bool:
+    """Both sides of τ within the window hold at least ``min_n`` samples."""
+    w = window(t_s, tau_s, half_s)
+    k = int(np.searchsorted(t_s, tau_s, "left"))
+    return (k - w.start) >= min_n and (w.stop - k) >= min_n
+
+
+def tail_grams(z: np.ndarray, r: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each start index (ascending), Σ_{i ≥ start} zᵢzᵢᵀ and Σ_{i ≥ start} zᵢrᵢ — the
+    normal equations of every 'after τ' column set in one pass over the samples."""
+    p = z.shape[1]
+    grams = np.zeros((len(starts), p, p))
+    cross = np.zeros((len(starts), p))
+    g, c = np.zeros((p, p)), np.zeros(p)
+    stop = len(z)
+    for k in range(len(starts) - 1, -1, -1):
+        block = slice(int(starts[k]), stop)
+        g = g + z[block].T @ z[block]
+        c = c + z[block].T @ r[block]
+        grams[k], cross[k] = g, c
+        stop = int(starts[k])
+    return grams, cross
+
+
+def solve_rss(xtx: np.ndarray, xtr: np.ndarray, rtr: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """(RSS, coefficients, (XᵀX)⁻¹) from the normal equations."""
+    inv = np.linalg.pinv(xtx)
+    coef = inv @ xtr
+    return float(rtr - coef @ xtr), coef, inv
