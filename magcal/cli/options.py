@@ -156,7 +156,7 @@ VOCABULARY: dict[str, tuple[tuple, dict]] = {
                                      "(default: the config's timeout_s, 120)")),
     "model": (("--model",), dict(choices=("sphere", "ellipsoid", "auto"),
                                  help="sphere (hard iron only), ellipsoid (+ soft iron) or auto (the best "
-                                 "the coverage supports, by BIC); default auto")),
+                                 "the coverage supports that best predicts held-out time blocks of the recording); default auto")),
     "output": (("-o", "--output"), dict(type=output_file, metavar="FILE", help="the file to write")),
     "state_dir": (("--state-dir",), dict(type=directory, metavar="DIR",
                                          help="the daemon's state directory (state file, status socket, "
