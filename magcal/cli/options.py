@@ -155,8 +155,9 @@ VOCABULARY: dict[str, tuple[tuple, dict]] = {
     "timeout": (("--timeout",), dict(type=positive, metavar="S", help="give up after S seconds "
                                      "(default: the config's timeout_s, 120)")),
     "model": (("--model",), dict(choices=("sphere", "ellipsoid", "auto"),
-                                 help="sphere (hard iron only), ellipsoid (+ soft iron) or auto (the best "
-                                 "the coverage supports that best predicts held-out time blocks of the recording); default auto")),
+                                 help="sphere (hard iron only), ellipsoid (+ soft iron) or auto (of the models "
+                                 "the coverage supports, the one that best predicts held-out time blocks "
+                                 "of the recording); default auto")),
     "output": (("-o", "--output"), dict(type=output_file, metavar="FILE", help="the file to write")),
     "state_dir": (("--state-dir",), dict(type=directory, metavar="DIR",
                                          help="the daemon's state directory (state file, status socket, "
