@@ -175,10 +175,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--placements", type=int, default=3, help="placements per real recording and kind")
     args = ap.parse_args()
     t0 = time.time()
     run(simulated(2 if args.quick else args.seeds), 2 if args.quick else 4, "simulated")
-    run(real(), 1 if args.quick else 3, "real")
+    run(real(), 1 if args.quick else args.placements, "real")
     print(f"\n{time.time() - t0:.0f} s")
 
 

@@ -10,7 +10,9 @@ time and the axis). Every threshold is judged against the recording itself:
 - ``saturation``: a pile-up at an axis's extreme value — the same raw value at the max (or
   min) in at least ``RAIL_MIN_SHARE`` of the distinct readings and ``RAIL_OVER_LEVEL`` times the
   typical (median) level just inside it. Quantised real data visit their extreme level a few
-  times (the field only brushes it); a rail collects every sample the sensor could not reach.
+  times (the field only brushes it); a rail collects every sample the sensor could not reach,
+  so its samples lie inside the surface fitted without them (an axis stuck at its extreme
+  reads more than the field, lies outside, and is left to the stuck-axis search).
 - ``stuck_axis``: one axis repeating its exact value for a run while the other two move (by
   ``MOVE_QUANTA`` of their own quantisation step and beyond what the residual scatter spans)
   and the surface fitted on the rest of the data says that axis should have changed: the
@@ -25,8 +27,7 @@ time and the axis). Every threshold is judged against the recording itself:
 
 The surface is ``magcal.fit.fit_calibration`` (robust start, Grubbs, ML; an ellipsoid where the
 coverage determines one), taken as the one with the least median radial residual over all
-samples among the fits on all samples and on all but one or two adjacent blocks of
-``FIT_BLOCKS``, so that a faulty stretch up to two fifths long cannot bend it; once faults are
+samples among the fits on all samples and on all but two adjacent blocks of ``FIT_BLOCKS``, so that a faulty stretch up to two fifths long cannot bend it; once faults are
 found the fits are redone without them and the search repeated once.
 """
 
@@ -53,7 +54,7 @@ SWAP_FIT = 3.0  # ... and fitted within this × scatter transformed favours the 
 SWAP_RATIO = 5.0  # the stretch: RMS as read against RMS transformed
 SWAP_OVER_LOCAL = 3.0  # the stretch as read against the samples around it
 SWAP_MIN_SAMPLES = 10
-FIT_MAX_N = 4000
+FIT_MAX_N = 1000
 FIT_BLOCKS = 5
 FIT_MODEL = "ellipsoid"
 MAD_TO_SIGMA = 1.4826
@@ -86,11 +87,11 @@ def screen(t_s, m_ut, valid=None) -> Screen:
     t, m, keep = _inputs(t_s, m_ut, valid)
     found = list(_timestamps(t, keep))
     keep = _without(keep, found)
-    found += _saturation(t, m, keep)
+    found += _outward_rails_dropped(m, keep, _saturation(t, m, keep))
     keep = _without(keep, found)
     shape, fit_on = [], keep
     for _ in range(2):  # the second pass fits without what the first found
-        held = _held_out(m, keep, fit_on)
+        held = _held_out(m, keep, fit_on, fit_on is keep)
         if held is None:
             break
         shape = _shape_faults(t, m, keep, *held)
@@ -199,6 +200,18 @@ def _rail(x: np.ndarray, fresh: np.ndarray, side: float):
                                 "median_level_inside": level, "needed": float(need)}
 
 
+def _outward_rails_dropped(m: np.ndarray, keep: np.ndarray, rails: list[Located]) -> list[Located]:
+    """Rails whose samples lie inside the surface fitted without them: a clipped axis reads less
+    than the field it cannot reach. An axis stuck at its extreme reads more and is left to the
+    stuck-axis search."""
+    if not rails:
+        return rails
+    cal = _fit(m, _without(keep, rails))
+    if cal is None:
+        return rails
+    return [x for x in rails if np.median(_radial(cal, m[x.rows])) < 0]
+
+
 def _rail_found(t, m, rows, a: int, side: float, ev: dict) -> Located:
     share = len(rows) / len(m)
     where = _where(t, rows, AXES[a], gap=2)
@@ -212,12 +225,13 @@ def _rail_found(t, m, rows, a: int, side: float, ev: dict) -> Located:
 
 
 # -- the surface the rest of the data describes --------------------------------------------------
-def _held_out(m: np.ndarray, keep: np.ndarray, fit_on: np.ndarray):
+def _held_out(m: np.ndarray, keep: np.ndarray, fit_on: np.ndarray, leave_out: bool = True):
     """Each kept sample's radial residual (µT) against the surface the rest of the data
     describes, as read (row 0) and read through each of ``TRANSFORMS`` (rows 1…), nan where not
-    kept; and the robust scatter of the as-read residual. None where no surface fits."""
+    kept; and the robust scatter of the as-read residual. None where no surface fits.
+    ``leave_out`` False: the faults found are already out of ``fit_on``; one fit on it."""
     idx = np.flatnonzero(keep)
-    cal = _least_median(m, idx, fit_on)
+    cal = _least_median(m, idx, fit_on) if leave_out else _fit(m, fit_on)
     if cal is None:
         return None
     out = np.full((len(TRANSFORMS) + 1, len(m)), np.nan)
@@ -229,13 +243,13 @@ def _held_out(m: np.ndarray, keep: np.ndarray, fit_on: np.ndarray):
 
 
 def _least_median(m: np.ndarray, idx: np.ndarray, fit_on: np.ndarray) -> Calibration | None:
-    """Of the fits on all of ``fit_on`` and on it without each one or two adjacent blocks of
+    """Of the fits on all of ``fit_on`` and on it without each two adjacent blocks of
     ``FIT_BLOCKS``, the one with the least median |radial residual| over the samples ``idx``."""
     if len(idx) < 20:
         return None
     best, best_med = None, np.inf
     blocks = np.array_split(np.flatnonzero(fit_on), FIT_BLOCKS)
-    leave = [()] + [(k,) for k in range(FIT_BLOCKS)] + [(k, k + 1) for k in range(FIT_BLOCKS - 1)]
+    leave = [()] + [(k, k + 1) for k in range(FIT_BLOCKS - 1)]
     for out in leave:
         use = fit_on.copy()
         for k in out:
@@ -251,7 +265,7 @@ def _fit(m: np.ndarray, use: np.ndarray) -> Calibration | None:
     idx = np.flatnonzero(use)
     if len(idx) < 20:
         return None
-    res = fit_calibration(m[idx[:: max(1, len(idx) // FIT_MAX_N)]], model=FIT_MODEL)
+    res = fit_calibration(m[idx[:: max(1, len(idx) // FIT_MAX_N)]], model=FIT_MODEL, balance="none")
     return res.calibration if res else None
 
 
