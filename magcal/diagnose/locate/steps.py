@@ -41,15 +41,20 @@ SOFT = "soft_iron_change"
 REST = "unexplained_structure"
 ALPHA = 0.01  # family-wise false-claim rate over every time scanned
 MAX_STEPS = 3
+MAX_CANDIDATES = 300  # candidate times per scan (every half/10 on short recordings); refined to the sample
 HALF_SHARE = 1.0 / 15.0  # the local window's half-width as a share of the span …
 HALF_RANGE_S = (3.0, 15.0)  # … within these bounds
-MIN_SIDE = 25  # samples each side of τ within its window
+MIN_SIDE = 10  # samples each side of τ within its window (the window holds at least 4× this each side)
 INTERVAL_CHI2 = float(chi2_isf(0.05, 1))
+CHI2_3_MEDIAN = float(chi2_isf(0.5, 3))
+CHI2_6_MEDIAN = float(chi2_isf(0.5, 6))
+STEP_MIN_OVER_FLOOR = 1.0  # a step or shape change smaller than the floor is not claimed
 SOFT_GRID = 40  # soft-iron candidate times over the middle of the span
 SOFT_EDGE = 0.1  # … leaving this share of the span at each end
 SOFT_KNOT_SHARE = 0.25  # the offset may wander piecewise-linearly with knots this share of the span apart
 SOFT_MAX_N = 3000  # samples the soft-iron scan uses (evenly thinned)
 SHAPE_SIGMA_MAX = 0.01  # 1σ of a shape term (relative gain) a side's coverage must reach
+BURST_NET = 0.5
 STRUCTURE_OVER_TYPICAL = 3.0
 STRUCTURE_OVER_FLOOR = 2.0
 STRUCTURE_WINDOW_S = 1.0
@@ -72,7 +77,8 @@ class Step:
 def half_window_s(t_s: np.ndarray) -> float:
     """The local window's half-width for this recording's span."""
     span = float(t_s[-1] - t_s[0])
-    return float(np.clip(span * HALF_SHARE, *HALF_RANGE_S))
+    dt = float(np.median(np.diff(t_s)))
+    return float(max(np.clip(span * HALF_SHARE, *HALF_RANGE_S), 4 * MIN_SIDE * dt))
 
 
 def _check(res: Residual) -> None:
@@ -93,14 +99,19 @@ def _stat_at(u, t, r, tau, half, f2) -> tuple[float, scan.Fit] | None:
     return gain / max(var * f2, 1e-300), f1
 
 
-def _best(u, t, r, half, f2) -> tuple[float, float]:
-    """(largest statistic, its time) over the candidate grid."""
-    best = (0.0, float("nan"))
-    for tau in scan.candidates(t, half):
+def _best(u, t, r, half, f2) -> tuple[float, float, float]:
+    """(largest statistic, its time, the median statistic) over the candidate grid."""
+    stats, taus = [], []
+    per_half = max(1, int(min(10, MAX_CANDIDATES * half / max(float(t[-1] - t[0]), half))))
+    for tau in scan.candidates(t, half, per_half):
         got = _stat_at(u, t, r, tau, half, f2)
-        if got is not None and got[0] > best[0]:
-            best = (got[0], float(tau))
-    return best
+        if got is not None:
+            stats.append(got[0])
+            taus.append(float(tau))
+    if not stats:
+        return 0.0, float("nan"), 0.0
+    k = int(np.argmax(stats))
+    return float(stats[k]), taus[k], float(np.median(stats))
 
 
 def _refine(u, t, r, half, tau0, f2, threshold) -> Step:
@@ -146,8 +157,10 @@ def find_steps(u, t, r, half, f2) -> tuple[list[Step], np.ndarray]:
     threshold = float(chi2_isf(ALPHA / max(1.0, span / half), 3))
     steps: list[Step] = []
     r = r.copy()
-    for _ in range(MAX_STEPS):
-        stat, tau = _best(u, t, r, half, f2)
+    for i in range(MAX_STEPS):
+        stat, tau, typical = _best(u, t, r, half, f2)
+        if i == 0 and typical > CHI2_3_MEDIAN:  # the scan's own typical value says the residual is rougher
+            stat, f2 = stat * CHI2_3_MEDIAN / typical, f2 * typical / CHI2_3_MEDIAN
         if not stat >= threshold:
             break
         s = _refine(u, t, r, half, tau, f2, threshold)
@@ -198,6 +211,7 @@ class ShapeChange:
     stat: float
     threshold: float
     determined: tuple[bool, bool]
+    typical: float = 0.0  # the median statistic over the grid
 
 
 def _thin(n: int) -> np.ndarray:
@@ -237,25 +251,27 @@ def shape_change(u, t, r, field_ut: float, half: float, step_times=()) -> ShapeC
     if len(taus) < 3:
         return None
     rss0, rss1, fits = _shape_scan(base, u, q, t, r, taus)
-    i = int(np.argmax((rss0 - rss1) / rss1))
+    null = float(np.min(rss0))  # the null: the best single offset step on the grid, wherever it is
+    i = int(np.argmax(null - rss1))
     after = (t >= taus[i])[:, None]
     e1 = r - np.hstack([base, u * after, q * after]) @ fits[i][0]
     f2 = scan.inflation(e1, q / field_ut, max(1, int(np.sum(t - t[0] < half))))
     var = rss1 / max(len(t) - base.shape[1] - 9, 1) * f2
-    stats = (rss0 - rss1) / var
+    typical = float(np.median((rss0 - rss1) / var))  # the grid's own typical value of the χ²₆ statistic
     inside = taus[rss1 <= rss1[i] + INTERVAL_CHI2 * var[i]]
     threshold = float(chi2_isf(ALPHA / len(taus), 6))
     width = taus[1] - taus[0]
     taus = np.linspace(taus[i] - width, taus[i] + width, 21)
     rss0, rss1, fits = _shape_scan(base, u, q, t, r, taus)
     var = rss1 / max(len(t) - base.shape[1] - 9, 1) * f2
-    stats = (rss0 - rss1) / var
+    stats = (min(null, float(np.min(rss0))) - rss1) / var
     i = int(np.argmax(stats))
     coef, inv = fits[i]
+    inside = np.concatenate([inside, [taus[i]]])
     sigma = np.sqrt(np.clip(np.diag(var[i] * inv)[-6:], 0.0, None))
     det = (_determined(u, q, t, r, t < taus[i], f2), _determined(u, q, t, r, t >= taus[i], f2))
     return ShapeChange(float(taus[i]), (float(inside.min()), float(inside.max())), coef[-6:], sigma,
-                       float(stats[i]), threshold, det)
+                       float(stats[i]), threshold, det, typical)
 
 
 def _determined(u, q, t, r, side: np.ndarray, f2: float) -> bool:
@@ -352,16 +368,51 @@ def _all_steps(u, t, r, shape_cols, half, f2) -> tuple[list[Step], np.ndarray]:
     return steps, rest
 
 
-def _soft_change(u, t, r, field_ut, half, steps: list[Step]) -> ShapeChange | None:
+def _bursts(steps: list[Step], half: float, floor_ut: float) -> tuple[list[Step], list[Located]]:
+    """Steps that come in a cluster (each within 2 windows of the next) and mostly undo each
+    other (their sum under ``BURST_NET`` of the largest) are not a part put down: the data
+    misbehave there for a while. Those are returned as the remainder, located in time."""
+    groups: list[list[Step]] = []
+    for s in steps:
+        if groups and s.tau_s - groups[-1][-1].tau_s <= 2 * half:
+            groups[-1].append(s)
+        else:
+            groups.append([s])
+    keep, rest = [], []
+    for g in groups:
+        net = np.linalg.norm(sum(s.d_h for s in g))
+        big = max(np.linalg.norm(s.d_h) for s in g)
+        if len(g) < 2 or net >= BURST_NET * big:
+            keep += g
+            continue
+        t0, t1 = g[0].tau_s, g[-1].tau_s
+        over = big / floor_ut if floor_ut > 0 else float("inf")
+        summary = (f"unexplained structure remains: {over:.1f}× the noise, at {t0:.1f}–{t1:.1f} s "
+                   f"(offset jumps that undo each other)")
+        rest.append(Located(REST, Kind.REMAINDER, summary, {"time_s": [[t0, t1]]}, {"largest_jump_ut": big},
+                            {"size_over_floor": over, "size_ut": big}))
+    return keep, rest
+
+
+def _big(c: ShapeChange, field_ut: float, floor_ut: float) -> bool:
+    return float(np.max(np.abs(c.e)) * field_ut) >= STEP_MIN_OVER_FLOOR * floor_ut
+
+
+def _soft_change(u, t, r, field_ut, floor_ut, half, steps: list[Step]) -> ShapeChange | None:
     """A soft-iron change, claimed only where the shape changes beyond chance both with the
     offset steps found allowed for (a step is not a change of shape) and without them (a
     change of shape seen through a local offset model can look like steps); placed by the
-    latter, which such false steps cannot pull."""
+    latter, which such false steps cannot pull, unless a step was found at that time."""
     with_steps = shape_change(u, t, r, field_ut, half, [s.tau_s for s in steps])
-    if with_steps is None or with_steps.stat < with_steps.threshold:
+    if with_steps is None or with_steps.stat < with_steps.threshold or not _big(with_steps, field_ut, floor_ut):
         return None
     alone = shape_change(u, t, r, field_ut, half) if steps else with_steps
-    return alone if alone is not None and alone.stat >= alone.threshold else None
+    if alone is None or alone.stat < alone.threshold or not _big(alone, field_ut, floor_ut):
+        return None
+    for c in (alone, with_steps):  # a step found at the same time is the simpler account
+        if all(abs(c.tau_s - s.tau_s) > half for s in steps):
+            return c
+    return None
 
 
 def search(res: Residual) -> tuple[Located, ...]:
@@ -377,14 +428,16 @@ def search(res: Residual) -> tuple[Located, ...]:
     x = np.hstack([scan.wander_columns(u, t, half), q])
     f2 = scan.inflation(r - x @ scan.lsq(x, r).coef, u, max(1, int(np.sum(t - t[0] < half))))
     steps, rest = _all_steps(u, t, r, q, half, f2)
-    shape = _soft_change(u, t, r, cal.field_ut, half, steps)
+    shape = _soft_change(u, t, r, cal.field_ut, floor, half, steps)
     found: list[Located] = []
     if shape is not None:
         found.append(_soft_located(shape, floor, cal.field_ut))
         steps, rest = _all_steps(u, t, r, np.hstack([q, q * (t >= shape.tau_s)[:, None]]), half, f2)
         steps = [s for s in steps if abs(s.tau_s - shape.tau_s) > half]
     steps = measure(u, t, r, q, f2, steps) if steps else steps
-    found += [_step_located(s, cal, floor) for s in steps]
+    steps = [s for s in steps if np.linalg.norm(np.linalg.solve(cal.soft_iron, s.d_h)) >= STEP_MIN_OVER_FLOOR * floor]
+    steps, bursts = _bursts(steps, half, floor)
+    found += [_step_located(s, cal, floor) for s in steps] + bursts
     return tuple(found) + tuple(structure(u, t, rest, half, floor))
 
 
