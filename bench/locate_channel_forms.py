@@ -33,6 +33,7 @@ from magcal.app.load import load_series  # noqa: E402
 from magcal.fit import fit_calibration  # noqa: E402
 from magcal.diagnose.locate.base import Residual  # noqa: E402
 from magcal.diagnose.locate import channel_forms as cf  # noqa: E402
+from magcal.diagnose.locate.channel_report import reference  # noqa: E402
 from magcal.diagnose.locate.channel_terms import delayed, low_passed  # noqa: E402
 from magcal.sim.physics import Current, Motion, Physics, Scenario, Temperature  # noqa: E402
 
@@ -127,7 +128,9 @@ def inject(case, m, t, rng, k, floor, center, radius):
         c = chans["temp_c"]
         d = c - c.mean()
         g = k * floor / (radius * np.max(np.abs(d))) * rng.choice([-1, 1])
-        return center + (m - center) * (1 + g * d)[:, None], chans, {"channel": "temp_c", "gain": g, "effect": "temperature_gain"}
+        # the gain is stated relative to the scale at the reference (the end value)
+        g_ref = g / (1 + g * (reference("temp_c", c) - c.mean()))
+        return center + (m - center) * (1 + g * d)[:, None], chans, {"channel": "temp_c", "gain": g_ref, "effect": "temperature_gain"}
     if case == "servo":
         th = servo_angle(t, rng)
         chans["servo_angle_deg"] = th
@@ -216,11 +219,11 @@ def report(title, rows):
 
 def main():
     quick = "--quick" in sys.argv
-    seeds = range(2 if quick else 4)
+    seeds = range(2 if quick else 3)
     ks = [4] if quick else [2, 4, 10]
     cases = ["control", "current_delay", "current_first_order", "temp_offset", "current_offset", "temp_gain", "servo"]
     t0 = time.time()
-    sims = {f"sim{s}": sim_recording(500 + s) for s in range(2 if quick else 4)}
+    sims = {f"sim{s}": sim_recording(500 + s) for s in range(2 if quick else 3)}
     report("simulated", run(cases, sims, ks, seeds))
     real = {p.name: real_recording(p) for p in REAL if p.exists()}
     report("real recordings", run(cases, real, ks, seeds))

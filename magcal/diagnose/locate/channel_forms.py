@@ -40,6 +40,7 @@ from .. import hygiene
 from . import channel_scores as cs
 from .channel_report import describe
 from .channel_terms import ANGLE_UNITS, N_LAGS, Form, angle_scale, delayed, lag_grid, low_passed, term_ut
+from ...fit import FitFailure, fit_calibration
 from .base import Effect, Kind, Located, Residual
 
 MAX_SAMPLES = 4000  # the search runs on at most this many evenly spaced samples
@@ -133,6 +134,7 @@ def best(fr: cs.Frame, fams: list[cs.Family]) -> cs.Pick | None:
 
 NESTED = {Form.SQUARE: Form.OFFSET_DELAY, Form.AXIS_GAIN: Form.GAIN}  # form → the simpler form inside it
 NESTED_LOG10_P = 3.0  # the extra columns of a bigger form must be significant at 0.1 %
+MIN_CURVE = 0.2  # … and a square's curvature at least this share of its straight part
 
 
 def simpler(fr: cs.Frame, pick: cs.Pick, fams: list[cs.Family]) -> cs.Pick:
@@ -154,9 +156,22 @@ def simpler(fr: cs.Frame, pick: cs.Pick, fams: list[cs.Family]) -> cs.Pick:
     small = same[small_form]
     ess, _ = cs.scores(fr, small)
     extra = (pick.ess[pick.j] - ess[0]) / s2
-    if cs.log10_p(extra, cs.n_columns(pick.fam) - cs.n_columns(small)) >= NESTED_LOG10_P:
+    if cs.log10_p(extra, cs.n_columns(pick.fam) - cs.n_columns(small)) >= NESTED_LOG10_P and material(fr, pick):
         return pick
     return cs.Pick(small, 0, float(cs.log10_p(fr.f_ratio(ess[0], cs.n_columns(small)), cs.n_columns(small))), ess)
+
+
+def material(fr: cs.Frame, pick: cs.Pick) -> bool:
+    """Whether a square term's curvature is at least MIN_CURVE of its straight part at the
+    channel's extremes: a large straight term leaves a small square in the radial residual (its
+    second order, |β⊥|²Δc²/2F), which is not a square law of the channel."""
+    if pick.fam.form is not Form.SQUARE:
+        return True
+    _, beta = cs.scores(fr, cs.Family(pick.fam.form, pick.fam.channel, "offset", pick.fam.series[:, [pick.j], :], pick.fam.values[:1]))
+    s = pick.fam.series[:, pick.j, :]
+    lin = np.linalg.norm(beta[0, :3]) * np.max(np.abs(s[:, 0]))
+    curve = np.linalg.norm(beta[0, 3:]) * np.ptp(s[:, 1])
+    return bool(curve >= MIN_CURVE * lin)
 
 
 def refined(fr: cs.Frame, pick: cs.Pick, c: np.ndarray, t_s: np.ndarray) -> cs.Pick:
@@ -244,12 +259,35 @@ def search(res: Residual) -> tuple[Located, ...]:
             break
         null = null_raw
         evidence = {"score": score, "threshold": threshold, "null_max": float(np.max(null)), "n_shifts": len(null)}
-        found.append(describe(res, fr, pick, chans[pick.fam.channel], evidence))
-        fr = clean
+        located, fr = relinearized(res, fr, pick, fams, evidence)
+        found.append(located)
         fams = [f for f in fams if f.channel != pick.fam.channel]
         if not fams:
             break
     return tuple(found)
+
+
+def relinearized(res: Residual, fr: cs.Frame, pick: cs.Pick, fams: list[cs.Family], evidence: dict):
+    """(the found term, the frame left for the next search), both about the calibration the term
+    leaves: the calibration refitted on the samples with the term taken out, and the original
+    samples' residual under it searched again over the same channel's forms. The first fit is
+    linearised about a calibration the term itself distorted, which biases a large term's
+    coefficient by more than its interval and leaves a misfit another channel could collect."""
+    c = np.asarray(res.channels[pick.fam.channel], np.float64)
+    first = describe(res, fr, pick, c, evidence)
+    cal = res.calibration
+    model = "sphere" if np.allclose(cal.soft_iron, np.eye(3)) else "ellipsoid"
+    fit = fit_calibration(remove(res.m_ut, res.t_s, res.channels, first), model=model, outliers=False)
+    if isinstance(fit, FitFailure):
+        return first, fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
+    cal2 = fit.calibration
+    res2 = Residual(res.t_s, res.m_ut, cal2, res.noise_ut, res.floor_ut, res.channels)
+    fr2 = cs.frame(res2.r_ut, res2.u, np.asarray(cal2.soft_iron), cal2.field_ut, fr.rows, np.asarray(res.t_s, np.float64))
+    same = [f for f in fams if f.channel == pick.fam.channel]
+    again = best(fr2, same)
+    again = refined(fr2, simpler(fr2, again, same), c, np.asarray(res.t_s, np.float64))
+    found = describe(res2, fr2, cs.Pick(again.fam, again.j, pick.score, again.ess), c, evidence)
+    return found, fr2.with_r(fr2.r - cs.term(fr2, again.fam, again.j))
 
 
 def remove(m_ut: np.ndarray, t_s: np.ndarray, channels: Mapping[str, np.ndarray], located: Located) -> np.ndarray:

@@ -171,8 +171,10 @@ def hac_cov(fr: Frame, fam: Family, j: int) -> tuple[np.ndarray, np.ndarray, flo
 
 def profile(fr: Frame, fam: Family, ess: np.ndarray, j: int, infl: float) -> np.ndarray:
     """The candidates whose fit is within the 95 % profile of the best (j): ESS within
-    χ²₁(95 %) × σ² × inflation of its ESS — the lag's own uncertainty."""
-    return np.flatnonzero(ess >= ess[j] - CHI2_1_95 * fr.s2_after(ess[j], n_columns(fam)) * infl)
+    χ²₁(95 %) × σ² × inflation of its ESS — the lag's own uncertainty — and j's neighbours."""
+    near = ess >= ess[j] - CHI2_1_95 * fr.s2_after(ess[j], n_columns(fam)) * infl
+    near[max(j - 1, 0):j + 2] = True  # the grid's own step is part of the lag's uncertainty
+    return np.flatnonzero(near)
 
 
 def gumbel_threshold(null_max: np.ndarray, alpha: float) -> float:
