@@ -11,9 +11,10 @@ found here: ``as_findings`` (data faults, and named effects that earned their pl
 from __future__ import annotations
 
 from ..finding import Finding
+from . import lines
 from .base import AXES, WHERE_KEYS, Effect, Kind, Located, Residual, runs, stretches
 
-EFFECTS: tuple[Effect, ...] = ()
+EFFECTS: tuple[Effect, ...] = (lines.EFFECT,)
 
 
 def as_findings(found: tuple[Located, ...], verdicts: tuple) -> tuple[Finding, ...]:
