@@ -135,6 +135,13 @@ def test_a_real_recording_with_synthetic_channels_claims_nothing(real):
     assert cf.search(_residual(m, t, chans)) == ()
 
 
+def test_every_name_the_search_returns_has_a_row_with_its_model_and_only_the_first_searches():
+    names = [e.name for e in cf.EFFECTS]
+    assert names[0] == "lagged_channel" and {"temperature_gain", "channel_angle", "channel_step"} <= set(names)
+    assert all(e.remove is cf.remove for e in cf.EFFECTS)
+    assert all(e.search(None) == () for e in cf.EFFECTS[1:])
+
+
 def test_tried_names_every_form_for_every_channel_and_remove_refuses_a_missing_channel():
     t = np.arange(100) / 10.0
     lines = cf.tried({"temp_c": np.linspace(20, 30, 100), "servo_angle_deg": np.sin(t), "flat": np.ones(100)})

@@ -315,4 +315,13 @@ def remove(m_ut: np.ndarray, t_s: np.ndarray, channels: Mapping[str, np.ndarray]
     return m - term_ut(form, p, c, np.asarray(t_s, np.float64))
 
 
-EFFECT = Effect("channel_forms", Kind.PHYSICS, search)
+def _searched_above(res: Residual) -> tuple[Located, ...]:
+    """Rows after the first only name an effect the first row's search returns."""
+    return ()
+
+
+# every effect name the search can return, each with its model; the search runs once (first row)
+NAMES = ("lagged_channel", "temperature_drift", "current_interference", "channel_offset", "temperature_gain",
+         "channel_gain", "channel_square", "channel_step", "channel_angle")
+EFFECTS = tuple(Effect(n, Kind.PHYSICS, search if i == 0 else _searched_above, remove) for i, n in enumerate(NAMES))
+EFFECT = EFFECTS[0]

@@ -12,6 +12,7 @@ from .channel_terms import ANGLE_UNITS, Form, lag_grid, term_ut
 
 MAX_PROFILE = 12  # at most this many candidates of the 95 % lag profile are widened over
 GAIN_EFFECT = {catalogue.TEMP: "temperature_gain"}
+OFFSET_EFFECT = {catalogue.TEMP: "temperature_drift", catalogue.CURRENT: "current_interference"}
 
 
 def reference(name: str, c: np.ndarray) -> float:
@@ -117,7 +118,8 @@ def _lagged(res, pick, iv, p, c, ev) -> Located:
     summary = (f"The offset follows {name} {how}: {np.linalg.norm(beta):.3g} µT/{unit} (95 %: {mlo:.3g}–{mhi:.3g}) "
                f"along {_vec(where['direction'])}, up to {size:.3g} µT, {size / max(res.floor_ut, 1e-300):.1f}× the "
                f"recording's floor.")
-    effect = "lagged_channel" if resolved or at_edge else catalogue.effect_name(name)
+    effect = "lagged_channel" if resolved or at_edge else OFFSET_EFFECT.get(name, "channel_offset")
+    ev["size_ut"] = size
     return Located(effect, Kind.PHYSICS, summary, where, p, ev)
 
 
@@ -137,6 +139,7 @@ def _gain(res, pick, iv, p, c, ev) -> Located:
         where = {"channel": name, "axis": [a for a, v in zip("xyz", np.abs(g)) if v >= 0.5 * np.max(np.abs(g))]}
     summary = (f"The sensor's gain changes with {name} by {what}: up to {size:.3g} µT of field, "
                f"{size / max(res.floor_ut, 1e-300):.1f}× the recording's floor, which no offset can follow.")
+    ev["size_ut"] = size
     return Located(GAIN_EFFECT.get(name, "channel_gain"), Kind.PHYSICS, summary, where, p, ev)
 
 
@@ -159,4 +162,5 @@ def _shaped(res, pick, iv, p, c, ev) -> Located:
     size = _size(res, form, p, c)
     summary = (f"The offset follows {name} {what}, up to {size:.3g} µT, "
                f"{size / max(res.floor_ut, 1e-300):.1f}× the recording's floor.")
+    ev["size_ut"] = size
     return Located(effect, Kind.PHYSICS, summary, {"channel": name}, p, ev)
