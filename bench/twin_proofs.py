@@ -106,7 +106,7 @@ def case_c(name, series, model, draws, seed):
     for effect in effects:  # "wander": the offset's and the field's together
         less = model.without(effect)
         if effect == "wander":
-            less = twin._white(less.without("field_wander") if "field_wander" in less.effects() else less, series)
+            less = twin.whitened(less.without("field_wander") if "field_wander" in less.effects() else less, series)
         c = twin.compare(less, series, draws, seed)
         said = [x.effect for x in c.mismatches]
         named = set(said)

@@ -47,12 +47,12 @@ def run_one(name, draws, seed, ends=False):
     cal, free = calibration_of(series, fixed)
     t0 = time.process_time()
     model = twin.learn(series, cal, source={"recording": name}, free=free)
-    if ends:  # the same two comparisons the ladder makes first and last, on the same seeds
+    if ends:  # the same two comparisons compare_steps makes first and last, on the same seeds
         rep = twin.TwinReport(model=model, steps=(
             twin.compare(twin.baseline_model(model, series, free), series, draws, seed, "baseline", free),
             twin.compare(model, series, draws, seed, "final", free)))
     else:
-        rep = twin.ladder(model, series, draws=draws, seed=seed, free=free)
+        rep = twin.compare_steps(model, series, draws=draws, seed=seed, free=free)
     return {"name": name, "n": len(series), "report": rep, "cpu_s": time.process_time() - t0}
 
 

@@ -16,7 +16,7 @@ from magcal.app.sensor_file import load_model
 from magcal.core.calibration import Calibration
 from magcal.core.series import Series
 from magcal.diagnose import twin
-from magcal.diagnose import twin_stats as ts
+from magcal.diagnose.twin import stats as ts
 from magcal.fit import fit_calibration as fit
 from magcal.sim.model import SensorModel
 from magcal.sim.physics import Motion, Physics, Scenario
@@ -82,7 +82,7 @@ def test_a_recording_lies_inside_the_band_of_its_own_models_twins():
 def test_a_twin_without_wander_is_named_for_what_it_misses():
     rec = _recording(_truth(), seed=5)
     sm = _learned(rec)
-    c = twin.compare(twin._white(sm.without("wander"), rec), rec, draws=30, seed=200)
+    c = twin.compare(twin.whitened(sm.without("wander"), rec), rec, draws=30, seed=200)
     named = {m.effect for m in c.mismatches}
     assert "wander" in named, [m.summary for m in c.mismatches]
     assert any("time" in m.summary for m in c.mismatches if m.effect == "wander")
@@ -99,7 +99,7 @@ def test_a_twin_without_soft_iron_is_named_soft_iron():
 def test_real_excerpt_final_model_beats_the_baseline():
     series = load_series(REAL)
     sm = _learned(series)
-    rep = twin.ladder(sm, series, draws=30, seed=11)
+    rep = twin.compare_steps(sm, series, draws=30, seed=11)
     assert rep.steps[0].step == "baseline" and rep.steps[-1].step == "final"
     assert rep.final.inside >= rep.baseline.inside + 3
     assert rep.final.inside >= 0.8 * len(rep.final.bands)
@@ -186,7 +186,7 @@ def test_learned_glitches_make_as_many_spikes_as_the_recording():
     chans, u = twin.with_time(s), twin.twin_directions(learned, s)
 
     def count(m):
-        return np.count_nonzero(twin.spikes(m, radius=twin._radius(learned.calibration, m, chans)))
+        return np.count_nonzero(twin.spikes(m, radius=twin.radius(learned.calibration, m, chans)))
 
     seen = np.mean([count(twin.twin_readings(learned, u, s.t_s, chans, seed)[0]) for seed in (31, 32, 33, 34)])
     assert 0.6 < seen / count(s.field_ut) < 1.6
@@ -204,7 +204,7 @@ def test_the_learned_glitch_rate_is_the_true_rate_where_the_detector_misses_some
     truth = dataclasses.replace(_truth(), glitch_rate=0.004, glitch_ut=(2.0, 8.0))
     s = _recording(truth, seed=seed, n=6000)
     learned = _learned(s)
-    seen = np.mean(twin.spikes(s.field_ut, radius=twin._radius(learned.calibration, s.field_ut, twin.with_time(s))))
+    seen = np.mean(twin.spikes(s.field_ut, radius=twin.radius(learned.calibration, s.field_ut, twin.with_time(s))))
     assert abs(learned.glitch_rate / 0.004 - 1.0) < 0.3
     assert abs(learned.glitch_rate - 0.004) < abs(seen - 0.004)
 
@@ -403,7 +403,7 @@ def test_a_direction_cell_no_twin_visits_has_no_band_and_no_warning():
     located mismatches without numpy's 'All-NaN slice' warning reaching the user's terminal."""
     import warnings
 
-    from magcal.diagnose.twin_names import locate
+    from magcal.diagnose.twin.names import locate
 
     t = np.linspace(0.0, 100.0, 400)
     real = {"blocks": np.full(20, 1.05), "cells": np.array([1.05, np.nan, 9.0]), "lags": np.zeros(3)}
@@ -416,9 +416,9 @@ def test_a_direction_cell_no_twin_visits_has_no_band_and_no_warning():
 
 
 def test_the_final_step_says_which_effect_it_adds():
-    """The ladder's last step is the whole model; its label still names the effect it adds, so
+    """The last of the steps is the whole model; its label still names the effect it adds, so
     a learned repeat share (or any last effect) is not hidden behind the word "final"."""
-    from magcal.diagnose.twin_text import format_twin
+    from magcal.diagnose.twin.text import format_twin
 
     def step(name, effects, inside):
         return {"step": name, "effects": effects, "inside": inside, "statistics": 2, "mismatches": [],
@@ -576,7 +576,7 @@ def test_a_recording_of_takes_learns_a_level_per_placement_and_its_twins_hold_it
     assert c.inside >= len(c.bands) - 1, [m.summary for m in c.mismatches]
     bare = twin.compare(model.without("takes"), s, draws=30, seed=100)
     assert bare.inside < c.inside
-    from magcal.diagnose.twin_text import format_twin
+    from magcal.diagnose.twin.text import format_twin
 
     shown = twin.TwinReport(model=model, steps=(c,)).to_dict()
     assert shown["model"]["takes"]["count"] == 40 and "40 placements" in format_twin(shown)

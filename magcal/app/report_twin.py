@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..diagnose import twin_stats as ts
-from ..diagnose.twin_text import step_label
+from ..diagnose.twin import stats as ts
+from ..diagnose.twin.text import step_label
 
 _REAL = "#1f5fbf"
 _TWIN = "#e07b00"
@@ -99,7 +99,7 @@ def direction_figure(final, path: Path) -> str:
     ax.plot(x, cells, "o", color=_REAL, label="recording")
     ax.plot(x[bad], cells[bad], "o", color=_BAD, ms=8, label="outside the band")
     ax.set_xticks(x)
-    from ..diagnose.twin_names import direction_words
+    from ..diagnose.twin.names import direction_words
 
     ax.set_xticklabels([direction_words([i]) for i in x], rotation=60, fontsize=7)
     ends = np.concatenate([cells, loc.get("cells_low", []), loc.get("cells_high", [])]).astype(float)

@@ -337,7 +337,7 @@ def _print(args, d: dict, series, twin, written: bool, reported: bool) -> None:
     if hint:
         print(f"note        {hint}")
     if twin is not None:
-        from ..diagnose.twin_text import format_twin
+        from ..diagnose.twin.text import format_twin
 
         print(format_twin(d["twin"]))
     if args.model_out and written:
@@ -379,6 +379,6 @@ def _twin(args, series, d: dict, diagnosis, ticker):
     if not args.twin:
         return None
     ticker.doing(f"comparing with {args.draws} twins per step")
-    report = twin.ladder(model, series, draws=args.draws, seed=args.seed)
+    report = twin.compare_steps(model, series, draws=args.draws, seed=args.seed)
     d["twin"] = report.to_dict()
     return report

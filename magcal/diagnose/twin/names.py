@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import twin_stats as ts
+from . import stats as ts
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from ..sim.takes import Takes
+from ...sim.takes import Takes
 
 TAKE_MIN_DEG = 2.0
 TAKE_RATIO = 10.0

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from ..sim import directions
+from ...sim import directions
 
 N_BLOCKS = 20
 N_CELLS = 20
@@ -176,7 +176,7 @@ def xcorr_max(e: np.ndarray, x: np.ndarray, dt: float) -> tuple[float, float]:
 
 
 def gain_deviation(m: np.ndarray) -> float:
-    from ..fit.ellipsoid import fit_ellipsoid
+    from ...fit.ellipsoid import fit_ellipsoid
 
     f = fit_ellipsoid(m, kind="full")
     if not f:
