@@ -127,6 +127,8 @@ def _refine(u, t, r, half, tau0, f2, threshold) -> Step:
     var = f1.rss / max(f1.n - f1.p, 1) * f2
     inside = taus[rss <= rss[k] + INTERVAL_CHI2 * var]
     tau = float(taus[k])
+    dt = float(np.median(np.diff(tw))) if len(tw) > 1 else 0.0  # the time is known to a sample at best
+    inside = np.concatenate([inside, [tau - dt, tau + dt]])
     d = f1.coef[-3:]
     stat = (scan.lsq(scan.local_design(uw, tw, tau, half), rw).rss - f1.rss) / var
     return Step(tau, (float(inside.min()), float(inside.max())), d, var * f1.xtx_inv[-3:, -3:], f1.coef[:3], stat, threshold)
@@ -338,14 +340,25 @@ def structure(u, t, r, half, floor_ut: float) -> list[Located]:
     typical = float(np.median(rms[n >= 5])) if np.any(n >= 5) else 0.0
     bad = (n >= 5) & (rms > STRUCTURE_OVER_TYPICAL * typical) & (rms > STRUCTURE_OVER_FLOOR * floor_ut)
     out = []
-    for a, b in runs(bad):
-        inside = (cell >= a) & (cell < b)
+    for a, b in _merged(runs(bad), int(np.ceil(half / STRUCTURE_WINDOW_S))):
+        inside = (cell >= a) & (cell < b) & bad[cell]
         level = float(np.sqrt(np.mean(e[inside] ** 2)))
         t0, t1 = float(t[inside][0]), float(t[inside][-1])
         over = level / floor_ut
         summary = f"unexplained structure remains: {over:.1f}× the noise, at {t0:.1f}–{t1:.1f} s"
         out.append(Located(REST, Kind.REMAINDER, summary, {"time_s": [[t0, t1]]}, {"rms_ut": level},
                            {"size_over_floor": over, "typical_rms_ut": typical, "size_ut": level}))
+    return out
+
+
+def _merged(spans: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
+    """Runs closer than ``gap`` windows joined: one misbehaving stretch, not a list of its pieces."""
+    out: list[tuple[int, int]] = []
+    for a, b in spans:
+        if out and a - out[-1][1] <= gap:
+            out[-1] = (out[-1][0], b)
+        else:
+            out.append((a, b))
     return out
 
 
@@ -435,8 +448,8 @@ def search(res: Residual) -> tuple[Located, ...]:
         steps, rest = _all_steps(u, t, r, np.hstack([q, q * (t >= shape.tau_s)[:, None]]), half, f2)
         steps = [s for s in steps if abs(s.tau_s - shape.tau_s) > half]
     steps = measure(u, t, r, q, f2, steps) if steps else steps
-    steps = [s for s in steps if np.linalg.norm(np.linalg.solve(cal.soft_iron, s.d_h)) >= STEP_MIN_OVER_FLOOR * floor]
     steps, bursts = _bursts(steps, half, floor)
+    steps = [s for s in steps if np.linalg.norm(np.linalg.solve(cal.soft_iron, s.d_h)) >= STEP_MIN_OVER_FLOOR * floor]
     found += [_step_located(s, cal, floor) for s in steps] + bursts
     return tuple(found) + tuple(structure(u, t, rest, half, floor))
 
