@@ -110,3 +110,14 @@ def test_a_misfit_at_the_motions_own_turn_rate_is_set_aside_not_claimed():
     found, set_aside, _ = lines.find_lines(res)
     assert found == [] and len(set_aside) == 1
     assert lines.search(res) == ()
+
+
+def test_a_clock_that_repeats_its_stamps_still_gives_the_line():
+    t, m = _sim(8, n=1500)
+    floor = floor_of(m)
+    # a 25 Hz clock stamping 50 Hz samples: each stamp twice (a slow line, so that the stamps'
+    # 40 ms coarseness costs it little phase)
+    stamped = np.floor(t * 25.0) / 25.0
+    found = _search(stamped, m + _line(t, (0.0, 0.0, 4 * floor), 1.3), floor)
+    assert len(found) == 1 and found[0].where["axis"] == "z"
+    assert abs(found[0].where["frequency_hz"] - 1.3) < 0.02 * 1.3

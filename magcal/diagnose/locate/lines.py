@@ -90,14 +90,15 @@ class Line:
 
 
 def sample_interval_s(t_s: np.ndarray) -> float:
-    """The median interval between samples (s); ValueError when time does not advance."""
+    """The median interval between samples (s); where the clock repeats its stamps (median
+    interval 0), the mean one. ValueError when time runs backwards or does not advance."""
     dt = np.diff(t_s)
     if len(dt) == 0 or not np.all(np.isfinite(t_s)):
         raise ValueError("t_s must hold finite times of at least two samples")
+    if np.any(dt < 0) or t_s[-1] <= t_s[0]:
+        raise ValueError("t_s must be in time order and advance over the recording")
     d = float(np.median(dt))
-    if d <= 0 or np.any(dt < 0):
-        raise ValueError("t_s must increase (samples in time order, median interval > 0)")
-    return d
+    return d if d > 0 else float(t_s[-1] - t_s[0]) / len(dt)
 
 
 def grid_of(t_s: np.ndarray, dt_s: float, f_max_hz: float) -> tuple[np.ndarray, float]:
@@ -423,6 +424,8 @@ def search(res: Residual) -> tuple[Located, ...]:
         return ()
     if not ok.all():
         res = replace(res, t_s=res.t_s[ok], m_ut=res.m_ut[ok], channels={k: v[ok] for k, v in res.channels.items()})
+    if np.any(np.diff(res.t_s) < 0) or res.t_s[-1] <= res.t_s[0]:
+        return ()  # no frequency without a clock that advances
     lines, aside, threshold = find_lines(res)
     return tuple(located(x, res, threshold, aside) for x in lines)
 
