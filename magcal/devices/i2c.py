@@ -13,8 +13,8 @@ What the host does (register facts: ``docs/hardware.md``, AK8975 datasheet MS118
    deadline, then ONE burst read of HXL..ST2 (7 bytes; reading ST2 ends the measurement) and
    the MPU's ``TEMP_OUT``. DERR/HOFL/rail/all-zero readings are rejected: counted in
    ``counters`` and reported as ``Event("rejected")``.
-3. Calibration lives in the host-side store (``magcal.recordings.store``): the AK8975 has no offset
-   registers.
+3. Calibration lives in the host-side store (``magcal.devices.host_store``): the AK8975 has no
+   offset registers.
 
 Time comes from an injectable ``clock`` (seconds, monotonic) and ``sleep`` pair; a simulated
 bus (``magcal.devices.fakebus.FakeBus``) brings its own simulated clock, which the backend uses
@@ -29,12 +29,12 @@ import time
 from dataclasses import dataclass, replace
 from typing import Callable, Iterable
 
-from ..core.calibration import Calibration, StoredRecord
 from ..core.errors import DeviceError, IdentityError, NoReply, PortUnavailable
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, Sample, counts_to_ut, temp_raw_to_c
 from ..core.selftest import SELF_TEST_WINDOW, SelfTestResult  # noqa: F401 (SELF_TEST_WINDOW: re-exported)
 from ..wire.dialect import Dialect
 from .base import Abilities, Device, Event, Identity, Item
+from .host_store import HostStore
 from .port import MPU_ADDRS, Port, check_rate
 
 # -- registers ---------------------------------------------------------------------------------
@@ -141,8 +141,9 @@ def _int16(lo: int, hi: int) -> int:
 
 
 # -- the device ---------------------------------------------------------------------------------------
-class I2CDevice(Device):
-    """An MPU-9150 + AK8975 on a Linux I2C bus, measured one single shot at a time."""
+class I2CDevice(HostStore, Device):
+    """An MPU-9150 + AK8975 on a Linux I2C bus, measured one single shot at a time; its
+    calibration lives in the host-side store (``HostStore``): the AK8975 has no offset registers."""
 
     abilities = Abilities(live=True, store=True, self_test=True)
 
@@ -160,7 +161,7 @@ class I2CDevice(Device):
         self._bus_factory = bus_factory or _default_bus_factory
         self._clock_arg, self._sleep_arg = clock, sleep
         self.sleep: Callable[[float], None] = sleep or time.sleep
-        self._store_dir = store_dir
+        self.store_dir = store_dir
         self.drdy_timeout_s = float(drdy_timeout_s)
         self.bus = None
         self.asa: tuple[int, int, int] = (128, 128, 128)
@@ -390,33 +391,6 @@ class I2CDevice(Device):
         result = SelfTestResult.from_registers(raw, self.asa, st2)
         self.counters["self_test_pass" if result.passed else "self_test_fail"] += 1
         return result
-
-    # -- calibration: the host-side store -----------------------------------------------------------
-    def _store(self):
-        from ..recordings.store import CalibrationStore
-
-        return CalibrationStore(self._store_dir)
-
-    @property
-    def store_path(self):
-        """The store file that holds (or will hold) this device's calibration; None before open."""
-        return None if self.identity is None else self._store().path_for(self.identity)
-
-    def stored_in(self) -> str | None:
-        return None if self.store_path is None else str(self.store_path)
-
-    def _read_stored(self) -> StoredRecord:
-        self._require_open()
-        return self._store().stored(self.identity)
-
-    def _discard_calibration(self) -> StoredRecord:
-        self._require_open()
-        self._store().discard(self.identity)
-        return self._store().stored(self.identity)
-
-    def _write_calibration(self, cal: Calibration) -> Calibration:
-        self._require_open()
-        return self._store().save(self.identity, cal)
 
     # -- closing ----------------------------------------------------------------------------------
     def _require_open(self) -> None:
