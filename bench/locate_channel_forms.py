@@ -217,6 +217,29 @@ def report(title, rows):
                   f"coef-size {a[:, 2].mean():.2f}  in-95% {a[:, 3].mean():.2f}  other-claim {a[:, 4].mean():.2f}")
 
 
+def logged_channels():
+    """Real recordings with their own logged channels (die temperature; a flight controller's
+    current, battery voltage and throttle): what the search says, with no effect added."""
+    sys.path.insert(0, str(HERE))
+    from real_channels import betaflight, umich_preflight
+
+    print("\nreal recordings with their own channels (no effect added)")
+    for source in (umich_preflight, betaflight):
+        try:
+            cases = list(source())
+        except OSError as e:
+            print(f"  {source.__name__}: not available ({e})")
+            continue
+        for label, s in cases:
+            ok = s.valid & np.all(np.isfinite(s.field_ut), axis=1)
+            for c in s.channels.values():
+                ok &= np.isfinite(c)
+            chans = {k: v[ok] for k, v in s.channels.items()}
+            found = cf.search(residual(s.field_ut[ok], s.t_s[ok], chans))
+            print(f"  {label} ({ok.sum()} samples, channels {', '.join(chans)}): "
+                  + ("; ".join(f"{f.effect}: {f.summary}" for f in found) or "nothing claimed"))
+
+
 def main():
     quick = "--quick" in sys.argv
     seeds = range(2 if quick else 3)
@@ -227,6 +250,7 @@ def main():
     report("simulated", run(cases, sims, ks, seeds))
     real = {p.name: real_recording(p) for p in REAL if p.exists()}
     report("real recordings", run(cases, real, ks, seeds))
+    logged_channels()
     print(f"\n{time.time() - t0:.0f} s")
 
 

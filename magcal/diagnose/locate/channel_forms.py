@@ -34,6 +34,7 @@ from __future__ import annotations
 from typing import Mapping
 
 import numpy as np
+from numpy.polynomial import legendre
 
 from .. import channels as catalogue
 from .. import hygiene
@@ -50,6 +51,7 @@ N_SHIFT_GRID = 160  # … chosen among this many evenly spread
 N_MIN_SHIFTS = 12
 MAX_SHIFT_CORR = 0.3
 WANDER_RATIO = catalogue.WANDER_RATIO  # a slow term carries ≥ 4× the slow wander it leaves
+SLOW_GATE = 0.5  # … for a series whose slow part carries this share (a pressure, a battery voltage)
 N_FINE = 21  # lags of the refined grid about the best coarse lag (± two coarse steps)
 CLEAN_RATIO = 2.5  # the best must beat the null learned without it by this factor (see module doc)
 ALPHA = 0.002  # family-wise false-claim rate over everything searched
@@ -87,10 +89,18 @@ def families(name: str, c: np.ndarray, t_s: np.ndarray, rows: np.ndarray) -> lis
     return out
 
 
+def confounded(c: np.ndarray, t_s: np.ndarray) -> bool:
+    """A channel that only rises or falls with time cannot be told from a drift
+    (``diagnose/channels.py``): it is left to the time term."""
+    return abs(float(np.corrcoef(c, t_s)[0, 1])) >= catalogue.CONFOUND_CORR
+
+
 def candidates(res: Residual) -> dict[str, np.ndarray]:
-    """The channels searched: usable, not time, not one that follows the orientation."""
+    """The channels searched: usable, not time, not one that follows the orientation, not one
+    that only rises or falls with time."""
+    t = np.asarray(res.t_s, np.float64)
     chans = {k: np.asarray(v, np.float64) for k, v in res.channels.items() if k != catalogue.TIME}
-    chans = {k: v for k, v in chans.items() if catalogue.usable(v)}
+    chans = {k: v for k, v in chans.items() if catalogue.usable(v) and not confounded(v, t)}
     if not chans:
         return {}
     kept, left = hygiene.screen(chans, res.u, res.t_s)
@@ -100,14 +110,19 @@ def candidates(res: Residual) -> dict[str, np.ndarray]:
     return kept
 
 
-def tried(channels: Mapping[str, np.ndarray]) -> list[str]:
-    """What was tried for each channel, to be said before "explained by no logged channel"."""
+def tried(channels: Mapping[str, np.ndarray], t_s: np.ndarray | None = None) -> list[str]:
+    """What was tried for each channel, to be said before "explained by no logged channel"
+    (with ``t_s``, a channel that only rises or falls with time is said to be left to drift)."""
     out = []
     for name, c in channels.items():
+        c = np.asarray(c, np.float64)
         if name == catalogue.TIME:
             continue
-        if not catalogue.usable(np.asarray(c, np.float64)):
+        if not catalogue.usable(c):
             out.append(f"{name}: not tried (constant or with missing values)")
+            continue
+        if t_s is not None and confounded(c, np.asarray(t_s, np.float64)):
+            out.append(f"{name}: not tried on its own (it only rises or falls with time: a drift, tried as time)")
             continue
         forms = (
             f"an offset delayed by 0 or {N_LAGS} lags up to a sixth of the span, the same through a first-order "
@@ -192,11 +207,22 @@ def refined(fr: cs.Frame, pick: cs.Pick, c: np.ndarray, t_s: np.ndarray) -> cs.P
     return cs.Pick(fam, k, float(cs.log10_p(fr.f_ratio(ess[k], 3), 3)), ess)
 
 
+def slow_share(g: np.ndarray) -> float:
+    """The share of a series' variance a degree-6 curve in time carries."""
+    g = g - g.mean()
+    total = float(g @ g)
+    if total <= 0:
+        return 0.0
+    vand = legendre.legvander(np.linspace(-1.0, 1.0, len(g)), catalogue.SLOW_DEGREE)
+    smooth = vand @ np.linalg.lstsq(vand, g, rcond=None)[0]
+    return float(smooth @ smooth) / total
+
+
 def slow_enough(fr: cs.Frame, pick: cs.Pick, clean: cs.Frame) -> bool:
-    """False when the pick's series is slow (a smooth curve in time carries most of it) and its
-    term carries less than WANDER_RATIO × the slow wander it leaves: one slow channel matches
-    real wander by chance."""
-    if catalogue.slow_block_energy(pick.fam.series[:, pick.j, 0], fr.bases["offset"]) is None:
+    """False when the pick's series is slow (a smooth curve in time carries at least SLOW_GATE
+    of it) and its term carries less than WANDER_RATIO × the slow wander it leaves: one slow
+    channel matches real wander by chance."""
+    if slow_share(pick.fam.series[:, pick.j, 0]) < SLOW_GATE:
         return True
     term_e, rem_e = cs.slow_energies(fr, fr.r - clean.r)
     return term_e >= WANDER_RATIO * rem_e
