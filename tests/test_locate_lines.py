@@ -121,3 +121,12 @@ def test_a_clock_that_repeats_its_stamps_still_gives_the_line():
     found = _search(stamped, m + _line(t, (0.0, 0.0, 4 * floor), 1.3), floor)
     assert len(found) == 1 and found[0].where["axis"] == "z"
     assert abs(found[0].where["frequency_hz"] - 1.3) < 0.02 * 1.3
+
+
+def test_mains_at_half_the_sample_clock_lands_on_nyquist_and_is_found():
+    t, m = _sim(10, rate_hz=100.0, n=2000)
+    floor = floor_of(m)
+    found = _search(t, m + _line(t, (0.0, 2 * floor, 0.0), 50.0, 0.4), floor)
+    assert len(found) == 1 and found[0].where["axis"] == "y"
+    assert abs(found[0].where["frequency_hz"] - 50.0) < 0.02 * 50.0
+    assert found[0].params["mains_hz"] == 50.0 and found[0].params["mains_harmonic"] == 1

@@ -41,7 +41,7 @@ GAP = 3  # independent bins each side of the candidate left out of its local lev
 GRID_TRIALS = 2.0  # the maximum over the oversampled grid, counted as this many tries per independent bin
 LEVEL_EFFICIENCY = 0.6  # a median of χ² values is worth this share of their number in degrees of freedom
 MIN_CYCLES = 8.0  # lowest frequency scanned: this many cycles over the recording
-TOP_NYQUIST = 0.97  # highest frequency scanned, as a share of the Nyquist frequency
+TOP_NYQUIST = 1.0  # highest frequency scanned, as a share of the Nyquist frequency (mains at half the clock lands on it)
 MAX_PHASE_RAD = 0.3  # gridding error allowed at the highest frequency scanned
 DIRECTION_DEGREE = 4
 WANDER_DEGREE = 3
@@ -338,16 +338,17 @@ def _masked(sp: Spectrum, set_aside_hz: list) -> np.ndarray:
 def mains_alias(f_hz: float, rate_hz: float) -> tuple[float, int] | None:
     """(mains frequency, harmonic) whose alias at the sampling rate ``rate_hz`` lands on
     ``f_hz`` (within 2 %, or what a clock off by CLOCK_SHARE moves the alias by); None
-    when none does. A hint: the sampling clock is known only as the median interval."""
+    when none does; the lowest harmonic first, then the nearest. A hint: the sampling clock
+    is known only as the median interval."""
     best = None
     for base in MAINS_HZ:
         for h in range(1, MAINS_HARMONICS + 1):
             src = base * h
             alias = abs(src - rate_hz * round(src / rate_hz))
             miss = abs(alias - f_hz)
-            if miss <= max(0.02 * f_hz, CLOCK_SHARE * src) and (best is None or miss < best[0]):
-                best = (miss, base, h)
-    return None if best is None else (best[1], best[2])
+            if miss <= max(0.02 * f_hz, CLOCK_SHARE * src) and (best is None or (h, miss) < best[:2]):
+                best = (h, miss, base)
+    return None if best is None else (best[2], best[0])
 
 
 def raw_frame(line: Line, soft_iron: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
