@@ -9,7 +9,7 @@ time and the axis). Every threshold is judged against the recording itself:
   every time before it. Set aside (its time says nothing about where it belongs).
 - ``saturation``: a pile-up at an axis's extreme value — the same raw value at the max (or
   min) in at least ``RAIL_MIN_SHARE`` of the distinct readings and ``RAIL_OVER_LEVEL`` times the
-  typical (median) level just inside it. Quantised real data visit their extreme level a few
+  typical (median) count of the ``RAIL_LEVELS`` distinct readings just inside it. Quantised real data visit their extreme level a few
   times (the field only brushes it); a rail collects every sample the sensor could not reach,
   so its samples lie inside the surface fitted without them (an axis stuck at its extreme
   reads more than the field, lies outside, and is left to the stuck-axis search).
@@ -44,7 +44,7 @@ from .base import AXES, Effect, Kind, Located, Residual, runs
 RAIL_MIN_SHARE = 0.005  # share of distinct readings a rail must hold
 RAIL_MIN_COUNT = 8
 RAIL_OVER_LEVEL = 3.0  # the rail against the typical (median) level just inside it
-RAIL_BAND = 0.02  # "just inside": this share of the axis's range
+RAIL_LEVELS = 5  # "just inside": this many distinct readings nearest the extreme
 STUCK_MIN_SAMPLES = 5
 MOVE_QUANTA = 10.0
 STUCK_OVER_FLOOR = 4.0
@@ -189,10 +189,10 @@ def _rail(x: np.ndarray, fresh: np.ndarray, side: float):
     e = x.max() if side > 0 else x.min()
     at = x == e
     n_at = int(np.count_nonzero(at & fresh))
-    lo, hi = np.percentile(x, [0.5, 99.5])
-    band = RAIL_BAND * max(hi - lo, np.finfo(float).tiny)
-    near = (~at) & fresh & (np.abs(x - e) <= band)
-    level = float(np.median(np.unique(x[near], return_counts=True)[1])) if np.any(near) else 0.0
+    inside = (~at) & fresh
+    values, counts = np.unique(x[inside], return_counts=True)
+    nearest = np.argsort(np.abs(values - e))[:RAIL_LEVELS]
+    level = float(np.median(counts[nearest])) if len(nearest) else 0.0
     need = max(RAIL_MIN_COUNT, RAIL_MIN_SHARE * np.count_nonzero(fresh), RAIL_OVER_LEVEL * max(level, 1.0))
     if n_at < need:
         return None
