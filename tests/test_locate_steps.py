@@ -55,12 +55,12 @@ def test_a_step_is_found_with_its_time_and_vector_and_removed_to_the_end_calibra
 
 
 def test_a_step_injected_into_a_real_recording_is_found_where_it_was_put():
-    s = load_series(DATA / "hmc5883l_sunsided_full_sphere_every3rd.csv")
+    s = load_series(DATA / "lsm9ds1_ckexplorer_every4th.csv")
     t, m = np.asarray(s.t_s, float), np.asarray(s.field_ut, float)
-    d = np.array([-1.18, -0.94, -0.45])
-    found = _claims(_search(t, m + np.outer(t >= 58.5, d)))
-    assert [f.effect for f in found] == [steps.STEP], [f.summary for f in found]
-    assert abs(found[0].where["time_s"][0] - 58.5) <= 1.0
+    d = np.array([0.72, -0.9, 0.15])  # 3× the recording's floor
+    found = [f for f in _claims(_search(t, m + np.outer(t >= 1649.4, d))) if abs(f.where["time_s"][0] - 1649.4) <= 0.05 * 2999]
+    assert [f.effect for f in found] == [steps.STEP]
+    assert np.linalg.norm(found[0].params["step_ut"] - d) < 0.5 * np.linalg.norm(d)
 
 
 @pytest.mark.parametrize("shape", ["none", "ramp", "smooth"])

@@ -412,20 +412,17 @@ def _big(c: ShapeChange, field_ut: float, floor_ut: float) -> bool:
 
 
 def _soft_change(u, t, r, field_ut, floor_ut, half, steps: list[Step]) -> ShapeChange | None:
-    """A soft-iron change, claimed only where the shape changes beyond chance both with the
-    offset steps found allowed for (a step is not a change of shape) and without them (a
-    change of shape seen through a local offset model can look like steps); placed by the
-    latter, which such false steps cannot pull, unless a step was found at that time."""
+    """A soft-iron change, claimed where the shape changes beyond chance with the offset steps
+    found allowed for (a step is not a change of shape). Placed by the scan without those
+    steps where it agrees to a window (a change of shape seen through a local offset model can
+    look like steps, and such false steps must not pull its time)."""
     with_steps = shape_change(u, t, r, field_ut, half, [s.tau_s for s in steps])
     if with_steps is None or with_steps.stat < with_steps.threshold or not _big(with_steps, field_ut, floor_ut):
         return None
-    alone = shape_change(u, t, r, field_ut, half) if steps else with_steps
-    if alone is None or alone.stat < alone.threshold or not _big(alone, field_ut, floor_ut):
-        return None
-    for c in (alone, with_steps):  # a step found at the same time is the simpler account
-        if all(abs(c.tau_s - s.tau_s) > half for s in steps):
-            return c
-    return None
+    alone = shape_change(u, t, r, field_ut, half) if steps else None
+    if alone is not None and alone.stat >= alone.threshold and abs(alone.tau_s - with_steps.tau_s) <= half:
+        return alone
+    return with_steps
 
 
 def search(res: Residual) -> tuple[Located, ...]:
