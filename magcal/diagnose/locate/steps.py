@@ -19,6 +19,12 @@
   is ``STRUCTURE_OVER_TYPICAL`` times the recording's typical window and above its floor,
   explained by no step — returned as the honest remainder, with its size over the floor.
 
+Limits (measured with bench/locate_steps.py): the local test sees a step through the jump of
+r at τ, which is u(τ)·(Wδ) — a step across the direction the board points at that moment shows
+little jump and is found late or not at all, however large; its vector, once found, comes from
+the segments either side, which see every direction. A recording whose own shape drifts
+(seen on a real hand-waved recording) is reported as a soft-iron change.
+
 ``remove`` for a step shifts the samples before τ by δ, and for a soft-iron change maps the
 samples before τ through the calibration fitted on them into the calibration fitted on the
 samples after τ: the calibration refitted on the result is the one in force at the END of the
