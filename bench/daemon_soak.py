@@ -27,7 +27,7 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 from magcal.app import config
-from magcal.app.daemon import Daemon  # noqa: E402
+from magcal.app.daemon import Collaborators, Daemon  # noqa: E402
 from magcal.sim import physics  # noqa: E402
 
 RATE_HZ = 100
@@ -71,7 +71,7 @@ def main() -> None:
                 physics._block.cache_clear()
                 marks.append((state["n"], time.perf_counter() - t0, cpu_s() - c0, rss_mib()))
 
-        d = Daemon(settings, state_dir=state_dir, on_sample=on_sample, max_samples=n_total)
+        d = Daemon(settings, state_dir=state_dir, max_samples=n_total, collaborators=Collaborators(on_sample=on_sample))
         rss0 = rss_mib()
         d.run()
         wall, cpu = time.perf_counter() - t0, cpu_s() - c0

@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 from magcal.app import config  # noqa: E402
-from magcal.app.daemon import Daemon  # noqa: E402
+from magcal.app.daemon import Collaborators, Daemon  # noqa: E402
 from magcal.core.sample import UT_PER_COUNT, asa_gain  # noqa: E402
 from magcal.devices.simboard import SimEeprom  # noqa: E402
 from magcal.fit.tracker import Tracker  # noqa: E402
@@ -114,8 +114,9 @@ def daemon(hours: float, seed: int, rate_hz: int) -> None:
         settings = config.load(None, {"port": f"sim://?seed={seed}&pace=0&rate={rate_hz}", "rate_hz": rate_hz,
                                       "daemon": {"recalibrate": True, "keep": "tracker", "socket": False,
                                                  "state_every_s": 60.0}}, environ={})
-        d = Daemon(settings, state_dir=state_dir, max_samples=n, device_options={"scenario": twin(seed)},
-                   wall=lambda: t0 + clock["t_s"], on_sample=lambda _e, s: clock.__setitem__("t_s", s.t_s))
+        d = Daemon(settings, state_dir=state_dir, max_samples=n, collaborators=Collaborators(
+                   device_options={"scenario": twin(seed)}, wall=lambda: t0 + clock["t_s"],
+                   on_sample=lambda _e, s: clock.__setitem__("t_s", s.t_s)))
         c0 = cpu_s()
         d.run()
         cpu = cpu_s() - c0

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from magcal.app import config
-from magcal.app.daemon import Daemon, Decision, Stop
+from magcal.app.daemon import Collaborators, Daemon, Decision, Stop
 from magcal.devices import open_device, parse_port
 from magcal.devices.base import read_to_end
 from magcal.devices.simboard import SimBoard
@@ -54,8 +54,8 @@ class Tracked:
 
     def run(self, tmp_path, samples, **daemon):
         settings = make_settings(self.url, **daemon)
-        d = Daemon(settings, state_dir=tmp_path / "state", on_sample=self.on_sample, max_samples=samples,
-                   device_options=self.options(reply_timeout_s=0.25))
+        d = Daemon(settings, state_dir=tmp_path / "state", max_samples=samples,
+                   collaborators=Collaborators(on_sample=self.on_sample, device_options=self.options(reply_timeout_s=0.25)))
         # a daemon that cannot reach its sample count (a board that stopped answering is retried
         # for ever, as it should be) fails here instead of hanging the suite
         guard = threading.Timer(WALL_LIMIT_S, d.request_stop)
@@ -164,7 +164,8 @@ def test_a_calibration_failing_a_gate_is_never_written(tmp_path):
     settings = config.load(None, {"port": t.url, "gates": {"max_rms_ut": 0.05},
                                   "daemon": {"recalibrate": True, "socket": False, "monitor_window": 200}},
                            environ={})
-    d = Daemon(settings, state_dir=tmp_path, on_sample=t.on_sample, max_samples=4000, device_options=t.options())
+    d = Daemon(settings, state_dir=tmp_path, max_samples=4000,
+               collaborators=Collaborators(on_sample=t.on_sample, device_options=t.options()))
     d.run()
     assert d.writer.count == 0 and d.writer.last is None and d.drift.calibration is None
     assert _stored_record(t.board)[0] == "BLANK"
@@ -278,7 +279,8 @@ def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
     url = (f"replay://{cap}?fault=unplug@3+0.4&fault=stall@5+0.5&fault=garbage@7=500"
            f"&fault=reset@8&fault=unplug@10+0.4")
     got = []
-    d = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)))
+    d = Daemon(make_settings(url), state_dir=tmp_path / "state",
+               collaborators=Collaborators(on_sample=lambda e, s: got.append((s.seq, s.raw))))
     assert d.run() == 0
     assert d.stopped_by is Stop.SOURCE_ENDED
     assert got == clean
@@ -296,12 +298,13 @@ def test_a_restarted_daemon_resumes_a_replay_where_it_stopped(tmp_path):
     clean = [(s.seq, s.raw) for s in recorded if s.valid]
     url = f"replay://{cap}"
     got = []
-    first = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)),
-                   max_samples=len(clean) // 3)
+    first = Daemon(make_settings(url), state_dir=tmp_path / "state", max_samples=len(clean) // 3,
+                   collaborators=Collaborators(on_sample=lambda e, s: got.append((s.seq, s.raw))))
     assert first.run() == 0
     taken = len(got)
     assert 0 < taken < len(clean)
-    second = Daemon(make_settings(url), state_dir=tmp_path / "state", on_sample=lambda e, s: got.append((s.seq, s.raw)))
+    second = Daemon(make_settings(url), state_dir=tmp_path / "state",
+                    collaborators=Collaborators(on_sample=lambda e, s: got.append((s.seq, s.raw))))
     assert second.run() == 0
     assert second.stopped_by is Stop.SOURCE_ENDED
     assert got == clean  # every recorded sample once, in order, across the restart
@@ -342,8 +345,8 @@ def test_the_daemon_keeps_a_capture_of_a_motioncal_board_that_replays_to_the_sam
         settings = config.load(None, {"port": board.port, "dialect": "motioncal", "rate_hz": 100,
                                       "daemon": {"stall_s": 2.0, "state_every_s": 0.5, "socket": False,
                                                  "capture_max_bytes": 10_000_000}}, environ={})
-        d = Daemon(settings, state_dir=tmp_path / "state", on_sample=lambda e, s: got.append(s.field_ut),
-                   max_samples=500)
+        d = Daemon(settings, state_dir=tmp_path / "state", max_samples=500,
+                   collaborators=Collaborators(on_sample=lambda e, s: got.append(s.field_ut)))
         assert d.run() == 0
     cap = tmp_path / "state" / "capture.cap"
     replayed = [s.field_ut for s in read_to_end(open_device(f"replay://{cap}"))]

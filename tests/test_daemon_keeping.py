@@ -4,7 +4,7 @@ every write verified and charged to the EEPROM budget."""
 import numpy as np
 import pytest
 
-from magcal.app.daemon import Daemon, Decision
+from magcal.app.daemon import Collaborators, Daemon, Decision
 from magcal.devices.simboard import SimEeprom
 from magcal.recordings.state import StateFiles
 from magcal.wire.protocol import record_from_calibration
@@ -80,6 +80,6 @@ def test_no_write_without_recalibrate_and_the_keeper_resumes(tmp_path):
     saved = StateFiles(tmp_path / "state").load()
     assert saved["resume"]["keeping"]["tracker"]["n"] == n
     again = Daemon(make_settings(t.url), state_dir=tmp_path / "state", max_samples=200,
-                   device_options=t.options(reply_timeout_s=0.25))
+                   collaborators=Collaborators(device_options=t.options(reply_timeout_s=0.25)))
     again.run()
     assert again.tracking.keeper.tracker.n > n  # it went on from what it remembered

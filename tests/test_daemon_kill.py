@@ -28,7 +28,7 @@ def _mtime(path) -> int:
 
 def _child(state_dir: str, seed: int) -> None:
     # runs in a forked child: the imports are already done, so a start costs milliseconds
-    from magcal.app.daemon import Daemon
+    from magcal.app.daemon import Collaborators, Daemon
     from magcal.devices import open_device
 
     port = f"sim://?pace=0&eeprom={state_dir}/eeprom.bin"  # one device; each boot moves through other directions
@@ -38,8 +38,8 @@ def _child(state_dir: str, seed: int) -> None:
         "daemon": {"state_every_s": 0.005, "socket": False, "monitor_window": 200, "recalibrate": True},
     }, environ={})
     try:
-        Daemon(settings, state_dir=state_dir,
-               open_device=lambda url, **kw: open_device(f"{url}&seed={seed}", **kw)).run()
+        Daemon(settings, state_dir=state_dir, collaborators=Collaborators(
+               open_device=lambda url, **kw: open_device(f"{url}&seed={seed}", **kw))).run()
     finally:
         os._exit(0)
 
