@@ -12,7 +12,7 @@ Run: python bench/real_data.py  → prints the table and writes bench/results/re
      python bench/real_data.py --study  → also prints why the recordings differ (≈ 1 min): the
      error structure of each recording, how much the held-out spread moves with which time
      blocks of the fit half are used, and whether blocked cross-validation inside the fit half
-     predicts the held-out ranking of two sample selections (see bench/README.md).
+     predicts the held-out ranking of two sample selections (see docs/notebook/bench-history.md).
      python bench/real_data.py --splits → only: magcal against a MotionCal-like 650-point buffer
      with the split at 30 … 70 % of each recording (≈ 30 s).
      python bench/real_data.py --uncertainty → only: does the reported offset σ cover the change

@@ -3,7 +3,7 @@ on the held-out half of the real recordings?
 
     python3 bench/real_time_models.py [--degrees 2,4,8,16]     (≈ 1 min)
 
-The fit half of a hand-held recording wanders (bench/README.md): an offset that moves, or — when
+The fit half of a hand-held recording wanders (docs/notebook/bench-history.md): an offset that moves, or — when
 the board is carried through a non-uniform indoor field — a field magnitude that changes with
 position. Each rule below is decided from the fit half only and judged like bench/real_data.py
 (spread of |calibrated field| on the held-out half, %), against MotionCal on the same splits:
