@@ -186,7 +186,7 @@ def _step_located(s: Step, cal, floor_ut: float) -> Located:
     size = float(np.linalg.norm(d))
     half = max(s.tau_s - s.interval_s[0], s.interval_s[1] - s.tau_s)
     over = size / floor_ut if floor_ut > 0 else float("inf")
-    summary = (f"a hard-iron step of ({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f}) µT at {s.tau_s:.1f} s (±{half:.1f} s), "
+    summary = (f"a hard-iron step of ({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f}) µT at {s.tau_s:.1f} s (±{half:.2f} s), "
                f"{over:.1f}× the recording's floor")
     return Located(STEP, Kind.PHYSICS, summary, {"time_s": [s.tau_s], "direction": (d / size).tolist()},
                    {"step_ut": d, "step_sigma_ut": sigma, "offset_before_ut": before, "offset_after_ut": before + d,
