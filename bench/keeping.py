@@ -43,14 +43,14 @@ from magcal.devices.simboard import SimEeprom  # noqa: E402
 from magcal.fit.tracker import Tracker  # noqa: E402
 from magcal.sim.physics import Motion, demo_scenario  # noqa: E402
 from magcal.sim import wander  # noqa: E402
-from magcal.sim.wander import Wander  # noqa: E402
+from magcal.sim.wander import WanderComponent  # noqa: E402
 
 RATE_HZ = 100
 HOUR = 3600
 
 
 def twin(seed: int):
-    sc = demo_scenario(seed).with_physics(wander=(Wander((0.5,) * 3, 4 * HOUR), Wander((0.15,) * 3, 600.0)))
+    sc = demo_scenario(seed).with_physics(wander=(WanderComponent((0.5,) * 3, 4 * HOUR), WanderComponent((0.15,) * 3, 600.0)))
     return replace(sc, motion=Motion("sphere", period_s=60.0))
 
 

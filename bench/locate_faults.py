@@ -36,7 +36,7 @@ import real_recordings  # noqa: E402
 from magcal.app.load import load_series  # noqa: E402
 from magcal.diagnose.locate.faults import TRANSFORMS, screen  # noqa: E402
 from magcal.sim.physics import Motion, Physics, Scenario  # noqa: E402
-from magcal.sim.wander import Wander  # noqa: E402
+from magcal.sim.wander import WanderComponent  # noqa: E402
 
 MAX_N = 6000
 TESTS_DATA = Path(__file__).resolve().parent.parent / "tests" / "data"
@@ -47,7 +47,7 @@ def simulated(seeds: int) -> dict:
     out = {}
     for seed in range(seeds):
         for motion in (Motion("sphere", period_s=20.0), Motion("tilt", max_tilt_deg=50.0, period_s=15.0)):
-            extra = {"glitch_rate": 0.002, "wander": (Wander(0.5, tau_s=30.0),)} if seed % 2 else {}
+            extra = {"glitch_rate": 0.002, "wander": (WanderComponent(0.5, tau_s=30.0),)} if seed % 2 else {}
             phys = Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3, **extra)
             run = Scenario(physics=phys, motion=motion, seed=100 + seed).simulate(3000, 50.0)
             out[f"sim_{motion.kind}_{seed}"] = (run.series.t_s, run.series.field_ut)
@@ -61,7 +61,7 @@ def sim_controls(seeds: int) -> int:
     for seed in range(seeds):
         for motion in (Motion("sphere", period_s=20.0 + seed), Motion("tilt", max_tilt_deg=50.0, period_s=15.0),
                        Motion("yaw")):
-            extra = {"glitch_rate": 0.003, "wander": (Wander(0.5, tau_s=30.0),)} if seed % 2 else {}
+            extra = {"glitch_rate": 0.003, "wander": (WanderComponent(0.5, tau_s=30.0),)} if seed % 2 else {}
             phys = Physics(hard_iron_ut=(21.0 + seed, -33.0, 8.0), noise_ut=0.2 + 0.02 * seed, **extra)
             run = Scenario(physics=phys, motion=motion, seed=500 + seed).simulate(2000, 50.0)
             found = screen(run.series.t_s, run.series.field_ut).found

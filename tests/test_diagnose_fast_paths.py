@@ -166,8 +166,8 @@ def test_diagnosis_model_jacobian_is_the_finite_difference():
 
 def test_a_twins_draws_on_times_in_order_are_its_draws_on_the_times_shuffled():
     t = np.sort(np.random.default_rng(2).uniform(0.0, 30.0, 400))
-    model = SensorModel(calibration=_simulated_calibration(), wander=(wander.Wander(0.3, band_hz=(0.05, 2.0)),
-                                                                      wander.Wander(0.2, tau_s=3.0)))
+    model = SensorModel(calibration=_simulated_calibration(), wander=(wander.WanderComponent(0.3, band_hz=(0.05, 2.0)),
+                                                                      wander.WanderComponent(0.2, tau_s=3.0)))
     in_order = model.draws(t, 7)
     shuffle = np.random.default_rng(3).permutation(len(t))
     shuffled = model.draws(t[shuffle], 7)
@@ -176,7 +176,7 @@ def test_a_twins_draws_on_times_in_order_are_its_draws_on_the_times_shuffled():
 
 
 def test_the_kept_checks_of_a_streams_times_do_not_carry_over_to_other_times():
-    comps = (wander.Wander(0.3, band_hz=(0.5, 4.0)),)
+    comps = (wander.WanderComponent(0.3, band_hz=(0.5, 4.0)),)
     uniform = np.arange(600) * 0.02
     jittered = uniform + np.random.default_rng(5).uniform(-0.004, 0.004, 600)
     for first, second in ((uniform, jittered), (jittered, uniform)):

@@ -90,11 +90,11 @@ def test_a_sensor_whose_offset_wanders_raises_about_alpha_alarms(calibrated):
     is the sensor's normal state, not a new hard iron, and must not raise alarms beyond alpha."""
     import dataclasses
 
-    from magcal.sim.wander import Wander
+    from magcal.sim.wander import WanderComponent
 
     sc, cal = calibrated
     sensor = dataclasses.replace(sc.sensor, calibration=cal, noise_ut=(0.25,) * 3,
-                                 wander=(Wander(0.25, 40.0), Wander(0.1, 4.0)))
+                                 wander=(WanderComponent(0.25, 40.0), WanderComponent(0.1, 4.0)))
     verdicts = _tests_at_one_percent(sc, cal, sensor, (21, 22))
     assert len(verdicts) == 200
     # 200 tests at α = 1 %: expect 2; Poisson(2) exceeds 7 with probability < 0.2 %
@@ -116,11 +116,11 @@ def _tests_at_one_percent(sc, cal, sensor, seeds):
 def _wandering(sc, cal):
     import dataclasses
 
-    from magcal.sim.wander import Wander
+    from magcal.sim.wander import WanderComponent
 
     return dataclasses.replace(sc.sensor, calibration=cal, noise_ut=(0.25,) * 3,
-                               wander=(Wander(0.25, 40.0), Wander(0.1, 4.0),
-                                       Wander(sigma_ut=(0.5,) * 3, band_hz=(0.002, 0.01), frame="field")))
+                               wander=(WanderComponent(0.25, 40.0), WanderComponent(0.1, 4.0),
+                                       WanderComponent(sigma_ut=(0.5,) * 3, band_hz=(0.002, 0.01), frame="field")))
 
 
 @pytest.mark.slow

@@ -14,7 +14,7 @@ from magcal.sim import wander
 from magcal.sim.disturbance import Disturbances
 from magcal.sim.model import SCHEMA, SensorModel
 from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
-from magcal.sim.wander import Wander
+from magcal.sim.wander import WanderComponent
 
 
 def _model(**kw):
@@ -22,7 +22,7 @@ def _model(**kw):
                       soft_iron=[[1.05, 0.01, 0.0], [0.01, 0.97, 0.0], [0.0, 0.0, 0.98]],
                       coef_ut_per_unit={"current_a": [0.5, -0.2, 0.1]}, reference={"current_a": 0.0})
     base = dict(calibration=cal, noise_ut=(0.3, 0.3, 0.4), quantum_ut=(0.15, 0.15, 0.15),
-                wander=(Wander(0.3, 20.0), Wander((0.1, 0.1, 0.2), 0.5)), glitch_rate=0.001,
+                wander=(WanderComponent(0.3, 20.0), WanderComponent((0.1, 0.1, 0.2), 0.5)), glitch_rate=0.001,
                 glitch_ut=(2.0, 3.0, 3.5, 6.0, 15.0),
                 nonlinearity_ut=(0.2,) + (0.0,) * 15, temp_gain_per_c=1e-3, saturation_ut=800.0,
                 disturbances=Disturbances(0.05, (2.0, 6.0), (0.2, 3.0), 0.7))
@@ -62,7 +62,7 @@ def test_a_malformed_model_file_is_refused_with_the_problem_named(tmp_path):
 
 
 def test_wander_is_a_function_of_seed_and_time_alone():
-    comps = (Wander(0.5, 3.0),)
+    comps = (WanderComponent(0.5, 3.0),)
     t = np.linspace(0, 60, 3001)
     a = wander.draw(comps, 7, t)[0]
     shuffled = np.random.default_rng(0).permutation(len(t))
@@ -72,7 +72,7 @@ def test_wander_is_a_function_of_seed_and_time_alone():
 
 
 def test_wander_has_the_ou_variance_and_correlation_time():
-    comps = (Wander(0.5, 3.0),)
+    comps = (WanderComponent(0.5, 3.0),)
     t = np.array([0.0, 3.0])
     x = np.array([wander.draw(comps, s, t)[0] for s in range(600)])  # (seeds, 2, 3)
     var = x[:, 0, :].var()
@@ -93,7 +93,7 @@ def test_the_board_draws_from_the_one_model():
 
 
 def test_a_model_with_wander_makes_autocorrelated_residuals_on_the_board():
-    sm = dataclasses.replace(demo_scenario(1).sensor, wander=(Wander(0.6, 10.0),), noise_ut=(0.2,) * 3)
+    sm = dataclasses.replace(demo_scenario(1).sensor, wander=(WanderComponent(0.6, 10.0),), noise_ut=(0.2,) * 3)
     sc = Scenario(physics=Physics(), motion=Motion("sphere", period_s=20.0), seed=5, model=sm)
     s = sc.simulate(3000).series
     e = np.linalg.norm(sm.calibration.correct(s.field_ut), axis=1) - sm.calibration.field_ut

@@ -20,7 +20,7 @@ from magcal.diagnose.twin import stats as ts
 from magcal.fit import fit_calibration as fit
 from magcal.sim.model import SensorModel
 from magcal.sim.physics import Motion, Physics, Scenario
-from magcal.sim.wander import Wander
+from magcal.sim.wander import WanderComponent
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 REAL = os.path.join(DATA, "lsm9ds1_ckexplorer_every4th.csv")
@@ -30,7 +30,7 @@ def _truth():
     cal = Calibration(offset_ut=[12.0, -20.0, 30.0], field_ut=50.0,
                       soft_iron=[[1.04, 0.02, 0.0], [0.02, 0.96, 0.01], [0.0, 0.01, 1.0]])
     return SensorModel(calibration=cal, noise_ut=(0.25, 0.25, 0.3), quantum_ut=(0.1, 0.1, 0.1),
-                       wander=(Wander(0.4, 8.0),))
+                       wander=(WanderComponent(0.4, 8.0),))
 
 
 def _recording(model, seed=3, n=4000):
@@ -519,7 +519,7 @@ def _bursty_still(noise_lag1: float, seed: int, n: int = 12000):
     between reads by ``noise_lag1``; (calibration, series)."""
     cal = Calibration(offset_ut=[12.0, -20.0, 30.0], field_ut=50.0)
     truth = SensorModel(calibration=cal, noise_ut=(0.12, 0.15, 0.15), quantum_ut=(0.09,) * 3, noise_lag1=noise_lag1,
-                        wander=(Wander(0.02, 60.0),), rate_hz=400.0)
+                        wander=(WanderComponent(0.02, 60.0),), rate_hz=400.0)
     rng = np.random.default_rng(seed)
     dt = np.where(np.arange(n) % 20 == 19, rng.uniform(0.05, 0.075, n), rng.uniform(0.0019, 0.0024, n))
     t = np.concatenate([[0.0], np.cumsum(dt[:-1])])
@@ -551,7 +551,7 @@ def _takes_recording(offset_sd_ut: float, seed: int, takes: int = 40, reads: int
     per axis, added to the sensor's; (calibration fitted to it, series)."""
     rng = np.random.default_rng(seed)
     truth = SensorModel(calibration=Calibration(offset_ut=[12.0, -20.0, 30.0], field_ut=50.0), noise_ut=(0.1,) * 3,
-                        wander=(Wander(0.15, 2.0),), rate_hz=50.0)
+                        wander=(WanderComponent(0.15, 2.0),), rate_hz=50.0)
     d = rng.standard_normal((takes, 3))
     u = np.repeat(d / np.linalg.norm(d, axis=1, keepdims=True), reads, axis=0)
     t = np.arange(len(u)) / 50.0

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from magcal.sim import wander
-from magcal.sim.wander import Wander
+from magcal.sim.wander import WanderComponent
 
-BANDS = (Wander(0.3, band_hz=(0.5, 2.0)), Wander(0.2, band_hz=(10.0, 20.0), frame="field"))
+BANDS = (WanderComponent(0.3, band_hz=(0.5, 2.0)), WanderComponent(0.2, band_hz=(10.0, 20.0), frame="field"))
 DRAWS = 200
 
 
@@ -38,7 +38,7 @@ def _model_cov(components, lag_s: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("kind", ["uniform", "irregular"])
 def test_a_drawn_path_has_the_model_variance(kind):
-    comps = BANDS + (Wander(0.4, tau_s=0.5),)
+    comps = BANDS + (WanderComponent(0.4, tau_s=0.5),)
     x = _paths(comps, _times(kind))
     var = x.var(axis=(0, 1))
     want = _model_cov(comps, np.zeros(1))[0]
@@ -47,7 +47,7 @@ def test_a_drawn_path_has_the_model_variance(kind):
 
 @pytest.mark.parametrize("kind", ["uniform", "irregular"])
 def test_a_drawn_path_has_the_model_correlation_between_neighbours(kind):
-    comps = BANDS + (Wander(0.4, tau_s=0.05),)
+    comps = BANDS + (WanderComponent(0.4, tau_s=0.05),)
     t = _times(kind)
     x = _paths(comps, t)
     for k in (1, 3, 10):
@@ -73,7 +73,7 @@ def test_a_drawn_band_puts_its_power_inside_the_band_and_none_outside():
 
 def test_a_draw_is_a_function_of_the_generator_and_reads_each_time_in_order():
     t = _times("irregular", n=300)
-    comps = BANDS + (Wander(0.4, tau_s=0.5),)
+    comps = BANDS + (WanderComponent(0.4, tau_s=0.5),)
     a = wander.draw_path(comps, np.random.default_rng(3), t)
     b = wander.draw_path(comps, np.random.default_rng(3), t)
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])

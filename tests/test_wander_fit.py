@@ -11,7 +11,7 @@ from magcal.fit import fit_calibration as fit
 from magcal.sim import wander
 from magcal.sim.model import SensorModel
 from magcal.sim.physics import Motion, Physics, Scenario
-from magcal.sim.wander import FIELD, Wander
+from magcal.sim.wander import FIELD, WanderComponent
 
 
 def _field_series(components, t, white_ut, seed=5):
@@ -32,7 +32,7 @@ def test_the_white_floor_is_found_on_irregularly_sampled_times():
     rng = np.random.default_rng(1)
     dt = np.where(rng.random(20000) < 0.03, rng.uniform(0.02, 0.07, 20000), rng.uniform(0.0019, 0.0027, 20000))
     t = np.cumsum(dt)
-    e = _field_series((Wander(0.05, band_hz=(0.01, 0.05), frame=FIELD),), t, 0.2)
+    e = _field_series((WanderComponent(0.05, band_hz=(0.01, 0.05), frame=FIELD),), t, 0.2)
     comps, white = wander.fit(e, _directions(len(t)), t)
     assert 0.8 < white / 0.2**2 < 1.2
     assert sum(c.variance for c in comps) < 0.5 * white
@@ -43,7 +43,7 @@ def test_a_weak_band_above_a_steep_red_end_is_kept():
     the reading is from second to second, and is kept though it is far below 1 % of the
     total."""
     t = np.arange(15000) / 50.0
-    truth = (Wander(3.0, band_hz=(0.004, 0.01), frame=FIELD), Wander(0.15, band_hz=(0.5, 1.0), frame=FIELD))
+    truth = (WanderComponent(3.0, band_hz=(0.004, 0.01), frame=FIELD), WanderComponent(0.15, band_hz=(0.5, 1.0), frame=FIELD))
     e = _field_series(truth, t, 0.02)
     comps, white = wander.fit(e, _directions(len(t)), t, frames=(FIELD,))
     mid = sum(c.variance * max(0.0, min(c.band_hz[1], 1.2) - max(c.band_hz[0], 0.4)) / (c.band_hz[1] - c.band_hz[0])
@@ -83,7 +83,7 @@ def test_bursty_stamps_of_a_regular_sensor_give_its_own_band_top():
     learned band lies above it, and the twin is a 77 Hz sensor."""
     rate, n = 77.0, 4000
     truth = SensorModel(calibration=Calibration(offset_ut=[5.0, -8.0, 12.0], field_ut=40.0), noise_ut=(0.1,) * 3,
-                        wander=(Wander(0.3, band_hz=(0.05, 0.5)),))
+                        wander=(WanderComponent(0.3, band_hz=(0.05, 0.5)),))
     series = Scenario(physics=Physics(), motion=Motion("sphere", period_s=15.0), seed=4, model=truth).simulate(n, rate).series
     bursty = _arrival_stamps(n, rate)
     assert np.median(np.diff(bursty)) < 0.0025 and np.all(np.diff(bursty) > 0)

@@ -46,7 +46,7 @@ from . import directions
 from . import wander as wander_mod
 from .disturbance import Disturbances
 from .takes import Takes
-from .wander import Wander
+from .wander import WanderComponent
 
 SCHEMA = "magcal.sensor-model/8"
 # /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0);
@@ -296,7 +296,7 @@ class SensorModel:
                 noise_ut=d.get("noise_ut", (0.0, 0.0, 0.0)),
                 noise_lag1=float(d.get("noise_lag1", 0.0)),
                 quantum_ut=d.get("quantum_ut", (0.0, 0.0, 0.0)),
-                wander=tuple(Wander.from_dict(c) for c in d.get("wander", ())),
+                wander=tuple(WanderComponent.from_dict(c) for c in d.get("wander", ())),
                 glitch_rate=float(d.get("glitches", {}).get("rate_per_sample", 0.0)),
                 glitch_ut=tuple(d.get("glitches", {}).get("size_ut", (4.0, 15.0))),
                 glitch_axis_share=float(d.get("glitches", {}).get("axis_share", 0.0)),

@@ -87,7 +87,7 @@ class Physics:
     drift_ut_per_s: tuple = (0.0, 0.0, 0.0)
     glitch_rate: float = 0.0
     glitch_ut: tuple = (4.0, 15.0)
-    wander: tuple = ()  # magcal.sim.wander.Wander components of the offset
+    wander: tuple = ()  # magcal.sim.wander.WanderComponent components of the offset
     # what the AK8975's internal self-test coil reads, in ASA-adjusted counts (the datasheet's
     # pass window is X, Y in [-100, 100], Z in [-1000, -300]; a dead coil reads about 0)
     self_test_counts: tuple = (12, -18, -640)

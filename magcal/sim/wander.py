@@ -56,7 +56,7 @@ MAX_GRID = 1 << 22  # points of the Fourier grid of draw_path
 
 
 @dataclass(frozen=True)
-class Wander:
+class WanderComponent:
     """One component: stationary σ (µT; per sensor axis for the offset, of |field| for the
     field), and its spectrum — an OU correlation time ``tau_s`` or a flat band ``band_hz``."""
 
@@ -109,7 +109,7 @@ class Wander:
         return d
 
     @classmethod
-    def from_dict(cls, d) -> "Wander":
+    def from_dict(cls, d) -> "WanderComponent":
         return cls(sigma_ut=d["sigma_ut"], tau_s=d.get("tau_s"), band_hz=d.get("band_hz"),
                    frame=d.get("frame", OFFSET))
 
@@ -121,7 +121,7 @@ def split(components) -> tuple[tuple, tuple]:
 
 
 # -- drawing: random access (a function of seed and t) ----------------------------------------
-def _frequencies(seed: int, index: int, c: Wander) -> tuple[np.ndarray, np.ndarray]:
+def _frequencies(seed: int, index: int, c: WanderComponent) -> tuple[np.ndarray, np.ndarray]:
     """(3, K) angular frequencies and phases of one component (a function of seed and index)."""
     rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x3A9D, index])
     q = (np.arange(K_COSINES)[None, :] + rng.random((3, K_COSINES))) / K_COSINES
@@ -378,18 +378,18 @@ def _binned_periodogram(x: np.ndarray, edges: np.ndarray, which: np.ndarray | No
     return (sums / np.maximum(counts, 1))[1:-1], counts[1:-1]
 
 
-def candidates(dt_s: float, duration_s: float, frames=(OFFSET, FIELD)) -> list[Wander]:
+def candidates(dt_s: float, duration_s: float, frames=(OFFSET, FIELD)) -> list[WanderComponent]:
     """Unit-σ band components in each frame: the columns of the fit. The offset's bands reach
     the Nyquist frequency (a sensor's own filter colours its noise there); the field's stop at
     a quarter of it (the surroundings change slowly)."""
     e = band_edges(dt_s, duration_s)
     top = {OFFSET: np.inf, FIELD: FIELD_TOP * 0.5 / dt_s}
-    return [Wander(1.0, band_hz=(lo, hi), frame=f) for f in frames for lo, hi in zip(e[:-1], e[1:])
+    return [WanderComponent(1.0, band_hz=(lo, hi), frame=f) for f in frames for lo, hi in zip(e[:-1], e[1:])
             if hi <= top[f] * (1 + 1e-9)]
 
 
 def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 12, 13),
-        frames=(OFFSET, FIELD)) -> tuple[tuple[Wander, ...], float]:
+        frames=(OFFSET, FIELD)) -> tuple[tuple[WanderComponent, ...], float]:
     """Fit the wander components and the white radial variance to a radial residual.
 
     ``project`` maps a raw radial series to what is left of it after the calibration model
@@ -438,7 +438,7 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
         return (), 0.0
     white, var = _white_floor(design[ok], target[ok], counts[ok], bins[:-1][ok] >= n // 8)
     keep = _local_share(var, white, cands, dt) > MIN_SHARE
-    comps = tuple(Wander(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c, k in zip(var, cands, keep) if k)
+    comps = tuple(WanderComponent(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c, k in zip(var, cands, keep) if k)
     return comps, white
 
 
