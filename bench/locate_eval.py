@@ -158,10 +158,10 @@ def judge_case(case: Case) -> dict:
                 "said": [f"refused: {exc}"], "false_claims": [], "remainder": False}
     items = d["located"]["found"] + d["findings"] + d["limits"]
     span = float(case.series.t_s[-1] - case.series.t_s[0])
-    specific = [x for x in d["located"]["found"] if x["kind"] != "remainder"]
+    specific = [x for x in d["findings"] if x.get("evidence", {}).get("kind") in ("physics", "fault")]
     if not case.effect:
         return {"case": case.name, "control": True, "false_claims": [x["effect"] for x in specific],
-                "remainder": any(x["kind"] == "remainder" for x in d["located"]["found"])}
+                "remainder": any(x.get("effect") == "unexplained_structure" for x in d["limits"])}
     named = [x for x in items if x.get("effect") in (case.effect, "unexplained_structure")]
     return {"case": case.name, "control": False, "named": bool(named),
             "located": any(located_right(x, case, span) for x in named),

@@ -36,6 +36,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.series import Series
 from . import channels, claims, collinear, design, glitches, hygiene, locate, longrun, null, selection, softiron, statements
+from .locate import faults
 from .locate import step as locate_step
 from .diagnosis import Diagnosis
 from .inference import contiguous_blocks, n_test_blocks
@@ -120,7 +121,8 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     distribution alone, white noise as the null (to measure what the twin changes)."""
     step = on_step or (lambda name: None)
     step("set_aside_glitches")
-    analysed = set_aside_glitches(prepare(series), alpha)
+    prepared, screened = prepare(series)
+    analysed = replace(set_aside_glitches(prepared, alpha), screened=screened)
     step("fit_baseline")
     baseline, base_kept = fit_baseline(analysed)
     analysed, left_out = screen_channels(analysed, base_kept) if screen else (analysed, ())
@@ -166,23 +168,29 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         located=found,
         limits=statements.left_out(left_out) + tuple(r.limit() for r in refused)
         + locate.as_limits(found.found, found.verdicts)
-        + statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut)
+        + statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut,
+                           tuple(x.effect for x in found.found))
         + chosen.limits,
         floors={c: f.to_dict() for c, f in floors.items()},
     )
 
 
-def prepare(series: Series) -> Series:
-    """Valid, finite samples in time order; too few is an InputError."""
+def prepare(series: Series) -> tuple[Series, tuple]:
+    """Valid, finite samples with data faults set aside (magcal.diagnose.locate.faults: stuck
+    axes, rails, swapped axes, bad timestamps, screened in acquisition order), then in time
+    order; too few is an InputError. Returns the samples and the faults found."""
     s = series.only_valid()
     ok = np.all(np.isfinite(s.field_ut), axis=1) & np.isfinite(s.t_s)
     if not ok.all():
         s = s.take(ok)
+    screen = faults.screen(s.t_s, s.field_ut) if len(s) >= MIN_SAMPLES else None
+    if screen is not None and screen.n_set_aside:
+        s = s.take(screen.keep)
     if len(s) and np.any(np.diff(s.t_s) < 0):
         s = s.take(np.argsort(s.t_s, kind="stable"))
     if len(s) < MIN_SAMPLES:
         raise InputError(f"diagnosis needs at least {MIN_SAMPLES} valid samples, the recording has {len(s)}")
-    return s
+    return s, (screen.found if screen is not None else ())
 
 
 def set_aside_glitches(s: Series, alpha: float) -> Analysed:

@@ -45,7 +45,20 @@ def by_direction(r) -> str:
     return f" ({lo:.2g}–{hi:.2g} by its direction)" if hi is not None else f" ({lo:.2g} or more by its direction; along some, not at all)"
 
 
-def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: list, clock: bool = True) -> tuple:
+def _searched(chans: dict, located: tuple = ()) -> str:
+    """What was searched before a wander is left unexplained (magcal.diagnose.locate); with
+    ``located``, the names of what was found elsewhere in the recording."""
+    logged = sorted(c for c in chans if c != channels.TIME)
+    lead = ("beside what was located (" + ", ".join(sorted(set(located))) + "), nothing more" if located
+            else "no step, narrowband line or data fault") + " was located to account for it"
+    if not logged:
+        return lead + ", and no channel is logged that could (a temperature, a current)"
+    return lead + (f", and {', '.join(logged)} did not, each tried as an offset, with a lag, as a gain and in "
+                   "nonlinear forms")
+
+
+def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: list, clock: bool = True,
+                 located: tuple = ()) -> tuple:
     """Real recordings wander: the offset moves slowly in a way no logged channel explains.
     That is not a calibration term (it cannot be predicted for the next session), but it bounds
     what the calibration is good for and what slow effects this recording can identify, so it
@@ -86,8 +99,8 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
             "slow_term_floor_range_ut_per_unit": {c: list(r) for c, r in ranges.items() if r},
             "summary": (
                 f"The offset wanders slowly by about {rms:.2f} µT RMS between {WANDER_BLOCKS} stretches of the recording, "
-                f"more than the noise allows ({p_text}) and explained by no logged channel (environment, sensor drift, an "
-                f"unlogged temperature): a calibration from this recording is good to about that much{tail}."
+                f"more than the noise allows ({p_text}); {_searched(chans, located)}: a calibration from this recording is good "
+                f"to about that much{tail}."
             ),
         },
     )

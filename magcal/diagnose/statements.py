@@ -197,8 +197,10 @@ def channel_floors(selected, wander: Wander, chans: dict, alpha: float, noise_ut
     return out
 
 
-def limits(a, selected, final: ModelFit, simulated: float, wander: Wander, floor_of: dict, alpha: float, noise_ut: float) -> tuple:
-    """What the recording could not test: soft iron, untestable channels, the offset wander."""
+def limits(a, selected, final: ModelFit, simulated: float, wander: Wander, floor_of: dict, alpha: float, noise_ut: float,
+           located: tuple = ()) -> tuple:
+    """What the recording could not test: soft iron, untestable channels, the offset wander
+    (``located``: the names of what the locate step found, which the wander's statement cites)."""
     duration_s = float(a.t[-1] - a.t[0])
     found_soft = softiron.EFFECT in selected.accepted
     determined = selected.design.reference.spec.n_soft
@@ -207,7 +209,7 @@ def limits(a, selected, final: ModelFit, simulated: float, wander: Wander, floor
     left_out = [selected.candidates[g].channel for g in selected.candidates if g not in selected.accepted]
     floor_ut = selection.practical_floor_ut(noise_ut)
     _, _, chans_kept = a.kept
-    return out + limits_.wander_limit(wander, chans_kept, alpha, floor_ut, left_out, a.series.clock)
+    return out + limits_.wander_limit(wander, chans_kept, alpha, floor_ut, left_out, a.series.clock, located)
 
 
 def left_out(channels_left_out: tuple) -> tuple:

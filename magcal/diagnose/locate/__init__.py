@@ -11,10 +11,12 @@ found here: ``as_findings`` (data faults, and named effects that earned their pl
 from __future__ import annotations
 
 from ..finding import Finding
-from . import lines
+from . import channel_forms, faults, lines, steps
 from .base import AXES, WHERE_KEYS, Effect, Kind, Located, Residual, runs, stretches
 
-EFFECTS: tuple[Effect, ...] = (lines.EFFECT,)
+REMAINDER = "unexplained_structure"
+
+EFFECTS: tuple[Effect, ...] = (*faults.EFFECTS, *steps.EFFECTS, lines.EFFECT, *channel_forms.EFFECTS)
 
 
 def as_findings(found: tuple[Located, ...], verdicts: tuple) -> tuple[Finding, ...]:
@@ -25,17 +27,26 @@ def as_findings(found: tuple[Located, ...], verdicts: tuple) -> tuple[Finding, .
 
 
 def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[dict, ...]:
-    """What was located but not modelled (named, yet no better on unseen blocks), and the
-    honest remainder (``unexplained_structure``), as limits with their ``where``."""
+    """The honest remainder (``unexplained_structure``), with its ``where``: what was located
+    but named by no physics, and what was located and resembles a named effect but did not
+    improve unseen blocks when modelled — that is no finding, and is not named as one."""
     judged = {id(v.located): v for v in verdicts}
     out = []
     for x in found:
         v = judged.get(id(x))
-        if x.kind is Kind.REMAINDER or (x.kind is Kind.PHYSICS and not (v and v.kept)):
-            why = f"; not modelled: {v.reason}" if v is not None else ""
-            out.append({"effect": x.effect, "suspected": True, "summary": x.summary + why, "where": dict(x.where),
-                        "params": x.to_dict()["params"]})
+        if x.kind is Kind.REMAINDER:
+            out.append(_remainder(x, x.summary, {}))
+        elif x.kind is Kind.PHYSICS and not (v and v.kept):
+            why = v.reason if v is not None else "no held-out verdict"
+            out.append(_remainder(x, f"Structure located that resembles a {x.effect.replace('_', ' ')}, not claimed as "
+                                     f"one because modelling it did not earn its place ({why}): {x.summary}",
+                                  {"resembles": x.effect}))
     return tuple(out)
+
+
+def _remainder(x: Located, summary: str, extra: dict) -> dict:
+    return {"effect": REMAINDER, "suspected": True, "summary": summary, "where": x.to_dict()["where"],
+            "params": x.to_dict()["params"], **extra}
 
 
 def _finding(x: Located, extra: dict) -> Finding:
