@@ -52,13 +52,7 @@ def base_recordings(quick: bool) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     for seed, motion in ((11, Motion("sphere", period_s=20.0)), (12, Motion("tilt", max_tilt_deg=50.0))):
         run = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3), motion=motion, seed=seed).simulate(4000, 50.0)
         out[f"sim_{motion.kind}_{seed}"] = (run.series.t_s, run.series.field_ut)
-    real = real_recordings.available(real_recordings.RAW_LOADERS)
-    for name, (t, m) in sorted(real.items())[: 4 if quick else None]:
-        k = max(1, len(m) // MAX_N)
-        t, m = np.asarray(t, float)[::k], np.asarray(m, float)[::k]
-        if name in real_recordings.UNKNOWN_UNIT:
-            m = m * 50.0 / np.median(np.linalg.norm(m - m.mean(0), axis=1))
-        out[name] = (t - t[0], m)
+    out.update(real_recordings.raw_in_ut(quick, MAX_N))
     return out
 
 

@@ -156,3 +156,17 @@ def available(loaders: dict | None = None) -> dict:
         except (OSError, ValueError):
             continue
     return out
+
+
+def raw_in_ut(quick: bool = False, max_n: int = 6000) -> dict:
+    """The raw recordings for injection benches (bench/locate_*.py): each thinned to at most
+    about ``max_n`` samples, time from 0, counts of no stated unit scaled to a 50 µT radius;
+    ``quick``: the first four by name."""
+    out = {}
+    for name, (t, m) in sorted(available(RAW_LOADERS).items())[: 4 if quick else None]:
+        k = max(1, len(m) // max_n)
+        t, m = np.asarray(t, float)[::k], np.asarray(m, float)[::k]
+        if name in UNKNOWN_UNIT:
+            m = m * 50.0 / np.median(np.linalg.norm(m - m.mean(0), axis=1))
+        out[name] = (t - t[0], m)
+    return out
