@@ -142,9 +142,10 @@ def left_out_lines(limits: list) -> list[str]:
 
 
 # the share of diagnose's time each step takes (measured on simulated recordings of 15 000 and
-# 300 000 samples: the shares hold within a few per cent), for the progress display's ETA
-STEP_SHARE = {"set_aside_glitches": 0.12, "fit_baseline": 0.03, "select_terms": 0.60, "refit": 0.03,
-              "compare_heldout": 0.15, "locate": 0.05, "compare_with_simulation": 0.04, "describe": 0.03}
+# 50 000 samples, with the locate step and fit's held-out model choice: the held-out comparison
+# and the locate step take most of it), for the progress display's ETA
+STEP_SHARE = {"set_aside_glitches": 0.04, "fit_baseline": 0.02, "select_terms": 0.09, "refit": 0.01,
+              "compare_heldout": 0.55, "locate": 0.28, "compare_with_simulation": 0.005, "describe": 0.005}
 
 
 def _done_before(step: str) -> float:

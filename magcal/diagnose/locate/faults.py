@@ -141,6 +141,12 @@ def _where(t: np.ndarray, rows: np.ndarray, axis=None, gap: int = 1) -> dict:
 
 
 # -- timestamps ---------------------------------------------------------------------------------
+# this share of samples or more repeating the time before them is a clock that ticks slower than
+# the samples come (a logger stamping whole seconds repeats 90 %): the samples are sound, and the
+# diagnosis takes the mean interval; a few repeats among advancing stamps are a fault
+COARSE_CLOCK_SHARE = 0.2
+
+
 def _timestamps(t: np.ndarray, keep: np.ndarray) -> list[Located]:
     """Samples whose time is not later than every time before them (among usable samples)."""
     idx = np.flatnonzero(keep)
@@ -149,6 +155,8 @@ def _timestamps(t: np.ndarray, keep: np.ndarray) -> list[Located]:
     tk = t[idx]
     before = np.maximum.accumulate(tk)[:-1]
     same, back = tk[1:] == before, tk[1:] < before
+    if np.mean(same) >= COARSE_CLOCK_SHARE:
+        same = np.zeros_like(same)  # a clock coarser than the sample interval: its resolution, not a fault
     out = []
     for mask, name, what in ((same, "repeated_timestamps", "repeat the time of an earlier sample"),
                              (back, "out_of_order_timestamps", "go back in time")):

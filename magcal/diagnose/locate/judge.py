@@ -35,7 +35,7 @@ class Verdict:
         return {
             "heldout_rms_without_ut": self.heldout_without_ut,
             "heldout_rms_with_ut": self.heldout_with_ut,
-            "kept": self.kept,
+            "modelled": self.kept,
             "why": self.reason,
         }
 
