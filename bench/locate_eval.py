@@ -167,12 +167,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="four real recordings, one size")
     ap.add_argument("--json", help="write every case's verdict here")
+    ap.add_argument("--sizes", default="2,4,10", help="effect sizes, × the recording's floor (default 2,4,10)")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(2026)
     rows = []
     for name, (t, m) in base_recordings(args.quick).items():
         rows.append(judge_case(Case(f"{name}/control", "", _s(t, m))))
-        for size in ((4.0,) if args.quick else (2.0, 4.0, 10.0)):
+        for size in ((4.0,) if args.quick else tuple(float(x) for x in args.sizes.split(","))):
             for case in inject(name, t, m, rng, size):
                 rows.append(judge_case(case) | {"size": size})
                 r = rows[-1]

@@ -31,6 +31,11 @@ class Verdict:
     heldout_with_ut: float
     reason: str
 
+    @property
+    def contradicted(self) -> bool:
+        """Modelling it made unseen blocks worse: the recording itself speaks against it."""
+        return bool(self.heldout_with_ut >= self.heldout_without_ut)
+
     def evidence(self) -> dict:
         return {
             "heldout_rms_without_ut": self.heldout_without_ut,
