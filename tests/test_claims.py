@@ -8,7 +8,7 @@ import numpy as np
 
 from magcal.core.series import Series
 from magcal.diagnose import diagnose
-from magcal.diagnose.claims import correlation_factor
+from magcal.diagnose.locate.steps_scan import inflation
 from magcal.sim.physics import Motion, Physics, Scenario
 
 HARD = (21.0, -33.0, 8.0)
@@ -51,9 +51,10 @@ def test_a_drift_only_in_the_first_half_is_not_claimed_as_a_drift():
     assert "halves" in limit["summary"] or "half" in limit["summary"]
 
 
-def test_correlation_factor_is_one_on_white_noise_and_large_on_a_slow_wander():
+def test_the_correlation_inflation_is_one_on_white_noise_and_large_on_a_slow_wander():
     rng = np.random.default_rng(1)
     white = rng.standard_normal(4000)
-    assert correlation_factor(white) < 2.0
+    ones = np.ones((4000, 1))
+    assert inflation(white, ones, 200) < 2.0
     slow = np.repeat(rng.standard_normal(8), 500) + 0.1 * white
-    assert correlation_factor(slow) > 20.0
+    assert inflation(slow, ones, 200) > 20.0

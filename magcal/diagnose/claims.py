@@ -4,7 +4,7 @@ A term the tests accepted is reported as a finding only when
 
 - **the halves agree**: the model refitted on the first and on the second half of the recording
   (in time) gives the term's parameters within their uncertainties (each half's covariance
-  widened by its own residual's correlation in time, ``correlation_factor``), χ² at
+  widened by its own residual's correlation in time, ``locate.steps_scan.inflation``), χ² at
   ``HALVES_LEVEL`` — or, where a slightly misspecified model makes that test too sharp, within
   ``MAX_HALVES_SHARE`` of the term's own size; a half that cannot determine the term leaves the
   check untestable, not failed;
@@ -25,6 +25,7 @@ import numpy as np
 from ..fit.tails import chi2_sf
 
 from . import channels, softiron
+from .locate.steps_scan import inflation
 from .model import FitFailure, ModelFit, fit_model
 
 HALVES_LEVEL = 1e-3
@@ -50,16 +51,6 @@ class Refused:
         return {"effect": self.group, "suspected": True, "check": "claims",
                 "summary": f"A {self.group.replace('_', ' ')} term passed the tests but is not reported as a finding: "
                            f"{self.reason}. The calibration is returned without it."}
-
-
-def correlation_factor(r: np.ndarray, blocks: int = BLOCKS) -> float:
-    """How much wider than independent noise the mean of ``r`` scatters, from the variance of
-    its contiguous block means (at least 1)."""
-    k = len(r) // blocks
-    if k < 2:
-        return 1.0
-    means = r[: k * blocks].reshape(blocks, k).mean(axis=1)
-    return max(float(np.var(means, ddof=1) * k / max(np.var(r), 1e-30)), 1.0)
 
 
 def term_index(spec, group: str, channel: str | None) -> np.ndarray:
@@ -113,7 +104,8 @@ def _half_fits(m, t, chans, final: ModelFit, group: str, channel: str | None) ->
         if isinstance(f, FitFailure) or f.cov is None or not _determines(f, m[sl], group):
             return None
         idx = term_index(f.spec, group, channel)
-        cov = f.cov[np.ix_(idx, idx)] * correlation_factor(f.residual(m[sl], part))
+        r = f.residual(m[sl], part)
+        cov = f.cov[np.ix_(idx, idx)] * inflation(r, np.ones((len(r), 1)), len(r) // BLOCKS)
         if not np.all(np.isfinite(cov)):
             return None
         fits.append((f.params[idx], cov))

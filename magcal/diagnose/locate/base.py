@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from functools import cached_property
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -53,18 +54,19 @@ class Residual:
     floor_ut: float
     channels: Mapping[str, np.ndarray] = field(default_factory=dict)
 
-    @property
+    # computed once and read-only: every locator reads them
+    @cached_property
     def h_ut(self) -> np.ndarray:
-        return self.calibration.correct(self.m_ut, self._used_channels())
+        return _frozen(self.calibration.correct(self.m_ut, self._used_channels()))
 
-    @property
+    @cached_property
     def r_ut(self) -> np.ndarray:
-        return np.linalg.norm(self.h_ut, axis=1) - self.calibration.field_ut
+        return _frozen(np.linalg.norm(self.h_ut, axis=1) - self.calibration.field_ut)
 
-    @property
+    @cached_property
     def u(self) -> np.ndarray:
         h = self.h_ut
-        return h / np.linalg.norm(h, axis=1, keepdims=True)
+        return _frozen(h / np.linalg.norm(h, axis=1, keepdims=True))
 
     def _used_channels(self) -> dict:
         used = getattr(self.calibration, "coef_ut_per_unit", None) or {}
@@ -138,6 +140,11 @@ def runs(mask: np.ndarray, min_len: int = 1) -> list[tuple[int, int]]:
     m = np.concatenate([[False], np.asarray(mask, bool), [False]])
     edges = np.flatnonzero(np.diff(m.astype(np.int8)))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= min_len]
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 def _plain(v):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...fit import fit_calibration
+from ..inference import contiguous_blocks
 from .base import Effect, Kind, Located
 
 FOLDS = 5
@@ -45,17 +46,11 @@ class Verdict:
         }
 
 
-def block_slices(n: int, folds: int = FOLDS) -> list[slice]:
-    """``folds`` contiguous time blocks covering 0..n."""
-    edges = np.linspace(0, n, folds + 1).round().astype(int)
-    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
-
-
 def heldout_sq(m_ut: np.ndarray, model: str, folds: int = FOLDS) -> np.ndarray | None:
     """Per block, the mean square radial residual of the calibration refitted without that
     block; None where a block's complement cannot be fitted."""
     out = []
-    for held in block_slices(len(m_ut), folds):
+    for held in contiguous_blocks(len(m_ut), folds):
         train = np.ones(len(m_ut), bool)
         train[held] = False
         result = fit_calibration(m_ut[train], model=model)
