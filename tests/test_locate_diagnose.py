@@ -63,3 +63,17 @@ def test_a_located_effect_that_is_not_modelled_is_the_remainder_and_one_unseen_d
     assert limit["effect"] == "unexplained_structure" and limit["resembles"] == "hard_iron_step"
     assert limit["where"] == {"time_s": [3.0]}
     assert as_limits((loc,), (_verdict(loc, 0.50, 0.55),)) == ()
+
+
+def test_the_report_draws_the_samples_as_the_returned_calibration_takes_them(tmp_path):
+    """With a step modelled, the page's calibrated samples are the ones the step was taken out
+    of: their RMS is the final RMS the terminal and the JSON state, not the step's spread."""
+    from magcal.app.report.views import views_of
+
+    s = _run()
+    m = s.field_ut + np.outer(s.t_s >= 47.3, STEP)
+    d = diagnose(Series(t_s=s.t_s, field_ut=m))
+    v = views_of(d)
+    assert np.sqrt(np.mean(v.after[v.good] ** 2)) < 1.2 * d.final.rms_ut
+    assert abs(d.final_heldout_rms_ut - d.to_dict()["final"]["heldout_rms_ut"]) < 1e-12
+    assert not [x for x in d.to_dict()["limits"] if x["effect"] == "offset_wander"]

@@ -76,6 +76,14 @@ class Diagnosis:
     def model_name(self, fit: ModelFit) -> str:
         return model_name(fit)
 
+    def modelled_field_ut(self) -> np.ndarray:
+        """The analysed samples as the returned calibration takes them: with the effects the
+        locate step modelled removed (a hard-iron step, a line …); as recorded otherwise."""
+        s = self.series
+        if self.located is None:
+            return s.field_ut
+        return self.located.modelled(s.field_ut, s.t_s, {**s.channels, channels.TIME: s.t_s})
+
     def _located_dict(self) -> dict:
         """What the locate step searched and found: the recording's floor, every located thing
         with its ``where``, and the held-out verdict on each named effect."""

@@ -145,7 +145,8 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
     step("describe")
-    wander = statements.measure_wander(full_model(analysed, reference, final), m_kept, chans_kept)
+    wander = (statements.measure_wander(full_model(analysed, reference, final), m_kept, chans_kept) if found.model is None
+              else statements.measure_wander(found.model, found.cleaned_ut, chans_kept))  # with the located effects out
     floors = statements.channel_floors(selected, wander, chans_kept, alpha, noise_ut)
     return Diagnosis(
         n_samples=len(series),
@@ -154,7 +155,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         findings=statements.findings(analysed, selected, final, base_kept, alpha, noise_ut)
         + locate.as_findings(found.found, found.verdicts),
         baseline_heldout_rms_ut=chosen.heldout.rms_ut[0],
-        final_heldout_rms_ut=chosen.heldout_rms_ut,
+        final_heldout_rms_ut=chosen.heldout_rms_ut if found.model is None else found.heldout_rms_ut,
         simulated_rms_ut=simulated,
         noise_ut=noise_ut,
         series=analysed.series,

@@ -54,8 +54,9 @@ def views_of(diagnosis) -> Views:
     chans = dict(s.channels)
     chans[ch.TIME] = s.t_s
     before = diagnosis.baseline.residual(s.field_ut, {})
-    after = diagnosis.final.residual(s.field_ut, chans)
-    h = diagnosis.final.calibration().correct(s.field_ut, {c: chans[c] for c in diagnosis.final.spec.channels})
+    m = diagnosis.modelled_field_ut()  # with the effects the locate step modelled removed
+    after = diagnosis.final.residual(m, chans)
+    h = diagnosis.final.calibration().correct(m, {c: chans[c] for c in diagnosis.final.spec.channels})
     norm = np.linalg.norm(h, axis=1)
     span = float(s.t_s[-1] - s.t_s[0]) if len(s) else 0.0
     unit, scale = time_unit(span, s.clock)

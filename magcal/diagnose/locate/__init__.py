@@ -51,8 +51,8 @@ def _remainder(x: Located, summary: str, extra: dict) -> dict:
 
 def _finding(x: Located, extra: dict) -> Finding:
     d = x.to_dict()
-    held = f" Modelled: {extra['why']}." if extra.get("why") else ""
-    return Finding(x.effect, x.summary + held, d["where"], {**d["evidence"], **extra, "kind": x.kind.value}, d["params"])
+    held = f". Modelled: {extra['why']}." if extra.get("why") else ""
+    return Finding(x.effect, x.summary.rstrip(".") + held if held else x.summary, d["where"], {**d["evidence"], **extra, "kind": x.kind.value}, d["params"])
 
 
 __all__ = ["AXES", "WHERE_KEYS", "EFFECTS", "Effect", "Kind", "Located", "Residual", "as_findings", "as_limits",

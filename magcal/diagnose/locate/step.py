@@ -30,6 +30,25 @@ class LocateStep:
     verdicts: tuple[judge.Verdict, ...]
     model: ModelFit | None
     floor_ut: float
+    cleaned_ut: np.ndarray | None = None  # the samples with every modelled effect removed (with ``model``)
+    removals: tuple = ()  # (remove, located) of each modelled effect, in the order it was removed
+
+    def modelled(self, m_ut: np.ndarray, t_s: np.ndarray, chans: dict) -> np.ndarray:
+        """Any samples of the recording with the modelled effects removed, as the returned
+        calibration sees them (the samples as they are when nothing was modelled)."""
+        if self.model is None:
+            return m_ut
+        shift = self.model.calibration().channel_offset_ut(chans, len(m_ut))
+        out = m_ut - shift
+        for remove, loc in self.removals:
+            out = remove(out, t_s, chans, loc)
+        return out + shift
+
+    @property
+    def heldout_rms_ut(self) -> float:
+        """The held-out RMS of the calibration returned with the modelled effects (nan: none)."""
+        kept = [v for v in self.verdicts if v.kept]
+        return kept[-1].heldout_with_ut if kept else float("nan")
 
     @property
     def kept(self) -> tuple[Located, ...]:
@@ -64,7 +83,9 @@ def locate_and_model(m_ut, t_s, chans: dict, final: ModelFit, fit_model_name: st
     cleaned, verdicts = judge.judge(m_ut - shift, t_s, chans, found, table, model)
     if not any(v.kept for v in verdicts):
         return LocateStep(found, verdicts, None, floor)
-    return LocateStep(found, verdicts, _refit(cleaned, final, model), floor)
+    refit = _refit(cleaned, final, model)
+    removals = tuple((table[v.located.effect].remove, v.located) for v in verdicts if v.kept)
+    return LocateStep(found, verdicts, refit, floor, None if refit is None else cleaned + shift, removals)
 
 
 def _refit(cleaned: np.ndarray, final: ModelFit, model: str) -> ModelFit | None:
