@@ -2,17 +2,19 @@
  * magcal-emu: run the real firmware ELF as an ATmega328P at 16 MHz under simavr, with
  *   - UART0 bridged to a pty of our own (printed as "PTY /dev/pts/N" on stdout); writes to the
  *     pty block, so a host that stops reading pauses the simulation instead of losing bytes;
- *   - the TWI bus answered by the MPU-9150/AK8975 register model (mpu9150_model.c);
+ *   - the TWI bus answered by the register model (mpu9150_model.c) of the chip --chip names:
+ *     mpu9150 (AK8975, the default), mpu9250 or mpu9255 (AK8963), icm20948 (AK09916);
  *   - the field coming from the host over stdio: for each completed measurement the harness
- *     prints "M <t_us> <k>" and reads back "<hx> <hy> <hz> <hofl> <temp_raw>" (or a fixed field
- *     with --field, for use without a host);
+ *     prints "M <t_us> <k> <bits>" (bits: the resolution the firmware set, 13, 14 or 16) and
+ *     reads back "<hx> <hy> <hz> <hofl> <temp_raw>" in the chip's counts at that resolution
+ *     (or a fixed field with --field, for use without a host);
  *   - EEPROM kept in a file across restarts (--eeprom);
  *   - the CPU started only once a host has opened the pty (and restarted when a host opens it
  *     again after a close, like the DTR reset of an Uno); SIGUSR1 resets the board at once;
  *   - simulated time paced to the wall clock with --pace.
  *
- * usage: magcal-emu [--eeprom FILE] [--field hx,hy,hz] [--asa a,b,c] [--self-test x,y,z] [--addr 0x68|0x69]
- *                   [--faults N] [--measure-us N] [--pace] [--boot-delay-ms N] firmware.elf
+ * usage: magcal-emu [--chip NAME] [--eeprom FILE] [--field hx,hy,hz] [--asa a,b,c] [--self-test x,y,z]
+ *                   [--addr 0x68|0x69] [--faults N] [--measure-us N] [--pace] [--boot-delay-ms N] firmware.elf
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -103,7 +105,7 @@ static int provide(void *ctx, uint64_t t_us, mpu_measurement *out)
         out->temp_raw = -2150;
         return 0;
     }
-    printf("M %llu %llu\n", (unsigned long long)t_us, (unsigned long long)k);
+    printf("M %llu %llu %d\n", (unsigned long long)t_us, (unsigned long long)k, mpu_model_mag_bits(h->model));
     fflush(stdout);
     char line[128];
     while (!fgets(line, sizeof line, stdin)) {
@@ -348,10 +350,25 @@ static void report_stack(avr_t *avr)
             (unsigned)(avr->ramend - best_end), best_len);
 }
 
+static const char *const CHIP_NAMES[MPU_CHIP_COUNT] = {
+    [MPU_CHIP_MPU9150] = "mpu9150",
+    [MPU_CHIP_MPU9250] = "mpu9250",
+    [MPU_CHIP_MPU9255] = "mpu9255",
+    [MPU_CHIP_ICM20948] = "icm20948",
+};
+
+static int chip_of(const char *name)
+{
+    for (int c = 0; c < MPU_CHIP_COUNT; c++)
+        if (!strcmp(name, CHIP_NAMES[c]))
+            return c;
+    return -1;
+}
+
 static void usage(void)
 {
-    fprintf(stderr, "usage: magcal-emu [--eeprom FILE] [--field hx,hy,hz] [--asa a,b,c] "
-                    "[--self-test x,y,z] [--addr 0x68|0x69] [--faults N] [--measure-us N] [--pace] "
+    fprintf(stderr, "usage: magcal-emu [--chip mpu9150|mpu9250|mpu9255|icm20948] [--eeprom FILE] "
+                    "[--field hx,hy,hz] [--asa a,b,c] [--self-test x,y,z] [--addr 0x68|0x69] [--faults N] [--measure-us N] [--pace] "
                     "[--boot-delay-ms N] [--stack-report] firmware.elf\n");
     exit(2);
 }
@@ -362,6 +379,7 @@ int main(int argc, char **argv)
     memset(&h, 0, sizeof h);
     uint8_t asa[3] = {176, 178, 166};
     unsigned faults = 0, measure_us = 7300, addr = 0x68;
+    int chip = MPU_CHIP_MPU9150;
     int16_t self_test[3] = {0, 0, 0};
     int boot_delay_ms = 100, stack_report = 0;
     const char *elf = NULL;
@@ -372,6 +390,10 @@ int main(int argc, char **argv)
             h.pace = 1;
         } else if (!strcmp(a, "--stack-report")) {
             stack_report = 1;
+        } else if (!strcmp(a, "--chip") && val) {
+            if ((chip = chip_of(val)) < 0)
+                usage();
+            i++;
         } else if (!strcmp(a, "--eeprom") && val) {
             h.eeprom_path = val, i++;
         } else if (!strcmp(a, "--field") && val) {
@@ -435,6 +457,7 @@ int main(int argc, char **argv)
     if (!h.model)
         die("out of memory");
     mpu_model_init(h.model, (uint8_t)addr, asa, provide, &h);
+    mpu_model_set_chip(h.model, chip);
     mpu_model_set_faults(h.model, faults);
     mpu_model_set_measure_us(h.model, measure_us);
     mpu_model_set_self_test(h.model, self_test);

@@ -1,13 +1,20 @@
-// magcal device firmware for an Arduino Uno (ATmega328P) wired to an MPU-9150.
+// magcal device firmware for an Arduino Uno (ATmega328P) wired to an MPU-9150, an MPU-9250/9255
+// or an ICM-20948.
 //
-// Speaks docs/protocol.md v1 at 115200 baud: identity, single AK8975 measurements at a
-// configurable rate (DRDY polled, ST2 reported), streaming, a calibration record in EEPROM
-// (version + CRC-16, never applied when blank or corrupt), calibrated output, and a standalone
-// sphere fit that needs no host.
+// Speaks docs/protocol.md v1 at 115200 baud: identity (which chip, and its magnetometer's
+// resolution), single magnetometer measurements at a configurable rate (DRDY polled, ST2
+// reported), streaming, a calibration record in EEPROM (version + CRC-16, never applied when
+// blank or corrupt), calibrated output, and a standalone sphere fit that needs no host.
 //
 // Wiring: SDA A4, SCL A5, VCC 3.3 V (through a level shifter or a 3.3 V-tolerant breakout). AD0
-// either way: the MPU is looked for at 0x68 (AD0 low), then 0x69 (AD0 high), at every bring-up.
-// The AK8975 is reached through the MPU's I2C bypass.
+// either way: the IMU is looked for at 0x68 (AD0 low), then 0x69 (AD0 high), at every bring-up,
+// and recognised by its WHO_AM_I: 0x68 MPU-9150 (AK8975), 0x71/0x73 MPU-9250/9255 (AK8963),
+// 0xEA ICM-20948 (AK09916; its WHO_AM_I is register 0x00 of bank 0). The magnetometer (0x0C) is
+// reached through the IMU's I2C bypass, and its raw counts go on the wire; the host applies the
+// sensitivity adjustment (ASA, in the hello) and the µT per count the hello's `bits` implies.
+//
+// The AK8963 is run at 16-bit output (0.15 µT per count); build with -DAK8963_BITS=14
+// (`make -C firmware` builds that variant too) for 14-bit output (0.6 µT per count).
 //
 // Everything is float32 or integer: on the AVR `double` is 32-bit and `int` 16-bit.
 
@@ -23,16 +30,35 @@
 #define FW_VERSION "0.1.0"
 #define PROTO_VERSION 1
 
-// ---- chip facts (MPU-6050/9150 register map, AK8975 datasheet MS1187-E-02) ----------------
+#ifndef AK8963_BITS
+#define AK8963_BITS 16
+#endif
+#if AK8963_BITS != 14 && AK8963_BITS != 16
+#error "AK8963_BITS is 14 or 16"
+#endif
+
+// ---- chip facts ---------------------------------------------------------------------------
+// IMUs: the MPU-6050/9150 and MPU-9250 register maps; the ICM-20948 datasheet (bank 0).
 static const uint8_t MPU_ADDR_AD0_LOW = 0x68, MPU_ADDR_AD0_HIGH = 0x69;
-static const uint8_t AK_ADDR = 0x0C;
 static const uint8_t MPU_INT_PIN_CFG = 0x37, MPU_TEMP_OUT_H = 0x41, MPU_USER_CTRL = 0x6A,
                      MPU_PWR_MGMT_1 = 0x6B, MPU_WHO_AM_I = 0x75;
-static const uint8_t AK_WIA = 0x00, AK_ST1 = 0x02, AK_HXL = 0x03, AK_ST2 = 0x09, AK_CNTL = 0x0A,
-                     AK_ASAX = 0x10;
-static const uint8_t AK_ASTC = 0x0C, ASTC_SELF = 0x40;
-static const uint8_t AK_SINGLE = 0x01, AK_SELF_TEST = 0x08, AK_FUSE_ROM = 0x0F, AK_POWER_DOWN = 0x00;
+static const uint8_t ICM_WHO_AM_I = 0x00, ICM_USER_CTRL = 0x03, ICM_PWR_MGMT_1 = 0x06,
+                     ICM_INT_PIN_CFG = 0x0F, ICM_TEMP_OUT_H = 0x39, ICM_REG_BANK_SEL = 0x7F;
+static const uint8_t WHO_MPU9150 = 0x68, WHO_MPU9250 = 0x71, WHO_MPU9255 = 0x73,
+                     WHO_ICM20948 = 0xEA;
+// Magnetometers at 0x0C: AK8975 (datasheet MS1187-E-02), AK8963 (MS1356-E-02), AK09916.
+static const uint8_t AK_ADDR = 0x0C;
+static const uint8_t AK_WIA = 0x00, AK09916_WIA2_VALUE = 0x09; // WIA2 is register 0x01
+static const uint8_t AK_ST1 = 0x02, AK_HXL = 0x03, AK_ST2 = 0x09, AK_CNTL = 0x0A,
+                     AK8963_CNTL2 = 0x0B, AK_ASTC = 0x0C, AK_ASAX = 0x10, ASTC_SELF = 0x40;
+static const uint8_t AK09916_ST1 = 0x10, AK09916_HXL = 0x11, AK09916_ST2 = 0x18,
+                     AK09916_CNTL2 = 0x31, AK09916_CNTL3 = 0x32;
+static const uint8_t AK_SINGLE = 0x01, AK_SELF_TEST = 0x08, AK09916_SELF_TEST = 0x10,
+                     AK_FUSE_ROM = 0x0F, AK_POWER_DOWN = 0x00, AK8963_BIT_16 = 0x10;
 static const uint8_t ST2_DERR = 0x04, ST2_HOFL = 0x08;
+
+enum Imu : uint8_t { IMU_NONE, IMU_MPU9150, IMU_MPU9250, IMU_ICM20948 };
+enum Mag : uint8_t { MAG_NONE, MAG_AK8975, MAG_AK8963, MAG_AK09916 };
 static const uint16_t DRDY_FIRST_POLL_US = 7000, DRDY_POLL_US = 500;
 static const uint16_t DRDY_TIMEOUT_US = 30000;
 
@@ -48,7 +74,11 @@ enum RecordStatus : uint8_t { REC_OK, REC_BLANK, REC_CORRUPT };
 // ---- state --------------------------------------------------------------------------------
 static uint16_t g_seq;
 static uint8_t g_who, g_wia, g_asa[3];
-static uint8_t g_mpu = MPU_ADDR_AD0_LOW; // the MPU-9150 address found at bring-up
+static uint8_t g_mpu = MPU_ADDR_AD0_LOW; // the IMU's address found at bring-up
+static uint8_t g_imu, g_mag;            // which IMU and magnetometer (Imu, Mag)
+static uint8_t g_bits;                  // the magnetometer's output resolution: 13, 14 or 16
+static int16_t g_count_min, g_count_max; // the rails: a count there is no reading
+static float g_ut_per_count;            // before ASA
 static uint8_t g_rate_hz;
 static bool g_streaming;
 static uint8_t g_mode;                  // 0 raw S lines, 1 calibrated U lines
@@ -82,6 +112,14 @@ static void out_hex(uint16_t v, uint8_t digits);
 static void out_end();
 static bool i2c_write(uint8_t addr, uint8_t reg, uint8_t v);
 static bool i2c_read(uint8_t addr, uint8_t reg, uint8_t *buf, uint8_t n);
+static bool imu_find();
+static void imu_bypass();
+static void mag_find();
+static void mag_setup();
+static bool mag_mode(uint8_t mode);
+static bool mag_ready();
+static void mag_release();
+static bool mag_read(int16_t h[3], uint8_t *st2);
 static void bring_up();
 static void send_hello();
 static void send_ack(uint16_t tag, char cmd);
@@ -212,36 +250,147 @@ static bool i2c_read(uint8_t addr, uint8_t reg, uint8_t *buf, uint8_t n)
     return true;
 }
 
-// Reset, wake, disable the aux master, enable bypass; then read the identities and ASA.
-static void bring_up()
+// The IMU: the first address that answers, recognised by its WHO_AM_I (0x75 on the MPU family,
+// register 0x00 of bank 0 on the ICM-20948). A part that is neither is driven as an MPU-9150
+// and its 0x75 reported, so the host can name what it found.
+static bool imu_find()
 {
-    g_who = g_wia = 0;
-    g_asa[0] = g_asa[1] = g_asa[2] = 0;
-    // the address that acknowledges (WHO_AM_I reads 0x68 at either: it does not show AD0)
-    g_mpu = MPU_ADDR_AD0_LOW;
-    if (!i2c_write(g_mpu, MPU_PWR_MGMT_1, 0x80)) {
-        g_mpu = MPU_ADDR_AD0_HIGH;
-        if (!i2c_write(g_mpu, MPU_PWR_MGMT_1, 0x80))
-            return;
+    for (g_mpu = MPU_ADDR_AD0_LOW; g_mpu <= MPU_ADDR_AD0_HIGH; g_mpu++) {
+        uint8_t who = 0;
+        if (!i2c_read(g_mpu, MPU_WHO_AM_I, &who, 1))
+            continue; // nobody at this address
+        g_who = who;
+        g_imu = (who == WHO_MPU9250 || who == WHO_MPU9255) ? IMU_MPU9250 : IMU_MPU9150;
+        if (who == WHO_MPU9150 || g_imu == IMU_MPU9250)
+            return true;
+        i2c_write(g_mpu, ICM_REG_BANK_SEL, 0x00); // the bank may be any after an AVR reset
+        if (i2c_read(g_mpu, ICM_WHO_AM_I, &who, 1) && who == WHO_ICM20948) {
+            g_who = who;
+            g_imu = IMU_ICM20948;
+        }
+        return true;
     }
+    return false;
+}
+
+// Reset, wake (PLL clock), aux I2C master off, bypass on: the magnetometer appears at 0x0C.
+static void imu_bypass()
+{
+    bool icm = g_imu == IMU_ICM20948;
+    uint8_t pwr = icm ? ICM_PWR_MGMT_1 : MPU_PWR_MGMT_1;
+    i2c_write(g_mpu, pwr, 0x80); // DEVICE_RESET (the ICM-20948 also returns to bank 0)
     delay(100);
-    i2c_write(g_mpu, MPU_PWR_MGMT_1, 0x01); // wake, PLL with X gyro reference
-    i2c_write(g_mpu, MPU_USER_CTRL, 0x00);  // I2C_MST_EN = 0
+    i2c_write(g_mpu, pwr, 0x01);
+    i2c_write(g_mpu, icm ? ICM_USER_CTRL : MPU_USER_CTRL, 0x00); // I2C_MST_EN = 0
     delay(3);
-    i2c_write(g_mpu, MPU_INT_PIN_CFG, 0x02); // I2C_BYPASS_EN
-    i2c_read(g_mpu, MPU_WHO_AM_I, &g_who, 1);
-    if (!i2c_read(AK_ADDR, AK_WIA, &g_wia, 1)) {
-        g_wia = 0;
+    i2c_write(g_mpu, icm ? ICM_INT_PIN_CFG : MPU_INT_PIN_CFG, 0x02); // BYPASS_EN
+}
+
+// WIA (0x48 on every AKM part) and the register after it: the AK09916's WIA2 (0x09), INFO on
+// the others. The AK8975 and AK8963 share their WIA; the IMU tells them apart.
+static void mag_find()
+{
+    uint8_t id[2];
+    g_mag = MAG_NONE;
+    if (!i2c_read(AK_ADDR, AK_WIA, id, 2))
+        return;
+    if (g_imu == IMU_ICM20948 || id[1] == AK09916_WIA2_VALUE) {
+        g_mag = MAG_AK09916;
+        g_wia = id[1];
+    } else {
+        g_mag = g_imu == IMU_MPU9250 ? MAG_AK8963 : MAG_AK8975;
+        g_wia = id[0];
+    }
+}
+
+// The mode register: AK8975 CNTL, AK8963 CNTL1 (with the output BIT), AK09916 CNTL2.
+static bool mag_mode(uint8_t mode)
+{
+    if (g_mag == MAG_AK09916)
+        return i2c_write(AK_ADDR, AK09916_CNTL2, mode);
+    if (g_mag == MAG_AK8963 && AK8963_BITS == 16)
+        mode |= AK8963_BIT_16;
+    return i2c_write(AK_ADDR, AK_CNTL, mode);
+}
+
+// Soft reset where there is one, the fuse-ROM ASA where there is one (the AK09916 has none:
+// 128 is a factor of 1), power-down; and the resolution: µT per count, rails, bits.
+static void mag_setup()
+{
+    g_asa[0] = g_asa[1] = g_asa[2] = 128;
+    if (g_mag == MAG_AK09916) {
+        i2c_write(AK_ADDR, AK09916_CNTL3, 0x01); // SRST
+        delay(1);
+        mag_mode(AK_POWER_DOWN);
+        g_bits = 16, g_count_min = -32752, g_count_max = 32752, g_ut_per_count = 0.15f;
         return;
     }
-    i2c_write(AK_ADDR, AK_CNTL, AK_POWER_DOWN);
+    if (g_mag == MAG_AK8963) {
+        i2c_write(AK_ADDR, AK8963_CNTL2, 0x01); // SRST
+        delay(1);
+        g_bits = AK8963_BITS;
+        g_count_max = AK8963_BITS == 16 ? 32760 : 8190;
+        g_count_min = -g_count_max;
+        g_ut_per_count = AK8963_BITS == 16 ? 0.15f : 0.6f;
+    } else {
+        g_bits = 13, g_count_min = -4096, g_count_max = 4095, g_ut_per_count = 0.3f;
+    }
+    mag_mode(AK_POWER_DOWN);
     delay(1);
-    i2c_write(AK_ADDR, AK_CNTL, AK_FUSE_ROM);
+    mag_mode(AK_FUSE_ROM);
     delay(1);
     if (!i2c_read(AK_ADDR, AK_ASAX, g_asa, 3))
         g_asa[0] = g_asa[1] = g_asa[2] = 0;
-    i2c_write(AK_ADDR, AK_CNTL, AK_POWER_DOWN);
+    mag_mode(AK_POWER_DOWN);
     delay(1);
+}
+
+static bool mag_ready()
+{
+    uint8_t st1 = 0;
+    return i2c_read(AK_ADDR, g_mag == MAG_AK09916 ? AK09916_ST1 : AK_ST1, &st1, 1) && (st1 & 0x01);
+}
+
+// A result nobody read leaves DRDY set; reading ST2 clears it.
+static void mag_release()
+{
+    uint8_t st2;
+    if (mag_ready())
+        i2c_read(AK_ADDR, g_mag == MAG_AK09916 ? AK09916_ST2 : AK_ST2, &st2, 1);
+}
+
+// HXL..HZH and ST2 in one burst (the AK09916's TMPS between them): ST2 last, as the parts
+// require, which ends the read.
+static bool mag_read(int16_t h[3], uint8_t *st2)
+{
+    uint8_t b[8];
+    uint8_t n = g_mag == MAG_AK09916 ? 8 : 7;
+    if (!i2c_read(AK_ADDR, g_mag == MAG_AK09916 ? AK09916_HXL : AK_HXL, b, n))
+        return false;
+    for (uint8_t i = 0; i < 3; i++)
+        h[i] = (int16_t)((uint16_t)b[2 * i] | ((uint16_t)b[2 * i + 1] << 8));
+    *st2 = b[n - 1];
+    return true;
+}
+
+// Find the IMU, open its bypass, find and set up the magnetometer. What was found goes in the
+// hello; with no IMU or no magnetometer the identities read 00.
+static void bring_up()
+{
+    g_who = g_wia = g_bits = 0;
+    g_imu = IMU_NONE;
+    g_mag = MAG_NONE;
+    g_asa[0] = g_asa[1] = g_asa[2] = 0;
+    g_count_min = -4096, g_count_max = 4095;
+    g_ut_per_count = 0.3f;
+    if (!imu_find()) {
+        g_mpu = MPU_ADDR_AD0_LOW;
+        return;
+    }
+    imu_bypass();
+    mag_find();
+    if (g_mag != MAG_NONE)
+        mag_setup();
 }
 
 // ---- replies --------------------------------------------------------------------------------
@@ -255,6 +404,7 @@ static void send_hello()
     for (uint8_t i = 0; i < 3; i++)
         out_int(g_asa[i]);
     out_int(g_rate_hz);
+    out_int(g_bits); // a v1 trailing field: the output resolution (0 without a magnetometer)
     out_end();
 }
 
@@ -344,21 +494,18 @@ static void store_record(const int32_t *v)
 // ---- measurements ---------------------------------------------------------------------------
 static float counts_to_ut(int16_t counts, uint8_t axis)
 {
-    return (float)counts * (0.3f / 256.0f) * (float)(g_asa[axis] + 128);
+    return (float)counts * (g_ut_per_count / 256.0f) * (float)(g_asa[axis] + 128);
 }
 
 static void start_measurement(uint32_t now_us)
 {
     // A result nobody read (a measurement in flight when the board reset, or one that finished
     // after a DRDY timeout) leaves DRDY set: it would be taken for the new one, read while the
-    // next conversion runs (DERR), and every later read would be one measurement late. Reading
-    // ST2 clears DRDY.
-    uint8_t st = 0;
-    if (i2c_read(AK_ADDR, AK_ST1, &st, 1) && (st & 0x01))
-        i2c_read(AK_ADDR, AK_ST2, &st, 1);
+    // next conversion runs (DERR), and every later read would be one measurement late.
+    mag_release();
     g_trig_ms = millis();
     g_trig_us = now_us;
-    if (!i2c_write(AK_ADDR, AK_CNTL, AK_SINGLE)) {
+    if (!mag_mode(AK_SINGLE)) {
         out_begin('L');
         out_str_P(PSTR("I2C trigger failed"));
         out_end();
@@ -373,8 +520,7 @@ static void poll_measurement()
     uint32_t now = micros();
     if ((int32_t)(now - g_next_poll_us) < 0)
         return;
-    uint8_t st1 = 0;
-    if (i2c_read(AK_ADDR, AK_ST1, &st1, 1) && (st1 & 0x01)) {
+    if (mag_ready()) {
         finish_measurement();
         return;
     }
@@ -391,69 +537,70 @@ static void poll_measurement()
 static void finish_measurement()
 {
     g_measuring = false;
-    uint8_t b[7];
-    if (!i2c_read(AK_ADDR, AK_HXL, b, 7)) { // HXL..HZH, ST2 in one burst
+    int16_t h[3];
+    uint8_t st2;
+    if (!mag_read(h, &st2)) {
         out_begin('L');
         out_str_P(PSTR("I2C read failed"));
         out_end();
         return;
     }
-    int16_t h[3];
-    for (uint8_t i = 0; i < 3; i++)
-        h[i] = (int16_t)((uint16_t)b[2 * i] | ((uint16_t)b[2 * i + 1] << 8));
-    uint8_t st2 = b[6];
     uint8_t t[2] = {0, 0};
-    i2c_read(g_mpu, MPU_TEMP_OUT_H, t, 2);
+    i2c_read(g_mpu, g_imu == IMU_ICM20948 ? ICM_TEMP_OUT_H : MPU_TEMP_OUT_H, t, 2);
     int16_t temp = (int16_t)(((uint16_t)t[0] << 8) | t[1]);
     if (g_streaming)
         emit_sample(h, st2, temp);
     bool valid = !(st2 & (ST2_DERR | ST2_HOFL)) && (h[0] | h[1] | h[2]) != 0;
     for (uint8_t i = 0; i < 3; i++)
-        if (h[i] <= -4096 || h[i] >= 4095)
+        if (h[i] <= g_count_min || h[i] >= g_count_max)
             valid = false;
     if (g_fit_kind && valid)
         fit_add(h);
 }
 
-// The AK8975 self-test (datasheet MS1187-E-02): power-down, ASTC.SELF on, self-test mode, wait
-// for DRDY, read HXL..ST2, ASTC.SELF off. Blocking (about 8 ms, 15 with a measurement in flight,
-// which is finished and sent first: no sample is lost); streaming carries on with the next
-// period. The reply carries the raw registers; the host applies ASA and judges them.
+// The magnetometer's self-test: power-down; the AK8975 and AK8963 then set ASTC.SELF and enter
+// self-test mode (CNTL 0x08, datasheets MS1187-E-02 and MS1356-E-02), the AK09916 enters its
+// self-test mode (CNTL2 0x10) with no ASTC; wait for DRDY, read HXL..ST2, ASTC.SELF off.
+// Blocking (about 8 ms, 15 with a measurement in flight, which is finished and sent first: no
+// sample is lost); streaming carries on with the next period. The reply carries the raw
+// registers; the host applies ASA and judges them against the part's datasheet window.
 static void self_test(uint16_t tag)
 {
     while (g_measuring)
         poll_measurement(); // completes it (or gives up at the DRDY timeout)
-    uint8_t st = 0;
-    if (i2c_read(AK_ADDR, AK_ST1, &st, 1) && (st & 0x01))
-        i2c_read(AK_ADDR, AK_ST2, &st, 1);
-    if (!i2c_write(AK_ADDR, AK_CNTL, AK_POWER_DOWN) || !i2c_write(AK_ADDR, AK_ASTC, ASTC_SELF)) {
+    mag_release();
+    bool astc = g_mag != MAG_AK09916;
+    if (g_mag == MAG_NONE || !mag_mode(AK_POWER_DOWN) ||
+        (astc && !i2c_write(AK_ADDR, AK_ASTC, ASTC_SELF))) {
         send_error_P(tag, 'T', PSTR("I2C"));
         return;
     }
     delayMicroseconds(100);
     bool ready = false;
-    uint8_t b[7];
-    if (i2c_write(AK_ADDR, AK_CNTL, AK_SELF_TEST)) {
+    int16_t h[3];
+    uint8_t st2 = 0;
+    if (mag_mode(astc ? AK_SELF_TEST : AK09916_SELF_TEST)) {
         uint32_t t0 = micros();
         delayMicroseconds(DRDY_FIRST_POLL_US);
         while (micros() - t0 <= DRDY_TIMEOUT_US) {
-            if (i2c_read(AK_ADDR, AK_ST1, &st, 1) && (st & 0x01)) {
-                ready = i2c_read(AK_ADDR, AK_HXL, b, 7);
+            if (mag_ready()) {
+                ready = mag_read(h, &st2);
                 break;
             }
             delayMicroseconds(DRDY_POLL_US);
         }
     }
-    i2c_write(AK_ADDR, AK_ASTC, 0x00); // SELF must be off for normal measurements
+    if (astc)
+        i2c_write(AK_ADDR, AK_ASTC, 0x00); // SELF must be off for normal measurements
     if (!ready) {
-        i2c_write(AK_ADDR, AK_CNTL, AK_POWER_DOWN);
+        mag_mode(AK_POWER_DOWN);
         send_error_P(tag, 'T', PSTR("I2C"));
         return;
     }
     send_ack(tag, 'T');
     for (uint8_t i = 0; i < 3; i++)
-        out_int((int16_t)((uint16_t)b[2 * i] | ((uint16_t)b[2 * i + 1] << 8)));
-    out_int(b[6]);
+        out_int(h[i]);
+    out_int(st2);
     out_end();
 }
 
@@ -461,7 +608,10 @@ static void emit_sample(const int16_t h[3], uint8_t st2, int16_t temp)
 {
     if (g_mode == 1 && g_rec_status == REC_OK) {
         // h = W (m - o - t (T - tref)), all in nT; W in 1e-6, tref in 0.01 degC
-        float temp_c100 = (float)temp * (100.0f / 340.0f) + 3653.0f;
+        // the die temperature: MPU-9150 raw/340 + 36.53, MPU-9250 and ICM-20948 raw/333.87 + 21
+        float temp_c100 = g_imu == IMU_MPU9150 || g_imu == IMU_NONE
+                              ? (float)temp * (100.0f / 340.0f) + 3653.0f
+                              : (float)temp * (100.0f / 333.87f) + 2100.0f;
         float dt_c = (temp_c100 - (float)g_rec[14]) * 0.01f;
         float v[3];
         for (uint8_t i = 0; i < 3; i++)

@@ -11,10 +11,17 @@ Options (the port string's, ``magcal.devices.port``): ``seed`` (physics seed, de
 directory, ``$XDG_STATE_HOME/magcal/emu/`` or ``~/.local/state/magcal/emu/``, so a calibration
 written in one run is there in the next, as on a board; ``eeprom=none`` for a throwaway one), ``pace=1`` (simulated time follows the wall clock; 0, the default, runs as fast as it
 can), ``offset``, ``noise``, ``fault`` (the register model's flags by name: ``stuck_drdy`` …),
-``measure_us`` (AK8975 measurement time), ``addr`` (the MPU-9150's I2C address: 0x68, AD0 low,
-or 0x69, AD0 high). Keyword options: ``scenario=`` (a ``Scenario``, overrides the port string's
-physics), ``asa=(x, y, z)``, ``baud``. Closing the device stops the harness; opening it again
-starts it again on the same EEPROM file.
+``measure_us`` (the magnetometer's measurement time), ``addr`` (the IMU's I2C address: 0x68, AD0
+low, or 0x69, AD0 high), ``chip`` (the board's chip: ``mpu9150``, the default, with its AK8975;
+``mpu9250``, an AK8963; ``icm20948``, an AK09916) and ``bits`` (the AK8963's output resolution:
+16, the default, or 14 — the firmware built for 14-bit output runs then). Keyword options:
+``scenario=`` (a ``Scenario``, overrides the port string's physics), ``asa=(x, y, z)``,
+``chip=``, ``bits=``, ``baud``. Closing the device stops the harness; opening it again starts it
+again on the same EEPROM file.
+
+The physics answers in the chip's own counts: its quantum (0.3 µT AK8975, 0.6 or 0.15 µT AK8963,
+0.15 µT AK09916, each times the ASA gain where the part has one; the AK09916 has none: ASA 128),
+its range and overflow (``EmuChip``), and its die-temperature register.
 
 Nothing is built implicitly unless the build is missing: then ``make -C firmware`` and
 ``make -C firmware/emulator`` run once, and a missing toolchain is a clear ``DeviceError``.
@@ -29,10 +36,14 @@ import subprocess
 import tempfile
 import threading
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from ..core.errors import DeviceError, PortError, PortUnavailable
 from ..recordings.state import user_state_dir
+from ..core.sample import asa_gain
 from ..sim.physics import Scenario
 from ..wire.dialect import Dialect
 from .faults import register_flags
@@ -42,11 +53,85 @@ from .transport import WrappedTransport
 REPO = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = REPO / "firmware"
 ELF = FIRMWARE_DIR / "build" / "magcal_mpu9150.elf"
+ELF_AK8963_14BIT = FIRMWARE_DIR / "build" / "magcal_mpu9150_ak8963_14bit.elf"  # AK8963_BITS=14
 HARNESS = FIRMWARE_DIR / "emulator" / "build" / "magcal-emu"
 ARDUINO_CORE = Path("/usr/share/arduino/hardware/arduino/avr")
 SIMAVR_HEADER = Path("/usr/include/simavr/sim_avr.h")
 AVR_PACKAGES = "gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev"
 _build_lock = threading.Lock()
+
+
+@dataclass(frozen=True)
+class EmuChip:
+    """What the emulated board's magnetometer makes of a field: one chip at one resolution.
+
+    ``self_test_window`` is the datasheet's pass window in ASA-adjusted counts (AK8975
+    MS1187-E-02; AK8963 MS1356-E-02, 16-bit X, Y −200…200, Z −3200…−800 and a quarter of it at
+    14 bits; AK09916: AKM's driver limits, X, Y −200…200, Z −1000…−200). The healthy coil of the
+    physics (``Physics.self_test_counts``, an AK8975's reading) is placed at the same point of
+    this chip's window, so a dead or weak coil stays outside it."""
+
+    name: str            # the harness's --chip
+    bits: int            # output resolution: 13, 14 or 16
+    ut_per_count: float  # before ASA
+    count_min: int
+    count_max: int
+    hofl_sum_ut: float   # ST2 HOFL when |x| + |y| + |z| reaches this
+    has_asa: bool
+    self_test_window: tuple
+    temp_lsb_per_c: float
+    temp_offset_c: float
+
+    def counts(self, m_ut: np.ndarray, asa) -> tuple[np.ndarray, np.ndarray]:
+        """Fields in µT (n, 3) → the data registers (n, 3) and ST2's HOFL flag (n,)."""
+        lsb = self.ut_per_count * np.array([asa_gain(a) for a in asa])
+        raw = np.clip(np.round(m_ut / lsb), self.count_min, self.count_max).astype(np.int64)
+        return raw, np.abs(m_ut).sum(axis=1) >= self.hofl_sum_ut
+
+    def temp_raw(self, temp_c: float) -> int:
+        return int(round((temp_c - self.temp_offset_c) * self.temp_lsb_per_c))
+
+    def self_test_raw(self, adjusted_ak8975, asa) -> list[int]:
+        """The data registers in self-test mode for a coil that reads ``adjusted_ak8975`` on an
+        AK8975: the same point of this chip's window, ASA undone (truncated, as the register)."""
+        out = []
+        for v, (lo, hi), (lo2, hi2), a in zip(adjusted_ak8975, AK8975_WINDOW, self.self_test_window, asa):
+            adjusted = lo2 + (v - lo) * (hi2 - lo2) / (hi - lo)
+            out.append(int(max(self.count_min, min(self.count_max, int(adjusted / asa_gain(a))))))
+        return out
+
+
+AK8975_WINDOW = ((-100, 100), (-100, 100), (-1000, -300))
+_MPU_TEMP = (340.0, 36.53)      # MPU-9150: T = raw / 340 + 36.53
+_NEW_TEMP = (333.87, 21.0)      # MPU-9250, ICM-20948: T = raw / 333.87 + 21
+EMU_CHIPS = {
+    ("mpu9150", 13): EmuChip("mpu9150", 13, 0.3, -4096, 4095, 2400.0, True, AK8975_WINDOW, *_MPU_TEMP),
+    ("mpu9250", 16): EmuChip("mpu9250", 16, 0.15, -32760, 32760, 4912.0, True,
+                             ((-200, 200), (-200, 200), (-3200, -800)), *_NEW_TEMP),
+    ("mpu9250", 14): EmuChip("mpu9250", 14, 0.6, -8190, 8190, 4912.0, True,
+                             ((-50, 50), (-50, 50), (-800, -200)), *_NEW_TEMP),
+    ("icm20948", 16): EmuChip("icm20948", 16, 0.15, -32752, 32752, 4912.0, False,
+                              ((-200, 200), (-200, 200), (-1000, -200)), *_NEW_TEMP),
+}
+DEFAULT_BITS = {"mpu9150": 13, "mpu9250": 16, "icm20948": 16}
+
+
+def emu_chip(chip: str | None = None, bits=None) -> EmuChip:
+    """The chip an ``emu://`` board carries (``chip``, ``bits`` as the port string gives them);
+    ``PortError`` naming what is possible otherwise."""
+    name = str(getattr(chip, "value", chip) or "mpu9150").lower()
+    if name not in DEFAULT_BITS:
+        raise PortError(f"chip={name!r}: emu:// emulates {', '.join(DEFAULT_BITS)}")
+    want = DEFAULT_BITS[name] if bits is None else bits
+    try:
+        want = int(want)
+    except (TypeError, ValueError):
+        raise PortError(f"bits={bits!r} is not a whole number") from None
+    found = EMU_CHIPS.get((name, want))
+    if found is None:
+        have = sorted(b for c, b in EMU_CHIPS if c == name)
+        raise PortError(f"bits={want}: the {name}'s magnetometer gives {' or '.join(map(str, have))}-bit output")
+    return found
 
 
 def toolchain_problem() -> str | None:
@@ -67,7 +152,7 @@ def toolchain_problem() -> str | None:
 def ensure_built() -> tuple[Path, Path]:
     """The firmware ELF and the harness, built first if either is missing."""
     with _build_lock:
-        if ELF.exists() and HARNESS.exists():
+        if ELF.exists() and ELF_AK8963_14BIT.exists() and HARNESS.exists():
             return ELF, HARNESS
         if not (FIRMWARE_DIR / "Makefile").exists():
             raise DeviceError(f"emu:// needs a source checkout: no firmware/Makefile at {FIRMWARE_DIR}")
@@ -83,7 +168,8 @@ def ensure_built() -> tuple[Path, Path]:
 
 
 class EmulatedBoard:
-    """One run of the harness: the simulated Uno + MPU-9150, its pty and its EEPROM file.
+    """One run of the harness: the simulated Uno + its IMU and magnetometer (``chip``, an
+    ``EmuChip``), its pty and its EEPROM file.
 
     ``scenario`` is the truth the field comes from; ``served`` keeps the last measurements
     handed to the board as ``(t_s, k, (hx, hy, hz), st2, temp_raw)``."""
@@ -98,7 +184,11 @@ class EmulatedBoard:
         measure_us: int | None = None,
         boot_delay_ms: int = 100,
         mpu_addr: int = 0x68,
+        chip: EmuChip | None = None,
     ):
+        self.chip = chip or emu_chip()
+        if not self.chip.has_asa:  # no fuse ROM: the host reads 128 (a factor of 1) from the hello
+            scenario = scenario.with_physics(asa=(128, 128, 128))
         self.scenario = scenario
         self._tmpdir = None  # removed when the board is dropped: its EEPROM lives across restarts
         if eeprom_path is None:
@@ -119,11 +209,14 @@ class EmulatedBoard:
     def start(self) -> str:
         """Start the harness; returns the pty path. The AVR boots when a host opens it."""
         elf, harness = ensure_built()
+        if self.chip.bits == 14:
+            elf = ELF_AK8963_14BIT
         asa = self.scenario.physics.asa
-        cmd = [str(harness), "--eeprom", self.eeprom_path, "--asa", ",".join(str(int(a)) for a in asa),
+        cmd = [str(harness), "--chip", self.chip.name, "--eeprom", self.eeprom_path,
+               "--asa", ",".join(str(int(a)) for a in asa),
                "--faults", str(self.faults), "--boot-delay-ms", str(self.boot_delay_ms),
                "--addr", f"0x{self.mpu_addr:02x}",
-               "--self-test", ",".join(str(v) for v in self.scenario.physics.self_test_raw())]
+               "--self-test", ",".join(str(v) for v in self._self_test_raw())]
         if self.measure_us is not None:
             cmd += ["--measure-us", str(int(self.measure_us))]
         if self.pace:
@@ -146,22 +239,43 @@ class EmulatedBoard:
         self._thread.start()
         return self.pty
 
-    def _serve(self) -> None:
-        """Answer every ``M t_us k`` with the physics' measurement at (t, k)."""
-        proc = self._proc
+    def _self_test_raw(self) -> list[int]:
+        ph = self.scenario.physics
+        if self.chip.bits == 13:
+            return list(ph.self_test_raw())
+        return self.chip.self_test_raw(ph.self_test_counts, ph.asa)
+
+    def measure(self, t_s: float, k: int) -> tuple[tuple[int, int, int], int, int]:
+        """The chip's data registers, ST2 (HOFL) and TEMP_OUT for measurement k at t_s."""
         sc = self.scenario
+        if self.chip.bits == 13:  # the MPU-9150: the physics' own AK8975 registers
+            raw, st2, temp = sc.measure([t_s], [k])
+            return tuple(int(v) for v in raw[0]), int(st2[0]), int(temp[0])
+        m_ut, _ = sc.field_ut([t_s], [k])
+        raw, hofl = self.chip.counts(m_ut, sc.physics.asa)
+        temp = self.chip.temp_raw(float(sc.temp_c([t_s])[0]))
+        return tuple(int(v) for v in raw[0]), 0x08 if hofl[0] else 0, temp
+
+    def _answer(self, parts: list[str]) -> str:
+        """``M t_us k [bits]`` → ``hx hy hz hofl temp``; the firmware's resolution must be the
+        board's (a mismatch would rescale every sample)."""
+        if len(parts) == 4 and int(parts[3]) != self.chip.bits:
+            raise DeviceError(f"emu://: the firmware runs the magnetometer at {parts[3]}-bit output, "
+                              f"the board was asked for {self.chip.bits}-bit")
+        t_s, k = int(parts[1]) / 1e6, int(parts[2])
+        (hx, hy, hz), s2, tr = self.measure(t_s, k)
+        self.served.append((t_s, k, (hx, hy, hz), s2, tr))
+        return f"{hx} {hy} {hz} {1 if s2 & 0x08 else 0} {tr}\n"
+
+    def _serve(self) -> None:
+        """Answer every ``M t_us k [bits]`` with the physics' measurement at (t, k)."""
+        proc = self._proc
         try:
             for line in proc.stdout:
                 parts = line.split()
-                if len(parts) != 3 or parts[0] != "M":
+                if len(parts) not in (3, 4) or parts[0] != "M":
                     continue
-                t_s = int(parts[1]) / 1e6
-                k = int(parts[2])
-                raw, st2, temp = sc.measure([t_s], [k])
-                hx, hy, hz = (int(v) for v in raw[0])
-                s2, tr = int(st2[0]), int(temp[0])
-                self.served.append((t_s, k, (hx, hy, hz), s2, tr))
-                proc.stdin.write(f"{hx} {hy} {hz} {1 if s2 & 0x08 else 0} {tr}\n")
+                proc.stdin.write(self._answer(parts))
                 proc.stdin.flush()
         except (OSError, ValueError) as exc:  # harness gone: the reader side reports it
             self._error = str(exc)
@@ -230,9 +344,9 @@ def _harness_connector(board: EmulatedBoard, baud: int):
     return connect
 
 
-def eeprom_of(port: Port) -> str | None:
-    """The EEPROM file an ``emu://`` port keeps: ``eeprom=PATH``; by default one per seed and
-    address in the user's state directory; None (a throwaway file) for ``eeprom=none``."""
+def eeprom_of(port: Port, chip: EmuChip | None = None) -> str | None:
+    """The EEPROM file an ``emu://`` port keeps: ``eeprom=PATH``; by default one per seed,
+    address and chip in the user's state directory; None (a throwaway file) for ``eeprom=none``."""
     given = port.get("eeprom")
     if given == "none":
         return None
@@ -240,12 +354,15 @@ def eeprom_of(port: Port) -> str | None:
         return given
     folder = user_state_dir() / "emu"
     folder.mkdir(parents=True, exist_ok=True)
-    return str(folder / f"eeprom-seed{port.get('seed', 1)}-{port.get('addr', 0x68):#04x}.bin")
+    board = "" if chip is None or chip.name == "mpu9150" else f"-{chip.name}-{chip.bits}bit"
+    return str(folder / f"eeprom-seed{port.get('seed', 1)}-{port.get('addr', 0x68):#04x}{board}.bin")
 
 
 def open_emulated(port: Port, dialect: Dialect = Dialect.NATIVE, *, scenario: Scenario | None = None, asa=None,
-                  baud: int = 115200, tap=None, reply_timeout_s: float = 1.5, boot_timeout_s: float = 3.0):
-    """``emu://[?seed=N&eeprom=PATH&pace=1…]`` → the v1 protocol client on the emulated board.
+                  chip: str | None = None, bits: int | None = None, baud: int = 115200, tap=None,
+                  reply_timeout_s: float = 1.5, boot_timeout_s: float = 3.0):
+    """``emu://[?seed=N&chip=icm20948&eeprom=PATH&pace=1…]`` → the v1 protocol client on the
+    emulated board (``chip``/``bits`` given here override the port string's).
 
     The returned device has ``.board`` (the ``EmulatedBoard``: its ``scenario``, ``reset()``,
     ``eeprom_path``, ``served``). The harness starts when the device is opened."""
@@ -257,9 +374,10 @@ def open_emulated(port: Port, dialect: Dialect = Dialect.NATIVE, *, scenario: Sc
     scenario = scenario or scenario_of(port)
     if asa is not None:
         scenario = scenario.with_physics(asa=tuple(int(a) for a in asa))
-    board = EmulatedBoard(scenario, eeprom_of(port), pace=port.get("pace", 0) == 1,
+    board_chip = emu_chip(chip or port.get("chip"), bits if bits is not None else port.get("bits"))
+    board = EmulatedBoard(scenario, eeprom_of(port, board_chip), pace=port.get("pace", 0) == 1,
                           faults=register_flags(port.faults), measure_us=port.get("measure_us"),
-                          mpu_addr=port.get("addr", 0x68))
+                          mpu_addr=port.get("addr", 0x68), chip=board_chip)
     ensure_built()  # a missing toolchain is named now, not at the first connection
     dev = ProtocolDevice(port.url, _harness_connector(board, baud), transport_name="emu", tap=tap,
                          reply_timeout_s=reply_timeout_s, boot_timeout_s=boot_timeout_s)

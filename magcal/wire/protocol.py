@@ -62,9 +62,16 @@ def crc16_ccitt(data: bytes) -> int:
 
 
 # -- messages -----------------------------------------------------------------------------
+HELLO_BITS = (13, 14, 16)  # the magnetometer resolutions a hello may state (0: no magnetometer)
+
+
 @dataclass(frozen=True, slots=True)
 class Hello:
-    """``H``: who the device is (also its boot message: seq 0)."""
+    """``H``: who the device is (also its boot message: seq 0).
+
+    ``bits`` is the trailing field a multi-chip device adds: the magnetometer's output
+    resolution (13 AK8975, 14 or 16 AK8963, 16 AK09916; 0 when none answered), None from a
+    device that does not state it (an MPU-9150 board: 13). Fields after it are ignored."""
 
     seq: int
     proto: int
@@ -73,6 +80,7 @@ class Hello:
     wia: int
     asa: tuple[int, int, int]
     rate_hz: int
+    bits: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -223,7 +231,8 @@ def parse_payload(payload: bytes) -> Message:
         ms, x, y, z, st2, temp = _ints(f)
         return CalibratedSample(seq, ms, (x, y, z), st2, temp)
     if kind == b"H":
-        _need(f, 8, "H")
+        if len(f) < 8:
+            raise ParseError(f"H needs at least 8 fields, got {len(f)}")
         fw = f[1].decode("ascii")
         if not fw or any(c not in "0123456789." for c in fw):
             raise ParseError(f"bad firmware version {fw!r}")
@@ -233,7 +242,10 @@ def parse_payload(payload: bytes) -> Message:
         who, wia = _hex(f[2]), _hex(f[3])
         if who > 255 or wia > 255:
             raise ParseError("WHO_AM_I and WIA are single bytes")
-        return Hello(seq, _int(f[0]), fw, who, wia, asa, _int(f[7]))
+        bits = _int(f[8]) if len(f) > 8 else None
+        if bits is not None and bits not in (0, *HELLO_BITS):
+            raise ParseError(f"magnetometer resolution {bits} bits is none of 13, 14, 16 (or 0)")
+        return Hello(seq, _int(f[0]), fw, who, wia, asa, _int(f[7]), bits)
     if kind == b"A":
         if len(f) < 2:
             raise ParseError("A needs tag and command")
@@ -292,10 +304,11 @@ def hello_applies(current: Hello | None, new: Hello) -> bool:
     boot hello (seq 0) do. A later one (the reply to ``I``) must repeat the chip's identity —
     WHO_AM_I, WIA and the fuse-ROM ASA bytes cannot change without a restart — so one that does
     not is refused (and counted by the reader as ``hellos_refused``): a changed ASA in a line
-    whose CRC-8 happened to match would otherwise rescale every later sample."""
+    whose CRC-8 happened to match would otherwise rescale every later sample. The resolution
+    (``bits``) is part of that identity."""
     if current is None or new.seq == 0:
         return True
-    return (new.who_am_i, new.wia, new.asa) == (current.who_am_i, current.wia, current.asa)
+    return (new.who_am_i, new.wia, new.asa, new.bits) == (current.who_am_i, current.wia, current.asa, current.bits)
 
 
 MAX_MISORDER = 100  # a line this far behind the last one is a late copy, not news
