@@ -18,7 +18,7 @@ BROWSER_PACKAGES := chromium
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test,i2c,report,logs]'
+	$(BIN)/python -m pip install -q -e '.[test,i2c,report,logs,fleet]'
 	touch $(STAMP)
 
 # Installs the AVR toolchain, simavr and Chromium if they are missing and we may use apt-get.
