@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fit.vector import fit_vector
+from ..fit.vector import EARTH_FIELD_FORMAT, UnknownField, fit_vector
 from ..recordings.logs import LogMag
 
 FORMAT = "magcal.fit.log/1"
@@ -19,24 +19,77 @@ def model_name(d: dict) -> str:
 
 def fit_flight_log(lm: LogMag, term: str | None = "auto", blocks: int = 5) -> tuple[dict, bool]:
     """(the fit as a dict, whether it succeeded). Vector mode where the log has attitude and a
-    position, else the magnitude against the Earth model's |B| (or the fitted radius)."""
+    position; with attitude but no position fix, against an Earth field unknown but constant
+    (``earth_field.mode`` "unknown_constant"); else the magnitude against the Earth model's |B|
+    (or the fitted radius)."""
     s = lm.series.only_valid()
-    expected = None
-    if lm.earth_body_ut is not None:
-        expected = lm.earth_body_ut[lm.series.valid]
+    expected, how = _expected(lm)
     result = fit_vector(s.field_ut, s.channels, expected, lm.earth_field_ut, term=term, blocks=blocks)
     base = {"format": FORMAT, "log": lm.describe(), "input": lm.series.source, "warnings": list(lm.warnings)}
     if not result:
-        return {**base, **result.to_dict()}, False
+        return {**base, **result.to_dict(), "earth_field": _earth_field(lm, how, None)}, False
     d = {**base, **result.to_dict(), "warnings": list(lm.warnings) + list(result.warnings)}
     d["format"] = FORMAT
     d["model"] = model_name(d)
+    d["earth_field"] = _earth_field(lm, how, result.earth_field)
     _mark_calibration_terms(d)
-    d["uncertainty"]["field_ut"] = 0.0 if lm.earth_field_ut else None
-    if expected is None:
-        d["warnings"].append("the log has no attitude or position: fitted against |m| only, "
-                             "which a mostly level flight cannot pin")
+    d["uncertainty"]["field_ut"] = 0.0 if how == "model" else None
+    if how == "magnitude_only":
+        d["warnings"].append("the log has no attitude: fitted against |m| only, which a mostly level flight cannot pin")
     return d, True
+
+
+def attitude_rotations(lm: LogMag) -> np.ndarray | None:
+    """The log's attitude (body → NED, (n, 3, 3)) at the valid samples, or None without one."""
+    from ..recordings.logs.select import resample_rotations
+
+    if lm.log.attitude is None:
+        return None
+    return resample_rotations(lm.log.attitude, lm.series.t_s[lm.series.valid])
+
+
+def _expected(lm: LogMag):
+    """(what the fit is against, how): the Earth model's field in the body frame ("model"), the
+    attitude with the field unknown ("unknown_constant"), or nothing ("magnitude_only")."""
+    if lm.earth_body_ut is not None:
+        return lm.earth_body_ut[lm.series.valid], "model"
+    r = attitude_rotations(lm)
+    return (UnknownField(r), "unknown_constant") if r is not None else (None, "magnitude_only")
+
+
+def _earth_field(lm: LogMag, how: str, fitted: dict | None) -> dict:
+    """The JSON's ``earth_field``: which field the fit was against, and for an unknown one what
+    the log's attitude determines of it and what it cannot."""
+    if how == "model":
+        return {"format": EARTH_FIELD_FORMAT, "mode": "model", "model": lm.earth_model, "size_ut": lm.earth_field_ut}
+    if how == "magnitude_only" or fitted is None:
+        return {"format": EARTH_FIELD_FORMAT, "mode": how, "model": lm.earth_model, "size_ut": lm.earth_field_ut}
+    return {**fitted, "determined": ["offset", "soft_iron_shape", "terms", "inclination"],
+            "not_determined": ["field_size", "soft_iron_scale", "declination"]}
+
+
+def earth_field_text(ef: dict | None) -> str:
+    """The words for an unknown-field fit: what it pins and what it cannot ("" otherwise)."""
+    if not ef or ef.get("mode") != "unknown_constant" or "inclination_deg" not in ef:
+        return ""
+    return (f"the log has no position fix, so the Earth's field was fitted as unknown but constant from the log's "
+            f"attitude. Determined: the offset, the soft iron's shape, the terms and the field's inclination "
+            f"{ef['inclination_deg']:.1f} ± {ef['sigma_inclination_deg']:.1f}°. Not determined: the field's size "
+            f"(it shares one scale with the soft iron; {ef['size_ut']:.2f} µT is this sensor's own reading, det W = 1) "
+            f"and the declination ({ef['heading_frame_declination_deg']:.1f} ± "
+            f"{ef['sigma_heading_frame_declination_deg']:.1f}° is in the attitude's heading frame; without GPS the "
+            f"heading usually comes from this magnetometer itself, so that is the declination the autopilot assumed, "
+            f"not a measurement, and the offset is then pinned by the field's tilt and size more than by its heading)")
+
+
+def against_text(mode: str, ef: dict | None, earth_model=None, earth_field_ut=None) -> str:
+    """What the flight-log fit was judged against, in words."""
+    how = (ef or {}).get("mode", "model" if mode == "vector" else "magnitude_only")
+    if how == "unknown_constant":
+        return "the log's attitude and an Earth field unknown but constant (no position fix)"
+    if mode == "vector":
+        return f"the expected field vector ({earth_model}, {earth_field_ut:.2f} µT, and the log's attitude)"
+    return "|m| only (the log has no attitude)"
 
 
 def _mark_calibration_terms(d: dict) -> None:
@@ -61,17 +114,21 @@ def moved_in_calibration(t: dict) -> str:
             + ", ".join(f"{v:+.3f}" for v in kc) + ")")
 
 
-def vector_traces(lm: LogMag, calibration: dict) -> dict | None:
+def vector_traces(lm: LogMag, calibration: dict, earth_field: dict | None = None) -> dict | None:
     """Per sample, for a figure: time since the first sample (s), the expected field (the log's
-    attitude and the Earth model, body frame, µT), the measured field calibrated with
-    ``calibration`` (its terms included), and calibrated with no term; None without attitude."""
+    attitude and the Earth model — or, without a position, the fitted ``earth_field``'s NED
+    vector — body frame, µT), the measured field calibrated with ``calibration`` (its terms
+    included), and calibrated with no term; None without attitude."""
     from ..core.calibration import Calibration
     from ..fit.vector import motors_on
 
-    if lm.earth_body_ut is None:
-        return None
     s = lm.series.only_valid()
-    expected = np.asarray(lm.earth_body_ut[lm.series.valid], np.float64)
+    if lm.earth_body_ut is not None:
+        expected = np.asarray(lm.earth_body_ut[lm.series.valid], np.float64)
+    elif (earth_field or {}).get("ned_ut") is not None and lm.log.attitude is not None:
+        expected = UnknownField(attitude_rotations(lm)).body(earth_field["ned_ut"])
+    else:
+        return None
     ok = np.all(np.isfinite(s.field_ut), axis=1) & np.all(np.isfinite(expected), axis=1)
     chans = {k: np.asarray(v, np.float64)[ok] for k, v in s.channels.items()}
     step = motors_on(chans)
@@ -80,7 +137,9 @@ def vector_traces(lm: LogMag, calibration: dict) -> dict | None:
     cal = Calibration.from_dict(calibration)
     plain = Calibration(offset_ut=cal.offset_ut, field_ut=cal.field_ut, soft_iron=cal.soft_iron)
     m = s.field_ut[ok]
-    return {"t_s": s.t_s[ok] - s.t_s[ok][0], "expected_ut": expected[ok], "calibrated_ut": cal.correct(m, chans),
+    source = "attitude + Earth model" if lm.earth_body_ut is not None else "attitude + the fitted constant field"
+    return {"t_s": s.t_s[ok] - s.t_s[ok][0], "expected_ut": expected[ok], "expected_from": source,
+            "calibrated_ut": cal.correct(m, chans),
             "without_terms_ut": plain.correct(m), "terms": sorted(cal.coef_ut_per_unit)}
 
 
@@ -105,20 +164,22 @@ def term_summary(t: dict, unit: str) -> str:
 
 def diagnose_flight_log(lm: LogMag, blocks: int = 5) -> dict:
     """What ``diagnose`` adds on a flight log: the interference terms tested against the expected
-    field (vector mode where the log has attitude and a position, else |m|) on held-out time
+    field (vector mode where the log has attitude and a position; with attitude only, against an
+    Earth field unknown but constant; else |m|) on held-out time
     blocks — the same machinery as ``fit`` (``fit.vector``): a motors-running step judged first,
     then the current (else throttle) term, each kept only when the held-out residual falls and it
     stands above its floor."""
     d, ok = fit_flight_log(lm, blocks=blocks)
     out = {"format": DIAGNOSE_FORMAT, "warnings": d.get("warnings", [])}
     if not ok:
-        return {**out, "failure": d["failure"], "message": d["message"]}
+        return {**out, "failure": d["failure"], "message": d["message"], "earth_field": d["earth_field"]}
     key = "rms_vector_ut" if d["mode"] == "vector" else "rms_magnitude_ut"
     ho = d["heldout"]
     findings = [{"effect": EFFECT.get(t["channel"], "covariate:" + t["channel"]), "channel": t["channel"],
                  "role": t["role"], "kept": t["kept"], "summary": term_summary(t, UNIT.get(t["channel"], "µT per unit"))}
                 for t in d["terms"]]
     return {**out, "log": d["log"], "mode": d["mode"], "earth_model": lm.earth_model, "earth_field_ut": lm.earth_field_ut,
+            "earth_field": d["earth_field"],
             "model": d["model"], "terms": d["terms"], "findings": findings, "heldout": ho,
             "heldout_ut": {"none": ho["none"].get(key), "chosen": ho[ho["chosen"]].get(key) if ho["chosen"] != "none"
                            else ho["none"].get(key), "measure": key},

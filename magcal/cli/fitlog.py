@@ -5,6 +5,10 @@ The JSON (``format`` ``magcal.fit.log/1``)::
     {"log": {"file", "autopilot", "firmware", "magnetometer": {...}, "undone": sentence,
              "channels": [...], "attitude": bool, "earth_model", "earth_field_ut", "sensor_to_body"},
      "mode": "vector" | "magnitude" | "magnitude-sphere", "model": "vector+motors_on+current_a",
+     "earth_field": {"format": "magcal.earth_field/1", "mode": "model" | "unknown_constant" | "magnitude_only",
+                     ...},  # unknown_constant (attitude, no position fix): "ned_ut", "size_ut" (det W = 1,
+                     # "size_determined": false), "inclination_deg" ± σ, "heading_frame_declination_deg" ± σ
+                     # ("declination_determined": false), "determined", "not_determined"
      "calibration": {"offset_ut", "field_ut", "soft_iron", "coef_ut_per_unit", "reference"},
      "uncertainty": {"offset_ut", "field_ut", "autocorrelation_factor"},
      "terms": [{"channel", "role": "nuisance"|"interference", "kept", "coef_ut_per_unit",
@@ -66,14 +70,16 @@ def _term_line(t: dict) -> str:
 
 
 def format_log_text(d: dict) -> str:
+    from ..app.flightlog import against_text, earth_field_text
+
     log, c, u = d["log"], d["calibration"], d["uncertainty"]
     key = "rms_vector_ut" if d["mode"] == "vector" else "rms_magnitude_ut"
     lines = [
         f"log         {log['file']} ({log['firmware']})",
         f"magnet.     {log['magnetometer']['name']}: {log['magnetometer']['device']}",
         f"undone      {log['undone']}",
-        f"mode        {d['mode']}" + (f" against {log['earth_model']} ({log['earth_field_ut']:.2f} µT) and the log's attitude"
-                                      if d["mode"] == "vector" else ""),
+        f"mode        {d['mode']} against " + against_text(d["mode"], d.get("earth_field"), log["earth_model"],
+                                                        log["earth_field_ut"]),
         f"model       {d['model']}",
         "offset_ut   " + " ".join(f"{v:9.3f}" for v in c["offset_ut"]) + "   ± " + " ".join(f"{v:.3f}" for v in u["offset_ut"]),
     ]
@@ -84,6 +90,8 @@ def format_log_text(d: dict) -> str:
     lines.append("held-out    " + ", ".join(f"{k} {v[key]:.3f} µT" for k, v in ho.items() if isinstance(v, dict) and key in v)
                  + f" ({ho['blocks']} time blocks; chosen {ho['chosen']})")
     lines.append(f"rms_ut      {d['rms_ut']:.3f} ({d['n_used']} samples)")
+    if earth_field_text(d.get("earth_field")):
+        lines.append("earth field " + earth_field_text(d.get("earth_field")))
     return "\n".join(lines)
 
 
@@ -91,8 +99,9 @@ def format_log_diagnosis(d: dict) -> str:
     """The flight-log section of ``magcal diagnose`` (``app.flightlog.diagnose_flight_log``)."""
     if "failure" in d:
         return f"log terms   could not be tested: {d['failure']}: {d['message']}"
-    against = (f"the expected field vector ({d['earth_model']}, {d['earth_field_ut']:.2f} µT, and the log's attitude)"
-               if d["mode"] == "vector" else "|m| only (the log has no attitude or position)")
+    from ..app.flightlog import against_text, earth_field_text
+
+    against = against_text(d["mode"], d.get("earth_field"), d["earth_model"], d["earth_field_ut"])
     h = d["heldout_ut"]
     lines = [f"log terms   judged against {against} on {d['heldout']['blocks']} held-out time blocks"
              + (" (what |m| alone could not test):" if d["mode"] == "vector" else ":")]
@@ -100,4 +109,6 @@ def format_log_diagnosis(d: dict) -> str:
     what = f"held-out {h['measure'].split('_')[1]} residual"
     lines.append(f"log model   {d['model']}: " + (f"no term kept; {what} {h['none']:.3f} µT" if d["heldout"]["chosen"] == "none"
                  else f"{what} {h['none']:.3f} µT without terms, {h['chosen']:.3f} µT with ({d['heldout']['chosen']})"))
+    if earth_field_text(d.get("earth_field")):
+        lines.append("earth field " + earth_field_text(d.get("earth_field")))
     return "\n".join(lines)

@@ -12,6 +12,14 @@ pins offsets, soft iron and k even when the flight is mostly level, which the ma
 Magnitude mode fits ``|W (m − b − k·x)| = F`` by robust non-linear least squares, F the Earth
 model's magnitude when known; with too little rotation it falls back to W = s·I.
 
+Unknown-field mode (``expected_ut`` an :class:`UnknownField`: the attitude but no position) fits
+the Earth-frame field B as three more unknowns, ``m = W⁻¹ Rᵀ B + b + k·x`` with R the attitude
+(body → NED): a field unknown but constant over the flight. W and B share one scale (W/s and
+s·B predict the same m), fixed by det W = 1, so the field's size is the sensor's own reading of
+it, not a measurement; the offset, the shape of W, k and the field's inclination are pinned by
+the attitude's turns. B's horizontal direction is in the attitude's heading frame: it is the
+declination only where the heading came from something other than this magnetometer.
+
 Held-out judgement: the samples are cut into ``blocks`` contiguous time blocks; each is predicted
 by a fit to the others. A term is kept when it lowers the held-out residual and its coefficient
 differs from zero at p < 0.001 (χ², 3 dof, σ widened for correlated residuals). Its *floor* is
@@ -32,7 +40,26 @@ from .failure import FitFailure
 MIN_SAMPLES = 60
 HUBER_K = 1.345
 P_KEEP = 1e-3
+EARTH_FIELD_FORMAT = "magcal.earth_field/1"
 SYM = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+@dataclass(frozen=True)
+class UnknownField:
+    """The expected field is Rᵀ B for an Earth-frame B fitted with the calibration: ``r_nb``
+    (n, 3, 3), the attitude (body → NED) at each sample."""
+
+    r_nb: np.ndarray
+
+    def __getitem__(self, rows) -> "UnknownField":
+        return UnknownField(self.r_nb[rows])
+
+    def __len__(self) -> int:
+        return len(self.r_nb)
+
+    def body(self, b_ned) -> np.ndarray:
+        """Rᵀ B per sample (n, 3)."""
+        return np.einsum("nji,j->ni", self.r_nb, np.asarray(b_ned, np.float64))
 
 
 def _w_from(p) -> np.ndarray:
@@ -53,6 +80,8 @@ class Solve:
     sigma_ut: float
     inflation: float
     model: str
+    earth_ned_ut: np.ndarray | None = None  # unknown-field mode: the fitted B (NED, µT)
+    cov_earth: np.ndarray | None = None  # its 3×3 covariance
 
 
 def _design(m, x) -> np.ndarray:
@@ -117,6 +146,87 @@ def solve_vector(m, x, expected, iterations: int = 8) -> Solve | FitFailure:
     return Solve(np.linalg.inv(inv_w), theta[6:9], theta[9:].reshape(-1, 3), cov[6:, 6:], sigma, infl, "vector")
 
 
+def _attitude_start(m, uf: UnknownField) -> np.ndarray:
+    """B from R m = B + R b (W taken as I, no term): linear in (B, b), the classic start."""
+    a = np.concatenate([np.broadcast_to(np.eye(3), uf.r_nb.shape), uf.r_nb], axis=2).reshape(-1, 6)
+    y = np.einsum("nij,nj->ni", uf.r_nb, m).reshape(-1)
+    return np.linalg.lstsq(a, y, rcond=None)[0][:3]
+
+
+def _joint_design(lin, b_ned, x, uf: UnknownField) -> tuple[np.ndarray, np.ndarray]:
+    """(Jacobian of the prediction in (A6, b, K, B), the linear part's design at this B)."""
+    a_lin = _design(uf.body(b_ned), x)
+    a_b = np.einsum("ij,nkj->nik", _w_from(lin[:6]), uf.r_nb).reshape(-1, 3)  # ∂(A Rᵀ B)/∂B = A Rᵀ
+    return np.hstack([a_lin, a_b]), a_lin
+
+
+def _gauge(lin, b_ned) -> np.ndarray:
+    """The direction that changes nothing: A·(1 + ε) with B·(1 − ε), as a unit vector."""
+    g = np.concatenate([lin[:6], np.zeros(len(lin) - 6), -b_ned])
+    return g / np.linalg.norm(g)
+
+
+def _det_one(lin, b_ned) -> tuple[np.ndarray, np.ndarray]:
+    """Move along the gauge to det A = 1 (det W = 1): the sensor's own mean gain."""
+    s = float(np.linalg.det(_w_from(lin[:6]))) ** (1.0 / 3.0)
+    out = lin.copy()
+    out[:6] /= s
+    return out, b_ned * s
+
+
+def _huber(res) -> tuple[np.ndarray, np.ndarray]:
+    """(per-sample Huber weights, repeated per axis) from (n, 3) residuals, as ``solve_vector``."""
+    norm = np.linalg.norm(res, axis=1)
+    scale = 1.4826 * np.median(norm) / np.sqrt(2.0) or 1e-9
+    w = np.minimum(1.0, HUBER_K * scale * np.sqrt(3) / np.maximum(norm, 1e-12))
+    return w, np.repeat(w, 3)
+
+
+def solve_unknown_field(m, x, uf: UnknownField, iterations: int = 12) -> Solve | FitFailure:
+    """Robust Gauss–Newton of m = A Rᵀ B + b + K x with B (NED) unknown and constant, from the
+    attitude start; the scale A and B share is fixed at det A = 1 (see the module docstring)."""
+    b_ned = _attitude_start(m, uf)
+    first = solve_vector(m, x, uf.body(b_ned))
+    if not first:
+        return first
+    lin = np.concatenate([np.linalg.inv(first.w)[[i for i, _ in SYM], [j for _, j in SYM]], first.b, first.k.reshape(-1)])
+    lin, b_ned = _det_one(lin, b_ned)
+    y, wts3 = m.reshape(-1), np.ones(3 * len(m))
+    for _ in range(iterations):
+        jac, a_lin = _joint_design(lin, b_ned, x, uf)
+        res = y - a_lin @ lin
+        wts, wts3 = _huber(res.reshape(-1, 3))
+        g = _gauge(lin, b_ned)
+        ata = (jac * wts3[:, None]).T @ jac
+        step = np.linalg.solve(ata + np.trace(ata) / len(g) * np.outer(g, g), (jac * wts3[:, None]).T @ res)
+        lin, b_ned = _det_one(lin + step[:-3], b_ned + step[-3:])
+        if np.max(np.abs(step)) < 1e-9 * (1.0 + np.max(np.abs(lin))):
+            break
+    return _unknown_solve(m, x, uf, lin, b_ned)
+
+
+def _unknown_solve(m, x, uf: UnknownField, lin, b_ned) -> Solve | FitFailure:
+    """The Solve at a converged (A, b, K, B): σ from the joint normal matrix (the gauge removed:
+    b, K and B's direction do not depend on it)."""
+    jac, a_lin = _joint_design(lin, b_ned, x, uf)
+    y = m.reshape(-1)
+    res = (y - a_lin @ lin).reshape(-1, 3)
+    _, wts3 = _huber(res)
+    ata = (jac * wts3[:, None]).T @ jac
+    g = _gauge(lin, b_ned)
+    if _conditioning(ata + np.trace(ata) / len(g) * np.outer(g, g)) > 1e10:
+        return FitFailure("ill_conditioned", "the attitude turned too little to pin the calibration and an unknown "
+                                             "Earth field together")
+    infl = _inflation(res)
+    sigma = float(np.sqrt(np.sum(wts3 * res.reshape(-1) ** 2) / max(1, len(y) - jac.shape[1] + 1)))
+    cov = np.linalg.pinv(ata, hermitian=True) * sigma**2 * infl
+    inv_w = _w_from(lin[:6])
+    if np.any(np.linalg.eigvalsh(inv_w) <= 0):
+        return FitFailure("not_positive_definite", "the fitted soft iron is not positive definite")
+    return Solve(np.linalg.inv(inv_w), lin[6:9], lin[9:].reshape(-1, 3), cov[6:-3, 6:-3], sigma, infl, "vector",
+                 earth_ned_ut=b_ned, cov_earth=cov[-3:, -3:])
+
+
 def _unpack(p, full_w: bool, nterms: int):
     w = _w_from(p[:6]) if full_w else np.eye(3) * p[0]
     o = 6 if full_w else 1
@@ -167,12 +277,16 @@ def solve_magnitude(m, x, field_ut: float, full_w: bool = True) -> Solve | FitFa
 def residuals(s: Solve, m, x, expected=None, field_ut=None) -> tuple[np.ndarray | None, np.ndarray]:
     """(vector residual (n, 3) or None, magnitude residual (n,)) of a solve on samples."""
     h = (m - s.b - x @ s.k) @ s.w.T
+    if isinstance(expected, UnknownField):
+        expected = expected.body(s.earth_ned_ut)
     vec = None if expected is None else h - expected
     f = np.linalg.norm(expected, axis=1) if expected is not None else field_ut
     return vec, np.linalg.norm(h, axis=1) - f
 
 
 def _solve(m, x, expected, field_ut):
+    if isinstance(expected, UnknownField):
+        return solve_unknown_field(m, x, expected)
     if expected is not None:
         return solve_vector(m, x, expected)
     return solve_magnitude(m, x, field_ut)
@@ -211,6 +325,7 @@ class VectorFit:
     n_used: int
     autocorrelation_factor: float
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    earth_field: dict | None = None  # unknown-field mode: ``earth_field_summary``
 
     def __bool__(self) -> bool:
         return True
@@ -231,6 +346,7 @@ class VectorFit:
             "rms_ut": self.rms_ut,
             "n_used": self.n_used,
             "warnings": list(self.warnings),
+            **({"earth_field": self.earth_field} if self.earth_field else {}),
         }
 
 
@@ -296,20 +412,22 @@ def _judge(names, j, cols, m, exp, f, blocks, ho, base_key) -> tuple[dict, Solve
 def fit_vector(field_ut, channels: dict, expected_ut=None, earth_field_ut: float | None = None,
                term: str | None = "auto", blocks: int = 5, step: bool = True) -> VectorFit | FitFailure:
     """Fit (m, channels) against ``expected_ut`` (n, 3) — or |m| against ``earth_field_ut`` when
-    there is no expected vector. ``term``: "auto" (current, else throttle), None, or a channel.
+    there is no expected vector; an :class:`UnknownField` (the attitude, no position) fits the
+    Earth-frame field too. ``term``: "auto" (current, else throttle), None, or a channel.
     A motors-running step is judged first as a nuisance term, so that the current term is
     pinned by how the field follows the current, not by the jump between ground and air
     (``step=False`` leaves the step out, as tools with only a linear term do)."""
     m = np.asarray(field_ut, np.float64)
     ok = np.all(np.isfinite(m), axis=1)
+    unknown = isinstance(expected_ut, UnknownField)
     if expected_ut is not None:
-        ok &= np.all(np.isfinite(expected_ut), axis=1)
+        ok &= np.all(np.isfinite(expected_ut.r_nb if unknown else expected_ut).reshape(len(m), -1), axis=1)
     if ok.sum() < MIN_SAMPLES:
         return FitFailure("too_few_samples", f"{int(ok.sum())} usable samples, at least {MIN_SAMPLES} needed")
     name = choose_term(channels) if term == "auto" else term
     if name is not None and name not in channels:
         return FitFailure("no_channel", f"no channel {name!r} to fit an interference term to")
-    m, exp = m[ok], None if expected_ut is None else np.asarray(expected_ut, np.float64)[ok]
+    m, exp = m[ok], None if expected_ut is None else (expected_ut if unknown else np.asarray(expected_ut, np.float64))[ok]
     cols = {k: np.asarray(v, np.float64)[ok] for k, v in channels.items() if k == name}
     step = motors_on({k: np.asarray(v)[ok] for k, v in channels.items()}) if step else None
     if step is not None and name != "throttle":
@@ -334,6 +452,8 @@ def fit_vector(field_ut, channels: dict, expected_ut=None, earth_field_ut: float
 
 
 def _result(s: Solve, names, terms, ho, m, x, exp, f) -> VectorFit:
+    if s.earth_ned_ut is not None:
+        f = float(np.linalg.norm(s.earth_ned_ut))  # det W = 1: the field as the sensor's mean gain reads it
     cal = Calibration(offset_ut=s.b, field_ut=f, soft_iron=s.w,
                       coef_ut_per_unit={n: s.k[j] for j, n in enumerate(names)}, reference={n: 0.0 for n in names})
     rv, rm = residuals(s, m, x, exp, f)
@@ -343,4 +463,28 @@ def _result(s: Solve, names, terms, ho, m, x, exp, f) -> VectorFit:
         warnings = ("the recording turned too little to fit soft iron from |m| alone: a sphere was fitted",)
     return VectorFit(mode=s.model, calibration=cal, sigma_offset_ut=np.sqrt(np.diag(s.cov_bk)[:3]), terms=terms,
                      heldout=ho, rms_ut=rms, n_used=len(m), autocorrelation_factor=float(s.inflation),
-                     warnings=warnings)
+                     warnings=warnings, earth_field=earth_field_summary(s))
+
+
+def _angles_deg(b_ned) -> np.ndarray:
+    """(inclination, heading-frame declination) of an NED vector, degrees."""
+    n, e, d = b_ned
+    return np.degrees([np.arctan2(d, np.hypot(n, e)), np.arctan2(e, n)])
+
+
+def earth_field_summary(s: Solve) -> dict | None:
+    """What an unknown-field fit found of the Earth's field and what it cannot say (None for a
+    fit against a known field). The angles are scale-free, so their σ (first order, numerical
+    gradient) do not depend on the det W = 1 convention; the size does, and is not stated."""
+    if s.earth_ned_ut is None:
+        return None
+    b, cov = np.asarray(s.earth_ned_ut, np.float64), np.asarray(s.cov_earth, np.float64)
+    eps = 1e-6 * np.linalg.norm(b)
+    grad = np.column_stack([(_angles_deg(b + eps * e) - _angles_deg(b - eps * e)) / (2 * eps) for e in np.eye(3)])
+    inc, dec = _angles_deg(b)
+    s_inc, s_dec = np.sqrt(np.clip(np.diag(grad @ cov @ grad.T), 0.0, None))
+    return {"format": EARTH_FIELD_FORMAT, "mode": "unknown_constant", "ned_ut": [float(v) for v in b],
+            "size_ut": float(np.linalg.norm(b)), "size_determined": False,
+            "inclination_deg": float(inc), "sigma_inclination_deg": float(s_inc),
+            "heading_frame_declination_deg": float(dec), "sigma_heading_frame_declination_deg": float(s_dec),
+            "declination_determined": False}

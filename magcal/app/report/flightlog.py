@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..flightlog import UNIT, moved_in_calibration
+from ..flightlog import UNIT, against_text, earth_field_text, moved_in_calibration
 from .page import esc
 from .section import AFTER_LINE, RAW, Figure, Section, save, wrap
 from .views import thin, time_unit
@@ -40,12 +40,13 @@ def terms_html(log: dict) -> str:
     rows = "".join(_term_row(t) for t in log.get("terms", []))
     h = log["heldout_ut"]
     what = h["measure"].split("_")[1]
-    against = (f"the expected field vector ({esc(str(log['earth_model']))}, {log['earth_field_ut']:.2f} µT, and the "
-               "log's attitude)" if log["mode"] == "vector" else "the Earth model's |B| (the log has no attitude)")
+    against = esc(against_text(log["mode"], log.get("earth_field"), log["earth_model"], log["earth_field_ut"]))
+    unknown = earth_field_text(log.get("earth_field"))
     return (f"<p>Each term is judged against {against} on {log['heldout']['blocks']} held-out time blocks — what |m| "
             f"alone cannot test — and kept only when the held-out {what} residual falls and it stands above its "
             f"floor. Held-out {what} residual: {h['none']:.3f} µT without terms, {h['chosen']:.3f} µT with "
-            f"{esc(log['heldout']['chosen'])}.</p><table>{head}{rows}</table>")
+            f"{esc(log['heldout']['chosen'])}.</p>" + (f"<p>{esc(unknown[0].upper() + unknown[1:])}.</p>" if unknown else "")
+            + f"<table>{head}{rows}</table>")
 
 
 def _axis_panel(ax, t, tr: dict, i: int, label: str) -> None:
@@ -53,7 +54,7 @@ def _axis_panel(ax, t, tr: dict, i: int, label: str) -> None:
     ax.plot(t[sel], tr["without_terms_ut"][sel, i], ".", ms=1.5, color=RAW, alpha=0.4,
             label="measured, calibrated without the terms")
     ax.plot(t[sel], tr["calibrated_ut"][sel, i], "-", lw=0.9, color=AFTER_LINE, label="measured, calibrated")
-    ax.plot(t[sel], tr["expected_ut"][sel, i], "-", lw=1.4, color="black", label="expected (attitude + Earth model)")
+    ax.plot(t[sel], tr["expected_ut"][sel, i], "-", lw=1.4, color="black", label=f"expected ({tr.get('expected_from', 'attitude + Earth model')})")
     ax.set_ylabel(f"{label} (µT, body)")
 
 

@@ -1,0 +1,103 @@
+"""A flight log without a position fix: the fit against an Earth field unknown but constant, from
+the log's own attitude (``fit.vector.UnknownField``, ``app.flightlog``).
+
+The shipped logs have a GPS fix; taking it away (the log read, its position dropped) gives the
+GPS-less log a user would bring, whose positioned fit is the reference: the same samples, the
+same attitude, the field from the World Magnetic Model."""
+
+import os
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from logs_extra import need
+
+DATA = os.path.join(os.path.dirname(__file__), "data")
+BIN = os.path.join(DATA, "ardupilot_log171_excerpt.bin")
+ULG = os.path.join(DATA, "px4_esc_status_excerpt.ulg")
+
+
+@pytest.fixture(autouse=True)
+def _logs_extra():
+    need("pymavlink", "pyulog", "pygeomag")
+
+
+def _both(path, mag):
+    """(the log's magnetometer with its position, the same without one)."""
+    from magcal.recordings.logs import read_log, select
+
+    log = read_log(path)
+    return select(log, mag), select(replace(log, position=None), mag)
+
+
+def test_without_a_position_the_offset_agrees_with_the_positioned_fit_and_the_size_is_not_claimed():
+    from magcal.app.flightlog import attitude_rotations, fit_flight_log
+
+    with_pos, without = _both(BIN, 2)  # MAG3: the motors step and a current term kept
+    ref, ok_ref = fit_flight_log(with_pos)
+    d, ok = fit_flight_log(without)
+    assert ok and ok_ref
+    ef = d["earth_field"]
+    assert ef["format"] == "magcal.earth_field/1" and ef["mode"] == "unknown_constant"
+    assert ref["earth_field"]["mode"] == "model"
+    assert not ef["size_determined"] and not ef["declination_determined"]
+    assert {"field_size", "declination"} <= set(ef["not_determined"]) and d["uncertainty"]["field_ut"] is None
+    assert d["model"] == ref["model"] == "vector+motors_on+current_a"
+    delta = np.subtract(d["calibration"]["offset_ut"], ref["calibration"]["offset_ut"])
+    assert np.all(np.abs(delta) <= 2.0 * np.array(d["uncertainty"]["offset_ut"])), delta
+    # the inclination is pinned by the attitude's tilt: the World Magnetic Model's at the log's place
+    ned = np.einsum("nij,nj->ni", attitude_rotations(with_pos), with_pos.earth_body_ut[with_pos.series.valid])
+    n, e, down = np.median(ned, axis=0)
+    wmm_inc = np.degrees(np.arctan2(down, np.hypot(n, e)))
+    assert abs(ef["inclination_deg"] - wmm_inc) <= 3 * ef["sigma_inclination_deg"]
+
+
+def test_the_terminal_and_the_report_say_what_an_unknown_field_cannot_determine():
+    from magcal.app.flightlog import diagnose_flight_log, fit_flight_log
+    from magcal.app.report.flightlog import terms_html
+    from magcal.cli.fitlog import format_log_diagnosis, format_log_text
+
+    _, without = _both(ULG, 0)
+    d, ok = fit_flight_log(without)
+    assert ok
+    text = format_log_text(d)
+    assert "unknown but constant" in text and "Not determined: the field's size" in text
+    diag = diagnose_flight_log(without)
+    assert diag["earth_field"]["mode"] == "unknown_constant"
+    for words in (format_log_diagnosis(diag), terms_html(diag)):
+        assert "no position fix" in words and "declination" in words and "inclination" in words
+
+
+def test_without_attitude_either_the_fit_says_it_used_the_magnitude_alone():
+    from magcal.app.flightlog import fit_flight_log
+    from magcal.recordings.logs import read_log, select
+
+    log = read_log(ULG)
+    d, ok = fit_flight_log(select(replace(log, position=None, attitude=None), 0))
+    assert d["earth_field"]["mode"] == "magnitude_only"
+    assert not ok or d["mode"].startswith("magnitude")
+
+
+def test_a_constant_heading_error_moves_the_declination_and_nothing_else():
+    """A heading that came from the magnetometer is off by whatever the autopilot assumed: turning
+    every attitude by one yaw angle leaves the calibration unchanged and moves only the fitted
+    declination, by that angle — which is why it is not a measurement."""
+    from magcal.fit.vector import UnknownField, fit_vector
+
+    rng = np.random.default_rng(3)
+    r_nb = Rotation.from_euler("zyx", np.column_stack([rng.uniform(-180, 180, 400), rng.normal(0, 20, 400),
+                                                       rng.normal(0, 20, 400)]), degrees=True).as_matrix()
+    b_ned, offset = np.array([20.0, 3.0, 45.0]), np.array([12.0, -7.0, 4.0])
+    a = np.array([[1.05, 0.02, 0.0], [0.02, 0.97, 0.01], [0.0, 0.01, 0.99]])
+    m = np.einsum("ij,nkj,k->ni", a, r_nb, b_ned) + offset + rng.normal(0, 0.3, (400, 3))
+    turn = Rotation.from_euler("z", 15, degrees=True).as_matrix()
+    fits = [fit_vector(m, {}, UnknownField(r), None, term=None) for r in (r_nb, turn @ r_nb)]
+    assert all(fits)
+    for f in fits:
+        assert np.all(np.abs(f.calibration.offset_ut - offset) <= 3 * f.sigma_offset_ut + 1e-9)
+    np.testing.assert_allclose(fits[0].calibration.offset_ut, fits[1].calibration.offset_ut, atol=1e-6)
+    dec = [f.earth_field["heading_frame_declination_deg"] for f in fits]
+    assert dec[1] - dec[0] == pytest.approx(15.0, abs=1e-4)
+    assert fits[0].earth_field["inclination_deg"] == pytest.approx(np.degrees(np.arctan2(45.0, np.hypot(20, 3))), abs=0.5)
