@@ -289,7 +289,7 @@ def _write_report(args, diagnosis, d: dict, flight_log) -> None:
         from ..app.flightlog import vector_traces
         from ..app.report.flightlog import flight_log_section
 
-        traces = vector_traces(flight_log, d["calibration"])
+        traces = vector_traces(flight_log, d["calibration"], d["flight_log"].get("earth_field"))
         if diagnosis is None:  # |m| alone not diagnosed: the page of the flight-log fit alone
             write_log_report(d, traces, args.report, title=str(args.file))
             return
