@@ -27,7 +27,7 @@
 
 #include "sphere_fit.h"
 
-#define FW_VERSION "0.1.0"
+#define FW_VERSION "0.2.0" // 0.2: the MPU-9250/9255 and ICM-20948; the hello states bits
 #define PROTO_VERSION 1
 
 #ifndef AK8963_BITS
