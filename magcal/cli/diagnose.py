@@ -267,8 +267,9 @@ def take_log_calibration(d: dict) -> None:
     d["calibration_from"] = "flight_log"
     d["calibration_model"] = log["model"]
     if own is not None:
-        against = ("against the expected field vector (the log's attitude and the Earth model)" if log["mode"] == "vector"
-                   else "against the Earth model's |B|")
+        from ..app.flightlog import against_text
+
+        against = "against " + against_text(log["mode"], log.get("earth_field"), log["earth_model"], log["earth_field_ut"])
         d["alternatives"] = [*d.get("alternatives", []), {
             "name": "magnitude",
             "model": d["final"]["model"],
