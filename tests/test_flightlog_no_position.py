@@ -101,3 +101,21 @@ def test_a_constant_heading_error_moves_the_declination_and_nothing_else():
     dec = [f.earth_field["heading_frame_declination_deg"] for f in fits]
     assert dec[1] - dec[0] == pytest.approx(15.0, abs=1e-4)
     assert fits[0].earth_field["inclination_deg"] == pytest.approx(np.degrees(np.arctan2(45.0, np.hypot(20, 3))), abs=0.5)
+
+
+def test_magcal_fit_on_a_ulog_written_without_its_gps_topic(tmp_path):
+    """As a user brings it: a PX4 log with no GPS topic at all, through ``magcal fit --json``."""
+    import json
+    import subprocess
+    import sys
+
+    from pyulog import ULog
+
+    topics = sorted({d.name for d in ULog(ULG).data_list if "gps" not in d.name})
+    path = str(tmp_path / "indoor.ulg")
+    ULog(ULG, topics).write_ulog(path)
+    r = subprocess.run([sys.executable, "-m", "magcal", "fit", path, "--json"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    fit = json.loads(r.stdout)["fits"][0]
+    assert fit["earth_field"]["mode"] == "unknown_constant" and fit["mode"] == "vector"
+    assert fit["log"]["earth_model"] is None
