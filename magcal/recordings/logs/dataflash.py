@@ -299,4 +299,19 @@ def read(path: str, head: bytes) -> FlightLog:
     firmware = next((t for t in texts if re.search(r"(Copter|Plane|Rover|Sub|Tracker|Blimp|APM:)", t)), "ArduPilot")
     return FlightLog(path=path, autopilot="ardupilot", firmware=firmware, mags=infos, mag_fields=fields,
                      field_unit_ut=0.1, channels=channels, attitude=_attitude(rows, params), position=position,
-                     decimal_year=year, params=params, extra=extra, warnings=tuple(warnings))
+                     decimal_year=year, params=params, extra=extra, warnings=tuple(warnings),
+                     vehicle_id=_vehicle_id(texts, params))
+
+
+# ArduPilot writes the board's name and its 96-bit unique id at boot: "CubeOrange 003A0030 3138510B 37343536"
+_BOARD_ID = re.compile(r"^(\S+) ([0-9A-Fa-f]{8} [0-9A-Fa-f]{8} [0-9A-Fa-f]{8})$")
+
+
+def _vehicle_id(texts: list[str], params: dict[str, float]) -> str | None:
+    """The board's unique id from its boot line, else a set BRD_SERIAL_NUM; None without either."""
+    for t in texts:
+        m = _BOARD_ID.match(t.strip())
+        if m:
+            return f"{m.group(1)} {m.group(2)}"
+    serial = params.get("BRD_SERIAL_NUM")
+    return f"BRD_SERIAL_NUM {int(serial)}" if serial else None

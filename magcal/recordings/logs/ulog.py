@@ -215,4 +215,5 @@ def read(path: str) -> FlightLog:
         extra["power_throttle"] = thr
     return FlightLog(path=path, autopilot="px4", firmware=firmware, mags=infos, mag_fields=fields,
                      field_unit_ut=100.0, channels=_channels(topics), attitude=_attitude(topics),
-                     position=position, decimal_year=year, params=params, extra=extra, warnings=tuple(warnings))
+                     position=position, decimal_year=year, params=params, extra=extra, warnings=tuple(warnings),
+                     vehicle_id=str(info.get("sys_uuid", "")).strip() or None)

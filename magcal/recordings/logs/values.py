@@ -85,6 +85,9 @@ class FlightLog:
     params: Mapping[str, float]
     extra: Mapping[str, Stream] = field(default_factory=dict)  # what undoing a calibration needs
     warnings: tuple[str, ...] = ()
+    # the vehicle as the log names it: PX4's sys_uuid, ArduPilot's board id (the MSG line of the
+    # board name and its 96-bit unique id) or BRD_SERIAL_NUM; None when the log names none
+    vehicle_id: str | None = None
 
 
 @dataclass(frozen=True)
