@@ -147,6 +147,11 @@ class Keeper:
             f"RMS {cmp.rms_other_pct:.3f} % → {cmp.rms_ours_pct:.3f} %, z = {cmp.z:.1f}")
         return Decision(True, reason, est.calibration, cmp, gates, msg)
 
+    def affords(self, now_s: float) -> bool:
+        """Is a write within the budget now?"""
+        self._refill(now_s)
+        return self.tokens >= 1.0
+
     def spent(self, now_s: float, cycles: int, verified: bool) -> None:
         """A write was made (``cycles``: EEPROM writes it took, 2 when the old record was put back)."""
         self._refill(now_s)
@@ -156,6 +161,24 @@ class Keeper:
             self.writes += 1
         else:
             self.failed += 1
+
+    def charge_history(self, spent_at_s, writes: int, failed: int) -> None:
+        """The budget as the write ledger says it was spent (``app.daemon.ledger``): every EEPROM
+        command one cycle at its time, the bucket full before the first. The ledger is made
+        durable before each command, so it knows every write a state file saved earlier may have
+        missed: the fewer tokens of the two stand, and its counts are the counts."""
+        times = sorted(float(t) for t in spent_at_s)
+        if not times:
+            return
+        rate = self.budget.per_day / DAY_S
+        tokens, at = float(self.budget.burst), times[0]
+        for t in times:
+            tokens = min(float(self.budget.burst), tokens + max(t - at, 0.0) * rate) - 1.0
+            at = t
+        ref = max(at, self.refilled_s)
+        self._refill(ref)
+        self.tokens = min(self.tokens, min(float(self.budget.burst), tokens + (ref - at) * rate))
+        self.cycles, self.writes, self.failed = len(times), int(writes), int(failed)
 
     def status(self) -> dict:
         return {"writes": self.writes, "failed": self.failed, "eeprom_cycles": self.cycles,

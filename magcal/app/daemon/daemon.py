@@ -33,6 +33,7 @@ from .control import ControlSocket
 from .drift import DriftWatcher
 from .intake import Intake, Take
 from .journal import Decision, Journal
+from .ledger import WriteLedger
 from .persistence import STATE_KIND, Saved, StateDirLock, StateKeeper
 from .recalibrator import CalibrationWriter, Recalibrator
 from .recorder import RollingCapture
@@ -99,7 +100,7 @@ class Parts:
                    drift=DriftWatcher(settings.daemon, journal, faults),
                    recalibrator=Recalibrator(settings, journal, faults),
                    writer=CalibrationWriter(journal, faults, c.wall),
-                   tracking=TrackingDecider(settings, journal, faults, c.wall),
+                   tracking=TrackingDecider(settings, journal, faults, c.wall, WriteLedger(state_dir, c.wall)),
                    keeper=StateKeeper(state_dir, journal, faults, c.clock),
                    control=ControlSocket(state_dir, journal))
 
@@ -143,6 +144,8 @@ class Daemon:
     def run(self) -> int:
         with StateDirLock(self.state_dir):
             self.resume()
+            if self.tracking.open_ledger():
+                self.save()  # the state says at once what the ledger says was spent
             if self.settings.daemon.socket:
                 self.control.open()
             self.capture.open(self.settings)
@@ -178,6 +181,7 @@ class Daemon:
         self.save(final=True)
         self.capture.close()
         self.control.close()
+        self.tracking.close_ledger()
 
     def step(self) -> None:
         """One read and everything it leads to."""
@@ -277,12 +281,24 @@ class Daemon:
             stored = self.tracking.keep(self.link.device, self.drift.calibration, self._may_write(), self.writer)
         else:
             session = self.recalibrator.poll(self._may_write(), self.drift.wants_calibration)
-            stored = None if session is None else self.writer.write(self.link.device, session)
-            if session is not None and stored is None:
-                self.writer.recheck(self.link.device, self.drift.calibration)
+            stored = None if session is None else self._write(session)
         if stored is not None:
             self.drift.watch(stored, Decision.NEW_CALIBRATION)
             self.save()
+
+    def _write(self, session: Session):
+        """The recalibrator's solved session, written within the EEPROM budget, every command
+        recorded in the write ledger first."""
+        if not self.tracking.may_spend():
+            self.faults["write_budget_waits"] += 1
+            self.journal.record(Decision.BUDGET_WAIT, budget_per_day=self.settings.daemon.write_budget_per_day)
+            return None
+        ledgered = self.tracking.ledgered(self.link.device)
+        stored = self.writer.write(ledgered, session)
+        self.tracking.charge(ledgered, stored is not None)
+        if stored is None:
+            self.writer.recheck(self.link.device, self.drift.calibration)
+        return stored
 
     # -- config reload ----------------------------------------------------------------------------------
     def reload(self) -> None:

@@ -47,6 +47,9 @@ refused               warning  recalibration refused
 written               info     calibration written and verified by read-back
 keeping               info     the tracker's calibration is better than the device's: writing
 not_written           error    calibration NOT written
+budget_wait           info     EEPROM write budget spent for now; not written
+write_interrupted     warning  a write was interrupted (the process was killed); counted as spent
+ledger_unavailable    error    the write ledger cannot be opened; nothing will be written
 record_unreadable     warning  could not re-read the device's calibration
 record_unverified     error    the device holds a record this daemon did not verify; monitoring the verified one
 reloaded              info     config reloaded

@@ -7,7 +7,9 @@ write over the one the device verifiably holds: significantly better, every gate
 (``procedure.write_verified``: echo, read-back, the previous record put back on a mismatch) and
 every EEPROM cycle it took is charged to the budget. When the drift monitor rings (the field
 changed at once: a payload, a magnet) the tracker starts afresh, since what it remembers
-belongs to the old field. Nothing here reads or writes files.
+belongs to the old field. Every EEPROM command goes through the write-ahead ledger
+(``ledger.WriteLedger``, its one file) and the budget is charged from it: at start from what it
+holds, a write a killed process left unresolved counted as spent.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from collections import Counter
 from typing import Callable
 
 from ...core.calibration import Calibration
+from ...core.errors import StateError
 from ...devices.base import Device
 from ...fit.accumulator import SphereAccumulator
 from ...logic import failures
@@ -24,13 +27,17 @@ from ...logic.gates import Clearance, Evidence, clear_for_write
 from ...logic.keeper import Budget, Keeper, Reason
 from ..procedure import write_verified
 from .journal import Decision, Journal
+from .ledger import LedgeredDevice, WriteLedger
 
 READY_EVERY = 100  # samples between decisions
 
 
 class TrackingDecider:
-    def __init__(self, settings, journal: Journal, faults: Counter, wall: Callable[[], float]):
+    def __init__(self, settings, journal: Journal, faults: Counter, wall: Callable[[], float],
+                 ledger: WriteLedger | None = None):
         self._journal, self._faults, self._wall = journal, faults, wall
+        self.ledger = ledger
+        self.ledger_open = False
         self.settings = settings
         self.keeper = self._new_keeper(settings)
         self._since = 0
@@ -71,7 +78,7 @@ class TrackingDecider:
         """Every ``READY_EVERY`` samples, when writing is allowed: write the tracker's calibration
         if the keeper says so and the gates clear it. What the device then verifiably holds, or
         None when nothing was written."""
-        if self._since < READY_EVERY or not may_write or device is None:
+        if self._since < READY_EVERY or not may_write or device is None or not self.ledger_open:
             return None
         self._since = 0
         now = self._wall()
@@ -87,10 +94,11 @@ class TrackingDecider:
                                  message=clearance.summary())
             return None
         self._journal.record(Decision.KEEPING, reason=decision.reason.value, message=decision.message)
-        result = write_verified(device, decision.calibration, clearance)
-        # a write command may have reached the EEPROM even when it failed; putting the old record
-        # back, or erasing the failed one, is another
-        self.keeper.spent(now, 1 + int(bool(result.restored) or result.discarded), result.verified)
+        ledgered = self.ledgered(device)
+        result = write_verified(ledgered, decision.calibration, clearance)
+        # every command that may have reached the EEPROM is charged: the write, and putting the
+        # old record back or erasing the failed one
+        self.charge(ledgered, result.verified, now)
         if result.verified:
             return result.stored
         failure = result.failure or failures.WRITE_FAILED
@@ -98,6 +106,43 @@ class TrackingDecider:
         self._journal.record(Decision.NOT_WRITTEN, **failure.to_dict(), message=result.message,
                              previous_restored=result.restored)
         return None
+
+    def open_ledger(self) -> bool:
+        """At start, once the state is resumed: the budget as the ledger says it was spent (an
+        unresolved write counted). A ledger that cannot be opened is said once; nothing is then
+        written, since nothing written could be counted."""
+        if self.ledger is None:
+            return False
+        try:
+            history = self.ledger.open()
+        except StateError as exc:
+            self._faults["ledger_unavailable"] += 1
+            self._journal.record(Decision.LEDGER_UNAVAILABLE, error=str(exc))
+            return False
+        self.ledger_open = True
+        self.keeper.charge_history(history.spent_at_s, history.verified, history.failed)
+        if history.unresolved:
+            self._journal.record(Decision.WRITE_INTERRUPTED, operations=len(history.unresolved),
+                                 eeprom_cycles=history.cycles)
+        return history.cycles > 0
+
+    def close_ledger(self) -> None:
+        if self.ledger is not None:
+            self.ledger.close()
+        self.ledger_open = False
+
+    def may_spend(self) -> bool:
+        """May another decider write now (the ledger open, a token in the budget)?"""
+        return self.ledger_open and self.keeper.affords(self._wall())
+
+    def ledgered(self, device: Device) -> LedgeredDevice:
+        """``device`` with every EEPROM command recorded in the ledger before it is sent."""
+        return LedgeredDevice(device, self.ledger)
+
+    def charge(self, ledgered: LedgeredDevice, verified: bool, now: float | None = None) -> None:
+        """The write is over: resolved in the ledger, its commands charged to the budget."""
+        cycles = ledgered.resolve(verified)
+        self.keeper.spent(self._wall() if now is None else now, cycles, verified)
 
     def keep(self, device: Device | None, held: Calibration | None, may_write: bool, writer) -> Calibration | None:
         """``poll``, and what was written recorded on the daemon's ``writer`` (``record_on``)."""
