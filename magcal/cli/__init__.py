@@ -36,6 +36,7 @@ COMMANDS = {
     "run": "keep a device calibrated: stream, reconnect, monitor drift, recalibrate when allowed",
     "status": "report a daemon's live state: samples, coverage, last calibration, faults",
     "simulate": "write a simulated MPU-9150 recording (CSV, µT) with known physics",
+    "fleet": "analyse every log of a fleet (pool or Dask cluster): each compass's history and where it changed",
 }
 
 DESCRIPTION = "Calibrate the MPU-9150's magnetometer: stream, fit, diagnose, write back, verify."
