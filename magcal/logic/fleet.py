@@ -44,7 +44,7 @@ class ChangeKind(Enum):
 
 class Quantity(Enum):
     OFFSET = "offset_ut"
-    CURRENT = "current_a_ut_per_a"
+    CURRENT = "current_a_ut_per_unit"
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,8 @@ class Flight:
         t = row.get("flight_year")
         return cls(file=row["path"], time=None if t is None or not np.isfinite(t) else float(t),
                    offset_ut=vec("offset_ut"), sigma_offset_ut=vec("sigma_offset_ut"),
-                   current_ut_per_a=vec("current_a_ut_per_a"), sigma_current_ut_per_a=vec("sigma_current_a_ut_per_a"))
+                   current_ut_per_a=vec("current_a_ut_per_unit"),
+                   sigma_current_ut_per_a=vec("sigma_current_a_ut_per_unit"))
 
     def value(self, q: Quantity) -> tuple[np.ndarray, np.ndarray] | None:
         x, s = ((self.offset_ut, self.sigma_offset_ut) if q is Quantity.OFFSET

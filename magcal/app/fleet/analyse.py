@@ -90,6 +90,8 @@ def _log_rows(task: dict, log) -> list[dict]:
         base.update(vehicle=log.vehicle_id, vehicle_from="log")
     base.update(autopilot=log.autopilot, firmware=log.firmware, flight_year=log.decimal_year,
                 flight_time_utc=year_to_utc(log.decimal_year))
+    if not log.mags:
+        return [_failed(base, "no_magnetometer", f"{task['path']}: the log holds no magnetometer messages")]
     return [_mag_row(task, base, log, i, select, fit_flight_log) for i in _mags_wanted(task, log)]
 
 

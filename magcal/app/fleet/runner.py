@@ -12,6 +12,7 @@ have magcal installed at the same version.
 from __future__ import annotations
 
 import os
+from itertools import islice
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, as_completed, wait
 from typing import Callable, Iterable
 
@@ -63,15 +64,15 @@ def run_dask(tasks: list[dict], on_result: Callable[[dict], None], scheduler: st
     in flight (default: 2 × the cluster's worker threads) so the client holds a bounded number
     of results whatever the fleet's size."""
     Client, as_completed = _dask()
-    with Client(scheduler, set_as_default=False) as client:
+    with Client(scheduler) as client:
         threads = sum(client.nthreads().values()) or 1
         window = window or 2 * threads
         it = iter(tasks)
-        first = [client.submit(analyse, t, pure=False) for t, _ in zip(it, range(window))]
+        first = [client.submit(analyse, t, pure=False) for t in islice(it, window)]
         ac = as_completed(first)
         for fut in ac:
             on_result(fut.result())
-            fut.release()
+            del fut  # the cluster forgets a result the client no longer holds
             nxt = next(it, None)
             if nxt is not None:
                 ac.add(client.submit(analyse, nxt, pure=False))
