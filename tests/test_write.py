@@ -13,6 +13,10 @@ from magcal.recordings.table import save_csv
 from magcal.sim.physics import Temperature
 
 
+# what a fit result says of the data behind its calibration: every gate judged, every one passed
+EVIDENCE = {"samples": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}
+
+
 def run_cli(capsys, *argv):
     code = main(list(argv))
     out, err = capsys.readouterr()
@@ -21,7 +25,7 @@ def run_cli(capsys, *argv):
 
 def test_a_fit_from_a_recording_is_written_and_read_back(tmp_path, capsys):
     rec = tmp_path / "rec.cap"
-    assert run_cli(capsys, "record", "--port", "sim://?pace=0&seed=4", "-o", str(rec), "--count", "1500")[0] == 0
+    assert run_cli(capsys, "record", "--port", "sim://?pace=0&seed=4", "-o", str(rec), "--count", "2500")[0] == 0
     code, out, _ = run_cli(capsys, "fit", str(rec), "--json")
     assert code == 0
     fit_json = tmp_path / "fit.json"
@@ -58,10 +62,10 @@ def test_a_diagnosed_temperature_term_is_written_and_a_time_drift_is_named_and_l
 def test_a_write_the_device_garbles_is_not_reported_and_the_old_one_is_put_back(tmp_path, capsys):
     eeprom = f"{tmp_path}/e.bin"
     good = tmp_path / "good.json"
-    good.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0}))
+    good.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "evidence": EVIDENCE}))
     assert run_cli(capsys, "write", str(good), "--port", f"sim://?pace=0&eeprom={eeprom}")[0] == 0
     new = tmp_path / "new.json"
-    new.write_text(json.dumps({"offset_ut": [10, 20, 30], "field_ut": 50.0}))
+    new.write_text(json.dumps({"offset_ut": [10, 20, 30], "field_ut": 50.0, "evidence": EVIDENCE}))
     code, out, _ = run_cli(capsys, "write", str(new), "--port", f"sim://?pace=0&eeprom={eeprom}&fault=corrupt_write", "--json")
     r = json.loads(out)
     assert code == 4 and not r["written"] and not r["verified"] and r["restored_previous"] is True
@@ -118,7 +122,7 @@ def test_a_recording_cannot_be_written_to(tmp_path, capsys):
     rec = tmp_path / "rec.cap"
     assert run_cli(capsys, "record", "--port", "sim://?pace=0&seed=4", "-o", str(rec), "--count", "50")[0] == 0
     src = tmp_path / "cal.json"
-    src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0}))
+    src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "evidence": EVIDENCE}))
     code, _, err = run_cli(capsys, "write", str(src), "--port", f"replay://{rec}")
     assert code == 4 and "read-only" in err
 
@@ -130,7 +134,7 @@ def test_the_real_firmware_stores_a_diagnosed_temperature_term(tmp_path, capsys)
     src = tmp_path / "cal.json"
     cal = {"offset_ut": [23.5, -41.2, 12.8], "field_ut": 48.0, "soft_iron": [[1.01, 0.002, 0], [0.002, 0.99, 0], [0, 0, 1]],
            "coef_ut_per_unit": {"temp_c": [0.1, -0.05, 0.02]}, "reference": {"temp_c": 25.0}}
-    src.write_text(json.dumps({"calibration": cal}))
+    src.write_text(json.dumps({"calibration": cal, "evidence": EVIDENCE}))
     port = f"emu://?eeprom={tmp_path}/e.bin"
     code, out, _ = run_cli(capsys, "write", str(src), "--port", port, "--json")
     r = json.loads(out)
@@ -180,7 +184,8 @@ def test_a_fit_failing_its_gates_is_not_written_and_force_is_recorded(tmp_path, 
 
 def test_a_gate_read_from_the_configuration_applies_to_write(tmp_path, capsys):
     src = tmp_path / "cal.json"
-    src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "rms_ut": 3.0}))
+    src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "rms_ut": 3.0,
+                               "evidence": {k: v for k, v in EVIDENCE.items() if k != "rms_ut"}}))
     cfg = tmp_path / "c.yaml"
     cfg.write_text("gates:\n  max_rms_ut: 4.0\n")
     port = f"sim://?pace=0&eeprom={tmp_path}/e.bin"
@@ -198,7 +203,8 @@ def test_every_path_that_writes_needs_the_gates_clearance(tmp_path):
     bad = Calibration(offset_ut=np.array([5000.0, 0, 0]), field_ut=5.0)
     good = Calibration(offset_ut=np.array([1.0, 2, 3]), field_ut=48.0)
     refused = clear_for_write(Gates(), Evidence(tuple(bad.offset_ut), bad.field_ut))
-    cleared = clear_for_write(Gates(), Evidence(tuple(good.offset_ut), good.field_ut))
+    cleared = clear_for_write(Gates(), Evidence(tuple(good.offset_ut), good.field_ut, rms_ut=0.4,
+                                                offset_sigma_ut=(0.02,) * 3, samples=1000, coverage=0.8, condition=5.0))
     with open_device(f"sim://?pace=0&eeprom={tmp_path}/e.bin") as dev:
         dev.open()
         with pytest.raises(ValueError, match="gates did not clear"):

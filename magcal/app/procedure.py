@@ -59,6 +59,7 @@ class Outcome:
             "rate_hz": self.identity.rate_hz if self.identity and self.identity.rate_hz else None,
             "measured_rate_hz": round(n_in / self.collect_s, 2) if self.collect_s > 0 else None,
             "gates": [g.to_dict() for g in (s.final_gates if s.result else s.live_gates())],
+            "evidence": _evidence_dict(s.clearance.evidence) if s.clearance is not None else None,
             "written": self.written,
             "verified": self.verified,
             "restored_previous": self.restored,
@@ -72,6 +73,13 @@ class Outcome:
             out.update({k: d[k] for k in ("model", "calibration", "uncertainty", "rms_ut", "n_used", "outliers",
                                           "reason") if k in d})
         return out
+
+
+def _evidence_dict(ev) -> dict:
+    """What the gates judged, in the shape ``fit --json`` gives it (``fit.evidence``)."""
+    sigma = ev.offset_sigma_ut
+    return {"samples": ev.samples, "coverage": ev.coverage, "condition": ev.condition, "rms_ut": ev.rms_ut,
+            "offset_sigma_ut": None if sigma is None else [float(v) for v in sigma]}
 
 
 def _collect(device: Device, session: Session, settings: Settings, clock, on_progress) -> Failure | None:

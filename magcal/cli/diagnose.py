@@ -208,6 +208,7 @@ def run(args) -> int:
             d["flight_log"] = diagnose_flight_log(flight_log)
             take_log_calibration(d)
         d["warnings"] = list(notes) + (field_warning(d["calibration"]["field_ut"]) if "calibration" in d else [])
+        add_evidence(d, series, args.file)
         twin = _twin(args, series, d, diagnosis, ticker) if diagnosis else None
         if args.report and (diagnosis or d.get("calibration_from") == "flight_log"):
             ticker.doing(f"drawing the report in {args.report}")
@@ -229,6 +230,17 @@ def run(args) -> int:
                   file=sys.stderr)
             return Exit.INPUT
     return 0
+
+
+def add_evidence(d: dict, series, path) -> None:
+    """The recording, and what the write gates judge of the result's calibration on it
+    (``fit.evidence``), so that ``magcal write`` judges every gate."""
+    from ..fit.evidence import evidence
+
+    d["recording"] = str(path)
+    if "calibration" in d:
+        cal = d["calibration"]
+        d["evidence"] = evidence(series.field_ut, cal["offset_ut"], cal["field_ut"], cal.get("soft_iron"))
 
 
 def add_fit_alternative(d: dict, series) -> None:

@@ -105,6 +105,8 @@ def _fit_file(path: str, args, ticker) -> tuple[dict, int]:
         print(f"magcal fit: {path}: {result.reason}: {result.message}", file=sys.stderr)
         return result.to_dict(), Exit.GATE
     d = result.to_dict()
+    d["evidence"] = fit_evidence(series, result)
+    d["coverage"] = d["evidence"]["coverage"]
     d["n_samples"] = n_read
     d["outliers"] = [int(i) * every for i in d["outliers"]]  # indices into FILE's samples
     d["warnings"] = field_warning(d["calibration"]["field_ut"])
@@ -112,6 +114,15 @@ def _fit_file(path: str, args, ticker) -> tuple[dict, int]:
         d["input"] = series.source
     d["reading"] = reading
     return d, Exit.OK
+
+
+def fit_evidence(series, result) -> dict:
+    """What the write gates judge, on the samples the fit used (``fit.evidence``)."""
+    from ..fit.evidence import evidence
+
+    m = series.field_ut[result.used] if len(result.used) else series.field_ut
+    cal = result.calibration
+    return evidence(m, cal.offset_ut, cal.field_ut, cal.soft_iron)
 
 
 def format_comparison(a: str, b: str, c: dict) -> str:

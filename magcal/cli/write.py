@@ -14,12 +14,16 @@ device. A non-symmetric matrix (another tool's convention) is written as its sym
 factor √(AᵀA), which gives every field the same magnitude; the rotation it leaves out only turns
 the frame.
 
-Before anything is sent the calibration is judged by the same gates as ``calibrate`` and ``run``
-(``gates:`` in the configuration): its field radius and offset always, and the residual RMS,
-offset uncertainty and sample count when FILE carries them (a ``fit``/``diagnose``/``calibrate``
-result does; a bare calibration object does not, and the gates it cannot judge are named).
-A calibration that fails a gate is not written unless ``--force`` is given; a forced write says
-so on stderr and in the JSON (``"gates": {"forced": true, ...}``).
+Before anything is sent the calibration is judged by every gate ``calibrate`` and ``run`` judge
+(``gates:`` in the configuration): field radius and offset from the calibration itself; sample
+count, direction coverage, conditioning, residual RMS and offset uncertainty from the evidence
+FILE carries (``"evidence"`` in a ``fit``/``diagnose`` result, or the older keys ``rms_ut``,
+``n_used``, ``coverage``, ``uncertainty``). What FILE lacks is recomputed from the recording it
+names (``"file"`` of a fit, ``"recording"`` of a diagnosis: ``fit.evidence``, on the calibration
+being written). A gate that fails, or that can be judged neither way (a bare calibration object,
+a truncated result, a recording that is gone), refuses the write — exit 3, naming the gate —
+unless ``--force`` is given; a forced write says so on stderr and in the JSON
+(``"gates": {"forced": true, ...}``).
 
 Exit status: 0 written and verified; 3 refused by a gate (nothing sent); 4 refused,
 unacknowledged, read back different or a read-only device; 6 for a FILE that holds no
@@ -141,27 +145,76 @@ def _number(obj, key: str, name: str, n: int | None = None):
     return tuple(v.tolist()) if n else float(v)
 
 
-def evidence_from_json(obj, cal: Calibration, name: str = "<json>") -> Evidence:
-    """What a fit/diagnose/calibrate result says about its calibration, for the gates (pure).
-    A bare calibration object carries only the offset and the field; of several fits, the one
-    ``calibration_from_json`` takes (the last that fitted)."""
+def _result_of(obj) -> dict:
+    """The result whose calibration is written: of several fits the last that fitted (pure)."""
     top = obj if isinstance(obj, dict) else {}
     if isinstance(top.get("fits"), list):
         fitted = [f for f in top["fits"] if isinstance(f, dict) and isinstance(f.get("calibration"), dict)]
         top = fitted[-1] if fitted else {}
+    return top
+
+
+def _first(*values):
+    return next((v for v in values if v is not None), None)
+
+
+def evidence_from_json(obj, cal: Calibration, name: str = "<json>") -> Evidence:
+    """What a fit/diagnose/calibrate result says about its calibration, for the gates (pure).
+    A bare calibration object carries only the offset and the field; of several fits, the one
+    ``calibration_from_json`` takes (the last that fitted)."""
+    top = _result_of(obj)
+    ev = top.get("evidence") if isinstance(top.get("evidence"), dict) else {}
     if top.get("calibration_from") == "flight_log" and isinstance(top.get("flight_log"), dict):
         top = top["flight_log"]  # diagnose on a flight log: its calibration is the flight-log fit's
     quality = top.get("quality") if isinstance(top.get("quality"), dict) else {}
     final = top.get("final") if isinstance(top.get("final"), dict) else {}
-    rms = next((v for v in (_number(top, "rms_ut", name), _number(quality, "rms_ut", name),
-                            _number(final, "rms_ut", name)) if v is not None), None)
-    sigma = _number(top.get("uncertainty"), "offset_ut", name, 3)
-    samples = next((v for v in (_number(top, "n_used", name), _number(quality, "kept", name),
-                                _number(top, "n_samples", name)) if v is not None), None)
-    coverage = next((v for v in (_number(top, "coverage", name), _number(quality, "coverage", name))
-                     if v is not None), None)
+    rms = _first(_number(ev, "rms_ut", name), _number(top, "rms_ut", name), _number(quality, "rms_ut", name),
+                 _number(final, "rms_ut", name))
+    sigma = _first(_number(ev, "offset_sigma_ut", name, 3), _number(top.get("uncertainty"), "offset_ut", name, 3))
+    samples = _first(_number(ev, "samples", name), _number(top, "n_used", name), _number(quality, "kept", name))
+    coverage = _first(_number(ev, "coverage", name), _number(top, "coverage", name), _number(quality, "coverage", name))
+    condition = _number(ev, "condition", name)
     return Evidence(offset_ut=tuple(float(v) for v in cal.offset_ut), field_ut=float(cal.field_ut), rms_ut=rms,
-                    offset_sigma_ut=sigma, samples=None if samples is None else int(samples), coverage=coverage)
+                    offset_sigma_ut=sigma, samples=None if samples is None else int(samples), coverage=coverage,
+                    condition=condition)
+
+
+def recording_named(obj) -> str | None:
+    """The recording a result says its calibration was fitted on (pure)."""
+    top = _result_of(obj)
+    for key in ("recording", "file"):
+        if isinstance(top.get(key), str) and top[key] and top[key] != "-":
+            return top[key]
+    return None
+
+
+MISSING = {"rms_ut": "rms_ut", "offset_sigma_ut": "offset_sigma_ut", "samples": "samples", "coverage": "coverage",
+           "condition": "condition"}
+
+
+def complete_evidence(ev: Evidence, obj, cal: Calibration, notes: list[str]) -> Evidence:
+    """``ev`` with what it lacks recomputed from the recording the result names; unchanged
+    (and why, in ``notes``) when there is none or it cannot be read."""
+    from dataclasses import replace
+
+    missing = [k for k in MISSING if getattr(ev, k) is None]
+    path = recording_named(obj)
+    if not missing or path is None:
+        return ev
+    from ..app.load import load_series
+    from ..fit.evidence import evidence
+    from .fit import MAX_FIT_SAMPLES
+
+    try:
+        series, _ = load_series(path, None, None).only_valid().thinned(MAX_FIT_SAMPLES)
+    except (InputError, OSError) as exc:
+        notes.append(f"the evidence it lacks ({', '.join(missing)}) could not be recomputed from {path}: {exc}")
+        return ev
+    fresh = evidence(series.field_ut, cal.offset_ut, cal.field_ut, cal.soft_iron)
+    found = {k: (tuple(fresh[k]) if k == "offset_sigma_ut" and fresh[k] else fresh[k]) for k in missing}
+    notes.append(f"recomputed {', '.join(k for k in missing if found[k] is not None)} from {path} "
+                 f"({fresh['samples']} samples)")
+    return replace(ev, **{k: v for k, v in found.items() if v is not None})
 
 
 def _left(r) -> str:
@@ -176,14 +229,13 @@ def _left(r) -> str:
 
 
 def _refused(args, clearance) -> int:
-    failure = Failure.of_gate(clearance.failing[0].name)
+    failure = Failure.of_gate(clearance.blocking[0].name)
     if args.json:
         print_json(document("write", {"written": False, "verified": False, **failure.to_dict(),
                                       "message": clearance.summary(), "gates": clearance.to_dict()}))
     else:
         for r in clearance.results:
-            if r.passed is not None:
-                print(f"gate       {'pass' if r.passed else 'FAIL'}  {r.message}")
+            print(f"gate       {({True: 'pass', False: 'FAIL'}).get(r.passed, 'NOT JUDGED')}  {r.message}")
         print(f"not written: {clearance.summary()}; nothing was sent (--force writes it anyway)")
     return exit_for(failure)
 
@@ -195,10 +247,13 @@ def run(args) -> int:
     obj = _read(args.file)
     cal, notes = calibration_from_json(obj, args.file)
     settings = load_settings(args)
-    clearance = clear_for_write(settings.gates, evidence_from_json(obj, cal, args.file), force=args.force)
+    ev = complete_evidence(evidence_from_json(obj, cal, args.file), obj, cal, notes)
+    clearance = clear_for_write(settings.gates, ev, force=args.force)
     if not clearance.allowed:
+        for n in notes:
+            print(f"magcal write: note: {n}", file=sys.stderr)
         return _refused(args, clearance)
-    if clearance.forced and clearance.failing:
+    if clearance.forced and clearance.blocking:
         print(f"magcal write: --force: {clearance.summary()}", file=sys.stderr)
     settings = with_port(settings)
     device = open_from_settings(settings)

@@ -97,8 +97,14 @@ class Clearance:
         return [r for r in self.results if r.passed is None]
 
     @property
+    def blocking(self) -> list[GateResult]:
+        """What stands in the way of a write: every failing gate, then every gate that could
+        not be judged (a gate without its evidence is never taken as passed)."""
+        return self.failing + self.unjudged
+
+    @property
     def allowed(self) -> bool:
-        return self.forced or not self.failing
+        return self.forced or not self.blocking
 
     def covers(self, offset_ut, field_ut: float) -> bool:
         """Is this the clearance of that calibration (to 1 nT, the record's resolution)?"""
@@ -107,7 +113,7 @@ class Clearance:
 
     def summary(self) -> str:
         if not self.failing:
-            text = "every judged gate passed"
+            text = "every judged gate passed" if not self.unjudged or self.forced else "NOT every gate judged"
         else:
             text = ("FORCED past failing gates: " if self.forced else "failing gates: ") + "; ".join(
                 r.message for r in self.failing)

@@ -199,7 +199,7 @@ class Session:
         self.clearance = clear_for_write(self.gates_cfg, self.evidence(result))
         self.final_gates = list(self.clearance.results)
         self.result = result
-        failing = self.clearance.failing
+        failing = self.clearance.blocking  # a gate without its evidence blocks as a failing one does
         if failing:
             self.fail(Failure.of_gate(failing[0].name), "final fit fails gate: " + "; ".join(r.message for r in failing))
         return result

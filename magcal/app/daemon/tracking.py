@@ -90,7 +90,7 @@ class TrackingDecider:
             return None
         clearance = self._clearance(decision.calibration)
         if not clearance.allowed:
-            self._journal.record(Decision.REFUSED, **Failure.of_gate(clearance.failing[0].name).to_dict(),
+            self._journal.record(Decision.REFUSED, **Failure.of_gate(clearance.blocking[0].name).to_dict(),
                                  message=clearance.summary())
             return None
         self._journal.record(Decision.KEEPING, reason=decision.reason.value, message=decision.message)

@@ -1,0 +1,62 @@
+"""The evidence behind a calibration, from the samples it was fitted on: what the write gates
+judge (``logic.gates.Evidence``), so that every result carries it and ``magcal write`` can
+recompute it from the recording a result names.
+
+``evidence(m_ut, offset_ut, field_ut, soft_iron)`` gives, for the samples ``m_ut`` (n, 3, µT, in
+time order):
+
+* ``samples``: how many;
+* ``coverage``: the share of equal-area cells holding a calibrated direction — the session's
+  own measure (``fit.coverage``);
+* ``condition``: the condition of the sphere's normal matrix, as the session's live estimate
+  reports it (``SphereAccumulator``);
+* ``rms_ut``: the residual RMS of |W (m − b)| about the field;
+* ``offset_sigma_ut``: the offset's 1σ per axis from the batch-means sandwich on contiguous
+  blocks (``uncertainty.block_covariance``: robust to residuals correlated over less than a
+  block), mapped from the calibrated frame back to the raw one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import geometric, uncertainty
+from .accumulator import SphereAccumulator
+from .coverage import coverage
+
+
+def evidence(m_ut, offset_ut, field_ut: float, soft_iron=None) -> dict:
+    """The gates' evidence for the calibration (b, r, W) on samples ``m_ut``; JSON-ready."""
+    m = np.asarray(m_ut, dtype=np.float64).reshape(-1, 3)
+    m = m[np.all(np.isfinite(m), axis=1)]
+    w = np.eye(3) if soft_iron is None else np.asarray(soft_iron, dtype=np.float64).reshape(3, 3)
+    out = {"samples": int(len(m)), "coverage": None, "condition": None, "rms_ut": None, "offset_sigma_ut": None}
+    if len(m) == 0:
+        return out
+    c = (m - np.asarray(offset_ut, dtype=np.float64)) @ w.T
+    norm = np.linalg.norm(c, axis=1)
+    good = norm > 0
+    out["coverage"] = round(float(coverage(c[good] / norm[good, None])), 4) if good.any() else 0.0
+    acc = SphereAccumulator()
+    acc.add_batch(m)
+    sphere = acc.solve(max_condition=float("inf"))
+    out["condition"] = float(sphere.condition) if sphere else None
+    out["rms_ut"] = float(np.sqrt(np.mean((norm - float(field_ut)) ** 2)))
+    out["offset_sigma_ut"] = _offset_sigma(c, float(field_ut), w)
+    return out
+
+
+def _offset_sigma(c: np.ndarray, field_ut: float, w: np.ndarray) -> list[float] | None:
+    """1σ per raw axis of the offset, from the calibrated samples ``c`` about the origin."""
+    if len(c) < 8:
+        return None
+    theta = geometric.pack(np.zeros(3), field_ut, "sphere")
+    res, jac = geometric.residual_jacobian(theta, c, "sphere")
+    cov = uncertainty.block_covariance(jac, res)[:3, :3]
+    try:
+        w_inv = np.linalg.inv(w)
+    except np.linalg.LinAlgError:
+        return None
+    raw = w_inv @ cov @ w_inv.T
+    sig = np.sqrt(np.clip(np.diag(raw), 0.0, None))
+    return [float(v) for v in sig] if np.all(np.isfinite(sig)) else None
