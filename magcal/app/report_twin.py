@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..diagnose.twin import stats as ts
+from ..recordings.atomic import save_figure, write_text
 from ..diagnose.twin.text import step_label
 
 _REAL = "#1f5fbf"
@@ -116,7 +117,7 @@ def direction_figure(final, path: Path) -> str:
 
 
 def _save(fig, path: Path, plt) -> str:
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return os.path.basename(path)
 
@@ -196,11 +197,11 @@ refitted like the recording. ✓: the recording's statistic lies in its twins' {
 <h2>What the final model still misses</h2><ul>{mism}</ul>
 {imgs}</body></html>
 """
-    (out / "twin.html").write_text(page, encoding="utf-8")
+    write_text(out / "twin.html", page)
     index = out / "index.html"
     if index.exists():
         text = index.read_text(encoding="utf-8")
         link = '<p><a href="twin.html">The recording against its twin (statistics, time, directions)</a></p>'
         if link not in text:
-            index.write_text(text.replace("</body>", link + "\n</body>"), encoding="utf-8")
+            write_text(index, text.replace("</body>", link + "\n</body>"))
     return out / "twin.html"

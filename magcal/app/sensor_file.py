@@ -5,11 +5,11 @@
 from __future__ import annotations
 
 import json
-import os
 
 import yaml
 
 from ..core.errors import InputError
+from ..recordings.atomic import write_text
 from ..sim.model import SensorModel
 
 
@@ -28,13 +28,11 @@ def load_model(path) -> SensorModel:
 
 
 def save_model(model: SensorModel, path) -> None:
-    """Write atomically (a temporary file renamed over the target)."""
+    """Write atomically (``recordings.atomic``: an unpredictable temporary name renamed over the
+    target, never through a link)."""
     d = model.to_dict()
     text = json.dumps(d, indent=2) + "\n" if str(path).endswith(".json") else yaml.safe_dump(d, sort_keys=False, default_flow_style=None, allow_unicode=True)
-    tmp = f"{path}.tmp{os.getpid()}"
     try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
+        write_text(path, text)
     except OSError as exc:
         raise InputError(f"{path}: cannot write the sensor model ({exc.strerror})") from None

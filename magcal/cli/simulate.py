@@ -20,6 +20,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, InputError
 from ..core.series import Series
+from ..recordings.atomic import write_text
 from ..recordings.table import save_csv
 from ..sim.physics import Current, Motion, Physics, Scenario, Temperature
 from .common import Progress, document, print_json
@@ -171,8 +172,10 @@ def run(args) -> int:
         truth["note"] = (f"the model was learned from a recording without time ({model.source.get('recording')}): "
                          "its rate and its wander's bands count samples, not seconds, and the simulator's "
                          "own motion has no such clock; --like REC draws the twin on the recording's own samples")
-    with open(args.output + ".truth.json", "w", encoding="utf-8") as f:
-        json.dump(truth, f, indent=2)
+    try:
+        write_text(args.output + ".truth.json", json.dumps(truth, indent=2))
+    except OSError as exc:
+        raise InputError(f"{args.output}.truth.json: cannot write: {exc.strerror or exc}") from None
     if args.json:
         print_json(document("simulate", truth))
     else:

@@ -7,6 +7,11 @@ it to disk (``fsync``), renames it over ``path`` (atomic on POSIX, and on Window
 If the process dies at any point before the rename, ``path`` still holds its old content; a
 stray ``.<name>.*.tmp`` file may be left behind, which readers ignore (``TMP_SUFFIX``).
 
+It is the one way magcal writes a file whole (``write_text``, ``save_figure`` for text and
+figures): the temporary name is random and created exclusively (``O_EXCL``: never an existing
+file, never through a link), and the rename replaces a link planted at ``path`` rather than
+writing through it — a planted link never redirects a write to its target.
+
 The new file gets ``mode`` less the process umask, as any file the process creates: under
 ``umask 077`` (a hardened service) state and calibration files are readable by their owner only.
 """
@@ -43,6 +48,21 @@ def _create_temporary(directory: Path, name: str, mode: int) -> tuple[int, str]:
         except FileExistsError:
             continue
     raise FileExistsError(f"no free temporary name for {name} in {directory}")
+
+
+def write_text(path, text: str, mode: int = 0o644) -> Path:
+    """``write_atomic`` of ``text`` in UTF-8."""
+    return write_atomic(path, text.encode("utf-8"), mode)
+
+
+def save_figure(fig, path, **savefig_options) -> Path:
+    """A matplotlib figure as a PNG at ``path``, through ``write_atomic`` (``savefig`` itself
+    would open ``path`` and follow a link planted there)."""
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", **savefig_options)
+    return write_atomic(path, buf.getvalue())
 
 
 def write_atomic(path, data: bytes, mode: int = 0o644) -> Path:

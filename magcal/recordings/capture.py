@@ -141,7 +141,9 @@ class CaptureWriter:
         if self.max_bytes is not None and len(line) + CHUNK_OVERHEAD + 1 > self.max_bytes:
             raise ValueError(f"max_bytes={self.max_bytes} cannot hold even the capture header")
         try:
-            fh = open(path, "wb")
+            # the named file, never a link planted in its place (O_NOFOLLOW)
+            flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+            fh = os.fdopen(os.open(path, flags, 0o644), "wb")
             fh.write(line)
             fh.flush()
         except OSError as exc:

@@ -22,6 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ...core.errors import InputError
+from ...recordings.atomic import write_text
 from . import figures
 from .cloud import cloud_html
 from .page import calibration_table, esc, findings_html, page, page_html
@@ -83,7 +84,7 @@ def write_report(diagnosis, directory, title: str = "recording", sections=(), re
         if made is not None:
             parts.append(made)
     path = out / "index.html"
-    path.write_text(page(diagnosis, title, parts), encoding="utf-8")
+    write_text(path, page(diagnosis, title, parts))
     return path
 
 
@@ -102,5 +103,5 @@ def write_log_report(result: dict, traces: dict | None, directory, title: str = 
              flight_log_section(result, traces)(None, out, plt)]
     sub = f"{result.get('n_samples', 0)} samples. Read as: {esc(str(result.get('input', title)))}."
     path = out / "index.html"
-    path.write_text(page_html(title, sub, parts), encoding="utf-8")
+    write_text(path, page_html(title, sub, parts))
     return path

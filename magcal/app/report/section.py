@@ -12,6 +12,8 @@ import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ...recordings.atomic import save_figure
+
 # colour-blind-safe colours (Okabe & Ito), one meaning each on every figure of the page
 RAW = "#7f7f7f"  # as recorded
 BEFORE = "#E69F00"  # the sphere (hard iron only): dots
@@ -59,7 +61,7 @@ def save(fig, directory, name: str, plt) -> str:
         plt.close(fig)
         raise ValueError(f"{name}: text outside the figure: {problems}")
     path = Path(directory) / f"{name}.png"
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
     plt.close(fig)
     return os.path.basename(path)
 
