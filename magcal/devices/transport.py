@@ -35,7 +35,11 @@ class SerialPort:
             return port
         import serial  # pyserial
 
+        from .portlock import is_device_path, open_exclusive
+
         try:
+            if is_device_path(self.url):  # one process per port (``portlock``): PortBusy names the holder
+                return open_exclusive(serial, self.url, self.baud, 0.05)
             return serial.serial_for_url(self.url, baudrate=self.baud, timeout=0.05)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PortUnavailable(f"cannot open {self.url}: {exc}") from exc
