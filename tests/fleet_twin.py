@@ -165,13 +165,13 @@ def _samples(w, v: Vehicle, t, r, current, fields, when, place) -> None:
     ofs = [v.compass(c)["log_ofs_mg"] for c in range(len(fields))]
     for k, tk in enumerate(t):
         us = int(tk * 1e6)
-        w.write("ATT", us - 300, 0, roll[k], 0, pitch[k], 0, yaw[k], 0, 0, 3)
+        w.write("ATT", us, 0, roll[k], 0, pitch[k], 0, yaw[k], 0, 0, 3)
         if k % 2 == 0:
             w.write("GPS", us - 200, 0, 6, int(tow0 + (tk - t[0]) * 1000), week, 14, 0.7, *place, 0, 0, 0, 0, 1)
             w.write("BAT", us - 100, 0, 15.8, 15.9, current[k], 100.0, 5.0, 25.0, 0.01, 80, 1, 100)
         for c, f in enumerate(fields):
             logged = f[k] * 10.0 + ofs[c]  # mG, the log's offsets applied as ArduPilot applies them
-            w.write("MAG", us + 50 * c, c, *logged, *ofs[c], 0, 0, 0, 1, (us - 15_000) % (1 << 32))
+            w.write("MAG", us + 1000 + 50 * c, c, *logged, *ofs[c], 0, 0, 0, 1, us % (1 << 32))  # S: when sampled
 
 
 def fleet(n_vehicles: int, flights: int, seed: int = 0, plants=None, noise_ut: float = 1.0) -> list[Vehicle]:
