@@ -235,7 +235,7 @@ class ProtocolDevice(Device):
         self.counters["commands"] += 1
         return tag
 
-    def _await(self, pred, what: str, timeout_s: float | None = None):
+    def _await(self, pred, what: str, timeout_s: float | None = None, overlong_ends: bool = False):
         deadline = self.clock() + (self.reply_timeout_s if timeout_s is None else timeout_s)
         before = Counter(self.framer.counters)
         while True:
@@ -243,12 +243,14 @@ class ProtocolDevice(Device):
             if r is not None:
                 return r
             left = deadline - self.clock()
-            if left <= 0 or self._eof:
+            # overlong_ends: a line too long for any reply ends the wait (``_stored_record_of``)
+            overlong = overlong_ends and self.framer.counters["overlong_lines"] > before["overlong_lines"]
+            if left <= 0 or self._eof or overlong:
                 self.counters["no_reply"] += 1
                 seen = self.framer.counters - before  # what the link dropped meanwhile may be the reply
                 bad = ", ".join(f"{seen[k]} {k.replace('_', ' ')}" for k in DROPPED if seen[k])
-                raise NoReply(f"{self.url}: no {what} within {timeout_s or self.reply_timeout_s:.1f} s"
-                              + (f" (meanwhile the link dropped {bad})" if bad else ""))
+                raise _no_reply(f"{self.url}: no {what} within {timeout_s or self.reply_timeout_s:.1f} s"
+                                + (f" (meanwhile the link dropped {bad})" if bad else ""), seen)
             self._pump(min(left, 0.05))
 
     def command(self, cmd: str, *args, timeout_s: float | None = None) -> Ack:
@@ -358,7 +360,7 @@ class ProtocolDevice(Device):
     def read_record(self) -> RecordReply:
         tag = self._send("K")
         r = self._await(
-            lambda r: isinstance(r, (RecordReply, ErrorReply)) and r.tag == tag, "calibration record"
+            lambda r: isinstance(r, (RecordReply, ErrorReply)) and r.tag == tag, "calibration record", overlong_ends=True
         )
         if isinstance(r, ErrorReply):
             raise CommandRefused(f"{self.url}: device refused K: {r.code}", "K", r.code)
@@ -382,7 +384,7 @@ class ProtocolDevice(Device):
         return self._read_stored().calibration
 
     def _read_stored(self) -> StoredRecord:
-        return self._judge_record(self.read_record())
+        return _stored_record_of(self)
 
     def _judge_record(self, r: RecordReply) -> StoredRecord:
         stored = stored_record(r.status, r.values, r.crc)
@@ -462,6 +464,30 @@ def _self_test_result(url: str, ack: Ack, asa) -> SelfTestResult:
     except (ValueError, IndexError):
         raise DeviceError(f"{url}: malformed self-test reply {','.join(ack.result)!r}") from None
     return SelfTestResult.from_registers(raw, asa, st2)
+
+
+def _no_reply(message: str, dropped: Counter) -> NoReply:
+    """NoReply, with what the link dropped meanwhile (a caller may blame that instead)."""
+    err = NoReply(message)
+    err.dropped = dropped
+    return err
+
+
+def _stored_record_of(device: ProtocolDevice) -> StoredRecord:
+    """What the device's store holds (``K``). A reply longer than a protocol line can be (the
+    link drops it) is the record's fault, not a silent device's: it holds values no calibration
+    has (int32 extremes) — an INVALID record, replaced by the next write. One overlong line may
+    be noise; the same twice is the reply."""
+    for _ in range(2):
+        try:
+            return device._judge_record(device.read_record())
+        except NoReply as exc:
+            if not getattr(exc, "dropped", {}).get("overlong_lines"):
+                raise
+    device.record_status = "INVALID"
+    device.counters["record_invalid"] += 1
+    return StoredRecord(RecordState.INVALID, problem="the device's record reply was longer than a protocol "
+                        "line (120 bytes): its record holds values no calibration has")
 
 
 def open_serial(port: Port, dialect: Dialect = Dialect.NATIVE, *, baud: int = 115200, tap=None,

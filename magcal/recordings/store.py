@@ -30,6 +30,7 @@ from typing import Callable
 from ..core.calibration import Calibration, RecordState, StoredRecord
 from ..core.errors import StateError, WriteRejected
 from ..core.events import Identity
+from ..core.sense import record_problem
 from .atomic import write_atomic
 
 FORMAT = "magcal.calibration"
@@ -197,5 +198,8 @@ def parse(data: bytes, path: Path | str = "<calibration file>") -> StoredCalibra
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise InvalidCalibrationFile(f"{where}: its checksum holds but its calibration is none ({exc}); "
                                      "not applied") from None
+    nonsense = record_problem(cal)  # checksum and shape right, and still no physical calibration
+    if nonsense:
+        raise InvalidCalibrationFile(f"{where}: its checksum holds but {nonsense}; not applied")
     return StoredCalibration(calibration=cal, path=Path(path), key=str(body.get("key", "")),
                              saved_at=str(body.get("saved_at", "")), device=device)

@@ -19,6 +19,7 @@ from typing import Sequence, Union
 import numpy as np
 
 from ..core.calibration import Calibration, RecordState, StoredRecord
+from ..core.sense import record_problem
 
 PROTO_VERSION = 1
 MAX_LINE = 120  # bytes including '$' and '\n'
@@ -571,9 +572,13 @@ def stored_record(status: str, values: Sequence[int], crc: int) -> StoredRecord:
     if record_crc(values) != crc:
         return StoredRecord(RecordState.CORRUPT, problem="the record's CRC does not match its values")
     try:
-        return StoredRecord(RecordState.OK, calibration_from_record(values))
+        cal = calibration_from_record(values)
     except ValueError as exc:
         return StoredRecord(RecordState.INVALID, problem=f"the record passes its CRC but is no calibration: {exc}")
+    nonsense = record_problem(cal)  # CRC-valid, and still no physical calibration (core.sense)
+    if nonsense:
+        return StoredRecord(RecordState.INVALID, problem=f"the record passes its CRC but is no calibration: {nonsense}")
+    return StoredRecord(RecordState.OK, cal)
 
 
 def quantize_calibration(cal: Calibration) -> Calibration:
