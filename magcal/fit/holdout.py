@@ -11,6 +11,13 @@ solution) and judged on the block by the spread of |calibrated field| (std/mean,
 held-out check measures); a model's score is the root mean square of its blocks' spreads,
 weighted by the samples judged.
 
+A refit is Gauss–Newton from the whole-recording solution: its first step uses the residual
+and Jacobian there, computed once for every block, weighting and model; it stops once a step
+moves the parameters by less than ``STEP_SE`` of their standard error (the step's length in
+the metric of the information matrix, in units of the residual's σ) — what remains is a small
+fraction of that, far below anything a spread is reported to. Where a step does not lower the
+cost, or the steps do not settle, ``geometric.solve`` (Levenberg–Marquardt) refits it instead.
+
 Two sets of samples are judged. The model is chosen on the samples of each block whose
 direction cell the other blocks also visit: a block whose directions the rest never saw
 judges extrapolation, which on a short recording is a handful of samples deciding against the
@@ -43,6 +50,8 @@ SEEN_SHARE = 0.5
 BALANCE_MARGIN = 1.25
 MARGIN = 0.05
 SIMPLER_FIRST = ("sphere", "diagonal", "full")
+STEP_SE = 1e-3  # a refit stops once a step moves it less than this many standard errors
+MAX_STEPS = 20
 
 
 @dataclass(frozen=True)
@@ -74,12 +83,43 @@ def spread(m: np.ndarray, theta: np.ndarray, kind: str) -> float:
     return float(np.std(h) / np.mean(h))
 
 
-def _refit(m_train: np.ndarray, g: geometric.GeometricFit, balanced: bool):
-    """The model refitted on a training part, from its whole-recording solution."""
-    weights = None
-    if balanced:
-        weights = direction_weights((m_train - g.offset_ut) @ g.soft_iron.T)
-    return geometric.solve(m_train, g.kind, g.theta, weights=weights)
+def _refit(m: np.ndarray, rows: np.ndarray, g: geometric.GeometricFit, balanced: bool, at_whole: tuple):
+    """θ of ``g``'s model refitted on the samples ``m[rows]`` (a block's complement), from its
+    whole-recording solution (``at_whole``: the residual and Jacobian there, every sample), or a
+    FitFailure; see the module docstring."""
+    m_train = m[rows]
+    w = direction_weights((m_train - g.offset_ut) @ g.soft_iron.T) if balanced else None
+    theta = _gauss_newton(m_train, g, w, at_whole[0][rows], at_whole[1][rows])
+    if theta is not None:
+        return theta
+    f = geometric.solve(m_train, g.kind, g.theta, weights=w)
+    return f if isinstance(f, FitFailure) else f.theta
+
+
+def _gauss_newton(m: np.ndarray, g: geometric.GeometricFit, w, e: np.ndarray, jac: np.ndarray):
+    """Gauss–Newton from ``g.theta`` (``e``, ``jac``: residual and Jacobian there) to a step
+    under ``STEP_SE`` standard errors; None where a step raises the cost, the radius turns
+    negative or ``MAX_STEPS`` do not settle."""
+    theta, p = g.theta.copy(), len(g.theta)
+    if len(m) <= p:
+        return None
+    for _ in range(MAX_STEPS):
+        ew, jw = (e, jac) if w is None else (w * e, w[:, None] * jac)
+        a, grad, cost = jac.T @ jw, jac.T @ ew, float(e @ ew)
+        scale = np.sqrt(np.maximum(np.diag(a), 1e-300))
+        try:
+            step = -np.linalg.solve(a / np.outer(scale, scale), grad / scale) / scale
+        except np.linalg.LinAlgError:
+            return None
+        theta = theta + step
+        if not np.all(np.isfinite(theta)) or theta[3] <= 0:
+            return None
+        if step @ a @ step <= STEP_SE**2 * cost / (len(m) - p):
+            return theta
+        e, jac = geometric.residual_jacobian(theta, m, g.kind)
+        if not float(e @ (e if w is None else w * e)) <= cost:
+            return None
+    return None
 
 
 def _rms(parts: list) -> float:
@@ -87,19 +127,19 @@ def _rms(parts: list) -> float:
     return float(np.sqrt(sum(k * v**2 for k, v in parts) / n)) if n else float("inf")
 
 
-def _score(m, g, keep, tests: dict, edges, balanced: bool) -> dict:
+def _score(m, g, keep, tests: dict, edges, balanced: bool, at_whole: tuple) -> dict:
     """{name: RMS over blocks (weighted by judged samples) of one model's held-out spread} for
     each set of judged samples in ``tests`` ({name: per-block masks}); one refit per block."""
     parts: dict = {name: [] for name in tests}
     for j in range(len(edges) - 1):
-        inside = np.zeros(len(m), bool)
-        inside[edges[j] : edges[j + 1]] = True
-        f = _refit(m[keep & ~inside], g, balanced)
-        if isinstance(f, FitFailure):
+        rows = keep.copy()
+        rows[edges[j] : edges[j + 1]] = False
+        theta = _refit(m, rows, g, balanced, at_whole)
+        if isinstance(theta, FitFailure):
             return {name: float("inf") for name in tests}
         for name, masks in tests.items():
             if masks[j].sum() >= MIN_BLOCK:
-                parts[name].append((int(masks[j].sum()), spread(m[masks[j]], f.theta, g.kind)))
+                parts[name].append((int(masks[j].sum()), spread(m[masks[j]], theta, g.kind)))
     return {name: _rms(p) for name, p in parts.items()}
 
 
@@ -131,8 +171,9 @@ def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOut 
     tests, unseen = _tests(m, judged, edges, sphere.offset_ut)
     scores, balanced = {}, {}
     for k, (g, keep) in candidates.items():
-        plain = _score(m, g, keep, tests, edges, False)
-        weighted = plain if k == "sphere" else _score(m, g, keep, tests, edges, True)
+        at_whole = geometric.residual_jacobian(g.theta, m, g.kind)
+        plain = _score(m, g, keep, tests, edges, False, at_whole)
+        weighted = plain if k == "sphere" else _score(m, g, keep, tests, edges, True, at_whole)
         balanced[k] = k != "sphere" and weighted["all"] <= BALANCE_MARGIN * plain["all"]
         scores[k] = (weighted if balanced[k] else plain)["seen"]
     if not np.isfinite(min(scores.values())):
