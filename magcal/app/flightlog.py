@@ -88,7 +88,8 @@ def against_text(mode: str, ef: dict | None, earth_model=None, earth_field_ut=No
     if how == "unknown_constant":
         return "the log's attitude and an Earth field unknown but constant (no position fix)"
     if mode == "vector":
-        return f"the expected field vector ({earth_model}, {earth_field_ut:.2f} µT, and the log's attitude)"
+        size = "" if earth_field_ut is None else f", {earth_field_ut:.2f} µT"
+        return f"the expected field vector ({earth_model or 'the Earth model'}{size}, and the log's attitude)"
     return "|m| only (the log has no attitude)"
 
 

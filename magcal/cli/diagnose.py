@@ -281,7 +281,7 @@ def take_log_calibration(d: dict) -> None:
     if own is not None:
         from ..app.flightlog import against_text
 
-        against = "against " + against_text(log["mode"], log.get("earth_field"), log["earth_model"], log["earth_field_ut"])
+        against = "against " + against_text(log["mode"], log.get("earth_field"), log.get("earth_model"), log.get("earth_field_ut"))
         d["alternatives"] = [*d.get("alternatives", []), {
             "name": "magnitude",
             "model": d["final"]["model"],
