@@ -200,7 +200,7 @@ def fit_calibration(
     return FitResult(
         model=MODEL_NAMES[chosen],
         calibration=Calibration(offset_ut=g.offset_ut, field_ut=g.field_ut, soft_iron=g.soft_iron),
-        uncertainty={k: u[k] for k in ("offset_ut", "field_ut", "soft_iron", "autocorrelation_factor")},
+        uncertainty={k: u[k] for k in ("offset_ut", "field_ut", "soft_iron", "autocorrelation_factor", "direction_factor")},
         crlb_offset_ut=u["crlb_offset_ut"],
         rms_ut=g.rms_ut,
         n_used=int(keep.sum()),

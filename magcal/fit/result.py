@@ -19,7 +19,9 @@ class FitResult:
     = soft_iron @ (m − offset_ut), |·| ≈ field_ut; soft_iron has det 1. ``uncertainty``: 1σ of
     offset_ut (3), field_ut and soft_iron (3×3): σ̂²(JᵀJ)⁻¹, or the block (batch-means) sandwich
     when correlated residuals make it larger, by ``autocorrelation_factor`` (√ of the ratio of
-    the offset variances; 1 when the residuals look independent). ``crlb_offset_ut``: √diag of the
+    the offset variances; 1 when the residuals look independent), and at least a jackknife over
+    six direction groups (``direction_factor``: how much wider that made the offset's σ, ≥ 1;
+    ``uncertainty.summarise``). ``crlb_offset_ut``: √diag of the
     Cramér–Rao bound of the offset for this data's geometry (noise σ given, else σ̂).
     ``outliers``: indices into the input that were removed. ``reason``: why this model.
     ``residual_ut``: geometric residual of the samples used (in input order of ``used``).
@@ -56,6 +58,7 @@ class FitResult:
                 "field_ut": float(u["field_ut"]),
                 "soft_iron": [[float(v) for v in row] for row in np.asarray(u["soft_iron"])],
                 "autocorrelation_factor": float(u.get("autocorrelation_factor", 1.0)),
+                "direction_factor": float(u.get("direction_factor", 1.0)),
             },
             "crlb_offset_ut": [float(v) for v in self.crlb_offset_ut],
             "rms_ut": float(self.rms_ut),
