@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import os
+import re
 import reprlib
 import typing
 from dataclasses import dataclass
@@ -131,6 +132,9 @@ def _choice(value, typ: type[enum.Enum], key: str) -> enum.Enum:
     raise ConfigError(f"{key} must be {' or '.join(names)}, got {_show(value)}", keys=(key,))
 
 
+_EXPONENT_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d{1,3}")
+
+
 def _scalar(value, typ, key: str, empty_ok: bool = False):
     if isinstance(typ, type) and issubclass(typ, enum.Enum):
         return _choice(value, typ, key)
@@ -143,6 +147,8 @@ def _scalar(value, typ, key: str, empty_ok: bool = False):
             return value
         raise ConfigError(f"{key} must be an integer, got {_show(value)}")
     if typ is float:
+        if isinstance(value, str) and _EXPONENT_NUMBER.fullmatch(value.strip()):
+            value = float(value)  # YAML 1.1 reads 1e-3 (no dot) as text; it is a number
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             try:
                 return float(value)
@@ -231,6 +237,8 @@ def read_file(path: str) -> dict:
         if not _shallow(text):
             raise ConfigError(too_deep)
         data = yaml.safe_load(text)
+    except ValueError as exc:  # an integer too long to convert (thousands of digits)
+        raise ConfigError(f"config file {path}: {_too_long(exc)}") from None
     except yaml.YAMLError as exc:
         where = getattr(exc, "problem_mark", None)
         at = f" (line {where.line + 1})" if where is not None else ""
@@ -243,6 +251,10 @@ def read_file(path: str) -> dict:
     if not isinstance(data, Mapping):
         raise ConfigError(f"config file {path} must hold a mapping of settings, got {type(data).__name__}")
     return dict(data)
+
+
+def _too_long(exc: ValueError) -> str:
+    return f"a number too long to be a setting ({' '.join(str(exc).split()[:10])}…)"
 
 
 def _field_type(path: list[str]):
@@ -264,6 +276,8 @@ def _env_value(key: str, raw: str, typ):
     try:
         if _shallow(raw):
             return yaml.safe_load(raw)
+    except ValueError as exc:  # an integer too long to convert (thousands of digits)
+        raise ConfigError(f"{key}: {_too_long(exc)}") from None
     except (yaml.YAMLError, RecursionError):
         pass
     raise ConfigError(f"{key}={_show(raw)}: not a value (a number, true/false, or a list like [15, 100])")

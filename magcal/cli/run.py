@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
+import threading
 
 from ..recordings.state import state_directory
 from .common import device_settings
@@ -62,7 +64,44 @@ def log_handler(stream=None, environ=None) -> logging.Handler:
     return handler
 
 
+class EarlyHangup:
+    """SIGHUP taken from the moment ``run`` starts — not only once the daemon's own handlers are
+    in (its default action would kill the service in its first seconds): a hangup before then
+    is remembered and handed to the daemon as a reload."""
+
+    def __init__(self):
+        self.pending = False
+        self._target = None
+        self._previous = None
+        if hasattr(signal, "SIGHUP") and threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGHUP, self._hangup)
+
+    def _hangup(self, *_):
+        if self._target is None:
+            self.pending = True
+        else:
+            self._target()
+
+    def hand_to(self, reload) -> None:
+        """From now on a hangup is ``reload()``; one that came before is handed over now."""
+        self._target = reload
+        if self.pending:
+            reload()
+
+    def restore(self) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGHUP, self._previous)
+
+
 def run(args) -> int:
+    hangup = EarlyHangup()
+    try:
+        return _run(args, hangup)
+    finally:
+        hangup.restore()
+
+
+def _run(args, hangup: EarlyHangup) -> int:
     from ..app.daemon import Daemon
 
     overrides = {"rate_hz": args.rate}
@@ -80,4 +119,5 @@ def run(args) -> int:
         "port": settings.port, "baud": args.baud, "dialect": args.dialect, **overrides,
     }.items() if v is not None}
     daemon = Daemon(settings, config_path=args.config, overrides=cli_overrides, max_samples=args.count)
+    hangup.hand_to(daemon.request_reload)
     return daemon.run()

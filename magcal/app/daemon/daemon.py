@@ -34,7 +34,7 @@ from .drift import DriftWatcher
 from .intake import Intake, Take
 from .journal import Decision, Journal
 from .ledger import WriteLedger
-from .persistence import STATE_KIND, Saved, StateDirLock, StateKeeper
+from .persistence import STATE_KIND, Saved, StateDirLock, StateKeeper, why_unusable
 from .recalibrator import CalibrationWriter, Recalibrator
 from .recorder import RollingCapture
 from .supervisor import LinkSupervisor
@@ -370,9 +370,9 @@ class Daemon:
             return
         try:
             saved = Saved.parse(data, self.settings.gates)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
             self.faults["state_refused"] += 1
-            self.journal.record(Decision.STATE_UNUSABLE, error=str(exc))
+            self.journal.record(Decision.STATE_UNUSABLE, error=why_unusable(exc))
             return
         if saved.port != self.settings.port:
             # another device's samples and calibration must not be mixed into this one's

@@ -72,6 +72,14 @@ class Saved:
                      0, self.faults, session, None, None, None, self.decisions)
 
 
+def why_unusable(exc: Exception) -> str:
+    """Why a state file whose checksum holds cannot be resumed, in words (a KeyError's own text
+    is only the key: ``'resume'``)."""
+    if isinstance(exc, KeyError):
+        return f"the state file has no {exc.args[0]!r} entry where one is needed (written by another program?)"
+    return f"the state file's content is malformed: {exc}"
+
+
 class StateKeeper:
     def __init__(self, state_dir: Path, journal: Journal, faults: Counter,
                  clock: Callable[[], float] = time.monotonic):
