@@ -88,8 +88,8 @@ def format_text(doc: dict) -> str:
     for ch in doc["changes"]:
         sib = "" if ch["alone"] is None else ("; this compass alone" if ch["alone"] else "; its siblings moved too")
         lines.append(f"  {ch['vehicle']} {ch['compass']}: {KIND_WORDS[ch['kind']]} at {ch['flight']} (after "
-                     f"{ch['previous_flight']}): ({', '.join(f'{v:+.2f}' for v in ch['step'])}) ± "
-                     f"({', '.join(f'{v:.2f}' for v in ch['sigma_step'])}), p {ch['p_value']:.2g}{sib}")
+                     f"{ch['previous_flight']}): ({', '.join(f'{v:+.3g}' for v in ch['step'])}) ± "
+                     f"({', '.join(f'{v:.2g}' for v in ch['sigma_step'])}), p {ch['p_value']:.2g}{sib}")
     lines.append(f"page        {doc['results']}/index.html")
     return "\n".join(lines)
 

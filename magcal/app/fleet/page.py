@@ -25,12 +25,17 @@ def _scale(values: list[float], lo_px: float, hi_px: float):
 
 
 def _points(flights: list[dict], key: str, skey: str):
+    """(flight index, value less the compass's median per axis, σ) of the flights where fitted:
+    a step of a few σ is visible beside a hard iron of tens of µT."""
     pts = []
     for i, f in enumerate(flights):
         v, s = f.get(key), f.get(skey)
         if v and s and all(a is not None for a in v + s):
             pts.append((i, v, s))
-    return pts
+    if not pts:
+        return pts
+    med = [sorted(v[a] for _, v, _ in pts)[len(pts) // 2] for a in range(3)]
+    return [(i, [v[a] - med[a] for a in range(3)], s) for i, v, s in pts]
 
 
 def chart(flights: list[dict], key: str, skey: str, unit: str, change_at: list[int]) -> str:
@@ -42,7 +47,7 @@ def chart(flights: list[dict], key: str, skey: str, unit: str, change_at: list[i
     xs = lambda i: PAD + i / n * (W - 2 * PAD)  # noqa: E731
     ys, lo, hi = _scale([v[a] + sgn * s[a] for _, v, s in pts for a in range(3) for sgn in (-1, 1)], 8, H - 18)
     out = [f'<svg width="{W}" height="{H}" role="img"><rect width="{W}" height="{H}" fill="#fafafa"/>',
-           f'<text x="2" y="12" font-size="10">{hi:.1f} {unit}</text><text x="2" y="{H - 20}" font-size="10">{lo:.1f}</text>']
+           f'<text x="2" y="12" font-size="10">{hi:+.3g} {unit}</text><text x="2" y="{H - 20}" font-size="10">{lo:+.3g}</text>']
     for k in change_at:
         x = xs(k - 0.5)
         out.append(f'<line x1="{x:.1f}" x2="{x:.1f}" y1="4" y2="{H - 14}" stroke="#333" stroke-dasharray="4 3"/>')
@@ -58,8 +63,8 @@ def chart(flights: list[dict], key: str, skey: str, unit: str, change_at: list[i
 
 def _change_row(c: dict) -> str:
     sib = "—" if c["alone"] is None else ("this compass alone" if c["alone"] else "with its siblings")
-    step = ", ".join(f"{v:+.2f}" for v in c["step"])
-    sig = ", ".join(f"{v:.2f}" for v in c["sigma_step"])
+    step = ", ".join(f"{v:+.3g}" for v in c["step"])
+    sig = ", ".join(f"{v:.2g}" for v in c["sigma_step"])
     return (f"<tr><td>{_e(c['vehicle'])}</td><td>{_e(c['compass'])}</td><td>{_e(KIND_WORDS[c['kind']])}</td>"
             f"<td>{_e(c['flight'])}<br><small>after {_e(c['previous_flight'])}</small></td>"
             f"<td>({step}) ± ({sig})</td><td>{c['chi2']:.1f}</td><td>{c['p_value']:.2g}</td><td>{sib}</td></tr>")
@@ -72,8 +77,8 @@ def _compass_block(cmp: dict) -> str:
     parts = [f"<h3>{_e(cmp['compass'])} {where} — {len(cmp['flights'])} flights, {len(cmp['changes'])} changes</h3>"]
     off = chart(cmp["flights"], "offset_ut", "sigma_offset_ut", "µT", at["offset"])
     cur = chart(cmp["flights"], "current_a_ut_per_unit", "sigma_current_a_ut_per_unit", "µT/A", at["current"])
-    parts += [f"<p>hard iron (µT; x red, y green, z blue)</p>{off}" if off else "<p>no flight fitted</p>",
-              f"<p>current term (µT/A)</p>{cur}" if cur else ""]
+    parts += [f"<p>hard iron, less its median (µT; x red, y green, z blue; ±1σ)</p>{off}" if off
+              else "<p>no flight fitted</p>", f"<p>current term, less its median (µT/A)</p>{cur}" if cur else ""]
     return "".join(parts)
 
 
