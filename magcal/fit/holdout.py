@@ -78,8 +78,8 @@ def block_edges(n: int, n_blocks: int = N_BLOCKS) -> np.ndarray:
 
 def spread(m: np.ndarray, theta: np.ndarray, kind: str) -> float:
     """std/mean of |W(m − b)| over the samples."""
-    b, _, W = geometric.unpack(theta, kind)
-    h = np.linalg.norm((m - b) @ W.T, axis=1)
+    W = geometric.expm_sym(geometric.shape_matrix(kind, theta[4:]))[0]  # geometric.unpack's W
+    h = np.linalg.norm((m - theta[:3]) @ W.T, axis=1)
     return float(np.std(h) / np.mean(h))
 
 
