@@ -1,6 +1,6 @@
 """CPU time of ``diagnose()`` in-process and of the whole ``magcal diagnose FILE --json``.
 
-    python3 bench/diagnose_speed.py [--runs N]
+    python3 bench/diagnose_speed.py [--runs N] [--no-command] [--only NAME]
 
 On 5000-sample recordings: a simulated one (temperature channel, soft iron; the residual is white,
 so no twin is drawn) and the first 5000 samples of three raw real recordings (whose residual
@@ -12,7 +12,9 @@ shared. The command runs with its bytecode cached, as an installed package runs 
 it at install; the warm-up run writes it here): PYTHONDONTWRITEBYTECODE is taken out of the
 child's environment, since with it every run compiles magcal's modules afresh (about 0.06 s CPU
 more on this machine); so are the MAGCAL_* variables (the benches' data paths, which the
-command would read as its own settings). Targets (issue 14): 0.15 s in-process, 0.4 s for the whole command.
+command would read as its own settings). Targets: issue 14, 0.15 s in-process and 0.4 s for the
+whole command; issue 40 (with the locate step and fit's held-out model choice), 0.3 s in-process.
+``--no-command`` measures ``diagnose()`` alone; ``--only`` the recordings whose name holds it.
 """
 
 from __future__ import annotations
@@ -84,12 +86,17 @@ def command(s: Series, runs: int) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--no-command", action="store_true", help="measure diagnose() in-process only")
+    ap.add_argument("--only", default="", help="only the recordings whose name holds this text")
     args = ap.parse_args(argv)
     warnings.filterwarnings("ignore")
     print(f"{'recording (5000 samples)':<28}{'diagnose() CPU s':>18}{'command CPU s':>15}")
     for name, s in recordings().items():
-        print(f"{name:<28}{in_process(s, args.runs):>18.3f}{command(s, args.runs):>15.3f}", flush=True)
-    print("targets: 0.150 in-process, 0.400 the whole command (medians)")
+        if args.only not in name:
+            continue
+        whole = float("nan") if args.no_command else command(s, args.runs)
+        print(f"{name:<28}{in_process(s, args.runs):>18.3f}{whole:>15.3f}", flush=True)
+    print("targets: 0.300 in-process (issue 40; 0.150 issue 14), 0.400 the whole command (medians)")
     return 0
 
 
