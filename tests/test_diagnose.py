@@ -202,7 +202,7 @@ def test_report_writes_pictures_and_a_page(tmp_path):
 def test_unreadable_or_too_short_input_is_a_clear_error(tmp_path, capsys):
     path = tmp_path / "short.csv"
     path.write_text("t,mx,my,mz\n0,1,2,3\n1,2,3,4\n")
-    assert main(["diagnose", str(path)]) == 6
+    assert main(["diagnose", str(path)]) == 3  # read, and too few to diagnose: the data did not pass
     assert "at least" in capsys.readouterr().err
 
 

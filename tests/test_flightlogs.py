@@ -82,7 +82,7 @@ def test_several_magnetometers_and_no_choice_lists_them():
     from magcal.cli.exits import Exit
 
     r = magcal("fit", BIN)
-    assert r.returncode == Exit.INPUT and "Traceback" not in r.stderr
+    assert r.returncode == Exit.USAGE and "Traceback" not in r.stderr
     for line in ("--mag 0: MAG, device id 73225", "external", "--mag 2: MAG3", "internal", "Hz"):
         assert line in r.stderr
 

@@ -228,7 +228,7 @@ def run(args) -> int:
 
             print(f"magcal diagnose: {args.file}: {d['magnitude_failure']}; {d['flight_log']['message']}",
                   file=sys.stderr)
-            return Exit.INPUT
+            return Exit.GATE  # the data did not support either analysis, as fit says with 3
     return 0
 
 

@@ -39,10 +39,12 @@ MEANING = {
 
 def code_for(exc: BaseException) -> Exit:
     """The exit status for one of magcal's own errors (a typed decision, never the message)."""
-    from ..core.errors import ConfigError, DeviceError
+    from ..core.errors import ConfigError, DataInsufficient, DeviceError, ExtraMissing, NeedsChoice
 
-    if isinstance(exc, ConfigError):
+    if isinstance(exc, (ConfigError, NeedsChoice, ExtraMissing)):
         return Exit.USAGE
+    if isinstance(exc, DataInsufficient):
+        return Exit.GATE
     if isinstance(exc, DeviceError):
         return Exit.DEVICE
     return Exit.INPUT  # InputError, StateError, a capture that cannot be written

@@ -58,6 +58,8 @@ def _export_csv(args) -> int:
     with Progress(quiet=args.quiet).working(f"export {args.file}") as ticker:
         ticker.doing("reading")
         series = load_series(args.file, table_format(args), args.mag)
+        if len(series) == 0:  # as fit says of it: an empty CSV would look like an export that worked
+            raise InputError(f"{args.file}: no samples to export; nothing written")
         reading = reading_report(series, args.file)
         ticker.doing(f"writing {len(series):,} samples to {out}".replace(",", " "))
         save_csv(series, out)

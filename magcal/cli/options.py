@@ -225,8 +225,12 @@ def add_table_options(p) -> None:
 
 def table_format(args):
     """The TableFormat the table options ask for (all None when none were given)."""
+    from ..core.errors import ConfigError, InputError
     from ..recordings.table import TableFormat
 
     delimiter = {"tab": "\t", "space": " "}.get(args.delimiter, args.delimiter)
-    return TableFormat(columns=args.columns, unit=args.unit, time=args.time, time_unit=args.time_unit,
-                       delimiter=delimiter, channels=args.channels, temp=args.temp, current=args.current)
+    try:
+        return TableFormat(columns=args.columns, unit=args.unit, time=args.time, time_unit=args.time_unit,
+                           delimiter=delimiter, channels=args.channels, temp=args.temp, current=args.current)
+    except InputError as exc:  # the options ask for something invalid: the command line's fault (exit 2)
+        raise ConfigError(str(exc)) from None

@@ -4,6 +4,9 @@
     ├── ConfigError                  bad config file / environment / option (names the key)
     │   └── PortError                a port string or device option no backend takes (names it)
     ├── InputError                   a recording or CSV that cannot be read (names file and line)
+    │   ├── DataInsufficient         read, but too few or degenerate samples for the analysis
+    │   ├── NeedsChoice              several of what the command takes one of, none named (--mag)
+    │   └── ExtraMissing             reading it needs an optional extra that is not installed
     ├── DeviceError                  the device or its port
     │   ├── PortUnavailable          the port cannot be opened or vanished (unplug)
     │   ├── IdentityError            WHO_AM_I / WIA / protocol version not what we talk to
@@ -37,6 +40,21 @@ class PortError(ConfigError):
 
 class InputError(MagcalError):
     pass
+
+
+class DataInsufficient(InputError):
+    """The recording was read, and its samples cannot support the analysis asked for (too few,
+    all at one point): the data did not pass, as a fit that fails says (exit 3, not 6)."""
+
+
+class NeedsChoice(InputError):
+    """The input holds several of what the command takes one of (a flight log's magnetometers),
+    and the command line named none: the command line's to say (exit 2); the message lists them."""
+
+
+class ExtraMissing(InputError):
+    """Reading this input needs an optional extra that is not installed (exit 2, as the missing
+    extra of any command; the message names the pip command)."""
 
 
 class DeviceError(MagcalError):

@@ -33,7 +33,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..core.errors import InputError
+from ..core.errors import DataInsufficient
 from ..core.series import Series
 from . import channels, claims, collinear, design, glitches, hygiene, locate, longrun, null, selection, softiron, statements
 from .locate import faults
@@ -179,7 +179,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
 def prepare(series: Series) -> tuple[Series, tuple]:
     """Valid, finite samples with data faults set aside (magcal.diagnose.locate.faults: stuck
     axes, rails, swapped axes, bad timestamps, screened in acquisition order), then in time
-    order; too few is an InputError. Returns the samples and the faults found."""
+    order; too few is DataInsufficient (an InputError). Returns the samples and the faults found."""
     s = series.only_valid()
     ok = np.all(np.isfinite(s.field_ut), axis=1) & np.isfinite(s.t_s)
     if not ok.all():
@@ -190,7 +190,7 @@ def prepare(series: Series) -> tuple[Series, tuple]:
     if len(s) and np.any(np.diff(s.t_s) < 0):
         s = s.take(np.argsort(s.t_s, kind="stable"))
     if len(s) < MIN_SAMPLES:
-        raise InputError(f"diagnosis needs at least {MIN_SAMPLES} valid samples, the recording has {len(s)}")
+        raise DataInsufficient(f"diagnosis needs at least {MIN_SAMPLES} valid samples, the recording has {len(s)}")
     return s, (screen.found if screen is not None else ())
 
 
@@ -210,7 +210,7 @@ def set_aside_glitches(s: Series, alpha: float) -> Analysed:
 
 def _require(fit, what: str) -> ModelFit:
     if isinstance(fit, FitFailure):
-        raise InputError(f"cannot fit the {what}: {fit.message}")
+        raise DataInsufficient(f"cannot fit the {what}: {fit.message}")
     return fit
 
 

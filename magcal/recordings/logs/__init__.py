@@ -10,7 +10,7 @@ MagnetometerChoice (an InputError) that lists them.
 
 from __future__ import annotations
 
-from ...core.errors import InputError
+from ...core.errors import ExtraMissing, InputError
 from .select import MagnetometerChoice, choose, select
 from .values import FlightLog, LogMag, MagInfo, Stream
 
@@ -34,7 +34,7 @@ def _need(module: str, kind: str, path: str):
     try:
         __import__(module)
     except ImportError as exc:
-        raise InputError(f"{path}: reading a {kind} needs {module}, which comes with the optional extra 'logs': "
+        raise ExtraMissing(f"{path}: reading a {kind} needs {module}, which comes with the optional extra 'logs': "
                          f"{EXTRA_HINT}") from exc
 
 

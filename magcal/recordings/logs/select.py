@@ -7,13 +7,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from ...core.errors import InputError
+from ...core.errors import InputError, NeedsChoice
 from ...core.series import Series
 from . import conventions as cv
 from .values import FlightLog, LogMag, MagInfo, Stream
 
 
-class MagnetometerChoice(InputError):
+class MagnetometerChoice(NeedsChoice):
     """The log holds several magnetometers and none was chosen; ``mags`` lists them."""
 
     def __init__(self, path: str, mags: tuple[MagInfo, ...]):
