@@ -83,3 +83,16 @@ def test_a_recording_that_is_gone_leaves_the_gate_unjudged(capsys, recordings, t
     doc["fits"][0]["file"] = str(tmp_path / "gone.csv")
     code, r, _ = _write(capsys, tmp_path, doc)
     assert code == 3 and "min_coverage" in r["gates"]["not_judged"]
+
+
+def test_a_result_edited_by_hand_is_judged_on_its_recording(capsys, recordings, tmp_path):
+    """Its evidence claimed better than the recording shows, or its calibration moved away from
+    the fit: the gates judge what the recording shows for the calibration being written."""
+    doc = _fit(capsys, recordings / "tilt.csv")
+    doc["fits"][0]["evidence"]["coverage"] = 0.95
+    code, r, _ = _write(capsys, tmp_path, doc)
+    assert code == 3 and r["failed_gate"] == "min_coverage"
+    doc = _fit(capsys, recordings / "sphere.csv")
+    doc["fits"][0]["calibration"]["offset_ut"][0] += 8.0
+    code, r, ee = _write(capsys, tmp_path, doc)
+    assert code == 3 and r["failed_gate"] == "max_rms" and not ee.exists()

@@ -235,12 +235,12 @@ def run(args) -> int:
 def add_evidence(d: dict, series, path) -> None:
     """The recording, and what the write gates judge of the result's calibration on it
     (``fit.evidence``), so that ``magcal write`` judges every gate."""
+    from ..core.calibration import Calibration
     from ..fit.evidence import evidence
 
     d["recording"] = str(path)
     if "calibration" in d:
-        cal = d["calibration"]
-        d["evidence"] = evidence(series.field_ut, cal["offset_ut"], cal["field_ut"], cal.get("soft_iron"))
+        d["evidence"] = evidence(series.field_ut, Calibration.from_dict(d["calibration"]), series.channels)
 
 
 def add_fit_alternative(d: dict, series) -> None:

@@ -120,9 +120,8 @@ def fit_evidence(series, result) -> dict:
     """What the write gates judge, on the samples the fit used (``fit.evidence``)."""
     from ..fit.evidence import evidence
 
-    m = series.field_ut[result.used] if len(result.used) else series.field_ut
-    cal = result.calibration
-    return evidence(m, cal.offset_ut, cal.field_ut, cal.soft_iron)
+    used = result.used if len(result.used) else slice(None)
+    return evidence(series.field_ut[used], result.calibration)
 
 
 def format_comparison(a: str, b: str, c: dict) -> str:

@@ -20,7 +20,8 @@ count, direction coverage, conditioning, residual RMS and offset uncertainty fro
 FILE carries (``"evidence"`` in a ``fit``/``diagnose`` result, or the older keys ``rms_ut``,
 ``n_used``, ``coverage``, ``uncertainty``). What FILE lacks is recomputed from the recording it
 names (``"file"`` of a fit, ``"recording"`` of a diagnosis: ``fit.evidence``, on the calibration
-being written). A gate that fails, or that can be judged neither way (a bare calibration object,
+being written) — and where that recording can be read, every gate is judged on what it shows
+rather than on what FILE says, so a result edited by hand is judged on the data. A gate that fails, or that can be judged neither way (a bare calibration object,
 a truncated result, a recording that is gone), refuses the write — exit 3, naming the gate —
 unless ``--force`` is given; a forced write says so on stderr and in the JSON
 (``"gates": {"forced": true, ...}``).
@@ -188,18 +189,19 @@ def recording_named(obj) -> str | None:
     return None
 
 
-MISSING = {"rms_ut": "rms_ut", "offset_sigma_ut": "offset_sigma_ut", "samples": "samples", "coverage": "coverage",
-           "condition": "condition"}
+GATE_EVIDENCE = ("samples", "coverage", "condition", "rms_ut", "offset_sigma_ut")
 
 
 def complete_evidence(ev: Evidence, obj, cal: Calibration, notes: list[str]) -> Evidence:
-    """``ev`` with what it lacks recomputed from the recording the result names; unchanged
-    (and why, in ``notes``) when there is none or it cannot be read."""
+    """The evidence the gates judge. Where the result names a recording that can be read, all of
+    it recomputed there for the calibration being written (``fit.evidence``): a result edited by
+    hand — its calibration or its evidence — is judged on the data, not on what it says. Else
+    what the result carries, the rest left unjudged (and why, in ``notes``)."""
     from dataclasses import replace
 
-    missing = [k for k in MISSING if getattr(ev, k) is None]
     path = recording_named(obj)
-    if not missing or path is None:
+    missing = [k for k in GATE_EVIDENCE if getattr(ev, k) is None]
+    if path is None:
         return ev
     from ..app.load import load_series
     from ..fit.evidence import evidence
@@ -208,12 +210,12 @@ def complete_evidence(ev: Evidence, obj, cal: Calibration, notes: list[str]) -> 
     try:
         series, _ = load_series(path, None, None).only_valid().thinned(MAX_FIT_SAMPLES)
     except (InputError, OSError) as exc:
-        notes.append(f"the evidence it lacks ({', '.join(missing)}) could not be recomputed from {path}: {exc}")
+        if missing:
+            notes.append(f"the evidence it lacks ({', '.join(missing)}) could not be recomputed from {path}: {exc}")
         return ev
-    fresh = evidence(series.field_ut, cal.offset_ut, cal.field_ut, cal.soft_iron)
-    found = {k: (tuple(fresh[k]) if k == "offset_sigma_ut" and fresh[k] else fresh[k]) for k in missing}
-    notes.append(f"recomputed {', '.join(k for k in missing if found[k] is not None)} from {path} "
-                 f"({fresh['samples']} samples)")
+    fresh = evidence(series.field_ut, cal, series.channels)
+    found = {k: (tuple(fresh[k]) if k == "offset_sigma_ut" and fresh[k] else fresh[k]) for k in GATE_EVIDENCE}
+    notes.append(f"the gates judged the evidence recomputed from {path} ({fresh['samples']} samples)")
     return replace(ev, **{k: v for k, v in found.items() if v is not None})
 
 

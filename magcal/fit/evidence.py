@@ -2,15 +2,15 @@
 judge (``logic.gates.Evidence``), so that every result carries it and ``magcal write`` can
 recompute it from the recording a result names.
 
-``evidence(m_ut, offset_ut, field_ut, soft_iron)`` gives, for the samples ``m_ut`` (n, 3, µT, in
-time order):
+``evidence(m_ut, cal, channels)`` gives, for the samples ``m_ut`` (n, 3, µT, in time order) and
+the calibration ``cal`` (its channel terms applied where ``channels`` holds their columns):
 
 * ``samples``: how many;
 * ``coverage``: the share of equal-area cells holding a calibrated direction — the session's
   own measure (``fit.coverage``);
 * ``condition``: the condition of the sphere's normal matrix, as the session's live estimate
   reports it (``SphereAccumulator``);
-* ``rms_ut``: the residual RMS of |W (m − b)| about the field;
+* ``rms_ut``: the residual RMS of |W (m − b − Σ k·(x − x₀))| about the field;
 * ``offset_sigma_ut``: the offset's 1σ per axis from the batch-means sandwich on contiguous
   blocks (``uncertainty.block_covariance``: robust to residuals correlated over less than a
   block), mapped from the calibrated frame back to the raw one.
@@ -20,20 +20,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.calibration import Calibration
 from . import geometric, uncertainty
 from .accumulator import SphereAccumulator
 from .coverage import coverage
 
 
-def evidence(m_ut, offset_ut, field_ut: float, soft_iron=None) -> dict:
-    """The gates' evidence for the calibration (b, r, W) on samples ``m_ut``; JSON-ready."""
+def evidence(m_ut, cal: Calibration, channels=None) -> dict:
+    """The gates' evidence for ``cal`` on samples ``m_ut`` (``channels``: their columns by
+    name, for the calibration's channel terms); JSON-ready."""
     m = np.asarray(m_ut, dtype=np.float64).reshape(-1, 3)
-    m = m[np.all(np.isfinite(m), axis=1)]
-    w = np.eye(3) if soft_iron is None else np.asarray(soft_iron, dtype=np.float64).reshape(3, 3)
+    moved = m - cal.offset_ut - cal.channel_offset_ut(channels, len(m))
+    good = np.all(np.isfinite(moved), axis=1)
+    m, w, field_ut = m[good], cal.soft_iron, cal.field_ut
     out = {"samples": int(len(m)), "coverage": None, "condition": None, "rms_ut": None, "offset_sigma_ut": None}
     if len(m) == 0:
         return out
-    c = (m - np.asarray(offset_ut, dtype=np.float64)) @ w.T
+    c = moved[good] @ w.T
     norm = np.linalg.norm(c, axis=1)
     good = norm > 0
     out["coverage"] = round(float(coverage(c[good] / norm[good, None])), 4) if good.any() else 0.0
