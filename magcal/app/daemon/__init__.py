@@ -11,6 +11,8 @@ hands what came to its collaborators, each a small object of its own module, tes
     recalibrator.Recalibrator   when to write: collect, gates, solve (a decider)
     recalibrator.CalibrationWriter   write, verify by read-back, remember what was verified
     persistence.StateKeeper     the state file a restart resumes from; the state-dir lock
+    ledger.WriteLedger          every EEPROM write recorded (fsynced) before it is sent: the
+                                write budget is charged from it, so it survives kill -9
     control.ControlSocket       ``status.sock``: the live status for ``magcal status``
     recorder.RollingCapture     the bounded capture of every byte read
     journal.Journal             every decision, typed (``Decision``), logged once
