@@ -33,6 +33,7 @@ calibration; 5 for the device or port. ``--json`` prints ``magcal.write/1``.
 
 from __future__ import annotations
 
+import os
 import sys
 
 import numpy as np
@@ -208,6 +209,8 @@ def complete_evidence(ev: Evidence, obj, cal: Calibration, notes: list[str]) -> 
     from .fit import MAX_FIT_SAMPLES
 
     try:
+        if not os.path.isfile(path):  # a device, a pipe or nothing: never read for evidence
+            raise InputError("not a regular file")
         series, _ = load_series(path, None, None).only_valid().thinned(MAX_FIT_SAMPLES)
     except (InputError, OSError) as exc:
         if missing:
