@@ -28,25 +28,41 @@ from .coverage import coverage
 
 def evidence(m_ut, cal: Calibration, channels=None) -> dict:
     """The gates' evidence for ``cal`` on samples ``m_ut`` (``channels``: their columns by
-    name, for the calibration's channel terms); JSON-ready."""
+    name, for the calibration's channel terms); JSON-ready. A quantity the numbers cannot give
+    (a calibration so far off that nothing stays finite) is None: its gate is left unjudged."""
     m = np.asarray(m_ut, dtype=np.float64).reshape(-1, 3)
-    moved = m - cal.offset_ut - cal.channel_offset_ut(channels, len(m))
-    good = np.all(np.isfinite(moved), axis=1)
-    m, w, field_ut = m[good], cal.soft_iron, cal.field_ut
-    out = {"samples": int(len(m)), "coverage": None, "condition": None, "rms_ut": None, "offset_sigma_ut": None}
-    if len(m) == 0:
-        return out
-    c = moved[good] @ w.T
+    out = {"samples": 0, "coverage": None, "condition": None, "rms_ut": None, "offset_sigma_ut": None}
+    with np.errstate(all="ignore"):
+        moved = m - cal.offset_ut - cal.channel_offset_ut(channels, len(m))
+        c = moved @ cal.soft_iron.T
+        good = np.all(np.isfinite(c), axis=1)
+        m, c = m[good], c[good]
+        out["samples"] = int(len(m))
+        if len(m) == 0:
+            return out
+        try:
+            out.update(_measures(m, c, cal))
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+            pass
+    return {k: _finite_or_none(v) for k, v in out.items()}
+
+
+def _measures(m: np.ndarray, c: np.ndarray, cal: Calibration) -> dict:
     norm = np.linalg.norm(c, axis=1)
     good = norm > 0
-    out["coverage"] = round(float(coverage(c[good] / norm[good, None])), 4) if good.any() else 0.0
     acc = SphereAccumulator()
     acc.add_batch(m)
     sphere = acc.solve(max_condition=float("inf"))
-    out["condition"] = float(sphere.condition) if sphere else None
-    out["rms_ut"] = float(np.sqrt(np.mean((norm - float(field_ut)) ** 2)))
-    out["offset_sigma_ut"] = _offset_sigma(c, float(field_ut), w)
-    return out
+    return {"coverage": round(float(coverage(c[good] / norm[good, None])), 4) if good.any() else 0.0,
+            "condition": float(sphere.condition) if sphere else None,
+            "rms_ut": float(np.sqrt(np.mean((norm - cal.field_ut) ** 2))),
+            "offset_sigma_ut": _offset_sigma(c, cal.field_ut, cal.soft_iron)}
+
+
+def _finite_or_none(v):
+    if isinstance(v, list):
+        return v if all(np.isfinite(x) for x in v) else None
+    return v if v is None or np.isfinite(v) else None
 
 
 def _offset_sigma(c: np.ndarray, field_ut: float, w: np.ndarray) -> list[float] | None:

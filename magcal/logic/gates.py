@@ -63,7 +63,12 @@ class GateResult:
     message: str
 
     def to_dict(self) -> dict:
-        return {"gate": self.name, "passed": self.passed, "value": self.value, "limit": self.limit, "message": self.message}
+        """JSON-ready: a value too large to be a number in JSON (an offset of 1e308 on three
+        axes) is given as a string."""
+        value = self.value
+        if value is not None and not np.isfinite(value):
+            value = str(value)
+        return {"gate": self.name, "passed": self.passed, "value": value, "limit": self.limit, "message": self.message}
 
 
 @dataclass(frozen=True)
