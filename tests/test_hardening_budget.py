@@ -171,3 +171,22 @@ def test_a_daemon_resumes_the_ledger_into_its_state(tmp_path):
     keeping = StateFiles(st).load()["resume"]["keeping"]
     assert (keeping["cycles"], keeping["failed"]) == (1, 1)
     assert Decision.WRITE_INTERRUPTED in d.journal.decisions()
+
+
+def test_the_recalibrator_s_writes_are_charged_to_the_same_budget(tmp_path):
+    """``daemon.keep: alarm`` writes a refit after the monitor rings: within the same budget,
+    from the same ledger."""
+    st = tmp_path / "st"
+    st.mkdir()
+    (st / LEDGER_NAME).write_text('{"op":1,"intent":"write","t_utc":%f}\n{"op":1,"resolved":"verified","t_utc":%f}\n'
+                                  % (time.time() - 60, time.time() - 59))
+    settings = config.load(None, {"port": "sim://?pace=0", "daemon": {
+        "socket": False, "keep": "alarm", "write_budget_per_day": 1, "write_burst": 1}}, environ={})
+    d = Daemon(settings, state_dir=st, max_samples=1)
+    d.tracking.open_ledger()
+    try:
+        assert not d.tracking.may_spend()
+        assert d._write(session=None) is None
+        assert d.journal.decisions()[-1] is Decision.BUDGET_WAIT
+    finally:
+        d.tracking.close_ledger()

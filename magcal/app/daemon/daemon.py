@@ -144,8 +144,7 @@ class Daemon:
     def run(self) -> int:
         with StateDirLock(self.state_dir):
             self.resume()
-            if self.tracking.open_ledger():
-                self.save()  # the state says at once what the ledger says was spent
+            self.tracking.open_ledger()  # the budget as spent by every write, from before the first save
             if self.settings.daemon.socket:
                 self.control.open()
             self.capture.open(self.settings)
