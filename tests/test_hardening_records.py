@@ -47,3 +47,17 @@ def test_what_no_calibration_can_be_is_named(cal, word):
 def test_a_calibration_a_real_part_can_need_makes_sense():
     w = np.array([[1.08, 0.03, -0.01], [0.03, 0.93, 0.02], [-0.01, 0.02, 1.0]])
     assert record_problem(Calibration([1200.0, -300.0, 40.0], 48.0, w)) is None
+
+
+def test_a_host_store_file_with_a_good_checksum_and_nonsense_inside_is_invalid(tmp_path):
+    """The AK8975 on I2C keeps its calibration in a host file: the same sense check applies."""
+    from magcal.core.calibration import RecordState
+    from magcal.core.events import Identity
+    from magcal.recordings.store import CalibrationStore, encode
+
+    store = CalibrationStore(tmp_path)
+    who = Identity(transport="i2c", who_am_i=0x68, wia=0x48)
+    nonsense = Calibration([0, 0, 0], 50.0, np.eye(3) * 1e-6)
+    store.path_for(who).write_bytes(encode(who, nonsense, saved_at="2026-01-01T00:00:00Z"))
+    held = store.stored(who)
+    assert held.state is RecordState.INVALID and "soft iron" in held.problem and held.calibration is None
