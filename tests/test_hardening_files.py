@@ -59,14 +59,18 @@ def test_a_capture_is_never_opened_through_a_link(tmp_path, capsys):
     assert target.read_text() == SECRET
 
 
-@pytest.mark.parametrize("name", ["state.json", "writes.jsonl"])
+@pytest.mark.parametrize("name", ["state.json", "writes.jsonl", "lock"])
 def test_the_daemon_never_writes_through_a_planted_link(tmp_path, name):
     from magcal.app import config
     from magcal.app.daemon import Daemon
+    from magcal.core.errors import StateError
 
     st = tmp_path / "st"
     st.mkdir()
     target = _plant(st / name, tmp_path)
     settings = config.load(None, {"port": "sim://?pace=0", "daemon": {"socket": False}}, environ={})
-    Daemon(settings, state_dir=st, max_samples=1).run()
+    try:
+        Daemon(settings, state_dir=st, max_samples=1).run()
+    except StateError as exc:  # the lock behind a link: refused, named
+        assert name == "lock" and "lock" in str(exc)
     assert target.read_text() == SECRET

@@ -146,7 +146,10 @@ class StateDirLock:
         except ImportError:  # not POSIX: no lock
             return self
         self.state_dir.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.state_dir / "lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:  # never through a link planted in its place (O_NOFOLLOW)
+            fd = os.open(self.state_dir / "lock", os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        except OSError as exc:
+            raise StateError(f"cannot take the lock {self.state_dir / 'lock'}: {exc.strerror or exc}") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
