@@ -2,8 +2,9 @@
 
     MAGCAL_REAL_DATA=… python bench/interval_coverage.py [--sealed] [--only NAME] [--no-tracker]
 
-Every real recording ``bench/model_choice.py`` loads (the sealed ones of docs/sealed.md only
-with ``--sealed``, printed apart) is cut in two at its middle sample. Each half is calibrated on
+Every real recording ``bench/model_choice.py`` loads but the excerpts in tests/data (copies of
+recordings already in the set), with its own times (the sealed ones of docs/sealed.md only with
+``--sealed``, printed apart), is cut in two at its middle sample. Each half is calibrated on
 its own, and for each parameter θ with a stated 1σ the pair is *covered* when
 
     |θ₁ − θ₂| ≤ 1.96 · √(σ₁² + σ₂²)
@@ -16,7 +17,7 @@ its own, and for each parameter θ with a stated 1σ the pair is *covered* when
             sphere on each) states nothing and is left out; a sphere's 0 σ beside an ellipsoid
             counts (the sphere claimed the axis gains are exact).
 * tracker — a fresh ``Tracker`` fed each half, its final estimate: the offset (3), the only
-            parameter it states a σ for.
+            parameter it states a σ for; beside it, the tracker's σ over fit's on the same half.
 
 Per row: the change in units of its stated 2-sided 95 % half-width (≤ 1 covered), so a row
 shows how far short an interval falls, not only whether it does.
@@ -54,8 +55,7 @@ def recordings() -> dict:
             recs[f"lsm9ds1_pesboard {f}"] = mc._pesboard(f)
         except (OSError, ValueError):
             pass
-    recs.update(mc._flight_logs())
-    recs.update(mc._tests_data())
+    recs.update(mc._flight_logs())  # tests/data's excerpts are left out: each is a copy of one of these
     out = {}
     for k, (t, m) in recs.items():
         t, m = np.asarray(t, float), np.asarray(m, float)

@@ -138,23 +138,31 @@ def direction_jackknife(jac: np.ndarray, residual_ut: np.ndarray, weights=None) 
     recording measures the cap's geometry, not the model), and the rest still pins the
     parameters; None where fewer than three groups can be left out."""
     e = np.asarray(residual_ut, np.float64)
-    w = np.ones(len(e)) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
-    wj = w[:, None] * jac
-    a = jac.T @ wj
+    n, p = jac.shape
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
     groups = direction_groups(jac)
-    moves = []
-    for k in range(6):
-        s = groups == k
-        if s.sum() < jac.shape[1] or s.sum() > len(e) / 3:  # a face that is most of the data is no perturbation
-            continue
-        a_k = a - jac[s].T @ wj[s]
-        if information_condition_of(a_k) > 1e12:
-            continue
-        moves.append(np.linalg.solve(a_k, wj[s].T @ e[s]))
-    if len(moves) < 3:
+    order = np.argsort(groups, kind="stable")
+    edges = np.searchsorted(groups[order], np.arange(7))
+    js, wjs, es = jac[order], (w[:, None] * jac)[order], e[order]
+    kept = [k for k in range(6) if p <= edges[k + 1] - edges[k] <= n / 3]  # a face that is most of the data is no perturbation
+    if len(kept) < 3:
         return None
-    d = np.asarray(moves) - np.mean(moves, axis=0)
+    a = js.T @ wjs
+    a_out = np.stack([a - js[edges[k]:edges[k + 1]].T @ wjs[edges[k]:edges[k + 1]] for k in kept])
+    g = np.stack([wjs[edges[k]:edges[k + 1]].T @ es[edges[k]:edges[k + 1]] for k in kept])
+    pinned = conditions(a_out) <= 1e12
+    if pinned.sum() < 3:
+        return None
+    moves = np.linalg.solve(a_out[pinned], g[pinned][..., None])[..., 0]
+    d = moves - moves.mean(axis=0)
     return d.T @ d * (len(d) - 1.0) / len(d)
+
+
+def conditions(jtjs: np.ndarray) -> np.ndarray:
+    """Condition numbers of a stack of normal matrices, each scaled to unit diagonal."""
+    d = np.sqrt(np.clip(np.einsum("kii->ki", jtjs), 1e-300, None))
+    ev = np.linalg.eigvalsh(jtjs / (d[:, :, None] * d[:, None, :]))
+    return np.where(ev[:, 0] > 0, ev[:, -1] / np.maximum(ev[:, 0], 1e-300), np.inf)
 
 
 def information_condition_of(jtj: np.ndarray) -> float:
