@@ -61,3 +61,19 @@ def test_a_host_store_file_with_a_good_checksum_and_nonsense_inside_is_invalid(t
     store.path_for(who).write_bytes(encode(who, nonsense, saved_at="2026-01-01T00:00:00Z"))
     held = store.stored(who)
     assert held.state is RecordState.INVALID and "soft iron" in held.problem and held.calibration is None
+
+
+def test_the_real_sketch_cuts_an_extreme_record_s_reply_and_it_is_named_invalid(tmp_path, capsys):
+    """The firmware cuts a reply at the line limit (the simulator sends it whole and the link
+    drops it): either way the record is INVALID, not a silent device, and a write replaces it."""
+    from firmware_support import require_firmware
+
+    require_firmware()
+    ee = tmp_path / "ee.bin"
+    SimEeprom(str(ee)).save_record(EXTREMES)  # the sketch keeps the same record layout
+    port = f"emu://?eeprom={ee}"
+    assert main(["show", "--port", port]) == 1
+    assert "INVALID" in capsys.readouterr().out
+    src = tmp_path / "cal.json"
+    src.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "evidence": EVIDENCE}))
+    assert main(["write", str(src), "--port", port]) == 0

@@ -109,6 +109,8 @@ def test_fit_on_capture_csv_and_replay_is_bit_identical(recorded, tmp_path, caps
     assert {**from_capture, "file": None} == {**from_csv, "file": None}
     replayed = Series.from_samples(read_to_end(open_device(f"replay://{path}")))
     via_replay = json.loads(json.dumps(fit_calibration(replayed, model="auto").to_dict()))
+    evidence = {"evidence": from_capture.pop("evidence"), "coverage": from_capture.pop("coverage")}  # fit's CLI adds them
+    assert evidence["evidence"]["coverage"] == evidence["coverage"]
     assert {**via_replay, "warnings": [], "file": str(path), "n_samples": len(replayed)} == from_capture
 
 

@@ -26,6 +26,7 @@ MAX_LINE = 120  # bytes including '$' and '\n'
 SEQ_MOD = 65536
 RECORD_VERSION = 1
 RECORD_FIELDS = 18  # v, ox, oy, oz, r, w00, w11, w22, w01, w02, w12, tx, ty, tz, tref, ix, iy, iz
+TOO_LONG = "TOO_LONG"  # a C reply cut at MAX_LINE: the record's values are too long to be a calibration's
 
 
 # -- checksums ----------------------------------------------------------------------------
@@ -141,7 +142,7 @@ class ErrorReply(Reply):
 class RecordReply(Reply):
     """``C``: the stored calibration record (the reply to ``K``, and to ``W`` after storing)."""
 
-    status: str  # OK, BLANK, CORRUPT
+    status: str  # OK, BLANK, CORRUPT; TOO_LONG: the reply was cut at the line limit (values no record has)
     values: tuple[int, ...]  # the 18 record integers
     crc: int
 
@@ -255,6 +256,10 @@ def parse_payload(payload: bytes) -> Message:
         _need(f, 3, "E")
         return ErrorReply(seq, _int(f[0]), f[1].decode("ascii"), f[2].decode("ascii"))
     if kind == b"C":
+        if len(f) < 2 + RECORD_FIELDS + 1 and len(payload) >= MAX_LINE - 16 and len(f) >= 2:
+            # a sketch cuts a reply at the line limit: a record whose values do not fit is no
+            # calibration (int32 extremes), and is said as such, not taken for silence
+            return RecordReply(seq, _int(f[0]), TOO_LONG, (), 0)
         _need(f, 2 + RECORD_FIELDS + 1, "C")
         status = f[1].decode("ascii")
         if status not in ("OK", "BLANK", "CORRUPT"):
@@ -566,6 +571,9 @@ def stored_record(status: str, values: Sequence[int], crc: int) -> StoredRecord:
     says), invalid (the record checks out but is no calibration), or the calibration (pure)."""
     if status == "BLANK":
         return StoredRecord(RecordState.NONE)
+    if status == TOO_LONG:
+        return StoredRecord(RecordState.INVALID, problem="the device's record reply was cut at the protocol's line "
+                            f"limit ({MAX_LINE} bytes): its record holds values no calibration has")
     if status != "OK":
         return StoredRecord(RecordState.CORRUPT, problem=f"the device reports its record as {status} "
                             "(format, version or CRC wrong)")
