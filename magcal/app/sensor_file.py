@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import yaml
 
@@ -32,6 +33,9 @@ def save_model(model: SensorModel, path) -> None:
     target, never through a link)."""
     d = model.to_dict()
     text = json.dumps(d, indent=2) + "\n" if str(path).endswith(".json") else yaml.safe_dump(d, sort_keys=False, default_flow_style=None, allow_unicode=True)
+    parent = os.path.dirname(os.fspath(path)) or "."
+    if not os.path.isdir(parent):  # a folder is not made for it (a mistyped path is said)
+        raise InputError(f"{path}: cannot write the sensor model (no such folder {parent})")
     try:
         write_text(path, text)
     except OSError as exc:
