@@ -47,3 +47,22 @@ class DataFlashWriter:
     def save(self, path) -> None:
         with open(path, "wb") as fh:
             fh.write(bytes(self.data))
+
+
+# the messages an ArduCopter 4.x log holds that magcal reads, in the firmware's layouts
+AP4_MESSAGES = (
+    ("PARM", "QNff", "TimeUS,Name,Value,Default"),
+    ("MSG", "QZ", "TimeUS,Message"),
+    ("MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S"),
+    ("ATT", "QccccCCCCB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw,AEKF"),
+    ("GPS", "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U"),
+    ("BAT", "QBfffffcfBBB", "TimeUS,Inst,Volt,VoltR,Curr,CurrTot,EnrgTot,Temp,Res,RemPct,H,SH"),
+)
+
+
+def ap4_writer() -> DataFlashWriter:
+    """A writer with the ArduCopter 4.x messages defined."""
+    w = DataFlashWriter()
+    for name, fmt, columns in AP4_MESSAGES:
+        w.define(name, fmt, columns)
+    return w

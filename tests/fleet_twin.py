@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dataflash_writer import DataFlashWriter
+from dataflash_writer import ap4_writer
 
 BASE_LOG = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "ardupilot_log171_excerpt.bin")
 GPS_EPOCH = dt.datetime(1980, 1, 6)
@@ -111,15 +111,6 @@ def _readings(v: Vehicle, j: int, c: int, u, t, current) -> np.ndarray:
     return m
 
 
-def _define(w: DataFlashWriter) -> None:
-    w.define("PARM", "QNff", "TimeUS,Name,Value,Default")
-    w.define("MSG", "QZ", "TimeUS,Message")
-    w.define("MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S")
-    w.define("ATT", "QccccCCCCB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw,AEKF")
-    w.define("GPS", "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U")
-    w.define("BAT", "QBfffffcfBBB", "TimeUS,Inst,Volt,VoltR,Curr,CurrTot,EnrgTot,Temp,Res,RemPct,H,SH")
-
-
 def _params(v: Vehicle) -> dict:
     params = {"COMPASS_MOTCT": 0.0, "AHRS_TRIM_X": 0.0, "AHRS_TRIM_Y": 0.0, "AHRS_TRIM_Z": 0.0}
     for slot, (dev, ext) in enumerate(DEVICES):
@@ -148,8 +139,7 @@ def write_flight(path, v: Vehicle, j: int) -> None:
     ned, _, _ = earth_field_ned_ut([lat], [lon], [alt], _decimal_year(when))
     u = np.einsum("nji,j->ni", r, ned[0])  # the Earth's field in the body frame, µT
     fields = [_readings(v, j, c, u, t, current) for c in range(len(DEVICES))]
-    w = DataFlashWriter()
-    _define(w)
+    w = ap4_writer()
     w.write("MSG", 1000, "ArduCopter V4.5.7 (2a3dc4b7)")
     w.write("MSG", 1001, v.board_line())
     for name, value in _params(v).items():

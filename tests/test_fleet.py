@@ -24,13 +24,7 @@ STEP_AT, CURRENT_AT = 2, 3
 
 def _need_fleet():
     need("pymavlink", "pygeomag")
-    for m in ("pyarrow", "distributed"):
-        try:
-            __import__(m)
-        except ImportError:
-            if os.environ.get("CI") == "true":
-                pytest.fail(f"{m} (the 'fleet' extra) is required in CI")
-            pytest.skip(f"{m} is not installed (pip install '.[fleet]')")
+    need("pyarrow", "distributed", extra="fleet")
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,7 @@ import sys
 import numpy as np
 import pytest
 
-from dataflash_writer import DataFlashWriter
+from dataflash_writer import ap4_writer
 from logs_extra import need
 
 LAT, LON, ALT_M = 47.397, 8.545, 488.0  # near Zurich
@@ -69,13 +69,7 @@ def _body_field_mg(t):
 def write_log(path, with_priorities=True, learnt_offset_mg=None):
     """The synthetic 4.x log; ``learnt_offset_mg`` (slot 1's) is what the firmware applied and
     logged in MAG Ofs while the parameters still say otherwise (offsets learnt in flight)."""
-    w = DataFlashWriter()
-    w.define("PARM", "QNff", "TimeUS,Name,Value,Default")
-    w.define("MSG", "QZ", "TimeUS,Message")
-    w.define("MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S")
-    w.define("ATT", "QccccCCCCB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw,AEKF")
-    w.define("GPS", "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U")
-    w.define("BAT", "QBfffffcfBBB", "TimeUS,Inst,Volt,VoltR,Curr,CurrTot,EnrgTot,Temp,Res,RemPct,H,SH")
+    w = ap4_writer()
     w.write("MSG", 1000, "ArduCopter V4.5.7 (2a3dc4b7)")
     w.write("MSG", 1001, "Frame: QUAD/X")
     params = {"COMPASS_MOTCT": 0.0, "AHRS_TRIM_X": 0.0, "AHRS_TRIM_Y": 0.0, "AHRS_TRIM_Z": 0.0}

@@ -176,7 +176,7 @@ def _segments(x, s, alpha_each: float, lo: int = 0, depth: int = 0):
     k = lo + sp.k
     left = _segments(x[:k], s[:k], alpha_each, lo, depth + 1)
     right = _segments(x, s, alpha_each, k, depth + 1)
-    return left + [(k, split_at(x[lo:], s[lo:], sp.k), p)] + right
+    return left + [(k, sp, p)] + right
 
 
 def _kind(q: Quantity, sp: Split) -> ChangeKind:
