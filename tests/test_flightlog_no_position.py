@@ -64,10 +64,26 @@ def test_the_terminal_and_the_report_say_what_an_unknown_field_cannot_determine(
     assert ok
     text = format_log_text(d)
     assert "unknown but constant" in text and "Not determined: the field's size" in text
+    assert d["earth_field"]["heading_source"] == "magnetometer" and "(EKF2_MAG_TYPE 1)" in text
     diag = diagnose_flight_log(without)
     assert diag["earth_field"]["mode"] == "unknown_constant"
     for words in (format_log_diagnosis(diag), terms_html(diag)):
         assert "no position fix" in words and "declination" in words and "inclination" in words
+
+
+def test_where_the_heading_came_from_is_read_from_the_parameters_and_changes_the_words():
+    from magcal.app.flightlog import earth_field_text, heading_source
+
+    assert heading_source("px4", {"EKF2_AID_MASK": 24, "EKF2_MAG_TYPE": 0})[0] == "external_navigation"
+    assert heading_source("px4", {"EKF2_EV_CTRL": 15})[0] == "external_navigation"
+    assert heading_source("ardupilot", {"EK3_SRC1_YAW": 1})[0] == "magnetometer"
+    assert heading_source("ardupilot", {"EK3_SRC1_YAW": 6})[0] == "external_navigation"
+    assert heading_source("px4", {})[0] == "unknown"
+    ef = {"mode": "unknown_constant", "inclination_deg": 60.0, "sigma_inclination_deg": 0.2, "size_ut": 50.0,
+          "heading_frame_declination_deg": 3.0, "sigma_heading_frame_declination_deg": 0.3}
+    by_source = {src: earth_field_text({**ef, "heading_source": src}) for src in ("magnetometer", "external_navigation")}
+    assert "the declination the autopilot assumed" in by_source["magnetometer"]
+    assert "only if its north is true north" in by_source["external_navigation"]
 
 
 def test_without_attitude_either_the_fit_says_it_used_the_magnitude_alone():

@@ -64,22 +64,60 @@ def _earth_field(lm: LogMag, how: str, fitted: dict | None) -> dict:
         return {"format": EARTH_FIELD_FORMAT, "mode": "model", "model": lm.earth_model, "size_ut": lm.earth_field_ut}
     if how == "magnitude_only" or fitted is None:
         return {"format": EARTH_FIELD_FORMAT, "mode": how, "model": lm.earth_model, "size_ut": lm.earth_field_ut}
+    source, why = heading_source(lm.log.autopilot, lm.log.params)
     return {**fitted, "determined": ["offset", "soft_iron_shape", "terms", "inclination"],
-            "not_determined": ["field_size", "soft_iron_scale", "declination"]}
+            "not_determined": ["field_size", "soft_iron_scale", "declination"],
+            "heading_source": source, "heading_source_from": why}
+
+
+AP_YAW = {0: "none", 1: "magnetometer", 2: "gps", 3: "gps", 6: "external_navigation", 8: "gsf"}
+
+
+def heading_source(autopilot: str, params) -> tuple[str, str]:
+    """Where the log's heading came from, as its parameters say ("magnetometer",
+    "external_navigation", another source, or "unknown"), and the parameter that says so."""
+    if autopilot == "ardupilot":
+        if "EK3_SRC1_YAW" in params:
+            v = int(params["EK3_SRC1_YAW"])
+            return AP_YAW.get(v, "unknown"), f"EK3_SRC1_YAW {v}"
+        if "COMPASS_USE" in params:
+            v = int(params["COMPASS_USE"])
+            return ("magnetometer" if v else "unknown"), f"COMPASS_USE {v} (no EK3_SRC1_YAW: the compass is the yaw source)"
+        return "unknown", "no EK3_SRC1_YAW or COMPASS_USE in the log"
+    for name, bit in (("EKF2_EV_CTRL", 8), ("EKF2_AID_MASK", 16)):
+        if name in params and int(params[name]) & bit:
+            return "external_navigation", f"{name} {int(params[name])} (vision yaw)"
+    if "EKF2_MAG_TYPE" in params:
+        v = int(params["EKF2_MAG_TYPE"])
+        return ("none" if v == 5 else "magnetometer"), f"EKF2_MAG_TYPE {v}"
+    return "unknown", "no EKF2_MAG_TYPE in the log"
 
 
 def earth_field_text(ef: dict | None) -> str:
-    """The words for an unknown-field fit: what it pins and what it cannot ("" otherwise)."""
+    """The words for an unknown-field fit: what it pins and what it cannot, and where the
+    heading came from ("" otherwise)."""
     if not ef or ef.get("mode") != "unknown_constant" or "inclination_deg" not in ef:
         return ""
+    ef = {"heading_source": "unknown", **ef}
     return (f"the log has no position fix, so the Earth's field was fitted as unknown but constant from the log's "
             f"attitude. Determined: the offset, the soft iron's shape, the terms and the field's inclination "
             f"{ef['inclination_deg']:.1f} ± {ef['sigma_inclination_deg']:.1f}°. Not determined: the field's size "
             f"(it shares one scale with the soft iron; {ef['size_ut']:.2f} µT is this sensor's own reading, det W = 1) "
             f"and the declination ({ef['heading_frame_declination_deg']:.1f} ± "
-            f"{ef['sigma_heading_frame_declination_deg']:.1f}° is in the attitude's heading frame; without GPS the "
-            f"heading usually comes from this magnetometer itself, so that is the declination the autopilot assumed, "
-            f"not a measurement, and the offset is then pinned by the field's tilt and size more than by its heading)")
+            f"{ef['sigma_heading_frame_declination_deg']:.1f}° is in the attitude's heading frame; "
+            + HEADING_WORDS.get(ef.get("heading_source"), f"the heading came from {ef.get('heading_source')}, not this "
+                                "magnetometer, so that angle is the field's bearing in that heading frame")
+            + f" ({ef.get('heading_source_from', 'the log does not say')}))")
+
+
+HEADING_WORDS = {
+    "magnetometer": "the heading came from the magnetometer, so that is the declination the autopilot assumed, not a "
+                    "measurement, and the offset is pinned by the field's tilt and size more than by its heading",
+    "external_navigation": "the heading came from external navigation, so that angle is the field's bearing in that "
+                           "frame, the declination only if its north is true north",
+    "unknown": "without GPS the heading usually comes from the magnetometer itself, so that is most likely the "
+               "declination the autopilot assumed, not a measurement",
+}
 
 
 def against_text(mode: str, ef: dict | None, earth_model=None, earth_field_ut=None) -> str:
