@@ -11,6 +11,7 @@ import pytest
 
 from magcal.app.load import load_series
 from magcal.diagnose.locate import steps
+from magcal.diagnose.locate import steps_scan as scan
 from magcal.diagnose.locate.base import Kind, Residual
 from magcal.fit import fit_calibration
 from magcal.sim.physics import Motion, Physics, Scenario
@@ -52,6 +53,21 @@ def test_a_step_is_found_with_its_time_and_vector_and_removed_to_the_end_calibra
     refit = fit_calibration(cleaned, model="ellipsoid").calibration.offset_ut
     end = fit_calibration(m2[t >= 37.09], model="ellipsoid").calibration.offset_ut
     assert np.linalg.norm(refit - end) < 0.3 * np.linalg.norm(d)
+
+
+def test_the_scan_of_every_candidate_at_once_agrees_with_a_regression_on_each_window():
+    rng = np.random.default_rng(3)
+    t = np.arange(1500) / 50.0
+    u = rng.standard_normal((1500, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    r = 0.3 * rng.standard_normal(1500) + (t >= 14.0) * (u @ [0.2, -0.1, 0.05])
+    taus, half = np.array([8.0, 14.0, 20.3]), 4.0
+    lo, k, hi = np.searchsorted(t, taus - half), np.searchsorted(t, taus), np.searchsorted(t, taus + half, "right")
+    rss0, rss1 = scan.Moments(u, t, r, half).rss(lo, k, hi, taus)
+    for i, tau in enumerate(taus):
+        w = scan.window(t, tau, half)
+        gain, fit = scan.step_gain(u[w], t[w], r[w], tau, half)
+        assert rss1[i] == pytest.approx(fit.rss, rel=1e-8) and rss0[i] - rss1[i] == pytest.approx(gain, rel=1e-6)
 
 
 def test_a_step_injected_into_a_real_recording_is_found_where_it_was_put():

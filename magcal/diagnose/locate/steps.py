@@ -96,28 +96,22 @@ def _check(res: Residual) -> None:
 # -- hard-iron steps ----------------------------------------------------------------------
 
 
-def _stat_at(u, t, r, tau, half, f2) -> tuple[float, scan.Fit] | None:
-    w = scan.window(t, tau, half)
-    if not scan.support(t, tau, half, MIN_SIDE):
-        return None
-    gain, f1 = scan.step_gain(u[w], t[w], r[w], tau, half)
-    var = f1.rss / max(f1.n - f1.p, 1)
-    return gain / max(var * f2, 1e-300), f1
-
-
 def _best(u, t, r, half, f2) -> tuple[float, float, float]:
-    """(largest statistic, its time, the median statistic) over the candidate grid."""
-    stats, taus = [], []
+    """(largest statistic, its time, the median statistic) over the candidate grid; a
+    candidate needs ``MIN_SIDE`` samples each side of it within its window. Every candidate's
+    local regression comes from one pass of prefix sums (``steps_scan.Moments``)."""
     per_half = max(1, int(min(10, MAX_CANDIDATES * half / max(float(t[-1] - t[0]), half))))
-    for tau in scan.candidates(t, half, per_half):
-        got = _stat_at(u, t, r, tau, half, f2)
-        if got is not None:
-            stats.append(got[0])
-            taus.append(float(tau))
-    if not stats:
+    taus = scan.candidates(t, half, per_half)
+    lo, k, hi = (np.searchsorted(t, taus - half, "left"), np.searchsorted(t, taus, "left"),
+                 np.searchsorted(t, taus + half, "right"))
+    ok = (k - lo >= MIN_SIDE) & (hi - k >= MIN_SIDE)
+    if not np.any(ok):
         return 0.0, float("nan"), 0.0
-    k = int(np.argmax(stats))
-    return float(stats[k]), taus[k], float(np.median(stats))
+    rss0, rss1 = scan.Moments(u, t, r, half).rss(lo[ok], k[ok], hi[ok], taus[ok])
+    var = rss1 / np.maximum(hi[ok] - lo[ok] - 12, 1)
+    stats = (rss0 - rss1) / np.maximum(var * f2, 1e-300)
+    j = int(np.argmax(stats))
+    return float(stats[j]), float(taus[ok][j]), float(np.median(stats))
 
 
 def _refine(u, t, r, half, tau0, f2, threshold) -> Step:
@@ -126,18 +120,21 @@ def _refine(u, t, r, half, tau0, f2, threshold) -> Step:
     uw, tw, rw = u[w], t[w], r[w]
     near = tw[np.abs(tw - tau0) <= half / 5.0]
     taus = np.unique(np.concatenate([near, [tau0]]))
-    fits = [scan.step_gain(uw, tw, rw, tau, half)[1] for tau in taus]
-    rss = np.array([f.rss for f in fits])
-    k = int(np.argmin(rss))
-    f1 = fits[k]
+    k = np.searchsorted(tw, taus, "left")
+    keep = (k >= 1) & (k < len(tw))
+    taus, k = taus[keep], k[keep]
+    ends = np.zeros(len(k), np.int64)
+    rss0, rss = scan.Moments(uw, tw, rw, half).rss(ends, k, ends + len(tw), np.full(len(k), tau0))
+    j = int(np.argmin(rss))
+    tau = float(taus[j])
+    f1 = scan.step_gain(uw, tw, rw, tau, half)[1]
     var = f1.rss / max(f1.n - f1.p, 1) * f2
-    inside = taus[rss <= rss[k] + INTERVAL_CHI2 * var]
-    tau = float(taus[k])
+    inside = taus[rss <= rss[j] + INTERVAL_CHI2 * var]
     dt = float(np.median(np.diff(tw))) if len(tw) > 1 else 0.0  # the time is known to a sample at best
     inside = np.concatenate([inside, [tau - dt, tau + dt]])
-    d = f1.coef[-3:]
-    stat = (scan.lsq(scan.local_design(uw, tw, tau, half), rw).rss - f1.rss) / var
-    return Step(tau, (float(inside.min()), float(inside.max())), d, var * f1.xtx_inv[-3:, -3:], f1.coef[:3], stat, threshold)
+    stat = float(rss0[j] - f1.rss) / var
+    return Step(tau, (float(inside.min()), float(inside.max())), f1.coef[-3:], var * f1.xtx_inv[-3:, -3:], f1.coef[:3],
+                stat, threshold)
 
 
 def measure(u, t, r, q, f2, steps: list[Step]) -> list[Step]:

@@ -136,3 +136,61 @@ def solve_rss(xtx: np.ndarray, xtr: np.ndarray, rtr: float) -> tuple[float, np.n
     inv = np.linalg.pinv(xtx)
     coef = inv @ xtr
     return float(rtr - coef @ xtr), coef, inv
+
+
+class Moments:
+    """Prefix sums of the local step test's normal equations, so the test at every candidate
+    time (window [lo, hi), step at k, local time s = (t − a)/half) costs one 12×12 solve
+    instead of a regression on the window: moments of uuᵀ·x^j (j ≤ 4) and r·u·x^j (j ≤ 2)
+    with x = (t − t̄)/half, re-centred on a by the binomial expansion."""
+
+    def __init__(self, u: np.ndarray, t_s: np.ndarray, r: np.ndarray, half_s: float):
+        self.t0, self.half = float(np.mean(t_s)), float(half_s)
+        x = (t_s - self.t0) / self.half
+        pw = x[:, None] ** np.arange(5)[None, :]
+        uu = u[:, :, None] * u[:, None, :]
+        self.uu = _prefix(pw[:, :, None, None] * uu[:, None, :, :])  # (n+1, 5, 3, 3)
+        self.ru = _prefix(pw[:, :3, None] * (r[:, None] * u)[:, None, :])  # (n+1, 3, 3)
+        self.rr = _prefix(r * r)
+
+    def rss(self, lo: np.ndarray, k: np.ndarray, hi: np.ndarray, a_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(RSS of the local wander alone, RSS with the step) per candidate."""
+        a = (np.asarray(a_s, float) - self.t0) / self.half
+        mw = _recentre(self.uu[hi] - self.uu[lo], a, 5)  # (m, 5, 3, 3) Σ uuᵀ s^k over the window
+        ma = _recentre(self.uu[hi] - self.uu[k], a, 3)  # … after the step
+        rw = _recentre(self.ru[hi] - self.ru[lo], a, 3)  # (m, 3, 3) Σ r u s^k
+        ra = self.ru[hi, 0] - self.ru[k, 0]
+        m = len(a)
+        g = np.zeros((m, 12, 12))
+        for p in range(3):
+            for q in range(3):
+                g[:, 3 * p : 3 * p + 3, 3 * q : 3 * q + 3] = mw[:, p + q]
+            g[:, 3 * p : 3 * p + 3, 9:] = ma[:, p]
+            g[:, 9:, 3 * p : 3 * p + 3] = ma[:, p]
+        g[:, 9:, 9:] = ma[:, 0]
+        b = np.concatenate([rw.reshape(m, 9), ra], axis=1)
+        rr = self.rr[hi] - self.rr[lo]
+        return rr - _explained(g[:, :9, :9], b[:, :9]), rr - _explained(g, b)
+
+
+def _prefix(a: np.ndarray) -> np.ndarray:
+    return np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)])
+
+
+def _recentre(moments: np.ndarray, a: np.ndarray, count: int) -> np.ndarray:
+    """Σ w (x − a)^k from Σ w x^j (j < ``count``), per candidate."""
+    from math import comb
+
+    out = np.zeros((len(a), count) + moments.shape[2:])
+    shape = (-1,) + (1,) * (moments.ndim - 2)
+    for k in range(count):
+        for j in range(k + 1):
+            out[:, k] += comb(k, j) * ((-a) ** (k - j)).reshape(shape) * moments[:, j]
+    return out
+
+
+def _explained(g: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """bᵀG⁺b per candidate: the square a least-squares fit explains (pseudo-inverse: a column
+    the window cannot determine explains nothing)."""
+    coef = np.einsum("mij,mj->mi", np.linalg.pinv(g, hermitian=True), b)
+    return np.einsum("mi,mi->m", coef, b)
