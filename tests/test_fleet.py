@@ -232,3 +232,28 @@ def test_a_current_term_that_appears_is_told_from_one_that_grows():
     grows = appears + (0.3, 0.0, 0.0)
     (c,) = detect(_history(off, current=grows + np.random.default_rng(2).normal(0, 0.01, (8, 3)))).changes
     assert c.kind is ChangeKind.CURRENT_TERM_CHANGED
+
+
+def _dies_on_the_second(task):
+    """A worker that dies on one file (as a crash in a parser's compiled code would)."""
+    from magcal.app.fleet.analyse import analyse
+
+    if task["path"].endswith("second.csv"):
+        os._exit(3)
+    return analyse(task)
+
+
+def test_a_log_that_kills_its_worker_process_is_a_row_and_the_run_goes_on(tmp_path, monkeypatch):
+    _need_fleet()
+    import shutil
+
+    from magcal.app.fleet import runner
+
+    data = os.path.join(ROOT, "tests", "data")
+    shutil.copy(os.path.join(data, "lsm9ds1_ckexplorer_every4th.csv"), tmp_path / "first.csv")
+    shutil.copy(os.path.join(data, "qmc5883l_tomisuarez_every5th_counts.csv"), tmp_path / "second.csv")
+    monkeypatch.setattr(runner, "analyse", _dies_on_the_second)
+    assert _fleet(tmp_path / "first.csv", tmp_path / "second.csv", "-o", tmp_path / "out", "--workers", 2) == 0
+    rows = {os.path.basename(r["path"]): r for r in _rows(tmp_path / "out")}
+    assert rows["first.csv"]["status"] == "ok"
+    assert (rows["second.csv"]["status"], rows["second.csv"]["failure"]) == ("unreadable", "WorkerDied")

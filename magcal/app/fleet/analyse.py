@@ -168,8 +168,13 @@ def analyse(task: dict) -> dict:
     try:
         rows = _rows(task)
     except (MagcalError, OSError) as exc:
-        rows = [{**_blank(task), "status": "unreadable", "failure": type(exc).__name__, "message": str(exc)}]
+        return unreadable(task, type(exc).__name__, str(exc))
     except Exception as exc:  # noqa: BLE001 — a parser's own failure on one file is that file's row
-        rows = [{**_blank(task), "status": "unreadable", "failure": type(exc).__name__,
-                 "message": f"{task['path']}: {type(exc).__name__}: {exc}"}]
+        return unreadable(task, type(exc).__name__, f"{task['path']}: {type(exc).__name__}: {exc}")
     return {"key": [task["sha256"], task.get("version", __version__)], "rows": rows}
+
+
+def unreadable(task: dict, failure: str, message: str) -> dict:
+    """The result of a task whose file could not be analysed at all: one row saying why."""
+    row = {**_blank(task), "status": "unreadable", "failure": failure, "message": message}
+    return {"key": [task["sha256"], task.get("version", __version__)], "rows": [row]}

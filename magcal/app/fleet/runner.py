@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import os
 from itertools import islice
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, as_completed, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterable
 
-from .analyse import analyse
+from .analyse import analyse, unreadable
 
 
 def default_workers() -> int:
@@ -29,23 +30,53 @@ def default_workers() -> int:
 def run_local(tasks: Iterable[dict], on_result: Callable[[dict], None], workers: int | None = None) -> None:
     """The tasks on a pool of ``workers`` processes (all cores by default); at most twice as
     many in flight as there are workers, so memory stays bounded whatever the number of logs.
-    One worker runs them in this process, one after another."""
+    One worker runs them in this process, one after another. A log that kills the process
+    analysing it (a crash in a parser's compiled code, the memory a huge log takes) breaks the
+    pool: the logs that were in flight are then analysed again one at a time, the one that kills
+    its process alone becomes a row saying so, and the run goes on with a new pool."""
     n = workers or default_workers()
     tasks = iter(tasks)
     if n == 1:
         for t in tasks:
             on_result(analyse(t))
         return
-    with ProcessPoolExecutor(max_workers=n) as pool:
-        pending = set()
-        for t in tasks:
-            pending.add(pool.submit(analyse, t))
-            if len(pending) >= 2 * n:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for f in done:
-                    on_result(f.result())
-        for f in as_completed(pending):
-            on_result(f.result())
+    while (suspects := _pool_pass(tasks, on_result, n)) is not None:
+        for t in suspects:
+            on_result(_alone(t))
+
+
+def _pool_pass(tasks, on_result: Callable[[dict], None], n: int) -> list[dict] | None:
+    """Run tasks until they are done (None) or the pool breaks (the tasks in flight then)."""
+    pending: dict = {}
+    current = None
+    try:
+        with ProcessPoolExecutor(max_workers=n) as pool:
+            for current in tasks:
+                pending[pool.submit(analyse, current)] = current
+                current = None
+                if len(pending) >= 2 * n:
+                    _take(pending, on_result)
+            while pending:
+                _take(pending, on_result)
+    except BrokenProcessPool:
+        return list(pending.values()) + ([current] if current is not None else [])
+    return None
+
+
+def _take(pending: dict, on_result: Callable[[dict], None]) -> None:
+    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+    for f in done:
+        result = f.result()  # a broken pool raises here, the task still pending
+        del pending[f]
+        on_result(result)
+
+
+def _alone(task: dict) -> dict:
+    with ProcessPoolExecutor(max_workers=1) as pool:
+        try:
+            return pool.submit(analyse, task).result()
+        except BrokenProcessPool as exc:
+            return unreadable(task, "WorkerDied", f"{task['path']}: the process analysing it died ({exc})")
 
 
 def _dask():
@@ -67,12 +98,26 @@ def run_dask(tasks: list[dict], on_result: Callable[[dict], None], scheduler: st
     with Client(scheduler) as client:
         threads = sum(client.nthreads().values()) or 1
         window = window or 2 * threads
-        it = iter(tasks)
-        first = [client.submit(analyse, t, pure=False) for t in islice(it, window)]
-        ac = as_completed(first)
+        it, of = iter(tasks), {}
+
+        def submit(task):
+            fut = client.submit(analyse, task, pure=False)
+            of[fut.key] = task
+            return fut
+
+        ac = as_completed([submit(t) for t in islice(it, window)])
         for fut in ac:
-            on_result(fut.result())
+            on_result(_result(fut, of.pop(fut.key)))
             del fut  # the cluster forgets a result the client no longer holds
             nxt = next(it, None)
             if nxt is not None:
-                ac.add(client.submit(analyse, nxt, pure=False))
+                ac.add(submit(nxt))
+
+
+def _result(fut, task: dict) -> dict:
+    """A finished task's result; a task the cluster gave up on (its worker died on it each time
+    it was tried: Dask's KilledWorker) is that log's row with the reason."""
+    try:
+        return fut.result()
+    except Exception as exc:  # noqa: BLE001 — one log's end on the cluster is that log's row
+        return unreadable(task, type(exc).__name__, f"{task['path']}: the cluster could not analyse it: {exc}")
