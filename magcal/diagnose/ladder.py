@@ -140,7 +140,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     m_kept, t_kept, chans_kept = analysed.kept
     step("locate")
     found = locate_step.locate_and_model(m_kept, t_kept, analysed.logged_kept, chosen.model, chosen.fit_model,
-                                         noise_ut, locate.EFFECTS)
+                                         noise_ut, locate.EFFECTS, chosen.ellipsoid)
     found = replace(found, found=analysed.screened + found.found)
     step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
@@ -496,6 +496,7 @@ class Chosen:
     heldout: HeldOut  # baseline, the calibration returned, fit's plain model when it was compared
     limits: tuple
     fit_model: str = "auto"  # the shape magcal fit chose ("sphere", "ellipsoid", …; "auto" when it found none)
+    ellipsoid: tuple | None = None  # (samples, RMS µT) of a plain ellipsoid fitted on the way (locate_step.floor_of)
 
     @property
     def heldout_rms_ut(self) -> float:
@@ -523,28 +524,33 @@ def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_sl
     if not final.spec.channels:
         return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1), (),
                       result.model)
-    with_channels = _fit_geometry_around_channels(a, final, channel_cov, result.model) or final
+    geometry, ellipsoid = _fit_geometry_around_channels(a, final, channel_cov, result.model)
+    with_channels = geometry or final
     heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices, procedure=2)
     limit = never_worse(with_channels, plain, heldout)
     if limit:
-        return Chosen(plain, "fit", heldout, (limit,), result.model)
-    return Chosen(with_channels, "fit+channels", heldout, (), result.model)
+        return Chosen(plain, "fit", heldout, (limit,), result.model, ellipsoid)
+    return Chosen(with_channels, "fit+channels", heldout, (), result.model, ellipsoid)
 
 
-def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dict, chosen: str) -> ModelFit | None:
+def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dict,
+                                  chosen: str) -> tuple[ModelFit | None, tuple | None]:
     """Offset, soft iron and radius as magcal fit finds them once ``final``'s channel terms
     are taken out of every analysed sample, with the model fit chose on the samples as they
     are (``chosen``: its name; the sphere or the full ellipsoid are fitted alone, the diagonal
-    one by fit's own choice again); the channel terms kept as they are."""
+    one by fit's own choice again); the channel terms kept as they are. With it, where that
+    was the plain ellipsoid, (its samples, its RMS) for the locate step's floor (else None)."""
     shift = final.calibration().channel_offset_ut(a.chans, len(a.m))
-    result = fit_calibration(a.m - shift, model={"sphere": "sphere", "ellipsoid": "ellipsoid"}.get(chosen, "auto"))
+    model, samples = {"sphere": "sphere", "ellipsoid": "ellipsoid"}.get(chosen, "auto"), a.m - shift
+    result = fit_calibration(samples, model=model)
+    ellipsoid = (samples, float(result.rms_ut) if result else float("nan")) if model == "ellipsoid" else None
     if not result:
-        return None
+        return None, ellipsoid
     covs = {c: channel_cov.get(c) for c in final.spec.channels}
     geometry = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty, covs)
     spec = replace(geometry.spec, channels=final.spec.channels)
     params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in final.spec.channels])
-    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, geometry.cov)
+    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, geometry.cov), ellipsoid
 
 
 def never_worse(own: ModelFit, fit_auto: ModelFit, heldout: HeldOut) -> dict | None:
