@@ -257,3 +257,11 @@ def test_a_log_that_kills_its_worker_process_is_a_row_and_the_run_goes_on(tmp_pa
     rows = {os.path.basename(r["path"]): r for r in _rows(tmp_path / "out")}
     assert rows["first.csv"]["status"] == "ok"
     assert (rows["second.csv"]["status"], rows["second.csv"]["failure"]) == ("unreadable", "WorkerDied")
+
+
+def test_a_manifest_row_whose_file_is_missing_is_a_row_saying_so(tmp_path):
+    _need_fleet()
+    (tmp_path / "manifest.csv").write_text("path,vehicle\ngone.bin,rover-7\n")
+    assert _fleet(tmp_path / "manifest.csv", "-o", tmp_path / "out", "--workers", 1) == 0
+    (row,) = _rows(tmp_path / "out")
+    assert (row["vehicle"], row["status"]) == ("rover-7", "unreadable") and "gone.bin" in row["message"]

@@ -4,6 +4,7 @@ history and write the fleet document (``fleet.json``) and page (``index.html``) 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -33,7 +34,7 @@ def plan(specs: list[str], results: store.ResultStore, mag: int | None = None, m
         raise InputError("no logs, captures or tables found in " + ", ".join(specs))
     tasks, seen, done, dup = [], set(), 0, 0
     for i, s in enumerate(found):
-        sha = sources.file_sha256(s.path) if os.path.isfile(s.path) else "missing:" + os.path.abspath(s.path)
+        sha = sources.file_sha256(s.path) if os.path.isfile(s.path) else _missing_key(s.path)
         if on_hash:
             on_hash(i + 1, len(found))
         if sha in seen:
@@ -45,6 +46,12 @@ def plan(specs: list[str], results: store.ResultStore, mag: int | None = None, m
             continue
         tasks.append({**s.to_dict(), "sha256": sha, "version": __version__, "mag": mag, "max_samples": max_samples})
     return Plan(files=len(found), tasks=tuple(tasks), done_before=done, duplicates=dup)
+
+
+def _missing_key(path: str) -> str:
+    """The key of a file a manifest names that is not there: its row says so, and once the file
+    is there its content gives it another key, so it is analysed then."""
+    return hashlib.sha256(("missing file " + os.path.abspath(path)).encode()).hexdigest()
 
 
 def execute(p: Plan, results: store.ResultStore, scheduler: str | None = None, workers: int | None = None,
