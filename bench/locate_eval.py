@@ -41,6 +41,7 @@ from magcal.sim.physics import Motion, Physics, Scenario  # noqa: E402
 MAX_N = 6000
 WINDOW_MIN_S = 14.0  # a control window shorter than this is not taken (the step search needs 12 s)
 WINDOW_MIN_N = 400
+MIN_HUM_CYCLES = 20.0
 
 
 @dataclass
@@ -76,6 +77,19 @@ def control_windows(name: str, t: np.ndarray, m: np.ndarray, k: int) -> list[Cas
     return []
 
 
+def hum_frequency_hz(t: np.ndarray) -> float:
+    """Where mains hum lands after the sample clock aliases it: 50 Hz, else 60 Hz, else (a clock
+    that is a multiple of both) a seventh of the rate. An alias under ``MIN_HUM_CYCLES`` cycles
+    over the span is no line but an offset (a clock at a multiple of the mains frequency sees the
+    hum as a constant), so it is not used."""
+    rate = 1.0 / float(np.median(np.diff(t)))
+    for mains in (50.0, 60.0):
+        f = abs(mains - rate * round(mains / rate))
+        if f * float(t[-1] - t[0]) >= MIN_HUM_CYCLES:
+            return f
+    return rate / 7.3
+
+
 def inject(name: str, t: np.ndarray, m: np.ndarray, rng: np.random.Generator, size: float) -> list[Case]:
     """One case per effect at ``size`` × the recording's floor, placed at random."""
     fl = floor_ut(m)
@@ -92,8 +106,7 @@ def inject(name: str, t: np.ndarray, m: np.ndarray, rng: np.random.Generator, si
     m2 = m.copy()
     m2[after, 0] = b[0] + gain * (m[after, 0] - b[0])
     cases.append(Case(f"{name}/soft_change", "soft_iron_change", _s(t, m2), {"time_s": tau}))
-    rate = 1.0 / np.median(np.diff(t))
-    f_alias = abs(50.0 - rate * round(50.0 / rate)) or rate / 7.3
+    f_alias = hum_frequency_hz(t)
     axis = int(rng.integers(3))
     hum = np.zeros_like(m)
     hum[:, axis] = size * fl * np.sqrt(2) * np.cos(2 * np.pi * f_alias * t + rng.uniform(0, 6.28))
@@ -189,6 +202,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="write every case's verdict here")
     ap.add_argument("--sizes", default="2,4,10", help="effect sizes, × the recording's floor (default 2,4,10)")
     ap.add_argument("--seed", type=int, default=2026, help="placements of the effects (default 2026)")
+    ap.add_argument("--only", default="", help="only these effect cases, e.g. hum,step (default: every one)")
     ap.add_argument("--control-windows", type=int, default=0,
                     help="also take up to K disjoint windows of each real recording as controls (default 0)")
     args = ap.parse_args(argv)
@@ -203,6 +217,8 @@ def main(argv=None) -> int:
                       flush=True)
         for size in ((4.0,) if args.quick else tuple(float(x) for x in args.sizes.split(","))):
             for case in inject(name, t, m, rng, size):
+                if args.only and case.name.split("/")[1] not in args.only.split(","):
+                    continue
                 rows.append(judge_case(case) | {"size": size})
                 r = rows[-1]
                 print(f"{r['case']:50s} x{size:<4} named {r['named']!s:5} located {r['located']!s:5} said {r['said']}",
