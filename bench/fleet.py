@@ -18,7 +18,9 @@ fleet`` runs it, with each worker's resident memory sampled every 100 logs. Then
 * false: an unchanged vehicle with any change; and, on changed vehicles, any change other than
   the planted one;
 * speed: ``--speed-logs`` of the logs analysed again into fresh results with 1 and then 2
-  workers (wall and CPU), logs per hour per core from the CPU, and the speed-up;
+  workers (wall and CPU), logs per hour per core from the CPU, and the speed-up — beside a
+  control: the cores a busy loop gets as 1 and as 2 processes at that moment (on a shared
+  machine the speed-up any work could have had);
 * memory: each worker's RSS after every 100 logs (flat: the last sample within 10 % of the one
   after the first 100).
 """
@@ -33,7 +35,10 @@ import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-import numpy as np
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # as the magcal command sets them
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
@@ -156,17 +161,21 @@ def _report(j: dict, speed: dict, mem, sig_off, sig_cur, args) -> str:
         allc += hits
         cols = [f"{sum(h[k] for h in hits)} ({100 * np.mean([h[k] for h in hits]):.0f} %)" for k in range(3)]
         lines.append(f"| {kind} | {f} | {len(hits)} | " + " | ".join(cols) + " |")
-    right = [h[0] for h in allc]
+    right = [h[0] for h in allc] or [False]
     lines += ["", f"all changed vehicles: {sum(right)}/{len(right)} found at the right flight "
               f"({100 * np.mean(right):.1f} %)",
               f"unchanged vehicles called changed: {j['false_plain']}/{j['plain']} "
               f"({100 * j['false_plain'] / max(j['plain'], 1):.1f} %)",
               f"other changes on changed vehicles: {j['extra']} on {j['changed']} vehicles", ""]
-    for w, (wall, cpu, n) in sorted(speed.items()):
+    for w, (wall, cpu, n) in sorted((k, v) for k, v in speed.items() if k != "control"):
         lines.append(f"{w} worker(s): {n} logs in {wall:.1f} s wall, {cpu:.1f} s CPU → "
                      f"{3600 * n / cpu:.0f} logs per hour per core, {3600 * n / wall:.0f} logs per hour")
     if 1 in speed and 2 in speed:
         lines.append(f"speed-up 1 → 2 workers (wall): {speed[1][0] / speed[2][0]:.2f}×")
+    if "control" in speed:
+        c = speed["control"]
+        lines.append(f"control: a busy loop got {c[1]:.2f} cores as 1 process, {c[2]:.2f} as 2 — the speed-up this "
+                     f"machine allowed then was {c[2] / c[1]:.2f}×")
     lines += ["", "worker RSS (MiB) every 100 logs: " + "; ".join(f"{n}: {rss}" for n, rss in mem)]
     if len(mem) >= 2:
         first, last = max(mem[0][1]), max(mem[-1][1])
@@ -176,6 +185,26 @@ def _report(j: dict, speed: dict, mem, sig_off, sig_cur, args) -> str:
     return "\n".join(lines)
 
 
+def _spin(seconds: float) -> int:
+    t, n = time.monotonic(), 0
+    while time.monotonic() - t < seconds:
+        n += 1
+    return n
+
+
+def control_cores(seconds: float = 4.0) -> dict:
+    """The processor this machine gives 1 and 2 busy processes right now (cores): the speed-up
+    any work could have had, beside which the fleet's is read."""
+    out = {}
+    for w in (1, 2):
+        c0, t0 = os.times(), time.monotonic()
+        with ProcessPoolExecutor(w) as pool:
+            list(pool.map(_spin, [seconds] * w))
+        c1 = os.times()
+        out[w] = (c1.children_user + c1.children_system - c0.children_user - c0.children_system) / (time.monotonic() - t0)
+    return out
+
+
 def speed_runs(logs_root: str, tmp: str, n: int) -> dict:
     """``n`` of the logs copied aside and analysed with 1 and then 2 workers into fresh results."""
     sub = os.path.join(tmp, "speed_logs")
@@ -183,7 +212,7 @@ def speed_runs(logs_root: str, tmp: str, n: int) -> dict:
     for i, p in enumerate(picked):
         os.makedirs(os.path.join(sub, os.path.basename(os.path.dirname(p))), exist_ok=True)
         shutil.copy(p, os.path.join(sub, os.path.basename(os.path.dirname(p)), os.path.basename(p)))
-    out = {}
+    out = {"control": control_cores()}
     for w in (1, 2):
         _, wall, cpu, _, done = run(sub, os.path.join(tmp, f"speed_results_{w}"), w)
         out[w] = (wall, cpu, done)
@@ -196,10 +225,17 @@ def main(argv=None) -> None:
     ap.add_argument("--flights", type=int, default=12)
     ap.add_argument("--speed-logs", type=int, default=120)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--speed-only", action="store_true", help="only the speed runs, on --speed-logs unchanged logs")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
     tmp = tempfile.mkdtemp(prefix="magcal-fleet-bench-")
     try:
+        if args.speed_only:
+            write_all(os.path.join(tmp, "logs"), ft.fleet(-(-args.speed_logs // args.flights), args.flights, args.seed))
+            print(_report({"found": {}, "false_plain": 0, "plain": 0, "extra": 0, "changed": 0},
+                          speed_runs(os.path.join(tmp, "logs"), tmp, args.speed_logs), [], np.zeros((2, 3)),
+                          np.zeros(3), args))
+            return
         sig_off, sig_cur = pilot_sigma(tmp)
         vehicles, truth = plan_fleet(args.vehicles, args.flights, args.seed, sig_off, sig_cur)
         t0 = time.monotonic()
