@@ -41,8 +41,10 @@ def add_arguments(p) -> None:
     p.add_argument("--workers", type=positive_int, help="local processes (default: every core)")
     p.add_argument("--alpha", type=fraction, default=0.01,
                    help="family-wise false-change level per vehicle")
-    add(p, "json", "quiet")
-    add(p, "mag")
+    add(p, "json")
+    add(p, "quiet", help="no progress on stderr (redrawn on a terminal; otherwise a line per tenth of the run)")
+    add(p, "mag", help="only this magnetometer of each flight log, 0-based in the log's order "
+        "(default: every magnetometer)")
 
 
 class _Ticker:
