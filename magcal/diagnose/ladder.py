@@ -140,7 +140,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     m_kept, t_kept, chans_kept = analysed.kept
     step("locate")
     found = locate_step.locate_and_model(m_kept, t_kept, analysed.logged_kept, chosen.model, chosen.fit_model,
-                                         noise_ut, locate.EFFECTS, chosen.ellipsoid)
+                                         noise_ut, locate.EFFECTS, chosen.known)
     found = replace(found, found=analysed.screened + found.found)
     step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
@@ -445,6 +445,7 @@ class HeldOut:
 
     rms_ut: tuple  # per model, over every held-out block (glitches excluded)
     per_block: tuple  # per block: per model RMS
+    fits: tuple = ()  # fit's runs on the blocks' training samples: (model, samples, result) (locate.judge.fitted)
 
 
 def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int | None = None) -> HeldOut:
@@ -457,7 +458,7 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int
     refitted as the others are."""
     sse = np.zeros(len(models))
     n_eval = 0
-    per_block = []
+    per_block, known = [], []
     for held in fold_slices:
         train = np.ones(len(a.m), bool)
         train[held] = False
@@ -466,7 +467,8 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int
         test[: held.start] = test[held.stop :] = False
         chans_train = {c: v[train] for c, v in a.chans.items()}
         chans_test = {c: v[test] for c, v in a.chans.items()}
-        fits = [None if m is None else _refit_without(a.m[train], chans_train, m, i == procedure) for i, m in enumerate(models)]
+        fits = [None if m is None else _refit_without(a.m[train], chans_train, m, i == procedure, known)
+                for i, m in enumerate(models)]
         if not test.any() or any(m is not None and not f for m, f in zip(models, fits)):
             continue
         res = [f.residual(a.m[test], chans_test) if f else np.zeros(int(test.sum())) for f in fits]
@@ -474,13 +476,16 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int
         n_eval += int(test.sum())
         per_block.append(tuple(float(np.sqrt(np.mean(r**2))) for r in res))
     rms = tuple(float(np.sqrt(v / n_eval)) if n_eval else float("nan") for v in sse)
-    return HeldOut(tuple(r if m is not None else float("nan") for r, m in zip(rms, models)), tuple(per_block))
+    return HeldOut(tuple(r if m is not None else float("nan") for r, m in zip(rms, models)), tuple(per_block),
+                   tuple(known))
 
 
-def _refit_without(m_train: np.ndarray, chans_train: dict, model: ModelFit, as_fit: bool):
-    """``model`` refitted on a block's training samples (``compare_heldout``)."""
+def _refit_without(m_train: np.ndarray, chans_train: dict, model: ModelFit, as_fit: bool, known: list):
+    """``model`` refitted on a block's training samples (``compare_heldout``); fit's run, when
+    it is the procedure, added to ``known`` as (model, samples, result)."""
     if as_fit:
         result = fit_calibration(m_train, model="auto")
+        known.append(("auto", m_train, result))
         if result:
             return from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
     return fit_model(m_train, chans_train, model.spec, model.reference, start=model, max_iter=HELDOUT_ITER)
@@ -496,7 +501,7 @@ class Chosen:
     heldout: HeldOut  # baseline, the calibration returned, fit's plain model when it was compared
     limits: tuple
     fit_model: str = "auto"  # the shape magcal fit chose ("sphere", "ellipsoid", …; "auto" when it found none)
-    ellipsoid: tuple | None = None  # (samples, RMS µT) of a plain ellipsoid fitted on the way (locate_step.floor_of)
+    known: tuple = ()  # fit's runs on the way: (model, samples, result), for the locate step (locate.judge.fitted)
 
     @property
     def heldout_rms_ut(self) -> float:
@@ -518,39 +523,41 @@ def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_sl
     to it, fitted the same way on the samples with those terms taken out — and only when that
     does better on the held-out blocks than the fit alone; otherwise a limit says so."""
     result = fit_calibration(a.m, model="auto")
+    whole = ("auto", a.m, result)
     if not result:
-        return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), ())
+        return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), (), known=(whole,))
     plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty)
     if not final.spec.channels:
-        return Chosen(plain, "fit", compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1), (),
-                      result.model)
-    geometry, ellipsoid = _fit_geometry_around_channels(a, final, channel_cov, result.model)
+        heldout = compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1)
+        return Chosen(plain, "fit", heldout, (), result.model, (whole,) + heldout.fits)
+    geometry, shifted = _fit_geometry_around_channels(a, final, channel_cov, result.model)
     with_channels = geometry or final
     heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices, procedure=2)
     limit = never_worse(with_channels, plain, heldout)
+    known = (whole, shifted) + heldout.fits
     if limit:
-        return Chosen(plain, "fit", heldout, (limit,), result.model, ellipsoid)
-    return Chosen(with_channels, "fit+channels", heldout, (), result.model, ellipsoid)
+        return Chosen(plain, "fit", heldout, (limit,), result.model, known)
+    return Chosen(with_channels, "fit+channels", heldout, (), result.model, known)
 
 
 def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dict,
-                                  chosen: str) -> tuple[ModelFit | None, tuple | None]:
+                                  chosen: str) -> tuple[ModelFit | None, tuple]:
     """Offset, soft iron and radius as magcal fit finds them once ``final``'s channel terms
     are taken out of every analysed sample, with the model fit chose on the samples as they
     are (``chosen``: its name; the sphere or the full ellipsoid are fitted alone, the diagonal
-    one by fit's own choice again); the channel terms kept as they are. With it, where that
-    was the plain ellipsoid, (its samples, its RMS) for the locate step's floor (else None)."""
+    one by fit's own choice again); the channel terms kept as they are. With it, fit's run as
+    (model, samples, result) (locate.judge.fitted)."""
     shift = final.calibration().channel_offset_ut(a.chans, len(a.m))
     model, samples = {"sphere": "sphere", "ellipsoid": "ellipsoid"}.get(chosen, "auto"), a.m - shift
     result = fit_calibration(samples, model=model)
-    ellipsoid = (samples, float(result.rms_ut) if result else float("nan")) if model == "ellipsoid" else None
     if not result:
-        return None, ellipsoid
+        return None, (model, samples, result)
     covs = {c: channel_cov.get(c) for c in final.spec.channels}
     geometry = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty, covs)
     spec = replace(geometry.spec, channels=final.spec.channels)
     params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in final.spec.channels])
-    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, geometry.cov), ellipsoid
+    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, geometry.cov), \
+        (model, samples, result)
 
 
 def never_worse(own: ModelFit, fit_auto: ModelFit, heldout: HeldOut) -> dict | None:

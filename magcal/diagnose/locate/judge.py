@@ -46,14 +46,25 @@ class Verdict:
         }
 
 
-def heldout_sq(m_ut: np.ndarray, model: str, folds: int = FOLDS) -> np.ndarray | None:
+def fitted(m_ut: np.ndarray, model: str, known: tuple = ()):
+    """``fit_calibration(m_ut, model=model)``; ``known``: fit's runs already made, as (model,
+    samples, result), one of which is taken where it was made with this model on these very
+    samples (the diagnosis runs fit on the same samples as the locate step at times: a block's
+    complement when nothing was set aside, the samples with its channel terms out)."""
+    for k_model, samples, result in known:
+        if k_model == model and samples.shape == m_ut.shape and np.array_equal(samples, m_ut):
+            return result
+    return fit_calibration(m_ut, model=model)
+
+
+def heldout_sq(m_ut: np.ndarray, model: str, folds: int = FOLDS, known: tuple = ()) -> np.ndarray | None:
     """Per block, the mean square radial residual of the calibration refitted without that
-    block; None where a block's complement cannot be fitted."""
+    block; None where a block's complement cannot be fitted. ``known`` as ``fitted`` takes it."""
     out = []
     for held in contiguous_blocks(len(m_ut), folds):
         train = np.ones(len(m_ut), bool)
         train[held] = False
-        result = fit_calibration(m_ut[train], model=model)
+        result = fitted(m_ut[train], model, known)
         if not result:
             return None
         cal = result.calibration
@@ -71,10 +82,12 @@ def compare(before: np.ndarray, after: np.ndarray) -> tuple[bool, str]:
     return better, held + (" (better on unseen blocks)" if better else " (not better beyond chance on unseen blocks)")
 
 
-def judge(m_ut, t_s, channels, found, table: dict[str, Effect], model: str) -> tuple[np.ndarray, tuple[Verdict, ...]]:
+def judge(m_ut, t_s, channels, found, table: dict[str, Effect], model: str,
+          known: tuple = ()) -> tuple[np.ndarray, tuple[Verdict, ...]]:
     """(the samples with every kept effect removed, a verdict per located effect of kind
-    PHYSICS); effects without a ``remove`` are judged not modelled."""
-    base = heldout_sq(m_ut, model)
+    PHYSICS); effects without a ``remove`` are judged not modelled. ``known`` as ``fitted``
+    takes it."""
+    base = heldout_sq(m_ut, model, known=known)
     verdicts = []
     for loc in sorted((f for f in found if f.kind is Kind.PHYSICS), key=_size, reverse=True):
         effect = table.get(loc.effect)

@@ -55,14 +55,10 @@ class LocateStep:
         return tuple(v.located for v in self.verdicts if v.kept)
 
 
-def floor_of(m_ut: np.ndarray, known: tuple | None = None) -> float:
+def floor_of(m_ut: np.ndarray, known: tuple = ()) -> float:
     """The recording's own floor: the RMS radial residual of a plain ellipsoid (nan where none
-    fits). ``known``: (samples, floor) of that fit already made on some samples, taken where
-    they are these very samples (the diagnosis fits the same ellipsoid when it returns fit's
-    one with its channel terms)."""
-    if known is not None and known[0].shape == m_ut.shape and np.array_equal(known[0], m_ut):
-        return known[1]
-    result = fit_calibration(m_ut, model="ellipsoid")
+    fits); ``known`` as ``judge.fitted`` takes it."""
+    result = judge.fitted(m_ut, "ellipsoid", known)
     return float(result.rms_ut) if result else float("nan")
 
 
@@ -72,21 +68,21 @@ def search(res: Residual, effects: tuple[Effect, ...]) -> tuple[Located, ...]:
 
 
 def locate_and_model(m_ut, t_s, chans: dict, final: ModelFit, fit_model_name: str, noise_ut: float,
-                     effects: tuple[Effect, ...], known_floor: tuple | None = None) -> LocateStep:
+                     effects: tuple[Effect, ...], known: tuple = ()) -> LocateStep:
     """See the module docstring. ``m_ut``/``t_s``/``chans`` the analysed samples that are not
     glitches (time order; ``chans`` the logged channels), ``final`` the model the diagnosis
-    returns and ``fit_model_name`` the shape magcal fit chose for it; ``known_floor`` as
-    ``floor_of`` takes it."""
+    returns and ``fit_model_name`` the shape magcal fit chose for it; ``known``: fit's runs the
+    diagnosis already made, as ``judge.fitted`` takes them."""
     cal = final.calibration()
     shift = cal.channel_offset_ut(chans, len(m_ut))
-    floor = floor_of(m_ut - shift, known_floor)
+    floor = floor_of(m_ut - shift, known)
     res = Residual(t_s, m_ut, cal, noise_ut, floor, chans)
     found = search(res, effects)
     if not any(f.kind is Kind.PHYSICS for f in found):
         return LocateStep(found, (), None, floor)
     model = PLAIN.get(fit_model_name, "auto")
     table = {e.name: e for e in effects}
-    cleaned, verdicts = judge.judge(m_ut - shift, t_s, chans, found, table, model)
+    cleaned, verdicts = judge.judge(m_ut - shift, t_s, chans, found, table, model, known)
     if not any(v.kept for v in verdicts):
         return LocateStep(found, verdicts, None, floor)
     refit = _refit(cleaned, final, model)
