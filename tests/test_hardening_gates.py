@@ -8,7 +8,7 @@ import pytest
 
 from magcal.cli import main
 
-GATES = ("samples", "coverage", "condition", "rms_ut", "offset_sigma_ut")
+GATES = ("n_used", "coverage", "condition", "rms_ut", "offset_sigma_ut")
 
 
 def run_cli(capsys, *argv):
@@ -43,7 +43,7 @@ def _write(capsys, tmp_path, doc, *extra):
 def test_a_fit_result_carries_every_gates_evidence(capsys, recordings):
     ev = _fit(capsys, recordings / "sphere.csv")["fits"][0]["evidence"]
     assert set(GATES) <= set(ev) and all(ev[k] is not None for k in GATES)
-    assert 0.55 < ev["coverage"] <= 1 and ev["samples"] > 1000 and len(ev["offset_sigma_ut"]) == 3
+    assert 0.55 < ev["coverage"] <= 1 and ev["n_used"] > 1000 and len(ev["offset_sigma_ut"]) == 3
 
 
 def test_a_thin_recording_fitted_offline_is_refused_on_coverage(capsys, recordings, tmp_path):

@@ -12,7 +12,7 @@ from magcal.core.calibration import Calibration
 from magcal.core.sense import record_problem
 from magcal.devices.simboard import SimEeprom
 
-EVIDENCE = {"samples": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}
+EVIDENCE = {"n_used": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}
 TINY = [1, 0, 0, 0, 50000, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]  # soft iron 1e-6·I: every reading 0 µT
 EXTREMES = [1] + [2**31 - 1] * 3 + [-(2**31)] * 14
 

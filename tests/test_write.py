@@ -14,7 +14,7 @@ from magcal.sim.physics import Temperature
 
 
 # what a fit result says of the data behind its calibration: every gate judged, every one passed
-EVIDENCE = {"samples": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}
+EVIDENCE = {"n_used": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}
 
 
 def run_cli(capsys, *argv):
@@ -204,7 +204,7 @@ def test_every_path_that_writes_needs_the_gates_clearance(tmp_path):
     good = Calibration(offset_ut=np.array([1.0, 2, 3]), field_ut=48.0)
     refused = clear_for_write(Gates(), Evidence(tuple(bad.offset_ut), bad.field_ut))
     cleared = clear_for_write(Gates(), Evidence(tuple(good.offset_ut), good.field_ut, rms_ut=0.4,
-                                                offset_sigma_ut=(0.02,) * 3, samples=1000, coverage=0.8, condition=5.0))
+                                                offset_sigma_ut=(0.02,) * 3, n_used=1000, coverage=0.8, condition=5.0))
     with open_device(f"sim://?pace=0&eeprom={tmp_path}/e.bin") as dev:
         dev.open()
         with pytest.raises(ValueError, match="gates did not clear"):

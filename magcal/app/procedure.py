@@ -78,7 +78,7 @@ class Outcome:
 def _evidence_dict(ev) -> dict:
     """What the gates judged, in the shape ``fit --json`` gives it (``fit.evidence``)."""
     sigma = ev.offset_sigma_ut
-    return {"samples": ev.samples, "coverage": ev.coverage, "condition": ev.condition, "rms_ut": ev.rms_ut,
+    return {"n_used": ev.n_used, "coverage": ev.coverage, "condition": ev.condition, "rms_ut": ev.rms_ut,
             "offset_sigma_ut": None if sigma is None else [float(v) for v in sigma]}
 
 

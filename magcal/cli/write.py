@@ -167,17 +167,18 @@ def evidence_from_json(obj, cal: Calibration, name: str = "<json>") -> Evidence:
     top = _result_of(obj)
     ev = top.get("evidence") if isinstance(top.get("evidence"), dict) else {}
     if top.get("calibration_from") == "flight_log" and isinstance(top.get("flight_log"), dict):
-        top = top["flight_log"]  # diagnose on a flight log: its calibration is the flight-log fit's
+        top = top["flight_log"]  # diagnose on a flight log: its calibration is the flight-log fit's,
+        ev = top.get("evidence") if isinstance(top.get("evidence"), dict) else {}  # and so is its evidence
     quality = top.get("quality") if isinstance(top.get("quality"), dict) else {}
     final = top.get("final") if isinstance(top.get("final"), dict) else {}
     rms = _first(_number(ev, "rms_ut", name), _number(top, "rms_ut", name), _number(quality, "rms_ut", name),
                  _number(final, "rms_ut", name))
     sigma = _first(_number(ev, "offset_sigma_ut", name, 3), _number(top.get("uncertainty"), "offset_ut", name, 3))
-    samples = _first(_number(ev, "samples", name), _number(top, "n_used", name), _number(quality, "kept", name))
+    samples = _first(_number(ev, "n_used", name), _number(top, "n_used", name), _number(quality, "kept", name))
     coverage = _first(_number(ev, "coverage", name), _number(top, "coverage", name), _number(quality, "coverage", name))
     condition = _number(ev, "condition", name)
     return Evidence(offset_ut=tuple(float(v) for v in cal.offset_ut), field_ut=float(cal.field_ut), rms_ut=rms,
-                    offset_sigma_ut=sigma, samples=None if samples is None else int(samples), coverage=coverage,
+                    offset_sigma_ut=sigma, n_used=None if samples is None else int(samples), coverage=coverage,
                     condition=condition)
 
 
@@ -190,7 +191,7 @@ def recording_named(obj) -> str | None:
     return None
 
 
-GATE_EVIDENCE = ("samples", "coverage", "condition", "rms_ut", "offset_sigma_ut")
+GATE_EVIDENCE = ("n_used", "coverage", "condition", "rms_ut", "offset_sigma_ut")
 
 
 def complete_evidence(ev: Evidence, obj, cal: Calibration, notes: list[str]) -> Evidence:
@@ -218,7 +219,7 @@ def complete_evidence(ev: Evidence, obj, cal: Calibration, notes: list[str]) -> 
         return ev
     fresh = evidence(series.field_ut, cal, series.channels)
     found = {k: (tuple(fresh[k]) if k == "offset_sigma_ut" and fresh[k] else fresh[k]) for k in GATE_EVIDENCE}
-    notes.append(f"the gates judged the evidence recomputed from {path} ({fresh['samples']} samples)")
+    notes.append(f"the gates judged the evidence recomputed from {path} ({fresh['n_used']} samples)")
     return replace(ev, **{k: v for k, v in found.items() if v is not None})
 
 

@@ -5,7 +5,7 @@ recompute it from the recording a result names.
 ``evidence(m_ut, cal, channels)`` gives, for the samples ``m_ut`` (n, 3, µT, in time order) and
 the calibration ``cal`` (its channel terms applied where ``channels`` holds their columns):
 
-* ``samples``: how many;
+* ``n_used``: how many;
 * ``coverage``: the share of equal-area cells holding a calibrated direction — the session's
   own measure (``fit.coverage``);
 * ``condition``: the condition of the sphere's normal matrix, as the session's live estimate
@@ -31,13 +31,13 @@ def evidence(m_ut, cal: Calibration, channels=None) -> dict:
     name, for the calibration's channel terms); JSON-ready. A quantity the numbers cannot give
     (a calibration so far off that nothing stays finite) is None: its gate is left unjudged."""
     m = np.asarray(m_ut, dtype=np.float64).reshape(-1, 3)
-    out = {"samples": 0, "coverage": None, "condition": None, "rms_ut": None, "offset_sigma_ut": None}
+    out = {"n_used": 0, "coverage": None, "condition": None, "rms_ut": None, "offset_sigma_ut": None}
     with np.errstate(all="ignore"):
         moved = m - cal.offset_ut - cal.channel_offset_ut(channels, len(m))
         c = moved @ cal.soft_iron.T
         good = np.all(np.isfinite(c), axis=1)
         m, c = m[good], c[good]
-        out["samples"] = int(len(m))
+        out["n_used"] = int(len(m))
         if len(m) == 0:
             return out
         try:

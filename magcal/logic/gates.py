@@ -80,7 +80,7 @@ class Evidence:
     field_ut: float
     rms_ut: float | None = None
     offset_sigma_ut: tuple | None = None  # 1σ per axis
-    samples: int | None = None
+    n_used: int | None = None  # samples the fit used
     coverage: float | None = None
     condition: float | None = None
 
@@ -187,7 +187,7 @@ def clear_for_write(g: Gates, ev: Evidence, force: bool = False) -> Clearance:
     """THE decision before a calibration is written, for every path that writes. A field or
     offset that is not a finite number fails its gate (it can never be forced past)."""
     finite = bool(np.all(np.isfinite(np.asarray(ev.offset_ut, np.float64))) and np.isfinite(ev.field_ut))
-    results = data_gates(g, ev.samples, ev.coverage, ev.condition)
+    results = data_gates(g, ev.n_used, ev.coverage, ev.condition)
     results += model_gates(g, ev.offset_ut, ev.field_ut, ev.rms_ut, ev.offset_sigma_ut)
     if not finite:
         results.append(GateResult("finite", False, None, None, "the calibration holds a number that is not finite"))

@@ -211,7 +211,7 @@ class Session:
         return Evidence(offset_ut=tuple(float(v) for v in cal.offset_ut), field_ut=float(cal.field_ut),
                         rms_ut=float(result.rms_ut),
                         offset_sigma_ut=tuple(float(v) for v in result.uncertainty["offset_ut"]),
-                        samples=len(self.kept), coverage=self.kept.coverage(),
+                        n_used=len(self.kept), coverage=self.kept.coverage(),
                         condition=float(est.condition) if est else None)
 
     def begin_write(self) -> None:

@@ -70,7 +70,7 @@ class TrackingDecider:
         acc.add_batch(m)
         sphere = acc.solve(max_condition=float("inf"))
         ev = Evidence(offset_ut=tuple(cal.offset_ut), field_ut=cal.field_ut, rms_ut=est.noise_ut,
-                      offset_sigma_ut=tuple(est.offset_sigma_ut), samples=len(m), coverage=trk.coverage(),
+                      offset_sigma_ut=tuple(est.offset_sigma_ut), n_used=len(m), coverage=trk.coverage(),
                       condition=sphere.condition if sphere else None)
         return clear_for_write(self.settings.gates, ev)
 
