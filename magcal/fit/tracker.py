@@ -58,7 +58,7 @@ from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
 from .result import MODEL_NAMES
 from .sphere import sphere_start
 from .tracker_memory import CellBuffer, Wander
-from .uncertainty import direction_jackknife, shape_sigma
+from .uncertainty import direction_jackknife_variance, shape_sigma
 
 LADDER = ("sphere", "diagonal", "full")
 CHANGE_ALPHA = 1e-9  # a sudden change is declared at this false-alarm probability per refit
@@ -260,18 +260,18 @@ def _extend(theta: np.ndarray, kind: str) -> np.ndarray:
 
 def direction_widening(J, e, w, A, s2: float) -> np.ndarray:
     """Per offset axis, how much wider than the weighted fit's σ the delete-a-face jackknife
-    over the buffer's directions says it is (≥ 1; ``uncertainty.direction_jackknife``): the
-    answer moves with which directions memory holds, which the fresh-sample noise does not
-    count (on the real recordings the final offsets of two halves differed by 2.5× their 95 %
-    intervals without it)."""
-    jk = direction_jackknife(J, e, w)
+    over the buffer's directions is (≥ 1; ``uncertainty.direction_jackknife_variance``, its
+    leverage share kept as a floor): the answer moves with which directions memory holds, which
+    the fresh-sample noise does not count (on the real recordings the final offsets of two
+    halves differed by 2.5× their 95 % intervals without it)."""
+    jk = direction_jackknife_variance(J, e, w)
     if jk is None:
         return np.ones(3)
     try:
         var = np.diag(np.linalg.inv(A))[:3] * s2  # the σ ``_publish`` states before widening
     except np.linalg.LinAlgError:
         return np.ones(3)
-    return np.maximum(np.sqrt(np.clip(np.diag(jk)[:3], 0.0, None) / np.clip(var, 1e-300, None)), 1.0)
+    return np.maximum(np.sqrt(np.clip(jk[:3], 0.0, None) / np.clip(var, 1e-300, None)), 1.0)
 
 
 class Tracker:

@@ -19,12 +19,13 @@ model is not quite the sensor (a gain that moves with temperature, a field that 
 position, a small nonlinearity), a part of the recording that saw other directions gives
 another calibration, by more than either σ says: on the real recordings the halves' offsets
 and gains differed by 2–3 times the block-sandwich σ, at every time scale (quarters as much as
-halves), while the scatter between time blocks within a fit matched it. So each σ is also at
-least that of a delete-a-group jackknife over six direction groups — the six faces of a cube
-about the sensor, by the dominant axis of each sample's direction and its sign, the six
-orientations of the classic calibration — linearised at the fit (no refits): how far the
-answer moves when a face of the sphere is left out. Its ratio to the time-based σ is reported
-as ``direction_factor`` (per parameter, the largest over the offset; ≥ 1).
+halves), while the scatter between time blocks within a fit matched it. So each σ is also
+widened by how far a delete-a-group jackknife over six direction groups — the six faces of a
+cube about the sensor, by the dominant axis of each sample's direction and its sign, the six
+orientations of the classic calibration — linearised at the fit (no refits), moves the answer
+beyond what that same jackknife gives on independent noise (which is ≈ 1 on clean data: the
+faces' unequal leverage alone is not counted as doubt). The widening is reported as
+``direction_factor`` (the largest over the offset; ≥ 1).
 """
 
 from __future__ import annotations
@@ -130,13 +131,44 @@ def direction_groups(jac: np.ndarray) -> np.ndarray:
     return axis * 2 + (u[np.arange(len(u)), axis] > 0)
 
 
-def direction_jackknife(jac: np.ndarray, residual_ut: np.ndarray, weights=None) -> np.ndarray | None:
-    """Delete-a-group jackknife covariance over the six direction groups, linearised: leaving
-    group k out moves θ by (A − A_k)⁻¹ J_kᵀW_k e_k (A = JᵀWJ); the covariance is (K − 1)/K Σ of
-    the moves' outer products about their mean. A group is left out only where it holds at
-    least as many samples as parameters and at most a third of them (leaving out most of a cap
-    recording measures the cap's geometry, not the model), and the rest still pins the
-    parameters; None where fewer than three groups can be left out."""
+def direction_ratio(jac: np.ndarray, residual_ut: np.ndarray, weights=None) -> np.ndarray | None:
+    """Per parameter, the delete-a-group jackknife's variance over the six direction groups
+    divided by what that jackknife gives on independent noise alone — 1 where it does not pass
+    that by the χ²(K − 1) 95 % point; None where fewer than three groups can be left out.
+
+    Linearised: leaving group k out moves θ by (A − A_k)⁻¹ J_kᵀW_k e_k (A = JᵀWJ), and the
+    jackknife is (K − 1)/K Σ of the moves' outer products about their mean. With independent
+    noise of variance s² per unit weight a move has covariance s²(A − A_k)⁻¹A_k(A − A_k)⁻¹, so
+    the jackknife's expectation is (K − 1)²/K² Σ_k of those — larger than the fit's own σ since
+    faces differ in leverage; dividing by it leaves ≈ 1 on clean data and the excess where the
+    faces disagree. A group is left out only where it holds at least as many samples as
+    parameters and at most a third of them (leaving out most of a cap recording measures the
+    cap's geometry, not the model), and the rest still pins the parameters."""
+    faces = _leave_a_face_out(jac, residual_ut, weights)
+    if faces is None:
+        return None
+    moves, a_out, a, s2 = faces
+    k = len(moves)
+    inv = np.linalg.inv(a_out)
+    null = s2 * (k - 1.0) ** 2 / k**2 * np.einsum("kij,kjl,klm->im", inv, a - a_out, inv)
+    ratio = _jackknife_variance(moves) / np.clip(np.diag(null), 1e-300, None)
+    return np.where(ratio > chi2_isf(0.05, k - 1) / (k - 1), ratio, 1.0)  # noise alone passes 5 %
+
+
+def direction_jackknife_variance(jac: np.ndarray, residual_ut: np.ndarray, weights=None) -> np.ndarray | None:
+    """Per parameter, the delete-a-group jackknife's variance over the six direction groups as
+    it is (its leverage share included: a floor, not an estimate); None as ``direction_ratio``."""
+    faces = _leave_a_face_out(jac, residual_ut, weights)
+    return None if faces is None else _jackknife_variance(faces[0])
+
+
+def _jackknife_variance(moves: np.ndarray) -> np.ndarray:
+    d = moves - moves.mean(axis=0)
+    return np.sum(d * d, axis=0) * (len(d) - 1.0) / len(d)
+
+
+def _leave_a_face_out(jac, residual_ut, weights):
+    """(moves (K, p), A − A_k (K, p, p), A, s² per unit weight) over the faces that can be left out."""
     e = np.asarray(residual_ut, np.float64)
     n, p = jac.shape
     w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
@@ -153,9 +185,9 @@ def direction_jackknife(jac: np.ndarray, residual_ut: np.ndarray, weights=None) 
     pinned = conditions(a_out) <= 1e12
     if pinned.sum() < 3:
         return None
-    moves = np.linalg.solve(a_out[pinned], g[pinned][..., None])[..., 0]
-    d = moves - moves.mean(axis=0)
-    return d.T @ d * (len(d) - 1.0) / len(d)
+    a_out, g = a_out[pinned], g[pinned]
+    moves = np.linalg.solve(a_out, g[..., None])[..., 0]
+    return moves, a_out, a, float(np.sum(w * e * e)) / max(n - p, 1)
 
 
 def conditions(jtjs: np.ndarray) -> np.ndarray:
@@ -176,14 +208,12 @@ def information_condition_of(jtj: np.ndarray) -> float:
 
 
 def _widened_by_directions(cov: np.ndarray, fit: geometric.GeometricFit, weights) -> tuple[np.ndarray, float]:
-    """(cov with each parameter's σ raised to the direction jackknife's where that is larger,
-    correlations kept; the largest widening of the offset's σ)."""
-    jk = direction_jackknife(fit.jac, fit.residual_ut, weights)
-    if jk is None:
+    """(cov with each parameter's σ multiplied by the square root of its direction ratio where
+    that is above 1, correlations kept; the largest widening of the offset's σ)."""
+    ratio = direction_ratio(fit.jac, fit.residual_ut, weights)
+    if ratio is None:
         return cov, 1.0
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    r = np.maximum(np.sqrt(np.clip(np.diag(jk), 0.0, None)) / np.maximum(sd, 1e-300), 1.0)
-    r[sd <= 0] = 1.0
+    r = np.sqrt(np.maximum(ratio, 1.0))
     return cov * np.outer(r, r), float(np.max(r[:3]))
 
 
