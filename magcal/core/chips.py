@@ -44,6 +44,8 @@ class Chip:
     has_asa: bool  # per-axis sensitivity adjustment bytes in fuse ROM
     self_test_window: Window  # pass window per axis, in (ASA-adjusted) counts
     measurement_s: float  # worst-case single-measurement time
+    overflow_sum_ut: float  # ST2 HOFL is set when |X|+|Y|+|Z| reaches this
+    self_test_typical: tuple[int, int, int]  # a healthy coil's reading, inside the window
 
     @property
     def range_ut(self) -> float:
@@ -64,6 +66,8 @@ MPU9150 = Chip(
     has_asa=True,  # MS1187-E-02 ASAX/Y/Z fuse ROM 0x10-0x12
     self_test_window=((-100, 100), (-100, 100), (-1000, -300)),  # MS1187-E-02 self-test judgement
     measurement_s=0.009,  # MS1187-E-02 single measurement time max 9 ms
+    overflow_sum_ut=2400.0,  # MS1187-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 2400 µT
+    self_test_typical=(12, -18, -640),
 )
 
 
@@ -81,6 +85,8 @@ def _mpu9250(bits: int) -> Chip:
         # MS1356-E-02 self-test judgement: 16-bit X,Y ±200, Z -3200…-800; 14-bit X,Y ±50, Z -800…-200
         self_test_window=((-200, 200), (-200, 200), (-3200, -800)) if sixteen else ((-50, 50), (-50, 50), (-800, -200)),
         measurement_s=0.009,  # MS1356-E-02 single measurement time max 9 ms (typ 7.2 ms)
+        overflow_sum_ut=4912.0,  # MS1356-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 4912 µT
+        self_test_typical=(48, -72, -2000) if sixteen else (12, -18, -500),
     )
 
 
@@ -97,6 +103,8 @@ ICM20948 = Chip(
     has_asa=False,  # the AK09916 has no fuse-ROM sensitivity adjustment (read as ASA 128 = factor 1)
     self_test_window=((-200, 200), (-200, 200), (-1000, -200)),  # 015007392-E-02 self-test judgement
     measurement_s=0.0085,  # 015007392-E-02 single measurement time max 8.5 ms
+    overflow_sum_ut=4912.0,  # 015007392-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 4912 µT
+    self_test_typical=(24, -36, -600),
 )
 
 CHIPS: tuple[Chip, ...] = (MPU9150, MPU9250_16, MPU9250_14, ICM20948)

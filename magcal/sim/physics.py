@@ -9,8 +9,11 @@ Model, per measurement k at time t (sensor frame, µT)::
 
     h(t)  = R(t)ᵀ h_world                        Earth field seen by the body
     m_k   = SensorModel(h(t)/|h|, channels(t))   A h + b + β (T − T_ref) + κ I + d·t + w(t) + g_k + n_k
-    raw_k = clamp(round(m_k / (0.3 · gain)))      gain = (ASA + 128)/256 per axis
-    st2_k = HOFL when Σ|m_k| ≥ 2400 µT
+    raw_k = clamp(round(m_k / (q · gain)))        gain = (ASA + 128)/256 per axis
+    st2_k = HOFL when Σ|m_k| ≥ the chip's overflow sum (2400 µT AK8975, 4912 µT AK8963/AK09916)
+
+q and the clamp are the chip's (``Physics.chip``, a row of :mod:`magcal.core.chips`: 0.3 µT and
+±4095 for the MPU-9150's AK8975, the default; 0.6/0.15 µT for the AK8963; 0.15 µT for the AK09916).
 
 A is the soft-iron/scale distortion (``distortion``, symmetric: a rotation cannot be told from
 magnitudes), b hard iron, β temperature coefficient, κ current coefficient, d slow drift, w the
@@ -29,12 +32,13 @@ from functools import lru_cache
 import numpy as np
 
 from ..core.calibration import Calibration
-from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_HOFL, UT_PER_COUNT, asa_gain, temp_c_to_raw
+from ..core.chips import MPU9150, NEUTRAL_ASA, Chip
+from ..core.sample import ST2_HOFL, asa_gain, temp_c_to_raw
 from ..core.series import Series
 from . import wander as wander_mod
 from .model import Draws, SensorModel, first_reads, glitch_parts, hash_uniform, pulse_reads, with_previous
 
-HOFL_SUM_UT = 2400.0
+HOFL_SUM_UT = MPU9150.overflow_sum_ut  # the default chip's (AK8975) overflow sum
 _BLOCK = 1024  # noise is drawn in blocks of this many measurements, keyed by (seed, block)
 
 
@@ -88,15 +92,28 @@ class Physics:
     glitch_rate: float = 0.0
     glitch_ut: tuple = (4.0, 15.0)
     wander: tuple = ()  # magcal.sim.wander.WanderComponent components of the offset
-    # what the AK8975's internal self-test coil reads, in ASA-adjusted counts (the datasheet's
-    # pass window is X, Y in [-100, 100], Z in [-1000, -300]; a dead coil reads about 0)
-    self_test_counts: tuple = (12, -18, -640)
+    # what the internal self-test coil reads, in ASA-adjusted counts of this chip (None: the
+    # chip's typical healthy reading, inside its datasheet window; a dead coil reads about 0)
+    self_test_counts: tuple | None = None
+    chip: Chip = MPU9150  # whose quantum, range, overflow and self-test the registers follow
+
+    def __post_init__(self):
+        if not self.chip.has_asa and tuple(self.asa) != NEUTRAL_ASA:  # no fuse ROM: factor 1
+            object.__setattr__(self, "asa", NEUTRAL_ASA)
+        if self.self_test_counts is None:
+            object.__setattr__(self, "self_test_counts", self.chip.self_test_typical)
+
+    @property
+    def lsb_ut(self) -> np.ndarray:
+        """µT per count per axis: the chip's quantum times its sensitivity adjustment."""
+        return self.chip.ut_per_count * np.array([asa_gain(a) for a in self.asa])
 
     def self_test_raw(self) -> tuple[int, int, int]:
         """The data registers in self-test mode: the adjusted reading undone by this chip's
         ASA (sensitivity adjustment: adjusted = raw · (ASA + 128) / 256), truncated as the
         register holds it."""
-        return tuple(int(max(-4096, min(4095, int(c * 256 / (a + 128))))) for c, a in zip(self.self_test_counts, self.asa))
+        lo, hi = self.chip.count_min, self.chip.count_max
+        return tuple(int(max(lo, min(hi, int(c * 256 / (a + 128))))) for c, a in zip(self.self_test_counts, self.asa))
 
     def truth(self) -> Calibration:
         """The calibration that exactly inverts this physics (at T_ref, I = 0, t = 0)."""
@@ -276,11 +293,10 @@ class Scenario:
 
     def to_counts(self, m_ut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ph = self.physics
-        lsb = UT_PER_COUNT * np.array([asa_gain(a) for a in ph.asa])
-        x = m_ut / lsb
+        x = m_ut / ph.lsb_ut
         raw = np.round(x) if ph.quantize else x
-        hofl = np.abs(m_ut).sum(axis=1) >= HOFL_SUM_UT
-        raw = np.clip(raw, COUNT_MIN, COUNT_MAX)
+        hofl = np.abs(m_ut).sum(axis=1) >= ph.chip.overflow_sum_ut
+        raw = np.clip(raw, ph.chip.count_min, ph.chip.count_max)
         st2 = np.where(hofl, ST2_HOFL, 0).astype(np.int64)
         return (raw.astype(np.int64) if ph.quantize else raw), st2
 
@@ -290,8 +306,7 @@ class Scenario:
         t = t0_s + k / float(rate_hz)
         m, glitch = self.field_ut(t, k)
         raw, st2 = self.to_counts(m)
-        lsb = UT_PER_COUNT * np.array([asa_gain(a) for a in self.physics.asa])
-        measured = raw * lsb
+        measured = raw * self.physics.lsb_ut
         if self.model is not None:  # the modelled sensor's own reading (its quantum, its rails)
             measured = m
             if self.model.saturation_ut is not None:
@@ -314,6 +329,10 @@ class Scenario:
 
     def with_physics(self, **changes) -> "Scenario":
         return replace(self, physics=replace(self.physics, **changes))
+
+    def on_chip(self, chip: Chip) -> "Scenario":
+        """The same board carrying ``chip``: its quantum, range, overflow and healthy self-test."""
+        return self.with_physics(chip=chip, self_test_counts=None)
 
 
 @dataclass(frozen=True)
