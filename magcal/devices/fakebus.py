@@ -30,6 +30,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..core.chips import DEFAULT, Chip, Magnetometer, chip_named
 from ..core.errors import DeviceError
 from ..core.sample import ST2_HOFL
 from ..sim.physics import Scenario, demo_scenario
@@ -39,6 +40,9 @@ LIB_NAME = "libmpu9150model.so"
 ENV_LIB = "MAGCAL_MODEL_LIB"
 BLOCK_MAX = 32  # smbus2's I2C_SMBUS_BLOCK_MAX
 I2C_M_RD = 0x0001
+
+# the register model's chip numbers (MPU_CHIP_* in mpu9150_model.h)
+MODEL_CHIP = {"mpu9150": 0, "mpu9250": 1, "icm20948": 3}
 
 FAULTS = {  # names for the model's fault flags (mpu9150_model.h)
     "wrong_whoami": 1 << 0,
@@ -133,6 +137,10 @@ def load_model_library() -> ctypes.CDLL:
         lib.mpu_model_read.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint8), ctypes.c_uint64]
         lib.mpu_model_stop.restype = None
         lib.mpu_model_stop.argtypes = [ctypes.c_void_p, ctypes.c_uint64]
+        lib.mpu_model_set_chip.restype = ctypes.c_int
+        lib.mpu_model_set_chip.argtypes = [ctypes.c_void_p, ctypes.c_int]
+        lib.mpu_model_mag_bits.restype = ctypes.c_int
+        lib.mpu_model_mag_bits.argtypes = [ctypes.c_void_p]
         lib.mpu_model_peek.restype = ctypes.c_uint8
         lib.mpu_model_peek.argtypes = [ctypes.c_void_p, ctypes.c_uint8, ctypes.c_uint8]
         _lib = lib
@@ -166,7 +174,10 @@ class FakeBus:
     ``scenario``: the physics behind the AK8975 (default ``demo_scenario(1)``); its ASA bytes
     are the fuse ROM. ``address``: 0x68 or 0x69 (AD0). ``faults``: names from ``FAULTS`` or the
     model's bit flags. ``clock``: a ``FakeClock`` or any callable returning seconds (then bus
-    transfers do not advance it). ``measure_us``: the AK8975 measurement time.
+    transfers do not advance it). ``measure_us``: the magnetometer's measurement time.
+    ``chip``: the part on the bus (a :mod:`magcal.core.chips` row; default the MPU-9150); the
+    scenario's physics is put on it, and each measurement is answered in the counts of the
+    resolution the host set (the AK8963's CNTL1 BIT picks 14 or 16 bits).
     """
 
     def __init__(
@@ -177,8 +188,12 @@ class FakeBus:
         clock: Callable[[], float] | None = None,
         measure_us: int = 7300,
         bus_hz: float = 400_000.0,
+        chip: Chip = DEFAULT,
     ):
-        self.scenario = scenario if scenario is not None else demo_scenario(1)
+        scenario = scenario if scenario is not None else demo_scenario(1)
+        self.chip = chip
+        self.scenario = scenario if scenario.physics.chip == chip else scenario.on_chip(chip)
+        self._by_bits = {chip.bits: self.scenario}
         self.address = address
         self.clock = clock if clock is not None else FakeClock()
         self.bus_hz = float(bus_hz)
@@ -193,6 +208,8 @@ class FakeBus:
         self._provider = _PROVIDER(self._provide)  # keep a reference: C holds the pointer
         asa = (ctypes.c_uint8 * 3)(*[int(a) for a in self.scenario.physics.asa])
         self._lib.mpu_model_init(self._mem, address, asa, self._provider, None)
+        if self._lib.mpu_model_set_chip(self._mem, MODEL_CHIP[chip.name]) != 0:
+            raise DeviceError(f"the register model does not know chip {chip.name}")
         self._lib.mpu_model_set_measure_us(self._mem, int(measure_us))
         self._lib.mpu_model_set_self_test(self._mem, (ctypes.c_int16 * 3)(*self.scenario.physics.self_test_raw()))
         self.set_faults(faults)
@@ -223,7 +240,8 @@ class FakeBus:
         try:
             t_s = t_us / 1e6
             k = self.measurements
-            raw, st2, temp_raw = self.scenario.measure(np.array([t_s]), np.array([k]))
+            scenario = self._at_bits(int(self._lib.mpu_model_mag_bits(self._mem)))
+            raw, st2, temp_raw = scenario.measure(np.array([t_s]), np.array([k]))
             m = out.contents
             m.hx, m.hy, m.hz = (int(v) for v in raw[0])
             m.hofl = 1 if int(st2[0]) & ST2_HOFL else 0
@@ -234,6 +252,15 @@ class FakeBus:
         except BaseException as exc:  # never let an exception cross the C boundary
             self._provider_error = exc
             return -1
+
+    def _at_bits(self, bits: int) -> Scenario:
+        """The scenario whose chip reads at ``bits`` (the AK8963 switches with CNTL1 BIT)."""
+        if bits not in self._by_bits:
+            if self.chip.magnetometer is not Magnetometer.AK8963:
+                raise DeviceError(f"{self.chip.label} has no {bits}-bit output")
+            row = chip_named(self.chip.name, bits)
+            self._by_bits[bits] = self.scenario.with_physics(chip=row)
+        return self._by_bits[bits]
 
     # -- byte-level transactions ---------------------------------------------------------------
     def _t_us(self) -> int:
