@@ -18,7 +18,7 @@ from magcal.devices.port import VOCABULARY
     ("sim://?sede=3", r"unknown option 'sede' \(sim:// takes: seed, rate"),
     ("emu://?rate=50", r"unknown option 'rate' \(emu:// takes"),
     ("replay://x.cap?seed=1", r"unknown option 'seed' \(replay:// takes: pace, fault\)"),
-    ("i2c:1?speed=3", r"unknown option 'speed' \(i2c: takes: addr, rate\)"),
+    ("i2c:1?speed=3", r"unknown option 'speed' \(i2c: takes: addr, rate, chip, bits\)"),
     ("sim://?seed=-1", "seed"),
     ("sim://?rate=0", "out of range"),
     ("i2c:1?rate=500", "out of range"),

@@ -18,6 +18,11 @@ An option means the same wherever it is taken; each backend takes the ones marke
 | ``fault``    | ``KIND[@T][+D][=VALUE]``, repeatable (``devices.faults``) |  ✓  |  ✓  |   ✓    |     |
 | ``addr``     | the MPU-9150's I2C address: 0x68 (AD0 low), 0x69 (high)  |     |  ✓  |        |  ✓  |
 | ``measure_us`` | the AK8975's measurement time in µs                    |     |  ✓  |        |     |
+| ``chip``     | mpu9150 (default), mpu9250 or icm20948 (``core.chips``)  |  ✓  |  ✓  |        |  ✓  |
+| ``bits``     | magnetometer resolution: 14 or 16 for the mpu9250 (16)   |  ✓  |  ✓  |        |  ✓  |
+
+On ``i2c:`` the chip is found by its ids; ``chip=`` there says which one is expected (another
+is refused) and ``bits=`` picks the AK8963's resolution.
 
 Earlier spellings still read: ``speed`` (sim://) for ``pace``, ``address`` (i2c:) for ``addr``.
 Anything else — an unknown option, a malformed value, a missing file or bus — is a
@@ -31,6 +36,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 from urllib.parse import parse_qs
 
+from ..core.chips import CHIP_NAMES, Chip, chip_named
 from ..core.errors import PortError
 from ..sim.physics import Motion, Scenario, demo_scenario
 from .faults import BOARD_FAULTS, LINK_FAULTS, REGISTER_FAULTS, Fault, parse_fault
@@ -118,6 +124,23 @@ def _whole(text: str) -> int:
     return v
 
 
+def _chip(text: str) -> str:
+    name = text.strip().lower().replace("-", "")
+    if name not in CHIP_NAMES:
+        raise ValueError(f"chip is one of {', '.join(CHIP_NAMES)}")
+    return name
+
+
+def _bits(text: str) -> int:
+    try:
+        bits = int(text)
+    except ValueError:
+        raise ValueError(f"bits={text!r} is not a whole number (13, 14 or 16)") from None
+    if bits not in (13, 14, 16):
+        raise ValueError("bits is 13 (mpu9150), 14 or 16 (mpu9250) or 16 (icm20948)")
+    return bits
+
+
 @dataclass(frozen=True)
 class Option:
     name: str
@@ -137,6 +160,8 @@ VOCABULARY = {o.name: o for o in (
     Option("fault", str, "KIND[@T][+D][=VALUE], repeatable"),
     Option("addr", _addr, "I2C address 0x68 or 0x69"),
     Option("measure_us", _whole, "AK8975 measurement time in µs"),
+    Option("chip", _chip, "mpu9150, mpu9250 or icm20948"),
+    Option("bits", _bits, "magnetometer resolution (mpu9250: 14 or 16)"),
 )}
 
 
@@ -155,12 +180,12 @@ class Scheme:
 
 
 SCHEMES = {s.name: s for s in (
-    Scheme("sim", "", ("seed", "rate", "pace", "eeprom", "motion", "offset", "noise", "field", "fault"),
+    Scheme("sim", "", ("seed", "rate", "pace", "eeprom", "motion", "offset", "noise", "field", "fault", "chip", "bits"),
            LINK_FAULTS | BOARD_FAULTS, (("speed", "pace"),)),
-    Scheme("emu", "", ("seed", "pace", "eeprom", "offset", "noise", "fault", "addr", "measure_us"),
+    Scheme("emu", "", ("seed", "pace", "eeprom", "offset", "noise", "fault", "addr", "measure_us", "chip", "bits"),
            frozenset(REGISTER_FAULTS)),
     Scheme("replay", "file", ("pace", "fault"), LINK_FAULTS),
-    Scheme("i2c", "bus", ("addr", "rate"), aliases=(("address", "addr"),)),
+    Scheme("i2c", "bus", ("addr", "rate", "chip", "bits"), aliases=(("address", "addr"),)),
     Scheme("serial", "port", ()),
 )}
 
@@ -234,9 +259,20 @@ def _parse_query(url: str, scheme: Scheme, query: str) -> tuple[dict, tuple[Faul
     return options, tuple(sorted(faults, key=lambda f: f.t_s))
 
 
+def chip_of(port: Port) -> Chip | None:
+    """The chip a port string names (``chip=``, ``bits=``); None when it names none."""
+    if port.get("chip") is None and port.get("bits") is None:
+        return None
+    try:
+        return chip_named(port.get("chip", "mpu9150"), port.get("bits"))
+    except ValueError as exc:
+        raise PortError(f"{port.url!r}: {exc}") from None
+
+
 def scenario_of(port: Port) -> Scenario:
     """The physics a simulator's port string asks for: ``demo_scenario(seed)`` with its
-    ``motion``, ``offset``, ``noise`` and ``field`` options."""
+    ``motion``, ``offset``, ``noise`` and ``field`` options (the chip is the backend's to put
+    it on: ``chip_of``)."""
     sc = demo_scenario(port.get("seed", 1))
     if port.get("motion", "sphere") != "sphere":
         sc = replace(sc, motion=Motion(port.get("motion")))
