@@ -19,6 +19,7 @@ class Code(str, Enum):
     def __format__(self, spec: str) -> str:
         return format(self.value, spec)
 
+from .chips import Chip, chip_from_ids
 from .sample import Sample
 
 
@@ -34,6 +35,17 @@ class Identity:
     asa: tuple[int, int, int] = (128, 128, 128)
     rate_hz: int = 0
     extra: dict = field(default_factory=dict)
+    bits: int | None = None  # the magnetometer's output resolution, when the device says it
+
+    @property
+    def chip(self) -> Chip | None:
+        """The part these ids name (``magcal.core.chips``); None when they name none known."""
+        if self.who_am_i is None or self.wia is None:
+            return None
+        try:
+            return chip_from_ids(self.who_am_i, self.wia, self.bits or None)
+        except ValueError:
+            return None
 
     def to_dict(self) -> dict:
         d = {
@@ -45,6 +57,9 @@ class Identity:
             "asa": list(self.asa),
             "rate_hz": self.rate_hz,
         }
+        chip = self.chip
+        if chip is not None:
+            d["chip"] = chip.label
         d.update(self.extra)
         return d
 

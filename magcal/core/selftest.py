@@ -24,10 +24,12 @@ class SelfTestResult:
     st2: int = 0
 
     @classmethod
-    def from_registers(cls, raw, asa, st2: int = 0) -> "SelfTestResult":
-        """The data registers read in self-test mode and this chip's ASA bytes."""
+    def from_registers(cls, raw, asa, st2: int = 0, window=SELF_TEST_WINDOW) -> "SelfTestResult":
+        """The data registers read in self-test mode and this chip's ASA bytes, judged against
+        ``window`` (the chip's own: ``magcal.core.chips.Chip.self_test_window``; default the AK8975's)."""
         raw = tuple(int(v) for v in raw)
-        return cls(raw=raw, adjusted=tuple(float(r) * asa_gain(a) for r, a in zip(raw, asa)), st2=int(st2))
+        adjusted = tuple(float(r) * asa_gain(a) for r, a in zip(raw, asa))
+        return cls(raw=raw, adjusted=adjusted, window=tuple(tuple(w) for w in window), st2=int(st2))
 
     @property
     def axis_passed(self) -> tuple[bool, bool, bool]:

@@ -1,7 +1,13 @@
-"""The ``i2c:`` backend: an MPU-9150 straight on a Linux I2C bus (smbus2), no Arduino.
+"""The ``i2c:`` backend: an MPU-9150, MPU-9250/9255 or ICM-20948 straight on a Linux I2C bus
+(smbus2), no Arduino. Which one is there is found by its ids (``magcal.core.chips``).
 
 Port strings: ``i2c:1`` (``/dev/i2c-1``), ``i2c:/dev/i2c-1``, ``i2c:1?addr=0x69`` (AD0 high),
-``i2c:1?addr=0x69&rate=50``.
+``i2c:1?addr=0x69&rate=50``, ``i2c:1?bits=14`` (an MPU-9250's AK8963 at 14 bits; 16 otherwise),
+``i2c:1?chip=icm20948`` (refuse any other part).
+
+The ICM-20948 is told apart by its bank-0 WHO_AM_I (0x00 = 0xEA) when 0x75 reads no MPU id; its
+bypass is bank 0 ``INT_PIN_CFG`` 0x0F, and its AK09916 answers at 0x0C with WIA2 (0x01) = 0x09,
+ST1 0x10, data 0x11–0x16 (little-endian) and ST2 0x18 read after the data, CNTL2 0x31, no ASA.
 
 What the host does (register facts: ``docs/hardware.md``, AK8975 datasheet MS1187-E-02):
 
@@ -29,13 +35,14 @@ import time
 from dataclasses import dataclass, replace
 from typing import Callable, Iterable
 
+from ..core.chips import CHIPS, ICM20948, MPU9150, NEUTRAL_ASA, Chip, Magnetometer, chip_named
 from ..core.errors import DeviceError, IdentityError, NoReply, PortUnavailable
-from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, Sample, counts_to_ut, temp_raw_to_c
+from ..core.sample import ST2_DERR, ST2_HOFL, Sample, asa_gain, temp_raw_to_c
 from ..core.selftest import SELF_TEST_WINDOW, SelfTestResult  # noqa: F401 (SELF_TEST_WINDOW: re-exported)
 from ..wire.dialect import Dialect
 from .base import Abilities, Device, Event, Identity, Item
 from .host_store import HostStore
-from .port import MPU_ADDRS, Port, check_rate
+from .port import MPU_ADDRS, Port, check_rate, chip_of
 
 # -- registers ---------------------------------------------------------------------------------
 MPU_WHO_AM_I_VALUE = 0x68
@@ -61,6 +68,38 @@ MODE_POWER_DOWN = 0x00
 MODE_SINGLE = 0x01
 MODE_SELF_TEST = 0x08
 MODE_FUSE_ROM = 0x0F
+AK8963_BIT_16 = 0x10  # CNTL1 BIT: 16-bit output
+
+
+@dataclass(frozen=True)
+class ImuRegisters:
+    """Where an IMU keeps what the host touches (the ICM-20948's are bank 0)."""
+
+    who_am_i: int
+    pwr_mgmt_1: int
+    user_ctrl: int
+    int_pin_cfg: int
+    temp_out_h: int
+
+
+@dataclass(frozen=True)
+class MagRegisters:
+    """Where a magnetometer keeps its id, status, data and mode (``burst``: data through ST2)."""
+
+    id_reg: int
+    st1: int
+    data: int
+    burst: int
+    cntl: int
+    astc: int | None
+    mode_self_test: int
+
+
+MPU_REGS = ImuRegisters(REG_WHO_AM_I, REG_PWR_MGMT_1, REG_USER_CTRL, REG_INT_PIN_CFG, REG_TEMP_OUT_H)
+ICM_REGS = ImuRegisters(0x00, 0x06, 0x03, 0x0F, 0x39)  # DS-000189 user bank 0
+REG_BANK_SEL_ICM = 0x7F
+AK89XX_REGS = MagRegisters(REG_WIA, REG_ST1, REG_HXL, 7, REG_CNTL, REG_ASTC, MODE_SELF_TEST)
+AK09916_REGS = MagRegisters(0x01, 0x10, 0x11, 8, 0x31, None, 0x10)  # WIA2, ST1, HXL, +TMPS+ST2, CNTL2
 
 # -- timing (seconds) ------------------------------------------------------------------------------
 RESET_WAIT_S = 0.100
@@ -92,6 +131,7 @@ class I2CAddress:
     path: str  # the device file, for messages
     address: int
     rate_hz: int
+    bits: int | None = None  # the AK8963's resolution, when the port string asks for one
 
 
     @classmethod
@@ -105,7 +145,8 @@ class I2CAddress:
             path = where
             m = re.fullmatch(r"/dev/i2c-(\d+)", where)
             bus = int(m.group(1)) if m else where
-        return cls(bus=bus, path=path, address=port.get("addr", MPU_ADDRS[0]), rate_hz=port.get("rate", DEFAULT_RATE_HZ))
+        return cls(bus=bus, path=path, address=port.get("addr", MPU_ADDRS[0]), rate_hz=port.get("rate", DEFAULT_RATE_HZ),
+                   bits=port.get("bits"))
 
 
 def _default_bus_factory(bus):
@@ -140,8 +181,132 @@ def _int16(lo: int, hi: int) -> int:
     return v - 0x10000 if v & 0x8000 else v
 
 
+# -- bring-up: which chip, and its registers ------------------------------------------------------
+class ChipBringUp:
+    """Finding which chip is on the bus and setting it up: the register traffic of bring-up,
+    for the device below (which owns the bus, the clock and the port)."""
+
+    bus: object
+    where: I2CAddress
+    chip: Chip
+    expected: Chip | None
+    sleep: Callable[[float], None]
+
+    def _rb(self, addr: int, reg: int) -> int:
+        return int(self.bus.read_byte_data(addr, reg))
+
+    def _wb(self, addr: int, reg: int, value: int) -> None:
+        self.bus.write_byte_data(addr, reg, value & 0xFF)
+
+    def _block(self, addr: int, reg: int, n: int) -> list[int]:
+        return [int(b) for b in self.bus.read_i2c_block_data(addr, reg, n)]
+
+    @property
+    def imu(self) -> ImuRegisters:
+        return ICM_REGS if self.chip.magnetometer is Magnetometer.AK09916 else MPU_REGS
+
+    @property
+    def mag(self) -> MagRegisters:
+        return AK09916_REGS if self.chip.magnetometer is Magnetometer.AK09916 else AK89XX_REGS
+
+    def _mode_bits(self, mode: int) -> int:
+        """The mode with the AK8963's 16-bit BIT when this chip reads at 16 bits."""
+        sixteen = self.chip.magnetometer is Magnetometer.AK8963 and self.chip.bits == 16
+        return mode | AK8963_BIT_16 if sixteen and mode not in (MODE_POWER_DOWN, MODE_FUSE_ROM) else mode
+
+    def _ak_mode(self, mode: int) -> None:
+        """Change CNTL through power-down, as the datasheet requires."""
+        self._wb(AK_ADDR, self.mag.cntl, MODE_POWER_DOWN)
+        self.sleep(MODE_CHANGE_WAIT_S)
+        if mode != MODE_POWER_DOWN:
+            self._wb(AK_ADDR, self.mag.cntl, self._mode_bits(mode))
+
+    def _identify_imu(self) -> int:
+        """WHO_AM_I at 0x75 (the MPUs), else bank-0 0x00 (the ICM-20948); sets ``self.chip``."""
+        path, mpu = self.where.path, self.where.address
+        try:
+            who = self._rb(mpu, REG_WHO_AM_I)
+        except OSError as exc:
+            other = MPU_ADDRS[1] if mpu == MPU_ADDRS[0] else MPU_ADDRS[0]
+            raise PortUnavailable(
+                f"{path}: nothing answers at 0x{mpu:02X} ({exc.strerror or exc}); check wiring "
+                f"and power, or try addr=0x{other:02X} (AD0 {'high' if other == 0x69 else 'low'})"
+            ) from None
+        if not any(who in c.who_am_i for c in CHIPS if c is not ICM20948):
+            who = self._icm_who_am_i(who)
+        found = [c for c in CHIPS if who in c.who_am_i]
+        expected = self.expected
+        if expected is not None and who not in expected.who_am_i:
+            raise IdentityError(f"{path} 0x{mpu:02X}: WHO_AM_I reads 0x{who:02X}, expected "
+                                f"0x{expected.who_am_i[0]:02X} ({expected.label.split(' ')[0]})")
+        if not found:
+            raise IdentityError(
+                f"{path} 0x{mpu:02X}: WHO_AM_I reads 0x{who:02X}, which no supported chip has "
+                "(0x68 MPU-9150, 0x71/0x73 MPU-9250/9255, 0xEA ICM-20948 at bank-0 0x00)"
+            )
+        self.chip = expected or self._chip_at_bits(found[0])
+        return who
+
+    def _icm_who_am_i(self, who_75: int) -> int:
+        """0xEA when bank 0's 0x00 says ICM-20948; else what 0x75 read (no bank to select)."""
+        mpu = self.where.address
+        try:
+            self._wb(mpu, REG_BANK_SEL_ICM, 0x00)
+            who = self._rb(mpu, ICM_REGS.who_am_i)
+        except OSError:
+            return who_75
+        return who if who in ICM20948.who_am_i else who_75
+
+    def _chip_at_bits(self, chip: Chip) -> Chip:
+        """The row for the resolution the port asks for (``bits=``, the AK8963 only)."""
+        bits = self.where.bits
+        try:
+            return chip if bits is None else chip_named(chip.name, bits)
+        except ValueError as exc:
+            raise IdentityError(f"{self.where.path}: found the {chip.label}, but {exc}") from None
+
+    def _open_bypass(self) -> None:
+        """Reset, wake, stop the IMU's own I2C master and let the magnetometer onto the bus."""
+        mpu, regs = self.where.address, self.imu
+        try:
+            self._wb(mpu, regs.pwr_mgmt_1, 0x80)  # device reset
+            self.sleep(RESET_WAIT_S)
+            self._wb(mpu, regs.pwr_mgmt_1, 0x01)  # wake, best clock source
+            user = self._rb(mpu, regs.user_ctrl)
+            self._wb(mpu, regs.user_ctrl, user & ~BIT_I2C_MST_EN)
+            self.sleep(MST_DISABLE_WAIT_S)
+            self._wb(mpu, regs.int_pin_cfg, BIT_I2C_BYPASS_EN)
+        except OSError as exc:
+            raise PortUnavailable(f"{self.where.path} 0x{mpu:02X}: bring-up failed ({exc})") from None
+
+    def _identify_magnetometer(self, who: int) -> int:
+        path, mpu, name = self.where.path, self.where.address, self.chip.magnetometer.value
+        imu = self.chip.label.split(" ")[0]
+        try:
+            wia = self._rb(AK_ADDR, self.mag.id_reg)
+        except OSError as exc:
+            raise MagnetometerMissing(
+                f"{path}: the {imu} answers at 0x{mpu:02X} but the {name} at 0x0C does not "
+                f"({exc.strerror or exc}) with the I2C bypass on; is this an MPU-6050 (no magnetometer)?"
+            ) from None
+        if wia != self.chip.mag_id:
+            reg = "WIA2" if self.chip.magnetometer is Magnetometer.AK09916 else "WIA"
+            raise IdentityError(f"{path} 0x0C: {reg} reads 0x{wia:02X}, expected 0x{self.chip.mag_id:02X} ({name})")
+        return wia
+
+    def _read_asa(self) -> tuple[int, int, int]:
+        try:
+            self._ak_mode(MODE_FUSE_ROM)
+            self.sleep(MODE_CHANGE_WAIT_S)
+            asa = self._block(AK_ADDR, REG_ASAX, 3)
+            self._ak_mode(MODE_POWER_DOWN)
+        except OSError as exc:
+            raise DeviceError(f"{self.where.path} 0x0C: reading the ASA fuse ROM failed ({exc})") from None
+        return (asa[0], asa[1], asa[2])
+
+
 # -- the device ---------------------------------------------------------------------------------------
-class I2CDevice(HostStore, Device):
+class I2CDevice(ChipBringUp, HostStore, Device):
     """An MPU-9150 + AK8975 on a Linux I2C bus, measured one single shot at a time; its
     calibration lives in the host-side store (``HostStore``): the AK8975 has no offset registers."""
 
@@ -165,6 +330,8 @@ class I2CDevice(HostStore, Device):
         self.drdy_timeout_s = float(drdy_timeout_s)
         self.bus = None
         self.asa: tuple[int, int, int] = (128, 128, 128)
+        self.expected: Chip | None = chip_of(port) if port.get("chip") else None
+        self.chip: Chip = self.expected or MPU9150
         self.rate_hz = self.where.rate_hz
         self._running = False
         self._next_due = 0.0
@@ -183,22 +350,6 @@ class I2CDevice(HostStore, Device):
                 self.sleep = sim_clock.sleep
         return bus
 
-    def _rb(self, addr: int, reg: int) -> int:
-        return int(self.bus.read_byte_data(addr, reg))
-
-    def _wb(self, addr: int, reg: int, value: int) -> None:
-        self.bus.write_byte_data(addr, reg, value & 0xFF)
-
-    def _block(self, addr: int, reg: int, n: int) -> list[int]:
-        return [int(b) for b in self.bus.read_i2c_block_data(addr, reg, n)]
-
-    def _ak_mode(self, mode: int) -> None:
-        """Change CNTL through power-down, as the datasheet requires."""
-        self._wb(AK_ADDR, REG_CNTL, MODE_POWER_DOWN)
-        self.sleep(MODE_CHANGE_WAIT_S)
-        if mode != MODE_POWER_DOWN:
-            self._wb(AK_ADDR, REG_CNTL, mode)
-
     # -- bring-up -------------------------------------------------------------------------------
     def _open(self) -> Identity:
         self.bus = self._connect()
@@ -210,48 +361,12 @@ class I2CDevice(HostStore, Device):
 
     def _bring_up(self) -> Identity:
         path, mpu = self.where.path, self.where.address
-        try:
-            who = self._rb(mpu, REG_WHO_AM_I)
-        except OSError as exc:
-            other = MPU_ADDRS[1] if mpu == MPU_ADDRS[0] else MPU_ADDRS[0]
-            raise PortUnavailable(
-                f"{path}: nothing answers at 0x{mpu:02X} ({exc.strerror or exc}); check wiring "
-                f"and power, or try addr=0x{other:02X} (AD0 {'high' if other == 0x69 else 'low'})"
-            ) from None
-        if who != MPU_WHO_AM_I_VALUE:
-            raise IdentityError(
-                f"{path} 0x{mpu:02X}: WHO_AM_I reads 0x{who:02X}, expected 0x68 (MPU-9150); "
-                "0x71/0x73 is an MPU-9250/9255 (AK8963), which this tool does not drive"
-            )
-        try:
-            self._wb(mpu, REG_PWR_MGMT_1, 0x80)  # device reset
-            self.sleep(RESET_WAIT_S)
-            self._wb(mpu, REG_PWR_MGMT_1, 0x01)  # wake, PLL with X gyro reference
-            user = self._rb(mpu, REG_USER_CTRL)
-            self._wb(mpu, REG_USER_CTRL, user & ~BIT_I2C_MST_EN)
-            self.sleep(MST_DISABLE_WAIT_S)
-            self._wb(mpu, REG_INT_PIN_CFG, BIT_I2C_BYPASS_EN)
-        except OSError as exc:
-            raise PortUnavailable(f"{path} 0x{mpu:02X}: bring-up failed ({exc})") from None
-        try:
-            wia = self._rb(AK_ADDR, REG_WIA)
-        except OSError as exc:
-            raise MagnetometerMissing(
-                f"{path}: the MPU-9150 answers at 0x{mpu:02X} but the AK8975 at 0x0C does not "
-                f"({exc.strerror or exc}) with the I2C bypass on; is this an MPU-6050 (no magnetometer)?"
-            ) from None
-        if wia != AK_WIA_VALUE:
-            raise IdentityError(f"{path} 0x0C: WIA reads 0x{wia:02X}, expected 0x48 (AK8975)")
-        try:
-            self._ak_mode(MODE_FUSE_ROM)
-            self.sleep(MODE_CHANGE_WAIT_S)
-            asa = self._block(AK_ADDR, REG_ASAX, 3)
-            self._ak_mode(MODE_POWER_DOWN)
-        except OSError as exc:
-            raise DeviceError(f"{path} 0x0C: reading the ASA fuse ROM failed ({exc})") from None
-        self.asa = (asa[0], asa[1], asa[2])
+        who = self._identify_imu()
+        self._open_bypass()
+        wia = self._identify_magnetometer(who)
+        self.asa = self._read_asa() if self.chip.has_asa else NEUTRAL_ASA
         return Identity(transport="i2c", proto=0, firmware="", who_am_i=who, wia=wia, asa=self.asa,  # proto 0: no wire
-                        rate_hz=self.rate_hz, extra={"bus": path, "address": f"0x{mpu:02X}"})
+                        rate_hz=self.rate_hz, extra={"bus": path, "address": f"0x{mpu:02X}"}, bits=self.chip.bits)
 
     # -- streaming --------------------------------------------------------------------------------
     def set_rate(self, rate_hz: int) -> int:
@@ -309,14 +424,14 @@ class I2CDevice(HostStore, Device):
         return item
 
     def _measure_once(self, seq: int) -> Item:
-        if self._rb(AK_ADDR, REG_ST1) & ST1_DRDY:
+        if self._rb(AK_ADDR, self.mag.st1) & ST1_DRDY:
             # Unread data from an earlier measurement (one that finished after its deadline,
             # or someone else's): DRDY would be already set and the next burst would read the
             # new measurement mid-conversion (DERR). Read it out to clear DRDY.
-            self._block(AK_ADDR, REG_HXL, 7)
+            self._block(AK_ADDR, self.mag.data, self.mag.burst)
             self.counters["stale_cleared"] += 1
         t_trigger = self.clock()
-        self._wb(AK_ADDR, REG_CNTL, MODE_SINGLE)
+        self._wb(AK_ADDR, self.mag.cntl, self._mode_bits(MODE_SINGLE))
         if not self._wait_drdy(t_trigger):
             self._drdy_misses += 1
             self.counters["drdy_timeout"] += 1
@@ -324,21 +439,21 @@ class I2CDevice(HostStore, Device):
             if self._drdy_misses >= MAX_CONSECUTIVE_DRDY_MISSES:
                 raise DataNotReady(
                     f"{self.where.path} 0x0C: DRDY never set within {self.drdy_timeout_s * 1000:.0f} ms "
-                    f"for {self._drdy_misses} measurements in a row (AK8975 stuck or not measuring)"
+                    f"for {self._drdy_misses} measurements in a row ({self.chip.magnetometer.value} stuck or not measuring)"
                 )
             return Event("rejected", seq=seq, count=1, detail="DRDY timeout")
         self._drdy_misses = 0
-        burst = self._block(AK_ADDR, REG_HXL, 7)  # HXL..HZH, ST2 — one read, one measurement
+        burst = self._block(AK_ADDR, self.mag.data, self.mag.burst)  # HXL..HZH(, TMPS), ST2: one read
         raw, st2 = _measurement(burst)
-        t_hi, t_lo = self._block(self.where.address, REG_TEMP_OUT_H, 2)
+        t_hi, t_lo = self._block(self.where.address, self.imu.temp_out_h, 2)
         temp_raw = _int16(t_lo, t_hi)
-        reason = _rejection(raw, st2)
+        reason = _rejection(raw, st2, self.chip)
         if reason:
             self.counters["rejected"] += 1
             self.counters[f"rejected_{reason}"] += 1
             return Event("rejected", seq=seq, count=1, detail=f"{reason}: raw={list(raw)} st2=0x{st2:02X}")
         self.counters["samples"] += 1
-        field = counts_to_ut(raw, self.asa)
+        field = [r * self.chip.ut_per_count * asa_gain(a) for r, a in zip(raw, self.asa)]
         return Sample(
             seq=seq,
             t_s=t_trigger,
@@ -356,7 +471,7 @@ class I2CDevice(HostStore, Device):
         if first > now:
             self.sleep(first - now)
         while True:
-            if self._rb(AK_ADDR, REG_ST1) & ST1_DRDY:
+            if self._rb(AK_ADDR, self.mag.st1) & ST1_DRDY:
                 return True
             now = self.clock()
             if now >= deadline:
@@ -365,22 +480,25 @@ class I2CDevice(HostStore, Device):
 
     # -- self-test ------------------------------------------------------------------------------
     def _self_test(self) -> SelfTestResult:
-        """The AK8975 self-test: an internal field is applied (ASTC.SELF), one measurement in
-        self-test mode, compared with the datasheet window. Leaves the chip powered down."""
+        """The magnetometer's self-test: an internal field is applied (ASTC.SELF on the AK8975
+        and AK8963; the AK09916's self-test mode applies it itself), one measurement in
+        self-test mode, judged against this chip's datasheet window. Leaves it powered down."""
         self._require_open()
         was_running = self._running
         self._running = False
         try:
             self._ak_mode(MODE_POWER_DOWN)
-            self._wb(AK_ADDR, REG_ASTC, ASTC_SELF)
+            if self.mag.astc is not None:
+                self._wb(AK_ADDR, self.mag.astc, ASTC_SELF)
             try:
                 t0 = self.clock()
-                self._ak_mode(MODE_SELF_TEST)
+                self._ak_mode(self.mag.mode_self_test)
                 if not self._wait_drdy(t0):
                     raise DataNotReady(f"{self.where.path} 0x0C: no DRDY in self-test mode within {self.drdy_timeout_s * 1000:.0f} ms")
-                burst = self._block(AK_ADDR, REG_HXL, 7)
+                burst = self._block(AK_ADDR, self.mag.data, self.mag.burst)
             finally:
-                self._wb(AK_ADDR, REG_ASTC, 0x00)
+                if self.mag.astc is not None:
+                    self._wb(AK_ADDR, self.mag.astc, 0x00)
         except OSError as exc:
             raise DeviceError(f"{self.where.path} 0x0C: self-test failed on the bus ({exc})") from None
         finally:
@@ -388,7 +506,7 @@ class I2CDevice(HostStore, Device):
                 self._running = True
                 self._next_due = self.clock()
         raw, st2 = _measurement(burst)
-        result = SelfTestResult.from_registers(raw, self.asa, st2)
+        result = SelfTestResult.from_registers(raw, self.asa, st2, window=self.chip.self_test_window)
         self.counters["self_test_pass" if result.passed else "self_test_fail"] += 1
         return result
 
@@ -411,24 +529,24 @@ class I2CDevice(HostStore, Device):
         self._running = False
         if self.bus is not None:
             try:
-                self._wb(AK_ADDR, REG_CNTL, MODE_POWER_DOWN)
+                self._wb(AK_ADDR, self.mag.cntl, MODE_POWER_DOWN)
             except OSError:
                 pass
         self._close_bus()
 
 
 def _measurement(burst) -> tuple[tuple[int, int, int], int]:
-    """HXL..HZH, ST2 (one burst) → the raw counts and ST2."""
-    return (_int16(burst[0], burst[1]), _int16(burst[2], burst[3]), _int16(burst[4], burst[5])), burst[6]
+    """HXL..HZH, [TMPS,] ST2 (one burst; ST2 is its last byte) → the raw counts and ST2."""
+    return (_int16(burst[0], burst[1]), _int16(burst[2], burst[3]), _int16(burst[4], burst[5])), burst[-1]
 
 
-def _rejection(raw, st2: int) -> str:
+def _rejection(raw, st2: int, chip: Chip = MPU9150) -> str:
     """Why a reading is invalid ('' when it is fine): derr, hofl, rail, zero."""
     if st2 & ST2_DERR:
         return "derr"
     if st2 & ST2_HOFL:
         return "hofl"
-    if any(v <= COUNT_MIN or v >= COUNT_MAX for v in raw):
+    if any(v <= chip.count_min or v >= chip.count_max for v in raw):
         return "rail"
     if not any(raw):
         return "zero"
