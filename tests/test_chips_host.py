@@ -67,3 +67,18 @@ def test_calibrate_on_each_new_chip_over_i2c_is_written_and_verified(chip, monke
     assert report["written"] and report["verified"]
     got = np.array(report["calibration"]["offset_ut"])
     assert np.all(np.abs(got - sc.physics.hard_iron_ut) < 2.0), got
+
+
+@pytest.mark.parametrize("query", ["chip=icm20948", "chip=mpu9250&bits=14"])
+def test_sim_board_of_a_new_chip_is_named_self_tested_and_calibrated(query, tmp_path, capsys):
+    url = f"sim://?{query}&pace=0&eeprom={tmp_path / 'ee.bin'}"
+    assert main(["show", "--port", url, "--self-test"]) == 0
+    shown = capsys.readouterr().out
+    chip = chip_named(*(("icm20948",) if "icm" in query else ("mpu9250", 14)))
+    assert f"chip        {chip.label}" in shown and f"window from the {chip.magnetometer.value} datasheet" in shown
+    assert "self-test   PASS" in shown
+    rc = main(["calibrate", "--port", url, "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert rc == 0 and report["written"] and report["verified"], report
+    assert report["device"]["chip"] == chip.label
+    assert np.allclose(report["calibration"]["offset_ut"], demo_scenario(1).physics.hard_iron_ut, atol=1.0)

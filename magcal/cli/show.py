@@ -6,7 +6,7 @@ is not positive definite) — is named as such, never shown as the calibration; 
 (``magcal calibrate`` or ``magcal write``) replaces it. Exit status: 0 when a calibration is
 stored, 1 when none (or no usable one) is, 5 for the device.
 
-``--self-test`` also runs the AK8975 self-test on backends that can (``i2c:``, the magcal firmware
+``--self-test`` also runs the magnetometer's self-test (judged against that chip's datasheet window) on backends that can (``i2c:``, the magcal firmware
 over serial, ``sim://``, ``emu://``) and prints each axis against the datasheet window; then the
 self-test is the question: exit 0 when it passed (whether or not a calibration is stored), 3
 when it failed. ``--json`` prints ``magcal.show/1``."""
@@ -26,7 +26,7 @@ HELP = "print the calibration stored for a device"
 def add_arguments(p) -> None:
     add(p, "port", "baud", "dialect", "config", "json")
     p.add_argument("--self-test", action="store_true",
-                   help="also run the AK8975 self-test (i2c:, the magcal firmware, sim://, emu://)")
+                   help="also run the magnetometer's self-test (i2c:, the magcal firmware, sim://, emu://)")
 
 
 def _fmt_vec(v) -> str:
@@ -39,6 +39,8 @@ def format_text(identity: dict, cal, where: str | None, record=None) -> str:
         f"{k} {identity[k]}" for k in ("transport", "bus", "address", "firmware", "who_am_i", "wia") if identity.get(k)
     )
     lines = [f"device      {ident}  asa {' '.join(str(a) for a in identity.get('asa', []))}"]
+    if identity.get("chip"):
+        lines.append(f"chip        {identity['chip']}")
     if where:
         lines.append(f"stored in   {where}")
     if cal is None and record is not None and record.problem:
@@ -60,8 +62,8 @@ def format_text(identity: dict, cal, where: str | None, record=None) -> str:
     return "\n".join(lines)
 
 
-def format_self_test(result) -> str:
-    lines = [f"self-test   {'PASS' if result.passed else 'FAIL'} (ASA-adjusted counts; window from the AK8975 datasheet)"]
+def format_self_test(result, magnetometer: str = "AK8975") -> str:
+    lines = [f"self-test   {'PASS' if result.passed else 'FAIL'} (ASA-adjusted counts; window from the {magnetometer} datasheet)"]
     for name, raw, adj, (lo, hi), ok in zip("xyz", result.raw, result.adjusted, result.window, result.axis_passed):
         lines.append(f"  {name}  raw {raw:6d}  adjusted {adj:8.1f}  window [{lo}, {hi}]  {'ok' if ok else 'OUT'}")
     return "\n".join(lines)
@@ -75,7 +77,7 @@ def run(args) -> int:
         identity = dev.open()
         if args.self_test:
             if not dev.abilities.self_test:
-                raise DeviceError(f"{settings.port}: this backend cannot run the AK8975 self-test "
+                raise DeviceError(f"{settings.port}: this backend cannot run the magnetometer self-test "
                                   "(i2c:, the magcal firmware over serial, sim:// and emu:// can)")
             result = dev.self_test()
         record = dev.read_stored()
@@ -90,7 +92,8 @@ def run(args) -> int:
     else:
         print(format_text(identity.to_dict(), cal, where, record))
         if result is not None:
-            print(format_self_test(result))
+            chip = identity.chip
+            print(format_self_test(result, chip.magnetometer.value if chip else "AK8975"))
     if result is not None:
         return Exit.OK if result.passed else Exit.GATE
     return Exit.OK if cal is not None else Exit.NO

@@ -22,6 +22,7 @@ from typing import Callable, Iterable
 
 from ..core.calibration import Calibration, RecordState, StoredRecord
 from ..core.errors import CommandRefused, DeviceError, IdentityError, NoReply, PortUnavailable, WriteRejected
+from ..core.chips import MPU9150, Chip, chip_from_ids
 from ..core.sample import Sample, counts_to_ut, temp_raw_to_c
 from ..core.selftest import SelfTestResult
 from ..wire.dialect import Dialect
@@ -54,6 +55,16 @@ from .transport import Connector, SerialPort, tapped
 DROPPED = ("overlong_lines", "torn_lines", "bad_checksums", "malformed_lines", "bad_syntax", "unknown_types")
 WHO_AM_I_MPU9150 = 0x68
 WIA_AK8975 = 0x48
+
+
+def hello_chip(hello: Hello | None) -> Chip | None:
+    """The part a hello names by its ids and resolution (``bits``; 0 or absent: by the ids)."""
+    if hello is None:
+        return None
+    try:
+        return chip_from_ids(hello.who_am_i, hello.wia, getattr(hello, "bits", None) or None)
+    except ValueError:
+        return None
 
 
 class Inbox:
@@ -141,7 +152,8 @@ class Inbox:
         # the latest hello describes the chip that sent this sample (so a replay does not
         # depend on how its bytes were chunked); before any hello, the identity or unity gain
         asa = self.hello.asa if self.hello else self._fallback_asa()
-        field = counts_to_ut(s.raw, asa)
+        chip = hello_chip(self.hello) or MPU9150
+        field = counts_to_ut(s.raw, asa) * (chip.ut_per_count / MPU9150.ut_per_count)
         return Sample(seq=s.seq, t_s=self._time(s.ms), field_ut=(float(field[0]), float(field[1]), float(field[2])),
                       raw=s.raw, st2=s.st2, temp_c=temp_raw_to_c(s.temp_raw))
 
@@ -294,10 +306,8 @@ class ProtocolDevice(Device):
     def _identity_from(self, hello: Hello) -> Identity:
         if hello.proto != PROTO_VERSION:
             raise IdentityError(f"{self.url}: device speaks protocol {hello.proto}, this host speaks {PROTO_VERSION}")
-        if hello.who_am_i != WHO_AM_I_MPU9150:
-            raise IdentityError(f"{self.url}: WHO_AM_I is 0x{hello.who_am_i:02X}, expected 0x68 (MPU-9150)")
-        if hello.wia != WIA_AK8975:
-            raise IdentityError(f"{self.url}: AK8975 WIA is 0x{hello.wia:02X}, expected 0x48")
+        if hello_chip(hello) is None:
+            _refuse_ids(self.url, hello)
         return Identity(
             transport=self.transport_name,
             proto=hello.proto,
@@ -306,6 +316,7 @@ class ProtocolDevice(Device):
             wia=hello.wia,
             asa=hello.asa,
             rate_hz=hello.rate_hz,
+            bits=hello_chip(hello).bits,
         )
 
     def _identity_passive(self) -> Identity:
@@ -426,7 +437,8 @@ class ProtocolDevice(Device):
                 raise DeviceError(f"{self.url}: this firmware has no self-test command (T); flash the current "
                                   "sketch from firmware/") from None
             raise
-        result = _self_test_result(self.url, ack, self.identity.asa if self.identity else (128, 128, 128))
+        ident = self.identity
+        result = _self_test_result(self.url, ack, ident.asa if ident else (128, 128, 128), (ident and ident.chip) or MPU9150)
         self.counters["self_test_pass" if result.passed else "self_test_fail"] += 1
         return result
 
@@ -457,13 +469,22 @@ def _record_after(dev: ProtocolDevice, tag: int, cmd: str) -> ErrorReply | Recor
     return rec
 
 
-def _self_test_result(url: str, ack: Ack, asa) -> SelfTestResult:
+def _self_test_result(url: str, ack: Ack, asa, chip: Chip = MPU9150) -> SelfTestResult:
     """The self-test reply (T: raw x, y, z, ST2) judged against the datasheet window."""
     try:
         raw, st2 = tuple(int(v) for v in ack.result[:3]), int(ack.result[3])
     except (ValueError, IndexError):
         raise DeviceError(f"{url}: malformed self-test reply {','.join(ack.result)!r}") from None
-    return SelfTestResult.from_registers(raw, asa, st2)
+    return SelfTestResult.from_registers(raw, asa, st2, window=chip.self_test_window)
+
+
+def _refuse_ids(url: str, hello: Hello) -> None:
+    """IdentityError naming the id no supported part has."""
+    if hello.who_am_i == WHO_AM_I_MPU9150:
+        raise IdentityError(f"{url}: AK8975 WIA is 0x{hello.wia:02X}, expected 0x48")
+    raise IdentityError(f"{url}: WHO_AM_I 0x{hello.who_am_i:02X} with magnetometer id 0x{hello.wia:02X} "
+                        "is no supported chip (expected 0x68 (MPU-9150), 0x71/0x73 with 0x48 "
+                        "(MPU-9250/9255) or 0xEA with 0x09 (ICM-20948))")
 
 
 def _no_reply(message: str, dropped: Counter) -> NoReply:

@@ -30,6 +30,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..core.errors import PortUnavailable
+from ..core.chips import MPU9150, NEUTRAL_ASA
 from ..core.sample import counts_to_ut, temp_raw_to_c
 from ..recordings.atomic import write_atomic
 from ..sim.physics import Scenario, demo_scenario
@@ -46,7 +47,7 @@ from ..wire.protocol import (
 )
 from .faults import Fault, FaultKind, LinkFaults
 from .protocol_client import ProtocolDevice
-from .port import Port, scenario_of
+from .port import Port, chip_of, scenario_of
 
 FIRMWARE = "0.1.0"
 EEPROM_SIZE = 1024
@@ -89,8 +90,9 @@ class StandaloneFit:
     float32 sums of the samples centred on the first one (``N``: not centred), solved once
     ``n`` valid samples are in."""
 
-    def __init__(self, tag: int, cmd: str, n: int, asa):
+    def __init__(self, tag: int, cmd: str, n: int, asa, ut_per_count: float = MPU9150.ut_per_count):
         self.tag, self.cmd, self.n, self.asa = tag, cmd, n, asa
+        self.scale = ut_per_count / MPU9150.ut_per_count  # the chip's quantum over the AK8975's
         self.naive = cmd == "N"
         self._ref = None
         self._pts: list = []
@@ -99,7 +101,7 @@ class StandaloneFit:
         """One measurement (a flagged one is skipped); True once ``n`` are in."""
         if st2 & 0x0C:
             return False
-        m = counts_to_ut(raw, self.asa).astype(np.float32)
+        m = (counts_to_ut(raw, self.asa) * self.scale).astype(np.float32)
         if self._ref is None:
             self._ref = m.copy()
         self._pts.append(m - (self._ref if not self.naive else 0))
@@ -256,7 +258,8 @@ class SimBoard(SerialEnd):
         clock=time.monotonic,
     ):
         self.scenario = scenario or demo_scenario()
-        self.asa = tuple(asa or self.scenario.physics.asa)
+        self.chip = self.scenario.physics.chip  # the part on the board: its ids, quantum, range
+        self.asa = tuple(asa or self.scenario.physics.asa) if self.chip.has_asa else NEUTRAL_ASA
         self.rate_hz = rate_hz
         self.pace = pace
         self.eeprom = SimEeprom(eeprom_path)
@@ -269,7 +272,9 @@ class SimBoard(SerialEnd):
     @classmethod
     def from_port(cls, port: Port, scenario: Scenario | None = None) -> "SimBoard":
         """The board a ``sim://`` port string describes (``scenario`` overrides its physics)."""
-        return cls(scenario or scenario_of(port), rate_hz=port.get("rate", 100),
+        scenario = scenario or scenario_of(port)
+        chip = chip_of(port)
+        return cls(scenario if chip is None else scenario.on_chip(chip), rate_hz=port.get("rate", 100),
                    pace=port.get("pace", REAL_TIME), eeprom_path=port.get("eeprom"), faults=port.faults)
 
     # -- board state -------------------------------------------------------------------------
@@ -284,7 +289,12 @@ class SimBoard(SerialEnd):
         self._wall0 = self._clock()
         self._sim0_ms = 0.0
         self._fit = None
-        self._emit("H", 1, FIRMWARE, "68", "48", *self.asa, self.rate_hz)
+        self._hello()
+
+    def _hello(self) -> None:
+        """The hello the sketch sends: protocol 1, the chip's ids, ASA, rate and resolution."""
+        chip = self.chip
+        self._emit("H", 1, FIRMWARE, f"{chip.who_am_i[0]:02X}", f"{chip.mag_id:02X}", *self.asa, self.rate_hz, chip.bits)
 
     def _emit(self, kind: str, *fields) -> None:
         self.sent[kind] += 1
@@ -334,7 +344,8 @@ class SimBoard(SerialEnd):
     def _apply(self, values, raw, temp_raw) -> tuple[int, int, int]:
         """The stored record applied to one reading, in nT (what a ``U`` line carries)."""
         cal = calibration_from_record(values)
-        h_ut = cal.correct(counts_to_ut(raw, self.asa), {"temp_c": [temp_raw_to_c(temp_raw)]})[0]
+        m_ut = counts_to_ut(raw, self.asa) * (self.chip.ut_per_count / MPU9150.ut_per_count)
+        h_ut = cal.correct(m_ut, {"temp_c": [temp_raw_to_c(temp_raw)]})[0]
         return tuple(int(round(x * 1000.0)) for x in h_ut)
 
     # -- the firmware's standalone fit ------------------------------------------------------
@@ -379,7 +390,7 @@ class SimBoard(SerialEnd):
     def _dispatch(self, cmd: str, tag: int, args: list) -> None:
         if cmd == "I":
             self._emit("A", tag, "I")
-            self._emit("H", 1, FIRMWARE, "68", "48", *self.asa, self.rate_hz)
+            self._hello()
         elif cmd == "G":
             self._emit("A", tag, "G")
             self._streaming = True
@@ -443,7 +454,7 @@ class SimBoard(SerialEnd):
             if self._fit is not None:
                 self._emit("E", tag, cmd, "BUSY")
                 return
-            self._fit = StandaloneFit(tag, cmd, n, self.asa)
+            self._fit = StandaloneFit(tag, cmd, n, self.asa, self.chip.ut_per_count)
             self._wall0, self._sim0_ms = self._clock(), self._ms
             self._emit("A", tag, cmd, n)
         else:
