@@ -18,6 +18,7 @@ import json
 
 import numpy as np
 
+from ..core.chips import CHIP_NAMES, chip_named
 from ..core.errors import ConfigError, InputError
 from ..core.series import Series
 from ..recordings.atomic import write_text
@@ -27,7 +28,7 @@ from .common import Progress, document, print_json
 from .options import (add, add_alias, existing_file, field_scale_ut, floats, noise_scale_ut, non_negative,
                       non_negative_int, positive, share)
 
-HELP = "write a simulated MPU-9150 recording (CSV, µT) with known physics"
+HELP = "write a simulated magnetometer recording (CSV, µT) with known physics, on any supported chip"
 
 
 def add_arguments(p) -> None:
@@ -39,6 +40,10 @@ def add_arguments(p) -> None:
                    help="simulate this sensor model (YAML or JSON, as diagnose --model-out writes it)")
     p.add_argument("--like", type=existing_file, metavar="REC",
                    help="with --model: a twin of REC, on its own times, channels and field directions")
+    p.add_argument("--chip", choices=CHIP_NAMES, default="mpu9150",
+                   help="the part whose quantum, range and overflow the readings have (default mpu9150)")
+    p.add_argument("--bits", type=int, choices=(13, 14, 16), default=None,
+                   help="the magnetometer's resolution (mpu9250: 14 or 16, default 16)")
     p.add_argument("--seed", type=non_negative_int, default=1, help="random seed: the same seed gives the same recording")
     p.add_argument("--motion", choices=("sphere", "tilt", "yaw", "still"), default="sphere",
                    help="how the board is turned: every direction (sphere), ±30° tilts, flat turns (yaw), or held still")
@@ -107,7 +112,18 @@ def _physics(args) -> Physics:
     )
 
 
+def _chip(args):
+    try:
+        return chip_named(getattr(args, "chip", "mpu9150"), getattr(args, "bits", None))
+    except ValueError as exc:
+        raise ConfigError(f"--chip/--bits: {exc}") from None
+
+
 def _scenario(args, model=None) -> Scenario:
+    return _bare_scenario(args, model).on_chip(_chip(args))
+
+
+def _bare_scenario(args, model=None) -> Scenario:
     return Scenario(
         physics=_physics(args) if model is None else Physics(field_ut=model.calibration.field_ut),
         motion=Motion(args.motion),
@@ -165,7 +181,8 @@ def run(args) -> int:
         ticker.doing(f"writing {len(series):,} samples".replace(",", " "))
         save_csv(series, args.output)
     cal = model.calibration if model else _physics(args).truth()
-    truth = {"truth": cal.to_dict(), **truth, "n_samples": len(series), "output": args.output}
+    truth = {"truth": cal.to_dict(), **truth, "n_samples": len(series), "output": args.output,
+             "chip": _chip(args).label}
     if model:
         truth["model"] = model.to_dict()
     if model and not args.like and model.source.get("clock") is False:
