@@ -116,7 +116,8 @@ def exit_status(outcome, no_write: bool) -> Exit:
 def format_text(r: dict) -> str:
     """The human-readable result (pure)."""
     cal = r["calibration"]
-    lines = []
+    chip = (r.get("device") or {}).get("chip")
+    lines = [f"chip       {chip}"] if chip else []
     if cal:
         o = cal["offset_ut"]
         unc = (r.get("uncertainty") or {}).get("offset_ut") or [float("nan")] * 3
