@@ -183,7 +183,7 @@ def test_a_baud_rate_in_the_config_does_not_break_a_port_without_one(tmp_path, c
     cfg = tmp_path / "c.yaml"
     cfg.write_text("baud: 9600\n")
     cal = tmp_path / "cal.json"
-    cal.write_text('{"offset_ut": [1, 2, 3], "field_ut": 48, "evidence": {"samples": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}')
+    cal.write_text('{"offset_ut": [1, 2, 3], "field_ut": 48, "evidence": {"n_used": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}')
     port = f"sim://?eeprom={tmp_path}/e.bin"
     assert main(["write", str(cal), "--port", port, "--config", str(cfg)]) == 0
     capsys.readouterr()

@@ -51,7 +51,7 @@ def test_show_names_an_invalid_record_and_write_replaces_it(tmp_path, capsys, ba
     d = json.loads(out)
     assert d["calibration"] is None and d["record"]["state"] == "invalid" and WORDS[bad] in d["record"]["problem"]
     good = tmp_path / "good.json"
-    good.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "evidence": {"samples": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}))
+    good.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "evidence": {"n_used": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}))
     code, out, _ = run_cli(capsys, "write", str(good), "--port", port, "--json")
     w = json.loads(out)
     assert code == 0 and w["verified"] and w["previous_record"]["state"] == "invalid"
@@ -89,7 +89,7 @@ def test_a_write_that_fails_on_a_blank_board_leaves_it_blank(tmp_path, capsys):
     shown by ``show`` as the stored calibration."""
     ee = tmp_path / "e.bin"
     good = tmp_path / "good.json"
-    good.write_text(json.dumps({"offset_ut": [10, 20, 30], "field_ut": 50.0, "evidence": {"samples": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}))
+    good.write_text(json.dumps({"offset_ut": [10, 20, 30], "field_ut": 50.0, "evidence": {"n_used": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}))
     code, out, _ = run_cli(capsys, "write", str(good), "--port", f"sim://?pace=0&eeprom={ee}&fault=corrupt_write",
                            "--json")
     w = json.loads(out)
@@ -102,7 +102,7 @@ def test_a_write_that_fails_on_a_blank_board_leaves_it_blank(tmp_path, capsys):
 def test_a_write_that_fails_over_an_invalid_record_leaves_no_calibration(tmp_path, capsys):
     ee = eeprom_with(tmp_path / "e.bin", BAD["zero_field"])
     good = tmp_path / "good.json"
-    good.write_text(json.dumps({"offset_ut": [10, 20, 30], "field_ut": 50.0, "evidence": {"samples": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}))
+    good.write_text(json.dumps({"offset_ut": [10, 20, 30], "field_ut": 50.0, "evidence": {"n_used": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}))
     code, out, _ = run_cli(capsys, "write", str(good), "--port", f"sim://?pace=0&eeprom={ee}&fault=corrupt_write",
                            "--json")
     w = json.loads(out)
@@ -127,7 +127,7 @@ def test_the_firmware_record_that_checks_out_but_is_no_calibration_is_named_and_
     d = json.loads(out)
     assert code == 1 and d["record"]["state"] == "invalid" and "Traceback" not in err
     good = tmp_path / "good.json"
-    good.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "evidence": {"samples": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}))
+    good.write_text(json.dumps({"offset_ut": [1, 2, 3], "field_ut": 48.0, "evidence": {"n_used": 1000, "coverage": 0.8, "condition": 5.0, "rms_ut": 0.4, "offset_sigma_ut": [0.02, 0.02, 0.02]}}))
     code, out, _ = run_cli(capsys, "write", str(good), "--port", port, "--json")
     assert code == 0 and json.loads(out)["verified"]
 
