@@ -55,7 +55,7 @@ def test_a_chip_other_than_the_one_asked_for_is_refused_by_name():
         opened(FakeBus(demo_scenario(2), chip=ICM20948), "i2c:1?chip=mpu9150")
 
 
-@pytest.mark.parametrize("chip", [MPU9250_14, ICM20948], ids=lambda c: c.label)
+@pytest.mark.parametrize("chip", [MPU9250_16, MPU9250_14, ICM20948], ids=lambda c: c.label)
 def test_calibrate_on_each_new_chip_over_i2c_is_written_and_verified(chip, monkeypatch, tmp_path, capsys):
     sc = demo_scenario(11)
     monkeypatch.setattr(smbus2, "SMBus", lambda bus: FakeBus(sc, chip=chip))
