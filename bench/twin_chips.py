@@ -35,10 +35,18 @@ PAIRS = (("icm20948 umich preflight", ICM20948), ("ak8963 estibone test1", MPU92
 def chip_driven(model, series, chip, seed: int):
     """A recording of ``series``' times and directions: the twin's field read through ``chip``'s registers."""
     m, valid = twin_readings(model, twin_directions(model, series), series.t_s, with_time(series), seed)
-    sc = Scenario(physics=Physics(chip=chip, asa=(128, 128, 128)))
+    sc = Scenario(physics=Physics(chip=chip, asa=asa_of(model, chip)))
     raw, st2 = sc.to_counts(np.asarray(m, dtype=np.float64))
     ok = np.asarray(valid, bool) & (st2 == 0)
     return replace(series, field_ut=raw * sc.physics.lsb_ut, valid=ok).only_valid()
+
+
+def asa_of(model, chip) -> tuple[int, int, int]:
+    """The ASA bytes that give the recording's own step (quantum = µT per count · (ASA+128)/256)."""
+    q = np.asarray(getattr(model, "quantum_ut", None) or (chip.ut_per_count,) * 3, dtype=np.float64)
+    if not chip.has_asa:
+        return (128, 128, 128)
+    return tuple(int(np.clip(round(v / chip.ut_per_count * 256 - 128), 0, 255)) for v in q)
 
 
 def inside(rep) -> tuple[int, int]:
@@ -62,7 +70,7 @@ def main(argv=None) -> int:
         chip_rep = twin.compare(model, driven, args.draws, seed, "final", free)
         got = inside(chip_rep)
         missed = ", ".join(b.name for b in chip_rep.bands if not b.low <= b.real <= b.high) or "none"
-        print(f"{name:<28} n={len(series):6d}  {chip.label:<32} real recording {real[0]}/{real[1]} inside; "
+        print(f"{name:<28} n={len(series):6d}  {chip.label:<32} ASA {asa_of(model, chip)}  real recording {real[0]}/{real[1]} inside; "
               f"chip-driven {got[0]}/{got[1]} inside (outside: {missed})")
     return 0
 
