@@ -125,16 +125,31 @@ def reading_report(series, path) -> dict:
 
 
 def print_json(obj) -> None:
-    json.dump(obj, sys.stdout, indent=2, allow_nan=False, default=_default)
+    json.dump(finite_or_null(obj), sys.stdout, indent=2, allow_nan=False, default=_default)
     sys.stdout.write("\n")
     sys.stdout.flush()
+
+
+def finite_or_null(obj):
+    """``obj`` with every NaN or infinity as None (pure): JSON has no such numbers, and a
+    quantity the data could not determine (a held-out figure of a refit that failed, a size over
+    a floor of zero) is ``null`` in every document, never a crash after the work is done."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {k: finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_null(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_or_null(obj.tolist())
+    if isinstance(obj, (float, np.floating)) and not np.isfinite(obj):
+        return None
+    return obj
 
 
 def _default(o):
     import numpy as np
 
-    if isinstance(o, np.ndarray):
-        return o.tolist()
     if isinstance(o, (np.floating, np.integer)):
         return o.item()
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -166,9 +166,13 @@ def _gauge(lin, b_ned) -> np.ndarray:
     return g / np.linalg.norm(g)
 
 
-def _det_one(lin, b_ned) -> tuple[np.ndarray, np.ndarray]:
-    """Move along the gauge to det A = 1 (det W = 1): the sensor's own mean gain."""
-    s = float(np.linalg.det(_w_from(lin[:6]))) ** (1.0 / 3.0)
+def _det_one(lin, b_ned) -> tuple[np.ndarray, np.ndarray] | None:
+    """Move along the gauge to det A = 1 (det W = 1): the sensor's own mean gain; None where A
+    is no gain at all (det ≤ 0 or not finite: the solve has turned the field inside out)."""
+    det = float(np.linalg.det(_w_from(lin[:6])))
+    if not (np.isfinite(det) and det > 0.0) or not np.all(np.isfinite(b_ned)):
+        return None
+    s = det ** (1.0 / 3.0)
     out = lin.copy()
     out[:6] /= s
     return out, b_ned * s
@@ -190,19 +194,25 @@ def solve_unknown_field(m, x, uf: UnknownField, iterations: int = 12) -> Solve |
     if not first:
         return first
     lin = np.concatenate([np.linalg.inv(first.w)[[i for i, _ in SYM], [j for _, j in SYM]], first.b, first.k.reshape(-1)])
-    lin, b_ned = _det_one(lin, b_ned)
+    moved = _det_one(lin, b_ned)
     y, wts3 = m.reshape(-1), np.ones(3 * len(m))
     for _ in range(iterations):
+        if moved is None:
+            break
+        lin, b_ned = moved
         jac, a_lin = _joint_design(lin, b_ned, x, uf)
         res = y - a_lin @ lin
         wts, wts3 = _huber(res.reshape(-1, 3))
         g = _gauge(lin, b_ned)
         ata = (jac * wts3[:, None]).T @ jac
         step = np.linalg.solve(ata + np.trace(ata) / len(g) * np.outer(g, g), (jac * wts3[:, None]).T @ res)
-        lin, b_ned = _det_one(lin + step[:-3], b_ned + step[-3:])
-        if np.max(np.abs(step)) < 1e-9 * (1.0 + np.max(np.abs(lin))):
+        moved = _det_one(lin + step[:-3], b_ned + step[-3:])
+        if moved is not None and np.max(np.abs(step)) < 1e-9 * (1.0 + np.max(np.abs(moved[0]))):
             break
-    return _unknown_solve(m, x, uf, lin, b_ned)
+    if moved is None:
+        return FitFailure("not_positive_definite", "against an unknown constant field the fitted soft iron "
+                          "is no gain (its determinant is not positive): the attitude does not pin it")
+    return _unknown_solve(m, x, uf, *moved)
 
 
 def _unknown_solve(m, x, uf: UnknownField, lin, b_ned) -> Solve | FitFailure:
