@@ -50,3 +50,16 @@ def test_a_mutated_log_is_a_named_refusal_or_a_json_document(tmp_path, capsys, i
         assert doc["schema"] == f"magcal.{command}/1"
     else:
         assert "not_positive_definite" in err or "too_few" in err, err
+
+
+@pytest.mark.slow
+def test_a_timestamp_from_far_away_does_not_make_the_search_unbounded(tmp_path, capsys):
+    """Bytes overwritten in a timestamp put one sample ~10⁶ s away: the locate step's grids over
+    that span asked for terabytes (the command ran minutes and was killed). The damaged log is
+    diagnosed, and nothing is located on a time axis that is mostly gap."""
+    path = tmp_path / "m.bin"
+    path.write_bytes(_mutated(73, seed=12))
+    code = main(["diagnose", str(path), "--mag", "0", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert json.loads(out)["located"]["found"] == []

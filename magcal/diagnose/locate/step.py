@@ -62,8 +62,17 @@ def floor_of(m_ut: np.ndarray, known: tuple = ()) -> float:
     return float(result.rms_ut) if result else float("nan")
 
 
+MAX_EMPTY_TIME = 8.0  # a time axis this many times longer than its samples at their own interval is mostly gap
+
+
 def search(res: Residual, effects: tuple[Effect, ...]) -> tuple[Located, ...]:
-    """Every non-fault row of the table on one residual."""
+    """Every non-fault row of the table on one residual; none where the time axis is mostly
+    empty (a timestamp from far away in a damaged log: every locator reads time, and a grid over
+    such a span is no search)."""
+    t = np.asarray(res.t_s, float)
+    steps = np.diff(t)[np.diff(t) > 0]  # a coarse clock repeats times: its ticks are the interval
+    if not len(steps) or float(t[-1] - t[0]) > MAX_EMPTY_TIME * len(t) * float(np.median(steps)):
+        return ()
     return tuple(x for e in effects if e.kind is not Kind.FAULT for x in e.search(res))
 
 
