@@ -23,6 +23,7 @@ import errno
 import os
 import shutil
 import subprocess
+import tempfile
 import threading
 from collections import Counter, deque
 from pathlib import Path
@@ -92,15 +93,16 @@ def _build(lib: Path) -> None:
             f"cannot build {lib.name} for the fake I2C bus: no C compiler (install gcc or set CC); {detail}"
         )
     lib.parent.mkdir(parents=True, exist_ok=True)
-    tmp = lib.with_name(f".{lib.name}.{os.getpid()}.tmp")
-    proc = subprocess.run(
-        [cc, "-O2", "-std=gnu99", "-shared", "-fPIC", "-o", str(tmp), str(source)],
-        capture_output=True,
-        text=True,
-    )
-    if proc.returncode != 0:
-        raise DeviceError(f"building {lib.name} failed: {(proc.stderr or proc.stdout).strip()}")
-    os.replace(tmp, lib)
+    with tempfile.TemporaryDirectory(dir=lib.parent) as scratch:  # a fresh name nobody can plant a link at
+        tmp = os.path.join(scratch, lib.name)
+        proc = subprocess.run(
+            [cc, "-O2", "-std=gnu99", "-shared", "-fPIC", "-o", tmp, str(source)],
+            capture_output=True,
+            text=True,
+        )
+        if proc.returncode != 0:
+            raise DeviceError(f"building {lib.name} failed: {(proc.stderr or proc.stdout).strip()}")
+        os.replace(tmp, lib)
 
 
 def load_model_library() -> ctypes.CDLL:
