@@ -163,7 +163,7 @@ def test_show_self_test_on_a_backend_without_one_is_a_clear_error(capsys, tmp_pa
     assert main(["record", "--port", "sim://?pace=0", "-o", str(cap), "--count", "20"]) == 0
     capsys.readouterr()
     rc = main(["show", "--port", f"replay://{cap}", "--self-test"])  # a recording cannot be tested
-    assert rc == 5 and "cannot run the AK8975 self-test" in capsys.readouterr().err
+    assert rc == 5 and "cannot run the magnetometer self-test" in capsys.readouterr().err
 
 
 def test_show_self_test_on_the_simulated_board_reads_its_physics(capsys):

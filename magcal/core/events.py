@@ -56,10 +56,8 @@ class Identity:
             "wia": None if self.wia is None else f"0x{self.wia:02X}",
             "asa": list(self.asa),
             "rate_hz": self.rate_hz,
+            "chip": None if self.chip is None else self.chip.label,  # always there: one shape per device
         }
-        chip = self.chip
-        if chip is not None:
-            d["chip"] = chip.label
         d.update(self.extra)
         return d
 
