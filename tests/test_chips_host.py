@@ -82,3 +82,15 @@ def test_sim_board_of_a_new_chip_is_named_self_tested_and_calibrated(query, tmp_
     assert rc == 0 and report["written"] and report["verified"], report
     assert report["device"]["chip"] == chip.label
     assert np.allclose(report["calibration"]["offset_ut"], demo_scenario(1).physics.hard_iron_ut, atol=1.0)
+
+
+@pytest.mark.parametrize("query", ["chip=icm20948", "chip=mpu9250&bits=14"])
+def test_a_capture_of_a_new_chip_is_read_back_in_its_own_counts(query, tmp_path, capsys):
+    cap = tmp_path / "board.cap"
+    assert main(["record", "--port", f"sim://?{query}&pace=0", "-o", str(cap), "--count", "1500", "-q"]) == 0
+    capsys.readouterr()
+    assert main(["fit", str(cap), "--json"]) == 0
+    cal = json.loads(capsys.readouterr().out)["fits"][0]["calibration"]
+    physics = demo_scenario(1).physics
+    assert np.allclose(cal["offset_ut"], physics.hard_iron_ut, atol=1.0), cal
+    assert abs(cal["field_ut"] - physics.field_ut) < 1.0, cal

@@ -54,6 +54,7 @@ import numpy as np
 
 from .. import __version__
 from ..core.errors import InputError, MagcalError
+from ..core.chips import MPU9150, chip_from_ids
 from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
 from ..core.series import Series
 from ..wire.bulk import Frames, parse_blocks
@@ -496,13 +497,14 @@ def series_from_frames(frames: Frames) -> Series:
     hellos, refused = _applied_hellos(frames)
     h_pos = np.array([p for p, _ in hellos], np.int64)
     gains = np.array([[1.0, 1.0, 1.0]] + [[asa_gain(a) for a in m.asa] for _, m in hellos], np.float64)
+    scales = np.array([1.0] + [_chip_scale(m) for _, m in hellos], np.float64)
     r_pos = np.array([p for p, e in frames.events if isinstance(e, Restart)], np.int64)
     field = np.empty((n, 3), np.float64)
     t = np.empty(n, np.float64)
     valid = np.empty(n, bool)
     for a in range(0, n, _ROWS):
         b = min(n, a + _ROWS)
-        _field_rows(frames, a, b, h_pos, gains, field, valid)
+        _field_rows(frames, a, b, h_pos, (gains, scales), field, valid)
         _time_rows(frames, a, b, r_pos, t)
     temp_c = frames.temp / 340.0 + 36.53
     raw_kind = frames.kind == ord("S")
@@ -516,14 +518,27 @@ def series_from_frames(frames: Frames) -> Series:
 _ROWS = 1 << 17  # samples per step of series_from_frames
 
 
-def _field_rows(frames: Frames, a: int, b: int, h_pos, gains, field, valid) -> None:
-    """Field (µT) and validity of samples ``a`` … ``b-1``."""
+def _chip_scale(hello: Hello) -> float:
+    """The chip's count over the AK8975's (1 for an MPU-9150 or ids no known part answers),
+    exactly as the live client scales (``protocol_client.hello_chip``)."""
+    try:
+        chip = chip_from_ids(hello.who_am_i, hello.wia, hello.bits or None)
+    except ValueError:
+        chip = MPU9150
+    return chip.ut_per_count / MPU9150.ut_per_count
+
+
+def _field_rows(frames: Frames, a: int, b: int, h_pos, gains_scales, field, valid) -> None:
+    """Field (µT) and validity of samples ``a`` … ``b-1``; ``gains_scales``: each hello's
+    ASA gains and the chip's count over the AK8975's."""
+    gains, scales = gains_scales
     which = np.searchsorted(h_pos, frames.pos[a:b])  # 0: before any hello
     raw_kind = frames.kind[a:b] == ord("S")
     vals = frames.values[a:b]
     out = field[a:b]
-    # counts_to_ut: raw * (0.3 * gains), element by element
-    out[raw_kind] = vals[raw_kind].astype(np.float64) * (UT_PER_COUNT * gains[which[raw_kind]])
+    # the live client's counts_to_ut(raw, asa) * (chip µT/count / 0.3), element by element
+    w = which[raw_kind]
+    out[raw_kind] = vals[raw_kind].astype(np.float64) * (UT_PER_COUNT * gains[w]) * scales[w][:, None]
     out[~raw_kind] = vals[~raw_kind].astype(np.float64) / 1000.0
     st2_bad = (frames.st2[a:b] & (ST2_DERR | ST2_HOFL)) != 0
     rails = np.any((vals <= COUNT_MIN) | (vals >= COUNT_MAX), axis=1)
