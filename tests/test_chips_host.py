@@ -94,3 +94,18 @@ def test_a_capture_of_a_new_chip_is_read_back_in_its_own_counts(query, tmp_path,
     physics = demo_scenario(1).physics
     assert np.allclose(cal["offset_ut"], physics.hard_iron_ut, atol=1.0), cal
     assert abs(cal["field_ut"] - physics.field_ut) < 1.0, cal
+
+
+@pytest.mark.parametrize("query", ["chip=icm20948", "chip=mpu9250&bits=14"])
+def test_a_replayed_new_chip_keeps_its_counts_across_a_board_reset(query, tmp_path, capsys):
+    from magcal.app.load import load_series
+    from magcal.devices import open_device
+    from magcal.devices.base import read_to_end
+
+    cap = tmp_path / "board.cap"
+    assert main(["record", "--port", f"sim://?{query}&pace=0", "-o", str(cap), "--count", "300", "-q"]) == 0
+    dev = open_device(f"replay://{cap}?fault=reset@0.001")  # the board resets after its first lines: its hello again
+    replayed = np.array([s.field_ut for s in read_to_end(dev)])
+    assert dev.counters["device_resets"] == 1
+    recorded = load_series(str(cap)).field_ut  # the stream as it came, read in the chip's counts
+    assert replayed.shape == recorded.shape and np.allclose(replayed, recorded, equal_nan=True)

@@ -163,7 +163,8 @@ class FaultyReplay(WrappedTransport):
         h = classify_line(data[start:end].rstrip(b"\r"))
         if not isinstance(h, Hello):
             return b""
-        return encode_line("H", (0, h.proto, h.firmware, f"{h.who_am_i:02X}", f"{h.wia:02X}", *h.asa, h.rate_hz))
+        return encode_line("H", (0, h.proto, h.firmware, f"{h.who_am_i:02X}", f"{h.wia:02X}", *h.asa, h.rate_hz,
+                                 *(() if h.bits is None else (h.bits,))))
 
     def _now_s(self) -> float:
         return self.inner.t_next_s - self.inner.t_first_s
