@@ -100,8 +100,8 @@ def test_permission_denied_says_which_group():
 
 
 def test_wrong_who_am_i_is_an_identity_error_saying_what_was_found():
-    bus = FakeBus(demo_scenario(1), faults="wrong_whoami")  # reads 0x71: an MPU-9250's id
-    with pytest.raises(IdentityError, match=r"WHO_AM_I reads 0x71, expected 0x68"):
+    bus = FakeBus(demo_scenario(1), faults="wrong_whoami")  # reads 0x70: an MPU-6500, no magnetometer
+    with pytest.raises(IdentityError, match=r"WHO_AM_I reads 0x70, expected 0x68"):
         opened(bus, "i2c:1?chip=mpu9150")  # the user said which part to expect
     assert bus._closed  # the bus is released on failure
 

@@ -38,10 +38,9 @@
 #define IMU_DEVICE_RESET 0x80
 #define ICM_REG_BANK_SEL 0x7F
 
-/* What WHO_AM_I reads with MPU_FAULT_WRONG_WHOAMI. 0x71 is what the host's tests expect
- * today; once the host takes 0x71 for an MPU-9250 this should become 0x70 (an MPU-6500: an
- * MPU-9250 without the magnetometer, a part this tool cannot use). */
-#define WRONG_WHOAMI_VALUE 0x71
+/* What WHO_AM_I reads with MPU_FAULT_WRONG_WHOAMI: 0x70, an MPU-6500 (an MPU-9250 without the
+ * magnetometer, a part this tool cannot use). Not 0x71: that is a real MPU-9250's id. */
+#define WRONG_WHOAMI_VALUE 0x70
 
 #define AK_ADDR 0x0C
 #define AK_WIA 0x00
