@@ -25,7 +25,8 @@ from pathlib import Path
 TMP_SUFFIX = ".tmp"
 
 
-def _fsync_dir(directory: Path) -> None:
+def fsync_dir(directory: Path) -> None:
+    """Make a rename or a new file in ``directory`` survive a power cut (where the system can)."""
     try:
         fd = os.open(directory, os.O_RDONLY)
     except OSError:  # e.g. Windows cannot open a directory; the rename is still atomic
@@ -92,5 +93,5 @@ def write_atomic(path, data: bytes, mode: int = 0o644) -> Path:
         except FileNotFoundError:
             pass
         raise
-    _fsync_dir(directory)
+    fsync_dir(directory)
     return path

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Callable
 
 from ...core.errors import DeviceError, StateError
+from ...recordings.atomic import fsync_dir
 
 LEDGER_NAME = "writes.jsonl"
 VERIFIED, NOT_VERIFIED, INTERRUPTED = "verified", "not_verified", "interrupted"
@@ -127,7 +128,7 @@ class WriteLedger:
             created = not self.path.exists()
             self._fd = os.open(self.path, flags, 0o644)
             if created:
-                _fsync_dir(self.path.parent)
+                fsync_dir(self.path.parent)
         except OSError as exc:
             raise StateError(f"the write ledger {self.path} cannot be opened: {exc}") from None
         for op in self.history.unresolved:
@@ -171,19 +172,6 @@ class WriteLedger:
         line = json.dumps({**entry, "t_utc": round(self._wall(), 3)}, separators=(",", ":")) + "\n"
         os.write(self._fd, line.encode())
         os.fsync(self._fd)
-
-
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 class LedgeredDevice:
