@@ -46,6 +46,8 @@ class Chip:
     measurement_s: float  # worst-case single-measurement time
     overflow_sum_ut: float  # ST2 HOFL is set when |X|+|Y|+|Z| reaches this
     self_test_typical: tuple[int, int, int]  # a healthy coil's reading, inside the window
+    temp_lsb_per_c: float  # the IMU's die temperature: T = TEMP_OUT / temp_lsb_per_c + temp_offset_c
+    temp_offset_c: float
 
     @property
     def range_ut(self) -> float:
@@ -68,6 +70,7 @@ MPU9150 = Chip(
     measurement_s=0.009,  # MS1187-E-02 single measurement time max 9 ms
     overflow_sum_ut=2400.0,  # MS1187-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 2400 µT
     self_test_typical=(12, -18, -640),
+    temp_lsb_per_c=340.0, temp_offset_c=36.53,  # RM-MPU-9150A-00 TEMP_OUT: raw / 340 + 36.53 °C
 )
 
 
@@ -87,6 +90,7 @@ def _mpu9250(bits: int) -> Chip:
         measurement_s=0.009,  # MS1356-E-02 single measurement time max 9 ms (typ 7.2 ms)
         overflow_sum_ut=4912.0,  # MS1356-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 4912 µT
         self_test_typical=(48, -72, -2000) if sixteen else (12, -18, -500),
+        temp_lsb_per_c=333.87, temp_offset_c=21.0,  # RM-MPU-9250A-00 TEMP_OUT: raw / 333.87 + 21 °C
     )
 
 
@@ -105,6 +109,7 @@ ICM20948 = Chip(
     measurement_s=0.0085,  # 015007392-E-02 single measurement time max 8.5 ms
     overflow_sum_ut=4912.0,  # 015007392-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 4912 µT
     self_test_typical=(24, -36, -600),
+    temp_lsb_per_c=333.87, temp_offset_c=21.0,  # DS-000189 TEMP_OUT: raw / 333.87 + 21 °C
 )
 
 CHIPS: tuple[Chip, ...] = (MPU9150, MPU9250_16, MPU9250_14, ICM20948)

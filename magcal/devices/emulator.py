@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.chips import MPU9150, Chip, chip_named
 from ..core.errors import DeviceError, PortError, PortUnavailable
 from ..recordings.state import user_state_dir
 from ..core.sample import asa_gain
@@ -63,75 +64,57 @@ _build_lock = threading.Lock()
 
 @dataclass(frozen=True)
 class EmuChip:
-    """What the emulated board's magnetometer makes of a field: one chip at one resolution.
+    """What the emulated board's magnetometer makes of a field: one row of the chip table
+    (``magcal.core.chips``: quantum, range, overflow, self-test window, die temperature). The
+    healthy coil of the physics (``Physics.self_test_counts``, an AK8975's reading) is placed at
+    the same point of this chip's window, so a dead or weak coil stays outside it."""
 
-    ``self_test_window`` is the datasheet's pass window in ASA-adjusted counts (AK8975
-    MS1187-E-02; AK8963 MS1356-E-02, 16-bit X, Y −200…200, Z −3200…−800 and a quarter of it at
-    14 bits; AK09916: AKM's driver limits, X, Y −200…200, Z −1000…−200). The healthy coil of the
-    physics (``Physics.self_test_counts``, an AK8975's reading) is placed at the same point of
-    this chip's window, so a dead or weak coil stays outside it."""
+    part: Chip
 
-    name: str            # the harness's --chip
-    bits: int            # output resolution: 13, 14 or 16
-    ut_per_count: float  # before ASA
-    count_min: int
-    count_max: int
-    hofl_sum_ut: float   # ST2 HOFL when |x| + |y| + |z| reaches this
-    has_asa: bool
-    self_test_window: tuple
-    temp_lsb_per_c: float
-    temp_offset_c: float
+    @property
+    def name(self) -> str:  # the harness's --chip
+        return self.part.name
+
+    @property
+    def bits(self) -> int:
+        return self.part.bits
+
+    @property
+    def has_asa(self) -> bool:
+        return self.part.has_asa
 
     def counts(self, m_ut: np.ndarray, asa) -> tuple[np.ndarray, np.ndarray]:
         """Fields in µT (n, 3) → the data registers (n, 3) and ST2's HOFL flag (n,)."""
-        lsb = self.ut_per_count * np.array([asa_gain(a) for a in asa])
-        raw = np.clip(np.round(m_ut / lsb), self.count_min, self.count_max).astype(np.int64)
-        return raw, np.abs(m_ut).sum(axis=1) >= self.hofl_sum_ut
+        p = self.part
+        lsb = p.ut_per_count * np.array([asa_gain(a) for a in asa])
+        raw = np.clip(np.round(m_ut / lsb), p.count_min, p.count_max).astype(np.int64)
+        return raw, np.abs(m_ut).sum(axis=1) >= p.overflow_sum_ut
 
     def temp_raw(self, temp_c: float) -> int:
-        return int(round((temp_c - self.temp_offset_c) * self.temp_lsb_per_c))
+        return int(round((temp_c - self.part.temp_offset_c) * self.part.temp_lsb_per_c))
 
     def self_test_raw(self, adjusted_ak8975, asa) -> list[int]:
         """The data registers in self-test mode for a coil that reads ``adjusted_ak8975`` on an
         AK8975: the same point of this chip's window, ASA undone (truncated, as the register)."""
-        out = []
-        for v, (lo, hi), (lo2, hi2), a in zip(adjusted_ak8975, AK8975_WINDOW, self.self_test_window, asa):
+        p, out = self.part, []
+        for v, (lo, hi), (lo2, hi2), a in zip(adjusted_ak8975, MPU9150.self_test_window, p.self_test_window, asa):
             adjusted = lo2 + (v - lo) * (hi2 - lo2) / (hi - lo)
-            out.append(int(max(self.count_min, min(self.count_max, int(adjusted / asa_gain(a))))))
+            out.append(int(max(p.count_min, min(p.count_max, int(adjusted / asa_gain(a))))))
         return out
-
-
-AK8975_WINDOW = ((-100, 100), (-100, 100), (-1000, -300))
-_MPU_TEMP = (340.0, 36.53)      # MPU-9150: T = raw / 340 + 36.53
-_NEW_TEMP = (333.87, 21.0)      # MPU-9250, ICM-20948: T = raw / 333.87 + 21
-EMU_CHIPS = {
-    ("mpu9150", 13): EmuChip("mpu9150", 13, 0.3, -4096, 4095, 2400.0, True, AK8975_WINDOW, *_MPU_TEMP),
-    ("mpu9250", 16): EmuChip("mpu9250", 16, 0.15, -32760, 32760, 4912.0, True,
-                             ((-200, 200), (-200, 200), (-3200, -800)), *_NEW_TEMP),
-    ("mpu9250", 14): EmuChip("mpu9250", 14, 0.6, -8190, 8190, 4912.0, True,
-                             ((-50, 50), (-50, 50), (-800, -200)), *_NEW_TEMP),
-    ("icm20948", 16): EmuChip("icm20948", 16, 0.15, -32752, 32752, 4912.0, False,
-                              ((-200, 200), (-200, 200), (-1000, -200)), *_NEW_TEMP),
-}
-DEFAULT_BITS = {"mpu9150": 13, "mpu9250": 16, "icm20948": 16}
 
 
 def emu_chip(chip: str | None = None, bits=None) -> EmuChip:
     """The chip an ``emu://`` board carries (``chip``, ``bits`` as the port string gives them);
     ``PortError`` naming what is possible otherwise."""
     name = str(getattr(chip, "value", chip) or "mpu9150").lower()
-    if name not in DEFAULT_BITS:
-        raise PortError(f"chip={name!r}: emu:// emulates {', '.join(DEFAULT_BITS)}")
-    want = DEFAULT_BITS[name] if bits is None else bits
     try:
-        want = int(want)
+        want = None if bits is None else int(bits)
     except (TypeError, ValueError):
         raise PortError(f"bits={bits!r} is not a whole number") from None
-    found = EMU_CHIPS.get((name, want))
-    if found is None:
-        have = sorted(b for c, b in EMU_CHIPS if c == name)
-        raise PortError(f"bits={want}: the {name}'s magnetometer gives {' or '.join(map(str, have))}-bit output")
-    return found
+    try:
+        return EmuChip(chip_named(name, want))
+    except ValueError as exc:
+        raise PortError(f"emu://: {exc}") from None
 
 
 def toolchain_problem() -> str | None:
