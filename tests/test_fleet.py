@@ -265,3 +265,17 @@ def test_a_manifest_row_whose_file_is_missing_is_a_row_saying_so(tmp_path):
     assert _fleet(tmp_path / "manifest.csv", "-o", tmp_path / "out", "--workers", 1) == 0
     (row,) = _rows(tmp_path / "out")
     assert (row["vehicle"], row["status"]) == ("rover-7", "unreadable") and "gone.bin" in row["message"]
+
+
+def test_a_compass_seen_on_one_flight_is_stated_in_words_not_drawn_as_an_empty_history():
+    """A fleet of first flights: each compass's numbers in a sentence (its chart was a lone
+    point at the left edge of an empty box), and counts in the singular where there is one."""
+    from magcal.app.fleet.page import _compass_block
+
+    flight = {"offset_ut": [1.5, -2.0, 3.25], "sigma_offset_ut": [0.2, 0.2, 0.5],
+              "current_a_ut_per_unit": [0.1, 0.0, -0.2], "sigma_current_a_ut_per_unit": [0.01, 0.01, 0.01]}
+    one = _compass_block({"compass": "device 7", "external": True, "flights": [flight], "changes": []})
+    assert "1 flight, 0 changes" in one and "<svg" not in one
+    assert "(+1.50, -2.00, +3.25) ± (0.20, 0.20, 0.50) µT" in one and "(+0.10, +0.00, -0.20)" in one
+    two = _compass_block({"compass": "device 7", "external": True, "flights": [flight, flight], "changes": []})
+    assert "2 flights" in two and two.count("<svg") == 2

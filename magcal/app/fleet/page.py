@@ -74,12 +74,33 @@ def _compass_block(cmp: dict) -> str:
     at = {"offset": [c["index"] for c in cmp["changes"] if c["kind"] == "hard_iron_step"],
           "current": [c["index"] for c in cmp["changes"] if c["kind"] != "hard_iron_step"]}
     where = {True: "external", False: "internal", None: ""}[cmp["external"]]
-    parts = [f"<h3>{_e(cmp['compass'])} {where} — {len(cmp['flights'])} flights, {len(cmp['changes'])} changes</h3>"]
+    parts = [f"<h3>{_e(cmp['compass'])} {where} — {_count(len(cmp['flights']), 'flight')}, "
+             f"{_count(len(cmp['changes']), 'change')}</h3>"]
+    if len(_points(cmp["flights"], "offset_ut", "sigma_offset_ut")) < 2:
+        return "".join(parts) + _one_flight(cmp["flights"])
     off = chart(cmp["flights"], "offset_ut", "sigma_offset_ut", "µT", at["offset"])
     cur = chart(cmp["flights"], "current_a_ut_per_unit", "sigma_current_a_ut_per_unit", "µT/A", at["current"])
     parts += [f"<p>hard iron, less its median (µT; x red, y green, z blue; ±1σ)</p>{off}" if off
               else "<p>no flight fitted</p>", f"<p>current term, less its median (µT/A)</p>{cur}" if cur else ""]
     return "".join(parts)
+
+
+def _count(n: int, word: str) -> str:
+    return f"{n} {word}" + ("" if n == 1 else "s")
+
+
+def _one_flight(flights: list[dict]) -> str:
+    """A compass fitted on one flight at most: its numbers in words, no history to draw yet."""
+    fitted = [f for f in flights if f.get("offset_ut") and f.get("sigma_offset_ut")]
+    if not fitted:
+        return "<p>no flight fitted</p>"
+    f = fitted[0]
+    vec = lambda v, s: "(" + ", ".join(f"{a:+.2f}" for a in v) + ") ± (" + ", ".join(f"{b:.2f}" for b in s) + ")"  # noqa: E731
+    text = f"<p>one flight fitted, no history yet: hard iron {vec(f['offset_ut'], f['sigma_offset_ut'])} µT"
+    cur, scur = f.get("current_a_ut_per_unit"), f.get("sigma_current_a_ut_per_unit")
+    if cur and scur and None not in cur + scur:
+        text += f"; current term {vec(cur, scur)} µT/A"
+    return text + "</p>"
 
 
 def render(doc: dict) -> str:
