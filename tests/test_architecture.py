@@ -291,7 +291,7 @@ TAIL_PRIMITIVES = {
 # a function named for a tail, or for the continued fraction behind one
 _TAIL_NAME = re.compile(r"^_*(log_?)?(t|chi2|f|student|fisher)_(upper_)?(log_?)?(sf|isf|cdf|ppf|quantile)(_\w+)?$|betainc|gammainc|beta_cf|gamma_cf|lentz|continued_fraction")
 # today's other ones, each to be moved onto the home by its owner; a new one fails the test
-KNOWN_TAILS: set[str] = {"diagnose.locate.channel_scores"}
+KNOWN_TAILS: set[str] = set()
 # a damped normal-equation solve in a loop (Levenberg–Marquardt; Gauss–Newton with a damping
 # term) is an iterative least-squares solver: the geometric fit's is the sanctioned one
 SOLVES = {"solve", "lstsq", "cho_solve", "solve_triangular", "lu_solve"}

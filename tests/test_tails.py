@@ -56,3 +56,16 @@ def test_a_probability_or_degrees_of_freedom_out_of_range_is_refused():
         tails.chi2_isf(1.5, 3)
     with pytest.raises(ValueError, match="degrees of freedom"):
         tails.f_sf(2.0, 0, 10)
+
+
+def test_chi2_log10_sf_agrees_with_scipy_and_stays_finite_where_the_tail_underflows():
+    from scipy import stats
+
+    x = np.array([0.5, 5.0, 50.0, 500.0])
+    for df in (1, 3, 6):
+        want = -stats.chi2.logsf(x, df) / np.log(10.0)
+        assert np.allclose(tails.chi2_log10_sf(x, df), want, rtol=1e-9)
+    far = tails.chi2_log10_sf(np.array([1300.0, 5000.0, 1e5]), 3)
+    assert np.all(np.isfinite(far)) and np.all(np.diff(far) > 0)
+    # the asymptotic branch continues the exact one: at x = 1300 (past the switch, still in range)
+    assert abs(far[0] - (-stats.chi2.logsf(1300.0, 3) / np.log(10.0))) < 0.01

@@ -79,3 +79,18 @@ def f_isf(q, dfn, dfd):
     dfn, dfd = np.asarray(dfn, dtype=np.float64), np.asarray(dfd, dtype=np.float64)
     w = _special().betaincinv(dfd / 2.0, dfn / 2.0, _check_q(q))
     return dfd / dfn * (1.0 - w) / w
+
+
+def chi2_log10_sf(x, df):
+    """−log₁₀ P(χ² > x), finite where the tail underflows a float (there the leading terms of
+    the asymptotic series of the upper incomplete gamma function): scores on one scale across
+    degrees of freedom, however strong the evidence."""
+    _check_df(df)
+    special = _special()
+    x = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
+    k = np.asarray(df, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        direct = -np.log(special.chdtrc(k, x))
+    h = np.maximum(x / 2.0, 1e-300)
+    tail = h - (k / 2.0 - 1.0) * np.log(h) + special.gammaln(k / 2.0) - np.log1p((k / 2.0 - 1.0) / np.maximum(h, 1.0))
+    return np.where(np.isfinite(direct) & (direct < 600.0), direct, tail) / np.log(10.0)

@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special
+from magcal.fit import tails
 
 RIDGE = 1e-9
 N_BLOCKS = 20  # contiguous blocks for the autocorrelation-robust (HAC) covariance
@@ -102,13 +102,8 @@ def frame(r_ut: np.ndarray, u: np.ndarray, w: np.ndarray, field_ut: float, rows:
 
 def log10_p(ess_over_s2, k: int) -> np.ndarray:
     """−log₁₀ P(χ²_k ≥ x): one scale across column counts (a form with more columns must
-    explain more to score the same); the asymptotic tail where the p-value underflows."""
-    x = np.maximum(np.asarray(ess_over_s2, np.float64), 0.0)
-    with np.errstate(divide="ignore"):
-        direct = -np.log(special.gammaincc(k / 2.0, x / 2.0))
-    h = np.maximum(x / 2.0, 1e-300)
-    tail = h - (k / 2.0 - 1.0) * np.log(h) + special.gammaln(k / 2.0) - np.log1p((k / 2.0 - 1.0) / np.maximum(h, 1.0))
-    return np.where(np.isfinite(direct) & (direct < 600.0), direct, tail) / np.log(10.0)
+    explain more to score the same), finite where the p-value underflows."""
+    return tails.chi2_log10_sf(ess_over_s2, k)
 
 
 def scores(fr: Frame, fam: Family) -> tuple[np.ndarray, np.ndarray]:
