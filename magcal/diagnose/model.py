@@ -23,6 +23,7 @@ import numpy as np
 
 from ..core.calibration import Calibration
 from ..fit.accumulator import SphereAccumulator
+from ..fit import geometric
 from ..fit.failure import FitFailure
 
 _R2 = np.sqrt(2.0)
@@ -201,38 +202,7 @@ def fit_model(
         if not sph:
             return sph
         p[0:3], p[3 + spec.n_soft] = sph.offset_ut, sph.field_ut
-    e, j = residual_jacobian(p, spec, m, xs)
-    cost = e @ e
-    lam = 1e-6
-    it = 0
-    for it in range(1, max_iter + 1):
-        jtj = j.T @ j
-        g = j.T @ e
-        dscale = np.sqrt(np.maximum(np.diag(jtj), 1e-30))
-        a = jtj / np.outer(dscale, dscale)
-        improved = False
-        for _ in range(12):
-            try:
-                step = -np.linalg.solve(a + lam * np.eye(len(p)), g / dscale) / dscale
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            p_new = p + step
-            e_new, state = _forward(p_new, spec, m, xs)
-            c_new = e_new @ e_new
-            if np.isfinite(c_new) and c_new <= cost:
-                improved = True
-                break
-            lam *= 10
-        if not improved:
-            break
-        rel = (cost - c_new) / max(cost, 1e-300)
-        p = p_new
-        cost = c_new
-        lam = max(lam / 10, 1e-9)
-        e, j = e_new, _jacobian(m, xs, state)  # the Jacobian where the residual was just evaluated
-        if rel < 1e-10:
-            break
+    p, cost, j, it = _descend(p, spec, m, xs, max_iter)
     if not np.all(np.isfinite(p)):
         return FitFailure("no_convergence", "the fit diverged")
     if spec.n_soft:
@@ -247,6 +217,27 @@ def fit_model(
     except np.linalg.LinAlgError:
         cov = None
     return ModelFit(spec, p, ref, float(np.sqrt(cost / n)), n, it, cov)
+
+
+def _descend(p, spec: Spec, m, xs, max_iter: int):
+    """Damped Gauss–Newton (``geometric.damped_step``) from p: (p, cost, Jacobian at p, steps)."""
+    e, j = residual_jacobian(p, spec, m, xs)
+    cost, lam, it = float(e @ e), 1e-6, 0
+
+    def evaluate(p_new):
+        e_new, state = _forward(p_new, spec, m, xs)
+        return float(e_new @ e_new), (e_new, state)
+
+    for it in range(1, max_iter + 1):
+        step = geometric.damped_step(evaluate, p, j.T @ j, j.T @ e, cost, lam, max_tries=12)
+        if step is None:
+            break
+        rel = (cost - step.cost) / max(cost, 1e-300)
+        p, cost, lam = step.x, step.cost, max(step.lam / 10, 1e-9)
+        e, j = step.aux[0], _jacobian(m, xs, step.aux[1])  # the Jacobian where the residual was just evaluated
+        if rel < 1e-10:
+            break
+    return p, cost, j, it
 
 
 def fit_with_channel_terms(

@@ -246,47 +246,79 @@ def _cost(e: np.ndarray, loss: str, f: float) -> float:
     return 0.5 * f * f * float(np.sum(_rho(loss, (e / f) ** 2)[0]))
 
 
+@dataclass(frozen=True)
+class Step:
+    """A damped step that lowered the cost: the new point, its cost, the damping that gave it,
+    and whatever the evaluation returned beside the cost (a residual, a state to reuse)."""
+
+    x: np.ndarray
+    cost: float
+    lam: float
+    aux: object
+
+
+def damped_step(evaluate, x, A, g, cost: float, lam: float, max_tries: int = 64,
+                lam_max: float = 1e16) -> Step | None:
+    """The one damped normal-equation step every iterative fit in magcal takes: solve
+    (A + λ·diag A) δ = −g (Marquardt's scaling, solved Jacobi-equilibrated so a badly scaled A
+    keeps its digits) and accept x + δ when ``evaluate`` (x → (cost, aux)) gives a finite cost
+    no larger than ``cost``; otherwise λ ×10 and again. None: no step within ``max_tries`` or
+    below ``lam_max`` lowers the cost (the point is a minimum to working precision)."""
+    ds = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    a, gs = A / np.outer(ds, ds), g / ds
+    eye = np.eye(len(ds))
+    for _ in range(max_tries):
+        try:
+            x_new = x - np.linalg.solve(a + lam * eye, gs) / ds
+        except np.linalg.LinAlgError:
+            x_new = None
+        if x_new is not None and np.all(np.isfinite(x_new)):
+            cost_new, aux = evaluate(x_new)
+            if np.isfinite(cost_new) and cost_new <= cost:
+                return Step(x_new, float(cost_new), lam, aux)
+        lam *= 10.0
+        if lam > lam_max:
+            return None
+    return None
+
+
 def levenberg_marquardt(fun, jac, x0, loss: str = "linear", f_scale: float = 1.0, max_iter: int = 200,
                         tol: float = 1e-12) -> tuple[np.ndarray, int, bool]:
     """Minimise ½ f² Σ ρ((fun(x)/f)²) from x0: (x, function evaluations, converged).
 
-    Each step solves (JᵀWJ + λ·diag(JᵀWJ)) δ = −JᵀWe with W = ρ'(z) (all ones for the plain
-    loss: Levenberg–Marquardt; otherwise iteratively re-weighted least squares, whose fixed
-    points are the loss's stationary points). λ shrinks after a step that lowers the cost and
-    grows after one that does not. Converged when a step changes x by less than ``tol``
-    relative, or the cost by less than ``tol`` relative."""
+    Each step (``damped_step``) solves (JᵀWJ + λ·diag(JᵀWJ)) δ = −JᵀWe with W = ρ'(z) (all ones
+    for the plain loss: Levenberg–Marquardt; otherwise iteratively re-weighted least squares,
+    whose fixed points are the loss's stationary points). λ shrinks after a step that lowers
+    the cost and grows after one that does not. Converged when a step changes x by less than
+    ``tol`` relative, or the cost by less than ``tol`` relative."""
     x = np.asarray(x0, dtype=np.float64).copy()
     e = fun(x)
-    cost, nfev, lam = _cost(e, loss, f_scale), 1, None
+    cost, nfev, lam = _cost(e, loss, f_scale), [1], 1e-3
+
+    def evaluate(x_new):
+        nfev[0] += 1
+        e_new = fun(x_new)
+        return (_cost(e_new, loss, f_scale) if np.all(np.isfinite(e_new)) else np.inf), e_new
+
     for _ in range(max_iter):
-        J = jac(x)
-        if loss == "linear":  # ρ' = 1: the weights would multiply by one
-            A, g = J.T @ J, J.T @ e
-        else:
-            w = _rho(loss, (e / f_scale) ** 2)[1]
-            A, g = J.T @ (w[:, None] * J), J.T @ (w * e)
-        d = np.maximum(np.diag(A), 1e-300)
-        lam = 1e-3 if lam is None else lam
-        while True:
-            try:
-                step = np.linalg.solve(A + lam * np.diag(d), -g)
-            except np.linalg.LinAlgError:
-                step = np.full_like(x, np.nan)
-            x_new = x + step
-            e_new = fun(x_new) if np.all(np.isfinite(x_new)) else np.full_like(e, np.inf)
-            nfev += 1
-            cost_new = _cost(e_new, loss, f_scale) if np.all(np.isfinite(e_new)) else np.inf
-            if cost_new <= cost:
-                break
-            lam *= 10.0
-            if lam > 1e16:
-                return x, nfev, True  # no step lowers the cost: at the minimum to machine precision
-        small_step = np.linalg.norm(step) <= tol * (np.linalg.norm(x) + tol)
-        small_gain = cost - cost_new <= tol * cost
-        x, e, cost, lam = x_new, e_new, cost_new, max(lam / 10.0, 1e-12)
+        A, g = _normal_equations(jac(x), e, loss, f_scale)
+        step = damped_step(evaluate, x, A, g, cost, lam)
+        if step is None:
+            return x, nfev[0], True  # no step lowers the cost: at the minimum to machine precision
+        small_step = np.linalg.norm(step.x - x) <= tol * (np.linalg.norm(x) + tol)
+        small_gain = cost - step.cost <= tol * cost
+        x, e, cost, lam = step.x, step.aux, step.cost, max(step.lam / 10.0, 1e-12)
         if small_step or small_gain:
-            return x, nfev, True
-    return x, nfev, False
+            return x, nfev[0], True
+    return x, nfev[0], False
+
+
+def _normal_equations(J, e, loss: str, f_scale: float):
+    """(JᵀWJ, JᵀWe) with the loss's IRLS weights W (none for the plain loss)."""
+    if loss == "linear":  # ρ' = 1: the weights would multiply by one
+        return J.T @ J, J.T @ e
+    w = _rho(loss, (e / f_scale) ** 2)[1]
+    return J.T @ (w[:, None] * J), J.T @ (w * e)
 
 
 def solve(

@@ -184,26 +184,24 @@ def _robust_scale(e: np.ndarray) -> float:
 
 
 def _damped_step(pts, kind, theta, w, e, J, lam: float):
-    """One Levenberg-damped Gauss–Newton step of Σ w e² from θ (residual e, Jacobian J there),
-    raising the damping until the sum falls. Returns (θ, Σ w e², damping, JᵀWJ at the start);
-    θ is unchanged when no step lowers the sum."""
+    """One damped Gauss–Newton step of Σ w e² from θ (residual e, Jacobian J there;
+    ``geometric.damped_step``, at most six dampings, the radius kept positive). Returns
+    (θ, Σ w e², damping, JᵀWJ at the start); θ is unchanged when no step lowers the sum."""
     cost = float(w @ (e * e))
     Jw = J * w[:, None]
     A, g = J.T @ Jw, Jw.T @ e
-    for _ in range(6):
-        try:
-            step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
-        except np.linalg.LinAlgError:
-            lam *= 100.0
-            continue
-        trial = theta + step
-        with np.errstate(over="ignore", invalid="ignore"):  # a wild trial: its cost is not finite, refused below
+
+    def evaluate(trial):
+        if not trial[3] > 0:
+            return np.inf, None
+        with np.errstate(over="ignore", invalid="ignore"):  # a wild trial: its cost is not finite, refused
             e2 = geometric.residual(trial, pts, kind)
-            c2 = float(w @ (e2 * e2))
-        if np.isfinite(c2) and c2 <= cost and trial[3] > 0:
-            return trial, c2, max(lam / 10.0, 1e-9), A
-        lam *= 10.0
-    return theta, cost, lam, A
+            return float(w @ (e2 * e2)), None
+
+    step = geometric.damped_step(evaluate, theta, A, g, cost, lam, max_tries=6)
+    if step is None:
+        return theta, cost, lam * 1e6, A
+    return step.x, step.cost, max(step.lam / 10.0, 1e-9), A
 
 
 def _shifted_sphere_cost(m, w, centre, u, r0: float, steps: int = 20) -> float:
