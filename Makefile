@@ -10,8 +10,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 AVR_PACKAGES := gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev avrdude
-# the report's test opens the page in a real browser (headless)
-BROWSER_PACKAGES := chromium
+# the report's test opens the page in a real browser (headless); the live view's test drives it
+# through chromium-driver (Selenium)
+BROWSER_PACKAGES := chromium chromium-driver
 
 .PHONY: demo test check bench firmware emulator toolchain systemd-tools clean
 
@@ -24,7 +25,8 @@ $(STAMP): pyproject.toml
 # Installs the AVR toolchain, simavr and Chromium if they are missing and we may use apt-get.
 toolchain:
 	@if command -v avr-gcc >/dev/null 2>&1 && [ -f /usr/include/simavr/sim_avr.h ] \
-	    && [ -d /usr/share/arduino/hardware/arduino/avr ] && command -v chromium >/dev/null 2>&1; then \
+	    && [ -d /usr/share/arduino/hardware/arduino/avr ] && command -v chromium >/dev/null 2>&1 \
+	    && command -v chromedriver >/dev/null 2>&1; then \
 	  echo "AVR toolchain, simavr and chromium: present"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	  echo "installing the AVR toolchain and simavr (apt-get)"; \

@@ -82,15 +82,16 @@ def _evidence_dict(ev) -> dict:
             "offset_sigma_ut": None if sigma is None else [float(v) for v in sigma]}
 
 
-def _collect(device: Device, session: Session, settings: Settings, clock, on_progress) -> Failure | None:
+def _collect(device: Device, session: Session, settings: Settings, clock, on_progress,
+             every_s: float = PROGRESS_EVERY_S) -> Failure | None:
     """Read until every gate passes (None), or the source ends or the time is up (why, unless
     every gate passes on what was collected by then)."""
     deadline = clock() + settings.timeout_s
     last_progress = 0.0
-    for items in batches(device, 0.1):
+    for items in batches(device, min(0.1, every_s)):
         session.add_many(items)
         now = clock()
-        if on_progress and now - last_progress >= PROGRESS_EVERY_S:
+        if on_progress and now - last_progress >= every_s:
             last_progress = now
             on_progress(session)
         if session.ready():
@@ -114,16 +115,19 @@ def calibrate(
     clock: Callable[[], float] = time.monotonic,
     on_progress: Callable[[Session], None] | None = None,
     session: Session | None = None,
+    progress_every_s: float = PROGRESS_EVERY_S,
 ) -> Outcome:
     """Run one calibration on an *opened* device. Never raises for gate or fit failures: the
     outcome says what happened. Device errors during the write are recorded as failures too —
     nothing is reported as written unless the device acknowledged it, and nothing as verified
-    unless the read-back matches."""
+    unless the read-back matches. ``on_progress(session)`` is called at most every
+    ``progress_every_s`` while collecting (the live view asks for more than the terminal), and
+    once after solving."""
     session = session or Session(settings.gates, settings.model)
     device.start(settings.rate_hz)
     out = Outcome(session=session, identity=device.identity)  # after start: with the rate it took
     t0 = clock()
-    ended = _collect(device, session, settings, clock, on_progress)
+    ended = _collect(device, session, settings, clock, on_progress, progress_every_s)
     out.collect_s = clock() - t0
     if ended is None:
         try:

@@ -28,6 +28,9 @@ def add_arguments(p) -> None:
     add(p, "port", "baud", "dialect", "config", "rate", "timeout", "model", "json", "quiet")
     p.add_argument("--no-write", action="store_true", help="fit and report, but do not write to the device")
     p.add_argument("--record", metavar="FILE", help="also keep the raw bytes as a capture (replay://FILE)")
+    from .view import add_view_option
+
+    add_view_option(p)
 
 
 def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
@@ -75,6 +78,7 @@ def run(args) -> int:
         writer = open_capture_tap(args.record, settings)
         options["tap"] = writer
     device = open_from_settings(settings, **options)
+    view, outcome = _view(args, settings), None
     try:
         ident = device.open()
         progress.done(f"connected: {settings.port} ({ident.transport}, firmware {ident.firmware or '?'}, "
@@ -82,9 +86,13 @@ def run(args) -> int:
         progress.t0 = time.monotonic()
         outcome = calibrate(
             device, settings, write=settings.write and not args.no_write, clock=time.monotonic,
-            on_progress=lambda s: progress.show(_live(s, settings.timeout_s, progress.elapsed(), progress.active)),
+            on_progress=lambda s: (progress.show(_live(s, settings.timeout_s, progress.elapsed(), progress.active)),
+                                   view and view.progress(s)),
+            **({"progress_every_s": view.every_s} if view else {}),
         )
     finally:
+        if view:
+            view.finish(outcome)
         device.close()
         if writer is not None:
             writer.close()
@@ -100,6 +108,16 @@ def run(args) -> int:
         elif code != Exit.OK:
             print(f"not calibrated: {report['message']}")
     return code
+
+
+def _view(args, settings):
+    """The live view in the browser (``--view``): started before the device opens, so the URL
+    is on screen while the board is found (``magcal.cli.view``)."""
+    if not args.view:
+        return None
+    from .view import LiveView, start
+
+    return LiveView(start(args.json), settings.timeout_s)
 
 
 def exit_status(outcome, no_write: bool) -> Exit:
