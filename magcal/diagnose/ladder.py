@@ -40,7 +40,7 @@ from .locate import faults
 from .locate import step as locate_step
 from .diagnosis import Diagnosis
 from .inference import contiguous_blocks, n_test_blocks
-from ..fit import fit_calibration
+from ..fit import fit_calibration, fit_models
 from .diagnosis import model_name
 from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms, from_calibration
 
@@ -448,14 +448,14 @@ class HeldOut:
     fits: tuple = ()  # fit's runs on the blocks' training samples: (model, samples, result) (locate.judge.fitted)
 
 
-def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int | None = None) -> HeldOut:
+def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int | None = None, also=()) -> HeldOut:
     """``models`` (None entries skipped) refitted on the kept samples outside each contiguous
     time block, from their own values, and judged on the block's kept samples. The entry at
     ``procedure`` stands for ``magcal fit --model auto`` and is judged as the procedure it is:
     fit runs again on each block's training samples, its gates and model choice included (its
     model refitted alone, the choice made with the held-out block in hand, would be judged on a
     shape fit may refuse without that block); where fit finds no model there, the model is
-    refitted as the others are."""
+    refitted as the others are; fit's models ``also`` beside it, for the locate step (``fits``)."""
     sse = np.zeros(len(models))
     n_eval = 0
     per_block, known = [], []
@@ -467,7 +467,7 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int
         test[: held.start] = test[held.stop :] = False
         chans_train = {c: v[train] for c, v in a.chans.items()}
         chans_test = {c: v[test] for c, v in a.chans.items()}
-        fits = [None if m is None else _refit_without(a.m[train], chans_train, m, i == procedure, known)
+        fits = [None if m is None else _refit_without(a.m[train], chans_train, m, i == procedure, known, also)
                 for i, m in enumerate(models)]
         if not test.any() or any(m is not None and not f for m, f in zip(models, fits)):
             continue
@@ -480,12 +480,13 @@ def compare_heldout(a: Analysed, models: list, fold_slices: list, procedure: int
                    tuple(known))
 
 
-def _refit_without(m_train: np.ndarray, chans_train: dict, model: ModelFit, as_fit: bool, known: list):
+def _refit_without(m_train: np.ndarray, chans_train: dict, model: ModelFit, as_fit: bool, known: list, also=()):
     """``model`` refitted on a block's training samples (``compare_heldout``); fit's run, when
-    it is the procedure, added to ``known`` as (model, samples, result)."""
+    it is the procedure, added to ``known`` as (model, samples, result), and its models ``also``."""
     if as_fit:
-        result = fit_calibration(m_train, model="auto")
-        known.append(("auto", m_train, result))
+        results = fit_models(m_train, ("auto", *also))
+        known.extend((k, m_train, r) for k, r in results.items())
+        result = results["auto"]
         if result:
             return from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
     return fit_model(m_train, chans_train, model.spec, model.reference, start=model, max_iter=HELDOUT_ITER)
@@ -522,19 +523,21 @@ def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_sl
     choice by BIC, direction balance) is the geometry returned; diagnosis adds its channel terms
     to it, fitted the same way on the samples with those terms taken out — and only when that
     does better on the held-out blocks than the fit alone; otherwise a limit says so."""
-    result = fit_calibration(a.m, model="auto")
-    whole = ("auto", a.m, result)
+    results = fit_models(a.m, ("auto", "ellipsoid"))  # the ellipsoid: the locate step's floor
+    result = results["auto"]
+    whole = tuple((k, a.m, r) for k, r in results.items())
     if not result:
-        return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), (), known=(whole,))
+        return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), (), known=whole)
+    also = tuple({locate_step.PLAIN.get(result.model)} - {None})  # the model the locate step's judge refits
     plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty)
     if not final.spec.channels:
-        heldout = compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1)
-        return Chosen(plain, "fit", heldout, (), result.model, (whole,) + heldout.fits)
+        heldout = compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1, also=also)
+        return Chosen(plain, "fit", heldout, (), result.model, whole + heldout.fits)
     geometry, shifted = _fit_geometry_around_channels(a, final, channel_cov, result.model)
     with_channels = geometry or final
-    heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices, procedure=2)
+    heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices, procedure=2, also=also)
     limit = never_worse(with_channels, plain, heldout)
-    known = (whole, shifted) + heldout.fits
+    known = whole + (shifted,) + heldout.fits
     if limit:
         return Chosen(plain, "fit", heldout, (limit,), result.model, known)
     return Chosen(with_channels, "fit+channels", heldout, (), result.model, known)

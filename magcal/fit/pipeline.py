@@ -180,22 +180,53 @@ def fit_calibration(
     max_ellipsoid_condition: float = DEFAULT_MAX_ELLIPSOID_CONDITION,
 ) -> FitResult | FitFailure:
     """Fit a calibration to magnetometer samples (µT); see the module docstring."""
-    if model not in MODELS:
-        raise ValueError(f"model must be one of {', '.join(MODELS)}, not {model!r}")
+    return fit_models(data, (model,), outliers, noise_ut, alpha, max_condition, max_shape_sigma, balance,
+                      max_ellipsoid_condition)[model]
+
+
+def fit_models(
+    data,
+    models: tuple[str, ...],
+    outliers: bool = True,
+    noise_ut: float | None = None,
+    alpha: float = _outliers.DEFAULT_ALPHA,
+    max_condition: float = DEFAULT_MAX_CONDITION,
+    max_shape_sigma: float = DEFAULT_MAX_SHAPE_SIGMA,
+    balance: str = "auto",
+    max_ellipsoid_condition: float = DEFAULT_MAX_ELLIPSOID_CONDITION,
+) -> dict:
+    """{model: fit_calibration(data, model=model, …)} for each of ``models``, the same results,
+    from one start and one fit of each candidate model (a caller that needs fit's "auto" and its
+    "ellipsoid" on the same samples pays for the candidates once)."""
+    for model in models:
+        if model not in MODELS:
+            raise ValueError(f"model must be one of {', '.join(MODELS)}, not {model!r}")
     if balance not in BALANCE:
         raise ValueError(f"balance must be one of {', '.join(BALANCE)}, not {balance!r}")
     m, idx = _samples(data)
     start = _robust_sphere(m, max_condition)
     if isinstance(start, FitFailure):
-        return start
+        return {model: start for model in models}
     limits = _Limits(outliers, alpha, max(max_condition, max_ellipsoid_condition), max_shape_sigma)
+    memo: dict = {}
+    return {model: _result(m, idx, model, start, limits, balance, noise_ut, memo) for model in models}
+
+
+def _result(m, idx, model: str, start, limits: _Limits, balance: str, noise_ut, memo: dict):
+    """One model's FitResult from the shared start; ``memo`` holds the candidate fits and the
+    balanced refits already made for another model on the same samples."""
     notes: list[str] = []
-    candidates, conds = _candidates(m, model, *start, limits, notes)
+    candidates, conds = _candidates(m, model, *start, limits, notes, memo)
     if not candidates:
         return FitFailure("no_convergence", "; ".join(notes) or "no model could be fitted")
     chosen, balance = _choose(model, candidates, notes, m, balance)
     g, keep = candidates[chosen]
-    g, weights = _balanced(m[keep], g, balance, notes)
+    key = ("balanced", chosen, balance)
+    if key not in memo:
+        said: list[str] = []
+        memo[key] = (*_balanced(m[keep], g, balance, said), said)
+    g, weights, said = memo[key]
+    notes.extend(said)
     u = uncertainty.summarise(g, noise_ut, weights)
     return FitResult(
         model=MODEL_NAMES[chosen],
@@ -257,15 +288,45 @@ class Refusal(Enum):
     FAILED = "failed"
 
 
-def _candidates(m, model: str, robust, cond_sphere: float, sigma_r: float, limits: _Limits, notes: list):
+def _candidates(m, model: str, robust, cond_sphere: float, sigma_r: float, limits: _Limits, notes: list,
+                memo: dict | None = None):
     """Step 4–5: each model the coverage can determine, fitted — ({kind: (fit, kept mask)},
     {kind: condition}); why any was left out goes to ``notes``. Both ellipsoids are judged at
     the noise of the better-fitting one, so what decides "undetermined" is the coverage, not
-    a misfit; where the diagonal one is undetermined, the full one (its superset) is too."""
+    a misfit; where the diagonal one is undetermined, the full one (its superset) is too. For
+    "ellipsoid" the sphere is fitted only where no ellipsoid is left (it would not be taken).
+    ``memo``: the fits already made on the same samples (``fit_models``), filled here."""
+    memo = {} if memo is None else memo
     conds: dict[str, float] = {"sphere": cond_sphere}
+    candidates: dict[str, tuple] = {}
+    if model != "sphere":
+        if "ellipsoids" not in memo:
+            said: list[str] = []
+            memo["ellipsoids"] = (_ellipsoids(m, robust, sigma_r, limits, said), said)
+        (found, e_conds), said = memo["ellipsoids"]
+        conds.update(e_conds)
+        notes.extend(said)
+        candidates = dict(found)
+    if model != "ellipsoid" or not candidates:
+        if "sphere" not in memo:
+            memo["sphere"] = _fit_kind(m, "sphere", robust.theta, sigma_r, limits.outliers, limits.alpha)
+        sphere, keep = memo["sphere"]
+        if isinstance(sphere, FitFailure):
+            notes.append(f"sphere failed: {sphere.message}")
+        else:
+            candidates["sphere"] = (sphere, keep)
+    if model == "ellipsoid":
+        candidates = _fullest(candidates, notes)
+    return candidates, conds
+
+
+def _ellipsoids(m, robust, sigma_r: float, limits: _Limits, notes: list) -> tuple[dict, dict]:
+    """The determined ellipsoids ({kind: (fit, kept mask)}, subset first) and each one's
+    information-matrix condition at the robust sphere; why any was left out goes to ``notes``."""
+    conds: dict[str, float] = {}
     fits: dict[str, tuple] = {}
     refused: dict[str, Refusal] = {}
-    for kind in [] if model == "sphere" else ["full", "diagonal"]:
+    for kind in ["full", "diagonal"]:
         ok, conds[kind], why = _gate(m, robust.theta[:4], kind, limits.max_ellipsoid_condition)
         if not ok:
             notes.append(why)
@@ -277,15 +338,7 @@ def _candidates(m, model: str, robust, cond_sphere: float, sigma_r: float, limit
             refused[kind] = Refusal.FAILED
             continue
         fits[kind] = (f, keep)
-    candidates = _determined(fits, refused, limits.max_shape_sigma, notes)
-    sphere, keep = _fit_kind(m, "sphere", robust.theta, sigma_r, limits.outliers, limits.alpha)
-    if isinstance(sphere, FitFailure):
-        notes.append(f"sphere failed: {sphere.message}")
-    else:
-        candidates["sphere"] = (sphere, keep)
-    if model == "ellipsoid":
-        candidates = _fullest(candidates, notes)
-    return candidates, conds
+    return _determined(fits, refused, limits.max_shape_sigma, notes), conds
 
 
 def _determined(fits: dict, refused: dict, limit: float, notes: list) -> dict:
