@@ -39,7 +39,7 @@ def require_browser() -> None:
         pytest.skip(problem)
 
 
-def chromium(profile_dir, width: int = 1280, height: int = 760):
+def chromium(profile_dir, width: int = 1280, height: int = 960):
     """A headless Chromium under Selenium (the caller quits it)."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service

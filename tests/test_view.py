@@ -4,6 +4,7 @@ headless Chromium during a ``sim://`` calibration (tests/browser_support.py)."""
 import http.client
 import json
 import re
+import time
 
 import pytest
 
@@ -62,7 +63,7 @@ def test_chromium_watches_a_sim_calibration_fill_in_and_verify(tmp_path):
     driver = chromium(tmp_path / "profile")
     proc = None
     try:
-        proc, url = start_view(["calibrate", "--port", f"sim://?pace=12&seed=4&eeprom={tmp_path}/e.bin"])
+        proc, url = start_view(["calibrate", "--port", f"sim://?pace=20&seed=4&eeprom={tmp_path}/e.bin"])
         driver.get(url)
         early = wait_for(driver, lambda s: s["points"] > 0)[-1]
         driver.refresh()  # a reload gets the latest state at once and goes on
@@ -77,4 +78,35 @@ def test_chromium_watches_a_sim_calibration_fill_in_and_verify(tmp_path):
     finally:
         driver.quit()
         if proc is not None and proc.poll() is None:
+            proc.kill()
+
+
+@pytest.mark.slow
+def test_run_view_shows_the_daemons_collecting_and_the_write_it_verified(tmp_path):
+    """``run --view``: the page's state follows the daemon's session, then shows the calibration
+    it wrote and verified; the server closes when the daemon stops."""
+    proc, url = start_view(["run", "--port", f"sim://?pace=25&seed=3&eeprom={tmp_path}/e.bin", "--recalibrate",
+                            "--state-dir", str(tmp_path / "state"), "--count", "2600"])
+    try:
+        port = int(re.search(r":(\d+)/", url).group(1))
+        path = url.split(str(port), 1)[1] + "state"
+        seen = []
+        while proc.poll() is None:
+            try:
+                conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+                conn.request("GET", path)
+                seen.append(json.loads(conn.getresponse().read()))
+                conn.close()
+            except OSError:
+                break  # the daemon stopped and its server with it
+            time.sleep(0.1)
+        assert proc.wait(timeout=30) == 0
+        states = [s for s in seen if s]
+        assert any(s["status"] == "collecting" and s["points"] for s in states)
+        held = [s["held"] for s in states if s["held"]]
+        assert held and held[-1]["verified"] and 40 < held[-1]["field_ut"] < 60
+        with pytest.raises(OSError):
+            http.client.HTTPConnection("127.0.0.1", port, timeout=2).request("GET", path)
+    finally:
+        if proc.poll() is None:
             proc.kill()

@@ -94,3 +94,11 @@ def test_the_write_is_shown_verified_only_after_the_read_back():
     done = page_state(s, written=True, verified=True)
     assert done.write is WriteState.VERIFIED and done.turn is None and done.waiting_on == []
     assert done.live["offset_sigma_ut"] is not None
+
+
+def test_a_daemon_that_goes_on_collecting_shows_what_it_wrote_and_verified():
+    s = Session(Gates())
+    held = Calibration(offset_ut=[1.0, 2.0, 3.0], field_ut=48.0)
+    v = page_state(s, held=held).to_dict()
+    assert v["write"] == "pending" and v["held"] == {"offset_ut": [1.0, 2.0, 3.0], "field_ut": 48.0, "verified": True}
+    assert page_state(s).held is None

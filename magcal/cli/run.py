@@ -32,6 +32,9 @@ def add_arguments(p) -> None:
     add_alias(p, "--samples", dest="count", type=positive_int)
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"),
                    help="the least important decisions logged")
+    from .view import add_view_option
+
+    add_view_option(p)
 
 
 def to_journal(stream=None, environ=None) -> bool:
@@ -102,7 +105,7 @@ def run(args) -> int:
 
 
 def _run(args, hangup: EarlyHangup) -> int:
-    from ..app.daemon import Daemon
+    from ..app.daemon import Collaborators, Daemon
 
     overrides = {"rate_hz": args.rate}
     daemon_over = {}
@@ -118,6 +121,24 @@ def _run(args, hangup: EarlyHangup) -> int:
     cli_overrides = {k: v for k, v in {
         "port": settings.port, "baud": args.baud, "dialect": args.dialect, **overrides,
     }.items() if v is not None}
-    daemon = Daemon(settings, config_path=args.config, overrides=cli_overrides, max_samples=args.count)
+    view = _view(args)
+    collaborators = Collaborators(on_sample=view.on_sample) if view else Collaborators()
+    daemon = Daemon(settings, config_path=args.config, overrides=cli_overrides, max_samples=args.count,
+                    collaborators=collaborators)
     hangup.hand_to(daemon.request_reload)
-    return daemon.run()
+    if view is None:
+        return daemon.run()
+    view.daemon = daemon
+    try:
+        return daemon.run()
+    finally:
+        view.close()
+
+
+def _view(args):
+    """``--view``: the daemon's collecting and what it wrote, live in the browser (``magcal.cli.view``)."""
+    if not args.view:
+        return None
+    from .view import DaemonView, start
+
+    return DaemonView(start(json_output=False))

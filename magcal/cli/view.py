@@ -233,3 +233,28 @@ class LiveView:
                 self.progress(outcome.session, force=True, written=outcome.written, verified=outcome.verified)
         finally:
             self.server.close()
+
+
+class DaemonView:
+    """``run --view``: the daemon's collecting session and the calibration it last wrote and
+    verified, published from its own loop (``on_sample``, on the daemon's thread) at most every
+    ``EVERY_S``."""
+
+    def __init__(self, server: ViewServer, clock=time.monotonic):
+        self.live = LiveView(server, None, clock)
+        self.daemon = None
+
+    def on_sample(self, epoch: int, sample, force: bool = False) -> None:
+        if self.daemon is None:
+            return
+        from ..core.calibration import Calibration
+
+        last = self.daemon.writer.last
+        held = Calibration.from_dict(last["calibration"]) if last else None
+        self.live.progress(self.daemon.recalibrator.session, force=force, held=held)
+
+    def close(self) -> None:
+        try:
+            self.on_sample(0, None, force=True)
+        finally:
+            self.live.server.close()

@@ -84,6 +84,7 @@ class ViewState:
     gates: list
     waiting_on: list
     turn: Turn | None
+    held: dict | None = None  # the calibration this command last wrote and verified (``run``)
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -202,9 +203,10 @@ def _final_calibration(session: Session):
 
 
 def page_state(session: Session, *, elapsed_s: float = 0.0, timeout_s: float | None = None,
-               written: bool | None = None, verified: bool | None = None) -> ViewState:
+               written: bool | None = None, verified: bool | None = None, held=None) -> ViewState:
     """The page's state for ``session`` now (``elapsed_s`` on the caller's clock since
-    collecting began; ``written``/``verified``: the outcome, once known)."""
+    collecting began; ``written``/``verified``: the outcome, once known; ``held``: the
+    ``Calibration`` this command last wrote and verified, when it goes on collecting after it)."""
     kept = session.kept
     estimate = session.tracker.estimate
     calibration = _final_calibration(session)
@@ -225,4 +227,6 @@ def page_state(session: Session, *, elapsed_s: float = 0.0, timeout_s: float | N
         gates=[{"gate": g.name, "passed": g.passed, "message": g.message} for g in gates],
         waiting_on=[g.name for g in gates if not g.passed],
         turn=next_turn(counts, kept.bands, kept.sectors, here) if collecting else None,
+        held=None if held is None else {"offset_ut": [_r(v, 2) for v in held.offset_ut],
+                                        "field_ut": _r(held.field_ut, 2), "verified": True},
     )
