@@ -8,8 +8,9 @@ and nothing else, so every number on it is computed — and tested — in this m
   counts (an empty cell is a gap drawn on the sphere);
 - the four numbers MotionCal users read, in percent: ``gaps`` (share of the direction cells
   holding no sample), ``variance`` (spread of the corrected magnitude about its mean),
-  ``wobble`` (how far the centre of the covered cells sits from the fitted centre: a lopsided
-  or shifted cloud) and ``fit error`` (rms of the corrected magnitude about the fitted field);
+  ``wobble`` (how far off the fitted centre the corrected cloud still sits: the shift along
+  which its radius grows, by least squares, over the field) and ``fit error`` (rms of the
+  corrected magnitude about the fitted field);
 - magcal's own: the live offset with its 1σ, the field, the coverage against the gate, and
   every gate the write waits on;
 - which way to turn next: the side of the board to aim along the Earth's field to reach the
@@ -25,7 +26,7 @@ from enum import Enum
 
 import numpy as np
 
-from ..fit.coverage import cell_centres, cell_index, side_name
+from ..fit.coverage import cell_centres, side_name
 from .session import Session, Status
 
 MAX_POINTS = 2048  # the page draws at most this many points (the kept set holds 1024)
@@ -123,10 +124,10 @@ def motioncal_numbers(field_ut, calibration, counts, bands: int, sectors: int) -
     b = calibration.field_ut
     variance = 100.0 * float(np.std(r)) / float(np.mean(r))
     fit_error = 100.0 * float(np.sqrt(np.mean((r - b) ** 2))) / b
-    cells = cell_index(h, bands, sectors)
-    occupied = np.unique(cells)
-    means = np.array([h[cells == c].mean(axis=0) for c in occupied])
-    wobble = 100.0 * float(np.linalg.norm(means.mean(axis=0))) / b
+    # a cloud shifted by c from the centre has radius ≈ a + u·c along each direction u
+    design = np.column_stack([np.ones(len(r)), h / r[:, None]])
+    coef, *_ = np.linalg.lstsq(design, r, rcond=None)
+    wobble = 100.0 * float(np.linalg.norm(coef[1:])) / b
     return MotionCalNumbers(round(gaps, 1), _r(variance, 2), _r(wobble, 2), _r(fit_error, 2))
 
 
