@@ -4,6 +4,7 @@ headless Chromium during a ``sim://`` calibration (tests/browser_support.py)."""
 import http.client
 import json
 import re
+import sys
 import time
 
 import pytest
@@ -53,6 +54,25 @@ def test_the_page_fetches_nothing_from_elsewhere():
     assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", html)
     assert not re.search(r"""(fetch|EventSource|import)\s*\(\s*["'](https?:)?//""", html)
     assert "EventSource(\"events\")" in html  # the stream is this server's, relative to the token path
+
+
+def test_under_json_the_url_goes_to_stderr_and_stdout_stays_one_document(tmp_path, capsys, monkeypatch):
+    from magcal.cli import main
+
+    monkeypatch.setenv("DISPLAY", ":0")  # even with a display, --json opens no browser
+    opened = []
+    monkeypatch.setattr("webbrowser.open", lambda *a, **k: opened.append(a))
+    code = main(["calibrate", "--port", f"sim://?pace=0&seed=2&eeprom={tmp_path}/e.bin", "--json", "--view"])
+    out = capsys.readouterr()
+    assert code == 0 and json.loads(out.out)["verified"] is True
+    assert re.search(r"live view: http://127\.0\.0\.1:\d+/\S{20,}/", out.err) and not opened
+
+
+def test_no_browser_is_opened_without_a_display():
+    from magcal.cli.view import a_browser_is_there
+
+    if sys.platform.startswith("linux"):
+        assert not a_browser_is_there({"PATH": "/usr/bin"})
 
 
 @pytest.mark.slow
