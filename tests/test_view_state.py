@@ -104,3 +104,20 @@ def test_a_daemon_that_goes_on_collecting_shows_what_it_wrote_and_verified():
     v = page_state(s, held=held).to_dict()
     assert v["write"] == "pending" and v["held"] == {"offset_ut": [1.0, 2.0, 3.0], "field_ut": 48.0, "verified": True}
     assert page_state(s).held is None
+
+
+def test_a_failed_or_unwritten_calibration_is_never_shown_verified():
+    from magcal.logic import failures
+
+    s = Session(Gates())
+    s.fail(failures.TIMEOUT, "timed out after 60 s before every gate passed — failing: min_coverage")
+    v = page_state(s, written=False, verified=False)
+    assert v.write is WriteState.FAILED and "min_coverage" in v.message
+    s = Session(Gates())
+    for smp in _samples(demo_scenario(5), 4000):
+        s.add(smp)
+        if s.ready():
+            break
+    s.solve()
+    s.finish_without_write()  # --no-write, or a read-only source
+    assert page_state(s, written=False, verified=False).write is WriteState.NOT_WRITTEN
