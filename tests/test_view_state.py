@@ -77,6 +77,8 @@ def test_flat_turns_wait_on_coverage_and_point_at_an_empty_cell():
     s.add_many(_samples(Scenario(motion=Motion("yaw"), seed=2), 1500))
     v = page_state(s, elapsed_s=30.0, timeout_s=60)
     assert "min_coverage" in v.waiting_on and v.motioncal.gaps_pct > 50
+    if v.live["offset_ut"] is None:  # no calibration yet: the directions the cells count, on the sphere
+        assert np.allclose(np.linalg.norm(v.points, axis=1), 1.0, atol=0.01)
     target = int(cell_index(np.array([v.turn.target]), v.bands, v.sectors)[0])
     assert v.cells[target] == 0 and v.turn.angle_deg is not None
 

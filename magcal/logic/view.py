@@ -166,7 +166,8 @@ def write_state(session: Session, written: bool | None, verified: bool | None) -
 
 def _points(session: Session, calibration) -> list:
     """The kept samples on the unit sphere: corrected and divided by the field when there is a
-    live calibration, else about the kept set's centre and divided by the median radius."""
+    live calibration (a good one puts them on the sphere); before one, their directions about
+    the kept set's centre — the directions the coverage cells count."""
     m = session.kept.field_ut[:MAX_POINTS]
     if len(m) == 0:
         return []
@@ -174,7 +175,8 @@ def _points(session: Session, calibration) -> list:
         p = calibration.correct(m) / calibration.field_ut
     else:
         d = m - session.kept.centre_ut
-        p = d / (float(np.median(np.linalg.norm(d, axis=1))) or 1.0)
+        norm = np.linalg.norm(d, axis=1, keepdims=True)
+        p = d / np.where(norm > 0, norm, 1.0)
     return np.round(p, 3).tolist()
 
 
