@@ -54,3 +54,28 @@ def test_the_trackers_final_offset_intervals_cover_the_change_between_the_halves
     a, b = finals
     # the fresh-sample noise alone stated a y interval the change overshot 3.9×
     assert np.all(_covered(a.calibration.offset_ut, a.offset_sigma_ut, b.calibration.offset_ut, b.offset_sigma_ut))
+
+
+def test_a_sphere_chosen_on_a_cap_of_directions_states_the_gains_it_assumed_as_doubt():
+    # a level turn under a field dipping 45–75°: no ellipsoid is determined, so auto takes the sphere;
+    # the z axis reads 6 % high, which a sphere folds into its z offset (5 µT off)
+    rng = np.random.default_rng(7)
+    el, az = np.deg2rad(rng.uniform(45, 75, 1500)), rng.uniform(0, 2 * np.pi, 1500)
+    u = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    offset = np.array([5.0, -8.0, 12.0])
+    m = offset + 50.0 * u * [1.0, 1.0, 1.06] + 0.3 * rng.normal(size=u.shape)
+    auto, asked = fit_calibration(m, model="auto"), fit_calibration(m, model="sphere")
+    assert auto.model == asked.model == "sphere"
+    # asked for, the sphere's σ is conditional on its equal gains and its interval misses the truth
+    assert not _covered(asked.calibration.offset_ut, asked.uncertainty["offset_ut"], offset, 0.0)[2]
+    # chosen, it carries the gains it could not measure: the interval holds the truth, the gains are not "exact"
+    assert np.all(_covered(auto.calibration.offset_ut, auto.uncertainty["offset_ut"], offset, 0.0))
+    assert np.all(np.diag(auto.uncertainty["soft_iron"]) > 0.01)
+    assert np.allclose(auto.calibration.offset_ut, asked.calibration.offset_ut)  # the calibration itself is the same
+
+
+def test_a_sigma_estimated_from_few_pieces_is_stated_for_students_t():
+    from magcal.fit.uncertainty import few_dof_factor
+
+    # the direction jackknife has five degrees of freedom: t₅(97.5 %) = 2.571, not 1.96
+    assert np.allclose(few_dof_factor(np.array([5.0, 39.0, np.inf])), [2.5706 / 1.96, 2.0227 / 1.96, 1.0], atol=1e-3)

@@ -227,7 +227,7 @@ def _result(m, idx, model: str, start, limits: _Limits, balance: str, noise_ut, 
         memo[key] = (*_balanced(m[keep], g, balance, said), said)
     g, weights, said = memo[key]
     notes.extend(said)
-    u = uncertainty.summarise(g, noise_ut, weights)
+    u = uncertainty.summarise(g, noise_ut, weights, 0.0 if model == "sphere" else uncertainty.SPHERE_GAIN_SIGMA)
     return FitResult(
         model=MODEL_NAMES[chosen],
         calibration=Calibration(offset_ut=g.offset_ut, field_ut=g.field_ut, soft_iron=g.soft_iron),

@@ -58,7 +58,7 @@ from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
 from .result import MODEL_NAMES
 from .sphere import sphere_start
 from .tracker_memory import CellBuffer, Wander
-from .uncertainty import direction_jackknife_variance, shape_sigma
+from .uncertainty import direction_jackknife_variance, gain_widening, shape_sigma
 
 LADDER = ("sphere", "diagonal", "full")
 CHANGE_ALPHA = 1e-9  # a sudden change is declared at this false-alarm probability per refit
@@ -112,7 +112,8 @@ class Estimate:
     ``wander_ut2_per_s``: q, the variance growth rate of the radial error with age (0 = the
     data show no wander); ``noise_ut``: s, the residual scale of fresh samples;
     ``offset_sigma_ut``: 1σ of the offset from the weighted fit, at least the delete-a-face
-    jackknife's over the directions in memory (``direction_widening``);
+    jackknife's over the directions in memory (``direction_widening``) and, on a sphere, with what
+    axis gains it takes as equal would do to it (``gain_widening``);
     ``buffered``: samples in memory; ``coverage``: share of direction cells holding any.
     """
 
@@ -471,7 +472,8 @@ class Tracker:
         self.theta = theta
         if np.linalg.norm(theta[:3] - np.array(self.memory.centre)) > 0.1 * theta[3]:
             self.memory.rebin(theta[:3])
-        return self._publish(A, s2, q, len(m), direction_widening(J, e, w, A, s2))
+        widen = direction_widening(J, e, w, A, s2)
+        return self._publish(A, s2, q, len(m), gain_widening(theta, m, A, s2, widen) if self.kind == "sphere" else widen)
 
     def _withdraw(self, reason: str = "the samples in memory no longer determine the calibration "
                                       "(too few directions)") -> Withdrawal | None:

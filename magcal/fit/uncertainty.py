@@ -26,6 +26,23 @@ orientations of the classic calibration — linearised at the fit (no refits), m
 beyond what that same jackknife gives on independent noise (which is ≈ 1 on clean data: the
 faces' unequal leverage alone is not counted as doubt). The widening is reported as
 ``direction_factor`` (the largest over the offset; ≥ 1).
+
+A sphere that ``fit --model auto`` chose states its axis gains equal by assumption, not by
+measurement, and its offset and field are what they are only if that holds: on a band of
+directions an unmodelled gain moves the centre along the band's axis by many µT (the halves of a
+flight log, one mostly on the ground, chose a sphere and an ellipsoid and differed by 11 µT in
+z against a stated 0.4). So where the model was chosen, not asked for, the sphere's covariance
+adds what axis gains spread as real sensors' are would do to it (``gain_doubt``): the shape terms
+of the full ellipsoid taken as unknown with an isotropic prior of ``SPHERE_GAIN_SIGMA`` per
+log-gain (the same for any labelling of the axes), pushed through the offset and field they
+trade with, G P Gᵀ with G = A_bb⁻¹ A_bs at the sphere; and its soft-iron σ is that prior's,
+not 0. On a full sphere of directions G ≈ 0 and only the soft-iron σ changes.
+
+Each of those σ is itself estimated, from few independent pieces where it matters: the six faces
+of the jackknife (five degrees of freedom), the sandwich's 12–40 time blocks. A 95 % interval
+from a σ estimated with ν degrees of freedom is Student's t_ν wide, not the normal's 1.96 (2.57
+for the jackknife's five), so each σ is stated multiplied by t_ν(97.5 %)/1.96
+(``few_dof_factor``): ±1.96 σ is then the 95 % interval it claims to be.
 """
 
 from __future__ import annotations
@@ -33,7 +50,13 @@ from __future__ import annotations
 import numpy as np
 
 from . import geometric
-from .tails import chi2_isf
+from .tails import chi2_isf, t_isf
+
+# 1σ of a sensor's log axis gain about the mean of its three (trace-free); the open real
+# recordings' own ellipsoids (bench/interval_coverage.py's set, sealed ones left out): median
+# |log gain| 0.021 (0.04 as this σ, were they normal), RMS 0.088 with the QMC5883L's 2.2 : 1
+SPHERE_GAIN_SIGMA = 0.05
+Z95 = 1.959963984540054  # the two-sided 95 % point of the normal distribution
 
 
 def covariance(jac: np.ndarray, sigma_ut: float) -> np.ndarray:
@@ -131,7 +154,7 @@ def direction_groups(jac: np.ndarray) -> np.ndarray:
     return axis * 2 + (u[np.arange(len(u)), axis] > 0)
 
 
-def direction_ratio(jac: np.ndarray, residual_ut: np.ndarray, weights=None) -> np.ndarray | None:
+def direction_ratio(jac: np.ndarray, residual_ut: np.ndarray, weights=None, faces_out: list | None = None) -> np.ndarray | None:
     """Per parameter, the delete-a-group jackknife's variance over the six direction groups
     divided by what that jackknife gives on independent noise alone — 1 where it does not pass
     that by the χ²(K − 1) 95 % point; None where fewer than three groups can be left out.
@@ -143,12 +166,15 @@ def direction_ratio(jac: np.ndarray, residual_ut: np.ndarray, weights=None) -> n
     faces differ in leverage; dividing by it leaves ≈ 1 on clean data and the excess where the
     faces disagree. A group is left out only where it holds at least as many samples as
     parameters and at most a third of them (leaving out most of a cap recording measures the
-    cap's geometry, not the model), and the rest still pins the parameters."""
+    cap's geometry, not the model), and the rest still pins the parameters. ``faces_out``, when
+    given, receives the number of faces left out in turn (the jackknife's K)."""
     faces = _leave_a_face_out(jac, residual_ut, weights)
     if faces is None:
         return None
     moves, a_out, a, s2 = faces
     k = len(moves)
+    if faces_out is not None:
+        faces_out.append(k)
     inv = np.linalg.inv(a_out)
     null = s2 * (k - 1.0) ** 2 / k**2 * np.einsum("kij,kjl,klm->im", inv, a - a_out, inv)
     ratio = _jackknife_variance(moves) / np.clip(np.diag(null), 1e-300, None)
@@ -207,28 +233,109 @@ def information_condition_of(jtj: np.ndarray) -> float:
     return float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
 
 
-def _widened_by_directions(cov: np.ndarray, fit: geometric.GeometricFit, weights) -> tuple[np.ndarray, float]:
+def _widened_by_directions(cov: np.ndarray, fit: geometric.GeometricFit, weights) -> tuple[np.ndarray, float, np.ndarray]:
     """(cov with each parameter's σ multiplied by the square root of its direction ratio where
-    that is above 1, correlations kept; the largest widening of the offset's σ)."""
-    ratio = direction_ratio(fit.jac, fit.residual_ut, weights)
+    that is above 1, correlations kept; the largest widening of the offset's σ; per parameter,
+    the degrees of freedom of the jackknife where it set the σ, else inf)."""
+    faces: list = []
+    ratio = direction_ratio(fit.jac, fit.residual_ut, weights, faces)
     if ratio is None:
-        return cov, 1.0
+        return cov, 1.0, np.full(len(cov), np.inf)
     r = np.sqrt(np.maximum(ratio, 1.0))
-    return cov * np.outer(r, r), float(np.max(r[:3]))
+    dof = np.where(r > 1.0, faces[0] - 1.0, np.inf)
+    return cov * np.outer(r, r), float(np.max(r[:3])), dof
 
 
-def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weights=None) -> dict:
+def few_dof_factor(dof: np.ndarray) -> np.ndarray:
+    """Per parameter, t_ν(97.5 %) / 1.96: how much wider a 95 % interval is when its σ was
+    estimated from ν independent pieces (Student's t) than when σ is known; 1 for ν = inf."""
+    dof = np.asarray(dof, np.float64)
+    out = np.ones(len(dof))
+    finite = np.isfinite(dof) & (dof > 0)
+    if finite.any():
+        out[finite] = t_isf(0.025, dof[finite]) / Z95
+    return np.maximum(out, 1.0)
+
+
+def gain_prior(gain_sigma: float) -> np.ndarray:
+    """Covariance of the full ellipsoid's five shape terms (s_xx, s_yy, s_xy, s_xz, s_yz) under an
+    isotropic prior on the symmetric log-gain matrix — each diagonal entry of variance σ², each
+    off-diagonal σ²/2 — with its trace (the common gain, which is the field's) taken out."""
+    v = gain_sigma * gain_sigma
+    p = np.zeros((5, 5))
+    p[:2, :2] = v * np.array([[2.0, -1.0], [-1.0, 2.0]]) / 3.0
+    p[2:, 2:] = np.eye(3) * v / 2.0
+    return p
+
+
+def gain_doubt(theta: np.ndarray, m: np.ndarray, residual_ut: np.ndarray, gain_sigma: float,
+               noise_var: float) -> tuple[np.ndarray, np.ndarray]:
+    """(the 4×4 mean square error a sphere's offset and field (θ, fitted to the samples ``m`` with
+    residuals ``residual_ut``) carry from axis gains it takes as equal, G E[s sᵀ] Gᵀ with
+    G = A_bb⁻¹ A_bs; the soft-iron root mean square error (3×3) of its W = I). E[s sᵀ] is the
+    full ellipsoid's shape terms' posterior second moment: ``gain_prior`` updated by what the
+    samples say of them at ``noise_var`` per sample (nothing on a band of directions, much on a
+    full sphere) — the spread left plus the gains the samples lean to."""
+    full_theta = np.concatenate([np.asarray(theta, np.float64)[:4], np.zeros(geometric.N_SHAPE["full"])])
+    jac = geometric.jacobian(full_theta, m, "full")
+    a, grad = jac.T @ jac, jac.T @ np.asarray(residual_ut, np.float64)
+    g = np.linalg.lstsq(a[:4, :4], a[:4, 4:], rcond=None)[0]
+    schur = (a[4:, 4:] - a[4:, :4] @ g) / noise_var
+    post = np.linalg.inv(np.linalg.inv(gain_prior(gain_sigma)) + schur)
+    lean = -post @ (grad[4:] - g.T @ grad[:4]) / noise_var
+    second = post + np.outer(lean, lean)
+    cov = np.zeros((9, 9))
+    cov[4:, 4:] = second
+    return g @ second @ g.T, soft_iron_sigma(full_theta, "full", cov)
+
+
+def gain_widening(theta, m: np.ndarray, info: np.ndarray, noise_var: float, widen: np.ndarray) -> np.ndarray:
+    """The tracker's per-axis widening of its sphere's offset σ (``info``: its weighted normal
+    matrix; σ² = noise_var · info⁻¹) grown by what axis gains the sphere takes as equal would do
+    to the offset (``gain_doubt``: the sphere is in force because memory did not yet pin an
+    ellipsoid, so its gains are assumed, not measured)."""
+    try:
+        var = np.diag(np.linalg.inv(info))[:3] * noise_var
+    except np.linalg.LinAlgError:
+        return widen
+    e = geometric.residual(theta, m, "sphere")
+    extra = np.diag(gain_doubt(theta, m, e, SPHERE_GAIN_SIGMA, noise_var)[0])[:3]
+    return np.sqrt(widen**2 + np.clip(extra, 0.0, None) / np.clip(var, 1e-300, None))
+
+
+def _sphere_samples(fit: geometric.GeometricFit) -> np.ndarray:
+    """The samples a sphere fit was made on, from the fit itself: m = b − ∂e/∂b · (r + e)."""
+    return fit.theta[:3] - fit.jac[:, :3] * (fit.theta[3] + fit.residual_ut)[:, None]
+
+
+def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weights=None,
+              gain_sigma: float = 0.0) -> dict:
     """{'offset_ut': [3], 'field_ut': σ, 'soft_iron': [[3×3]]} (1σ) and the CRLB of the offset
     (the bound of any unbiased estimator for this data's geometry — the weighted fit's own
-    covariance sits at or above it)."""
+    covariance sits at or above it). ``gain_sigma`` > 0 on a sphere: its axis gains are in doubt
+    (a model chosen, not asked for; ``gain_doubt``), reported as ``gain_doubt_factor`` (the
+    largest widening of the offset's σ)."""
     s_hat = residual_sigma(fit.residual_ut, geometric.n_params(fit.kind))
     cov_iid, cov_blk, factor = _covariances(fit, s_hat, weights)
-    cov, by_directions = _widened_by_directions(cov_blk if factor > 1.0 else cov_iid, fit, weights)
+    cov, by_directions, dof = _widened_by_directions(cov_blk if factor > 1.0 else cov_iid, fit, weights)
+    if factor > 1.0:
+        dof = np.minimum(dof, block_count(len(fit.residual_ut)) - 1.0)
+    t = few_dof_factor(dof)
+    cov = cov * np.outer(t, t)
     crlb = covariance(fit.jac, s_hat if noise_ut is None else float(noise_ut))
+    soft = soft_iron_sigma(fit.theta, fit.kind, cov)
+    doubt = 1.0
+    if fit.kind == "sphere" and gain_sigma > 0:
+        extra, soft = gain_doubt(fit.theta, _sphere_samples(fit), fit.residual_ut, gain_sigma,
+                                 (s_hat * max(factor, 1.0)) ** 2)
+        before = np.sqrt(np.clip(np.diag(cov)[:3], 1e-300, None))
+        cov = cov + extra
+        doubt = float(np.max(np.sqrt(np.diag(cov)[:3]) / before))
     return {
         "offset_ut": np.sqrt(np.clip(np.diag(cov)[:3], 0.0, None)),
         "field_ut": float(np.sqrt(max(cov[3, 3], 0.0))),
-        "soft_iron": soft_iron_sigma(fit.theta, fit.kind, cov),
+        "soft_iron": soft,
+        "gain_doubt_factor": doubt,
         "crlb_offset_ut": np.sqrt(np.clip(np.diag(crlb)[:3], 0.0, None)),
         "sigma_ut": s_hat,
         "autocorrelation_factor": max(factor, 1.0),
