@@ -96,14 +96,6 @@ def _refit(m: np.ndarray, rows: np.ndarray, g: geometric.GeometricFit, balanced:
     return f if isinstance(f, FitFailure) else f.theta
 
 
-def refit(m: np.ndarray, rows: np.ndarray, g: geometric.GeometricFit, balanced: bool = False):
-    """θ of ``g``'s model refitted on ``m[rows]`` (``g``: its fit on every sample of ``m``,
-    residual and Jacobian included), as ``judge`` refits a block's complement (Gauss–Newton from
-    ``g``, Levenberg–Marquardt where that does not settle; ``balanced``: with equal weight per
-    direction cell), or a FitFailure."""
-    return _refit(m, rows, g, balanced, (g.residual_ut, g.jac))
-
-
 def _gauss_newton(m: np.ndarray, g: geometric.GeometricFit, w, e: np.ndarray, jac: np.ndarray):
     """Gauss–Newton from ``g.theta`` (``e``, ``jac``: residual and Jacobian there) to a step
     under ``STEP_SE`` standard errors; None where a step raises the cost, the radius turns

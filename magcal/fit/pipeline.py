@@ -241,7 +241,6 @@ def _result(m, idx, model: str, start, limits: _Limits, balance: str, noise_ut, 
         used=idx[keep],
         residual_ut=g.residual_ut,
         alternatives={MODEL_NAMES[k]: f.rms_ut for k, (f, _) in candidates.items()},
-        balanced=weights is not None,
     )
 
 

@@ -39,7 +39,6 @@ class FitResult:
     used: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64), repr=False)
     residual_ut: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     alternatives: dict = field(default_factory=dict)
-    balanced: bool = False  # fitted with equal weight per direction cell (the module docstring's step 7)
 
     def __bool__(self) -> bool:
         return True

@@ -1,14 +1,11 @@
 """Keep a located effect only where modelling it improves time-blocked held-out prediction.
 
 Each named effect comes with its ``remove`` (``Effect.remove``): the samples with the effect
-taken out. The calibration (``magcal fit``'s own procedure, with the model it chose) is fitted
-once to every sample, with and without the effect removed; for every contiguous time block its
-model is refitted by least squares to the samples fit kept outside the block, with fit's
-direction balance where fit gave it (Gauss–Newton from the whole fit, ``magcal.fit.holdout.refit``:
-one fit's outliers and model choice for all blocks, not five runs of the whole procedure) and judged on the block it left out; an effect is kept
-when its held-out RMS radial residual is lower by more than the scatter of that gain over the
-blocks allows to be chance. Effects are judged one after another, largest first, each on the
-samples with the ones already kept taken out.
+taken out. The calibration is refitted (``magcal fit``'s own procedure, with the model it chose)
+on every contiguous time block's complement, with and without the effect removed, and judged on
+the block it left out; an effect is kept when its held-out RMS radial residual is lower by more
+than the scatter of that gain over the blocks allows to be chance. Effects are judged one after
+another, largest first, each on the samples with the ones already kept taken out.
 """
 
 from __future__ import annotations
@@ -17,13 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...fit import FitFailure, fit_calibration, geometric, holdout
-from ...fit.result import MODEL_NAMES
+from ...fit import fit_calibration
 from ..inference import contiguous_blocks
 from .base import Effect, Kind, Located
 
 FOLDS = 5
-KINDS = {name: kind for kind, name in MODEL_NAMES.items()}  # fit's model name → geometric kind
 MIN_GAIN_SIGMAS = 2.0  # the held-out gain must exceed this many standard errors of its block scatter
 
 
@@ -51,52 +46,31 @@ class Verdict:
         }
 
 
-def fitted(m_ut: np.ndarray, model: str, known=()):
+def fitted(m_ut: np.ndarray, model: str, known: tuple = ()):
     """``fit_calibration(m_ut, model=model)``; ``known``: fit's runs already made, as (model,
     samples, result), one of which is taken where it was made with this model on these very
-    samples (the diagnosis runs fit on the same samples as the locate step at times: the samples
-    as they are when nothing was set aside, the samples with its channel terms out); a list
-    ``known`` gets the run made here."""
+    samples (the diagnosis runs fit on the same samples as the locate step at times: a block's
+    complement when nothing was set aside, the samples with its channel terms out)."""
     for k_model, samples, result in known:
         if k_model == model and samples.shape == m_ut.shape and np.array_equal(samples, m_ut):
             return result
-    result = fit_calibration(m_ut, model=model)
-    if isinstance(known, list):
-        known.append((model, m_ut, result))
-    return result
+    return fit_calibration(m_ut, model=model)
 
 
-def heldout_sq(m_ut: np.ndarray, model: str, folds: int = FOLDS, known=()) -> np.ndarray | None:
+def heldout_sq(m_ut: np.ndarray, model: str, folds: int = FOLDS, known: tuple = ()) -> np.ndarray | None:
     """Per block, the mean square radial residual of the calibration refitted without that
-    block (see the module docstring); None where the samples or a block's complement cannot be
-    fitted. ``known`` as ``fitted`` takes it."""
-    whole = fitted(m_ut, model, known)
-    if not whole:
-        return None
-    g = _geometric(whole, m_ut)
-    used = np.zeros(len(m_ut), bool)
-    used[whole.used] = True
+    block; None where a block's complement cannot be fitted. ``known`` as ``fitted`` takes it."""
     out = []
     for held in contiguous_blocks(len(m_ut), folds):
-        rows = used.copy()
-        rows[held] = False
-        theta = holdout.refit(m_ut, rows, g, whole.balanced)
-        if isinstance(theta, FitFailure):
+        train = np.ones(len(m_ut), bool)
+        train[held] = False
+        result = fitted(m_ut[train], model, known)
+        if not result:
             return None
-        b, field_ut, w = geometric.unpack(theta, g.kind)
-        r = np.linalg.norm((m_ut[held] - b) @ w.T, axis=1) - field_ut  # the calibrated radial residual
+        cal = result.calibration
+        r = np.linalg.norm(cal.correct(m_ut[held]), axis=1) - cal.field_ut
         out.append(float(np.mean(r**2)))
     return np.asarray(out)
-
-
-def _geometric(result, m_ut: np.ndarray) -> geometric.GeometricFit:
-    """fit's result as its model's geometric fit on every sample of ``m_ut`` (residual and
-    Jacobian there: where each block's refit starts)."""
-    kind = KINDS[result.model]
-    cal = result.calibration
-    theta = geometric.pack(cal.offset_ut, cal.field_ut, kind, cal.soft_iron)
-    return geometric.GeometricFit(kind, theta, *geometric.residual_jacobian(theta, m_ut, kind), 0)
-
 
 
 def compare(before: np.ndarray, after: np.ndarray) -> tuple[bool, str]:
@@ -109,10 +83,10 @@ def compare(before: np.ndarray, after: np.ndarray) -> tuple[bool, str]:
 
 
 def judge(m_ut, t_s, channels, found, table: dict[str, Effect], model: str,
-          known=()) -> tuple[np.ndarray, tuple[Verdict, ...]]:
+          known: tuple = ()) -> tuple[np.ndarray, tuple[Verdict, ...]]:
     """(the samples with every kept effect removed, a verdict per located effect of kind
     PHYSICS); effects without a ``remove`` are judged not modelled. ``known`` as ``fitted``
-    takes it (a list gets the fits made here: the one of the samples returned among them)."""
+    takes it."""
     base = heldout_sq(m_ut, model, known=known)
     verdicts = []
     for loc in sorted((f for f in found if f.kind is Kind.PHYSICS), key=_size, reverse=True):
@@ -121,7 +95,7 @@ def judge(m_ut, t_s, channels, found, table: dict[str, Effect], model: str,
             verdicts.append(Verdict(loc, False, np.nan, np.nan, "no model of this effect to refit"))
             continue
         cleaned = effect.remove(m_ut, t_s, channels, loc)
-        after = heldout_sq(cleaned, model, known=known)
+        after = heldout_sq(cleaned, model)
         if after is None:
             verdicts.append(Verdict(loc, False, _rms(base), np.nan, "the calibration could not be refitted with it"))
             continue

@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ...fit import fit_calibration
 from ..model import ModelFit, from_calibration
 from . import judge
 from .base import Effect, Kind, Located, Residual
@@ -90,19 +91,17 @@ def locate_and_model(m_ut, t_s, chans: dict, final: ModelFit, fit_model_name: st
         return LocateStep(found, (), None, floor)
     model = PLAIN.get(fit_model_name, "auto")
     table = {e.name: e for e in effects}
-    runs = list(known)  # fit's runs so far, and the judge's (the cleaned samples' whole fit among them)
-    cleaned, verdicts = judge.judge(m_ut - shift, t_s, chans, found, table, model, runs)
+    cleaned, verdicts = judge.judge(m_ut - shift, t_s, chans, found, table, model, known)
     if not any(v.kept for v in verdicts):
         return LocateStep(found, verdicts, None, floor)
-    refit = _refit(cleaned, final, model, runs)
+    refit = _refit(cleaned, final, model)
     removals = tuple((table[v.located.effect].remove, v.located) for v in verdicts if v.kept)
     return LocateStep(found, verdicts, refit, floor, None if refit is None else cleaned + shift, removals)
 
 
-def _refit(cleaned: np.ndarray, final: ModelFit, model: str, known=()) -> ModelFit | None:
-    """The geometry refitted on the cleaned samples, with ``final``'s channel terms kept
-    (``known`` as ``judge.fitted`` takes it)."""
-    result = judge.fitted(cleaned, model, known)
+def _refit(cleaned: np.ndarray, final: ModelFit, model: str) -> ModelFit | None:
+    """The geometry refitted on the cleaned samples, with ``final``'s channel terms kept."""
+    result = fit_calibration(cleaned, model=model)
     if not result:
         return None
     covs = {c: _channel_cov(final, j) for j, c in enumerate(final.spec.channels)}
