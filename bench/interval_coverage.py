@@ -3,7 +3,7 @@
     MAGCAL_REAL_DATA=… python bench/interval_coverage.py [--sealed] [--only NAME] [--no-tracker]
 
 Every real recording ``bench/model_choice.py`` loads but the excerpts in tests/data (copies of
-recordings already in the set), with its own times (the sealed ones of docs/sealed.md only with
+recordings already in the set; the public recordings kept there whole are in), with its own times (the sealed ones of docs/sealed.md only with
 ``--sealed``, printed apart), is cut in two at its middle sample. Each half is calibrated on
 its own, and for each parameter θ with a stated 1σ the pair is *covered* when
 
@@ -56,6 +56,7 @@ def recordings() -> dict:
         except (OSError, ValueError):
             pass
     recs.update(mc._flight_logs())  # tests/data's excerpts are left out: each is a copy of one of these
+    recs.update(mc._public())  # …but for the public recordings kept there whole
     out = {}
     for k, (t, m) in recs.items():
         t, m = np.asarray(t, float), np.asarray(m, float)

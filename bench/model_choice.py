@@ -3,9 +3,10 @@
     MAGCAL_REAL_DATA=… python bench/model_choice.py [--splits 0.3,0.5,0.7] [--sealed] [--only NAME]
 
 Every real recording this bench can load (the sixteen of ``real_recordings.RAW_LOADERS``, the
-LSM9DS1 PES-board takes, each compass of the ArduPilot and PX4 logs, and the real excerpts in
-tests/data) is split in time: ``fit`` sees the part before the split, the part after is judged
-by the held-out spread std/mean of |calibrated field| (%). Three fits of the same part:
+LSM9DS1 PES-board takes, each compass of the ArduPilot and PX4 logs, the real excerpts in
+tests/data and the public recordings kept there whole, ``_public``) is split in time: ``fit``
+sees the part before the split, the part after is judged by the held-out spread std/mean of
+|calibrated field| (%). Three fits of the same part:
 
 * auto      — ``fit_calibration(train, model="auto")``, what ``magcal fit`` does;
 * sphere    — a plain sphere: ``model="sphere"`` with no coverage gate;
@@ -35,7 +36,8 @@ import real_recordings as rr  # noqa: E402
 from magcal.fit import fit_calibration  # noqa: E402
 
 SPLITS = (0.3, 0.5, 0.7)
-SEALED = ("betaflight_apex5_tpu_03", "umich_preflight_icm20948", "ardupilot_log171 compass 1")
+SEALED = ("betaflight_apex5_tpu_03", "umich_preflight_icm20948", "ardupilot_log171 compass 1",
+          "broad_myon_magnet_attached", "fusion_xio_sensor_data")
 TESTS_DATA = os.path.join(HERE, "..", "tests", "data")
 UNGATED = float("inf")
 
@@ -77,6 +79,20 @@ def _tests_data() -> dict:
     return out
 
 
+def _public() -> dict:
+    """name → (t_s, µT) of the public recordings kept whole in tests/data that are no copy of a
+    recording in MAGCAL_REAL_DATA (tests/data/PROVENANCE.md; both sealed)."""
+    out = {}
+    for name, file in (("broad_myon_magnet_attached", "broad_myon_magnet_attached_every5th.csv"),
+                       ("fusion_xio_sensor_data", "fusion_xio_sensor_data_mag.csv")):
+        try:
+            a = np.loadtxt(os.path.join(TESTS_DATA, file), delimiter=",", skiprows=1, ndmin=2)
+        except (OSError, ValueError):
+            continue
+        out[name] = (a[:, 0], a[:, 1:4])
+    return out
+
+
 def recordings() -> dict[str, np.ndarray]:
     """name → (n, 3) field in time order, finite rows only."""
     recs = {k: m for k, (t, m) in rr.available(rr.RAW_LOADERS).items()}
@@ -87,6 +103,7 @@ def recordings() -> dict[str, np.ndarray]:
             pass
     recs.update({k: m for k, (t, m) in _flight_logs().items()})
     recs.update({k: m for k, (t, m) in _tests_data().items()})
+    recs.update({k: m for k, (t, m) in _public().items()})
     return {k: np.asarray(m, float)[np.all(np.isfinite(m), axis=1)] for k, m in recs.items()}
 
 
