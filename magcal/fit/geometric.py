@@ -181,18 +181,18 @@ def jacobian(theta, m: np.ndarray, kind: str, forward=None) -> np.ndarray:
         return jt.T
     W, dWs = expm_derivatives(kind, theta[4:], eig)
     inv_nh = 1.0 / np.where(nh > 0, nh, 1.0)
-    vt = W @ ut
-    vs = vt / scale
+    inv_s = 1.0 / scale
+    vs = (W @ ut) * inv_s
     a = W @ vs
-    pt = a - ut * (ut * a).sum(axis=0)
-    g_over_s2 = (nh - float(theta[3])) / (scale * scale)
-    jt[:3] = -vt / scale + g_over_s2 * (W @ pt) * inv_nh
-    jt[3] = -1.0 / scale
+    qt = (a - ut * (ut[0] * a[0] + ut[1] * a[1] + ut[2] * a[2])) * inv_nh  # p/|h|
+    c = (nh - float(theta[3])) * (inv_s * inv_s)  # g/s²
+    jt[:3] = (W @ qt) * c - vs
+    jt[3] = -inv_s
     # Σ_ij (∂W/∂s_k)_ij X_ij with X = u dᵀ/s − g/s² (v uᵀ/s + p dᵀ/|h|) = α dᵀ + β uᵀ,
     # α = u/s − g/s² · p/|h| and β = −g/s² · v/s: the nine products α_i d_j + β_i u_j as rows
     # (same-shape products: a broadcast over a (3, 3, n) array costs ten times as much)
-    alpha = ut / scale - g_over_s2 * pt * inv_nh
-    beta = -g_over_s2 * vs
+    alpha = ut * inv_s - qt * c
+    beta = vs * -c
     x = np.empty((9, d.shape[1]))
     for i in range(3):
         for j in range(3):
