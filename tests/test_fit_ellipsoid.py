@@ -74,7 +74,7 @@ def test_hyperboloid_start_on_poor_coverage_is_detected_and_the_fit_stays_positi
     result = fit_calibration(run.series, model="ellipsoid")
     assert result
     assert np.all(np.linalg.eigvalsh(result.calibration.soft_iron) > 0)
-    assert result.model == "sphere" and "condition" in result.reason
+    assert result.model == "sphere" and "coverage" in result.reason  # the coverage cannot determine the gains
     assert np.allclose(result.calibration.offset_ut, (30, -20, 10), atol=2.0)
 
 
@@ -113,7 +113,7 @@ def test_model_choice_follows_what_the_coverage_supports():
     assert r.model == "ellipsoid"
     tilt = Scenario(physics=phys, motion=Motion("tilt", max_tilt_deg=30), seed=4).simulate(1500)
     r = fit_calibration(tilt.series, model="ellipsoid")
-    assert r.model == "sphere" and "not fitted" in r.reason
+    assert r.model == "sphere" and "the coverage determines its gains only to" in r.reason
     yaw = Scenario(physics=phys, motion=Motion("yaw"), seed=4).simulate(1500)
     r = fit_calibration(yaw.series, model="auto")
     assert not r and r.reason == "ill_conditioned"
