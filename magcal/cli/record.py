@@ -18,7 +18,7 @@ from ..core.errors import ConfigError
 from ..core.events import Event
 from ..core.sample import Sample
 from ..devices.base import batches
-from ..recordings.capture import CaptureWriteError, open_capture_tap
+from ..recordings.capture import CaptureWriteError, keep_first_samples, open_capture_tap
 from .common import Progress, device_settings, document, open_from_settings, print_json
 from .exits import Exit
 from .options import add
@@ -47,6 +47,8 @@ def _read_loop(dev, args, progress, counts) -> str:
         for items in batches(dev, 0.1):
             for it in items:
                 if isinstance(it, Sample):
+                    if counts["samples"] == args.count:
+                        return "done"  # a read that brought more than asked for: N means N
                     counts["samples"] += 1
                 elif isinstance(it, Event) and it.kind in ("gap", "reset"):
                     counts[it.kind + "s"] += 1
@@ -104,6 +106,8 @@ def run(args) -> int:
         dev.close()
         writer.close()
         progress.clear()
+    if args.count is not None and writer.error is None:
+        keep_first_samples(writer.path, args.count)
     samples, gaps, resets = counts["samples"], counts["gaps"], counts["resets"]
     summary = document("record", {
         "file": writer.path,
