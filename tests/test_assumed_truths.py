@@ -16,3 +16,12 @@ def test_record_count_n_records_exactly_n_samples_in_summary_and_capture(tmp_pat
     assert main(["record", "--port", "sim://?pace=0&seed=3", "-o", str(cap), "--count", "3000", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["n_samples"] == 3000
     assert len(load_series(str(cap))) == 3000
+
+
+def test_replay_reports_the_rate_the_capture_was_taken_at(tmp_path, capsys):
+    # the board boots saying 100 Hz; the capture was taken after R 50 (its reply is in the bytes)
+    cap = tmp_path / "fifty.cap"
+    assert main(["record", "--port", "sim://?pace=0&seed=4", "--rate", "50", "-o", str(cap), "--count", "60"]) == 0
+    capsys.readouterr()
+    main(["calibrate", "--port", f"replay://{cap}", "--no-write", "--json"])
+    assert json.loads(capsys.readouterr().out)["rate_hz"] == 50

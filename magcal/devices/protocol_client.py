@@ -78,6 +78,7 @@ class Inbox:
         self.replies: deque = deque()
         self.hello: Hello | None = None
         self.expect_restart = False  # a reset was asked for: its hello is no fault
+        self.rate_set_hz: int | None = None  # the rate the last R reply on the link confirmed
         self._counters = counters
         self._fallback_asa = fallback_asa
         self._ms_last: int | None = None
@@ -133,6 +134,8 @@ class Inbox:
         elif isinstance(item, Log):
             self._counters["log_lines"] += 1
         else:  # Ack, ErrorReply, RecordReply, FitReply
+            if isinstance(item, Ack) and item.cmd == "R" and item.result and item.result[0].isdigit():
+                self.rate_set_hz = int(item.result[0])
             self.replies.append(item)
 
     def _new_epoch(self) -> None:
@@ -333,12 +336,23 @@ class ProtocolDevice(Device):
 
     def _start(self, rate_hz: int | None) -> None:
         if self.passive:
+            self._rate_from_stream()
             return
         if rate_hz:
             self.command("R", int(rate_hz))
             if self.identity is not None:  # what the device now runs at, for reports
                 self.identity = replace(self.identity, rate_hz=int(rate_hz))
         self.command("G")
+
+    def _rate_from_stream(self) -> None:
+        """A recording runs at the rate its device was set to (the R reply it carries, read up
+        to its first sample), not at the hello's boot rate nor at one asked for now."""
+        for _ in range(40):
+            if self.inbox.pending or self._eof:
+                break
+            self._pump(0.05)
+        if self.inbox.rate_set_hz and self.identity is not None:
+            self.identity = replace(self.identity, rate_hz=self.inbox.rate_set_hz)
 
     def _stop(self) -> None:
         if not self.passive:
