@@ -25,3 +25,45 @@ def test_replay_reports_the_rate_the_capture_was_taken_at(tmp_path, capsys):
     capsys.readouterr()
     main(["calibrate", "--port", f"replay://{cap}", "--no-write", "--json"])
     assert json.loads(capsys.readouterr().out)["rate_hz"] == 50
+
+
+def test_sim_keeps_its_eeprom_across_commands_like_a_board(capsys):
+    # calibrate wrote and verified; the next command on the same sim:// board finds the record
+    url = "sim://?pace=0&seed=11"
+    assert main(["calibrate", "--port", url, "--json"]) == 0
+    written = json.loads(capsys.readouterr().out)
+    assert written["verified"]
+    assert main(["show", "--port", url, "--json"]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["record"]["state"] == "ok", shown
+    for a, b in zip(shown["calibration"]["offset_ut"], written["calibration"]["offset_ut"]):
+        assert abs(a - b) < 0.01  # as stored (the device's fixed point)
+
+
+def _sphere_csv(path, radius, n=400, seed=2):
+    import numpy as np
+
+    u = np.random.default_rng(seed).normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    xyz = radius * u + np.array([3.0, -2.0, 1.0]) * radius / 50
+    path.write_text("mx,my,mz\n" + "".join(f"{a:.4f},{b:.4f},{c:.4f}\n" for a, b, c in xyz))
+    return str(path)
+
+
+def test_fit_reports_coverage_in_text_and_json(tmp_path, capsys):
+    f = _sphere_csv(tmp_path / "s.csv", 48.0)
+    assert main(["fit", f, "--json"]) == 0
+    cov = json.loads(capsys.readouterr().out)["fits"][0]["coverage"]
+    assert 0.5 < cov <= 1.0
+    assert main(["fit", f]) == 0
+    assert f"coverage    {100 * cov:.0f} % of directions" in capsys.readouterr().out
+
+
+def test_a_field_in_raw_counts_names_the_unit_that_makes_it_an_earth_field(tmp_path, capsys):
+    import re
+
+    f = _sphere_csv(tmp_path / "counts.csv", 1730.0)
+    assert main(["fit", f, "--json"]) == 0
+    warning = " ".join(json.loads(capsys.readouterr().out)["fits"][0]["warnings"])
+    scales = [float(v) for v in re.findall(r"--unit (\d[\d.e-]*)", warning)]
+    assert scales and all(15 <= 1730 * s <= 100 for s in scales), warning

@@ -65,6 +65,8 @@ def format_text(d: dict) -> str:
         f"samples     {d.get('n_samples', d['n_used'] + n_out)} read, {d['n_used']} fitted"
         + (f" ({n_out} set aside as outliers by Grubbs' test)" if n_out else " (no outliers)"),
         *_thinned_line(d.get("reading") or {}),
+        *([f"coverage    {100 * d['coverage']:.0f} % of directions (the share of the sphere's 128 equal cells "
+           "the field was seen in)"] if d.get("coverage") is not None else []),
         f"why         {d['reason']}",
     ]
     return "\n".join(lines)

@@ -7,7 +7,8 @@ the one physics simulator (``magcal.sim.physics``); its EEPROM persists to a fil
 Options (the port string's, ``magcal.devices.port``): ``seed``, ``rate`` (initial rate, default
 100), ``pace`` (1 = real time, the default, as a board would; N = N× real time; 0 = as fast as
 the host reads, for quick trials, tests and benchmarks: ``sim://?pace=0``),
-``eeprom``, ``motion``, ``offset``, ``noise``, ``field`` and ``fault`` — every fault of
+``eeprom`` (a file kept across runs; by default one per seed in the user's state directory,
+as for ``emu://``; ``eeprom=none`` for a throwaway one), ``motion``, ``offset``, ``noise``, ``field`` and ``fault`` — every fault of
 ``magcal.devices.faults`` but the register-model ones, fired when the board's physics time
 reaches it. Board flags can also be set directly in ``SimBoard.faults`` (``mute``,
 ``no_write_ack``, ``corrupt_write``).
@@ -52,6 +53,23 @@ from .port import Port, chip_of, scenario_of
 FIRMWARE = "0.1.0"
 EEPROM_SIZE = 1024
 EEPROM_MAGIC = 0x4D
+
+
+def eeprom_of(port: Port, chip=None) -> str | None:
+    """The EEPROM file a ``sim://`` port keeps, as ``emu://`` does: ``eeprom=PATH``; by default
+    one per seed and chip in the user's state directory, so what ``calibrate`` wrote is there
+    for ``show`` in the next command; None (a throwaway store) for ``eeprom=none``."""
+    from ..recordings.state import user_state_dir
+
+    given = port.get("eeprom")
+    if given == "none":
+        return None
+    if given:
+        return given
+    folder = user_state_dir() / "sim"
+    folder.mkdir(parents=True, exist_ok=True)
+    board = "" if chip is None or chip.name == "mpu9150" else f"-{chip.name}-{chip.bits}bit"
+    return str(folder / f"eeprom-seed{port.get('seed', 1)}{board}.bin")
 
 
 class SimEeprom:
@@ -275,7 +293,7 @@ class SimBoard(SerialEnd):
         scenario = scenario or scenario_of(port)
         chip = chip_of(port)
         return cls(scenario if chip is None else scenario.on_chip(chip), rate_hz=port.get("rate", 100),
-                   pace=port.get("pace", REAL_TIME), eeprom_path=port.get("eeprom"), faults=port.faults)
+                   pace=port.get("pace", REAL_TIME), eeprom_path=eeprom_of(port, chip), faults=port.faults)
 
     # -- board state -------------------------------------------------------------------------
     def _boot(self) -> None:
