@@ -67,3 +67,27 @@ def test_a_field_in_raw_counts_names_the_unit_that_makes_it_an_earth_field(tmp_p
     warning = " ".join(json.loads(capsys.readouterr().out)["fits"][0]["warnings"])
     scales = [float(v) for v in re.findall(r"--unit (\d[\d.e-]*)", warning)]
     assert scales and all(15 <= 1730 * s <= 100 for s in scales), warning
+
+
+def test_export_keeps_what_reading_assumed_so_a_reread_says_so_again(tmp_path):
+    # no time column and no unit: the export must not turn the sample index into seconds, nor
+    # the guessed µT into a stated one
+    src = tmp_path / "bare.csv"
+    src.write_text("mag_x,mag_y,mag_z\n" + "".join(f"{10 + i},{-20 - i},{30 + 2 * i}\n" for i in range(20)))
+    first = load_series(str(src))
+    assert not first.clock and "assumed" in first.source
+    out = tmp_path / "bare-out.csv"
+    assert main(["export", str(src), "-o", str(out), "-q"]) == 0
+    again = load_series(str(out))
+    assert not again.clock and "no time column: sample index" in again.source
+    assert "assumed" in again.source
+    assert (again.field_ut == first.field_ut).all()
+
+
+def test_export_of_a_table_with_time_and_unit_still_states_them(tmp_path):
+    src = tmp_path / "timed.csv"
+    src.write_text("t_ms,mx_ut,my_ut,mz_ut\n" + "".join(f"{100 * i},{i},{-i},{2 * i}\n" for i in range(10)))
+    out = tmp_path / "timed-out.csv"
+    assert main(["export", str(src), "-o", str(out), "-q"]) == 0
+    again = load_series(str(out))
+    assert again.clock and again.t_s[1] == 0.1 and "assumed" not in again.source

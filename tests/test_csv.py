@@ -94,7 +94,8 @@ def test_save_then_load_is_bit_exact(tmp_path_factory, a, flags):
 
 
 def test_export_command_writes_the_documented_columns(tmp_path, capsys):
-    src = write(tmp_path, "mx,my,mz,temp_c\n1,2,3,20\n4,5,6,21\n", "rec.csv")
+    # a timed source (an untimed one is exported without t: tests/test_assumed_truths.py)
+    src = write(tmp_path, "t,mx,my,mz,temp_c\n0,1,2,3,20\n1,4,5,6,21\n", "rec.csv")
     out = tmp_path / "out.csv"
     assert main(["export", str(src), "--csv", "-o", str(out)]) == 0
     header, *rows = out.read_text().splitlines()

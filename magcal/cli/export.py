@@ -1,6 +1,7 @@
 """``magcal export FILE [-o OUT] [--json]``: a recording (capture, CSV, MotionCal log, a flight
 log's magnetometer with ``--mag N``) as CSV ``t,mx,my,mz,temp_c`` (s, µT, °C) plus its other
-channels, and ``valid`` when some samples are flagged. Floats are written in shortest round-trip
+channels, and ``valid`` when some samples are flagged; what reading assumed stays assumed (no
+``t`` for a table timed by its sample index, ``mag_x,mag_y,mag_z`` for a unit that was guessed). Floats are written in shortest round-trip
 form: reading the CSV back gives the same numbers bit for bit. OUT defaults to FILE with a
 ``.csv`` suffix. CSV is the default format (``--csv`` may be given). ``--json`` prints
 ``magcal.export/1``.
@@ -62,14 +63,13 @@ def _export_csv(args) -> int:
             raise InputError(f"{args.file}: no samples to export; nothing written")
         reading = reading_report(series, args.file)
         ticker.doing(f"writing {len(series):,} samples to {out}".replace(",", " "))
-        save_csv(series, out)
+        columns = save_csv(series, out)
     summary = document("export", {
         "file": args.file,
         "output": out,
         "n_samples": len(series),
         "n_invalid": int((~series.valid).sum()),
-        "columns": ["t", "mx", "my", "mz"] + (["temp_c"] if "temp_c" in series.channels else [])
-        + sorted(k for k in series.channels if k != "temp_c") + ([] if series.valid.all() else ["valid"]),
+        "columns": columns,
         "reading": reading,
     })
     if args.json:

@@ -30,6 +30,7 @@ class Series:
     source: str | None = None  # how a table was read (columns, units), for the user to check
     reading: Mapping[str, int] = field(default_factory=dict)  # what reading met: counts by name
     clock: bool = True  # False: the source gave no time, and t_s is the sample index
+    unit_assumed: bool = False  # True: the source named no unit for the field, µT was assumed
 
     def __post_init__(self):
         f = np.asarray(self.field_ut, dtype=np.float64).reshape(-1, 3)
@@ -69,6 +70,7 @@ class Series:
             source=self.source,
             reading=self.reading,
             clock=self.clock,
+            unit_assumed=self.unit_assumed,
         )
 
     def thinned(self, max_n: int) -> tuple["Series", int]:

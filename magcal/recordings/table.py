@@ -362,7 +362,7 @@ def read_table(lines, name: str = "<table>", fmt: TableFormat | None = None) -> 
     source = _describe([lay.cols[k] for k in lay.mag], lay.scale, lay.assumed_unit,
                        None if lay.t_col is None else (lay.cols[lay.t_col], lay.t_scale), list(channels))
     return Series(t_s=t, field_ut=field, channels=channels, valid=valid, row=rows, source=source,
-                  clock=lay.t_col is not None)
+                  clock=lay.t_col is not None, unit_assumed=lay.assumed_unit)
 
 
 def _layout(head: list[str], fmt: TableFormat, name: str, skipped: int) -> _Layout:
@@ -582,12 +582,16 @@ def _fmt(v: float) -> str:
     return "" if v != v else repr(float(v))
 
 
-def save_csv(series: Series, path) -> None:
+def save_csv(series: Series, path) -> list[str]:
     """Write ``t,mx,my,mz,temp_c`` (µT, °C), then the other channels, then ``valid`` when any
     sample is flagged invalid. Floats in shortest round-trip form (``load_csv`` reads back the
-    same bits). Missing temperature → the column is left out."""
-    names = ["t", "mx", "my", "mz"]
-    cols = [series.t_s, series.field_ut[:, 0], series.field_ut[:, 1], series.field_ut[:, 2]]
+    same bits). Missing temperature → the column is left out. What reading the source assumed
+    stays assumed: no ``t`` when its time was the sample index (``Series.clock``), and the field
+    as ``mag_x,mag_y,mag_z`` (no unit named, so µT is assumed again) when its unit was a guess."""
+    field = ["mag_x", "mag_y", "mag_z"] if series.unit_assumed else ["mx", "my", "mz"]
+    names = (["t"] if series.clock else []) + field
+    cols = ([series.t_s] if series.clock else []) + [series.field_ut[:, 0], series.field_ut[:, 1],
+                                                     series.field_ut[:, 2]]
     ch = dict(series.channels)
     if "temp_c" in ch:
         names.append("temp_c")
@@ -609,3 +613,4 @@ def save_csv(series: Series, path) -> None:
         write_atomic(path, buf.getvalue().encode("utf-8"))
     except OSError as exc:
         raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
+    return names + (["valid"] if with_valid else [])
