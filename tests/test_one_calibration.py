@@ -99,6 +99,7 @@ def flight(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("one_calibration_flight")  # one `flight` setup for both tests under make test -n
 def test_a_flight_log_shows_the_flight_log_fits_calibration_everywhere(flight):
     doc, text, page, fit, fit_text, _ = flight
     assert calibration_keys(doc) == [""]
@@ -127,6 +128,7 @@ def test_a_flight_log_shows_the_flight_log_fits_calibration_everywhere(flight):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("one_calibration_flight")
 def test_a_term_whose_coefficient_moved_says_so_and_export_and_write_take_the_one(flight):
     doc, text, _, fit, fit_text, out = flight
     from magcal.cli.write import calibration_from_json, evidence_from_json
