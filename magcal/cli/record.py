@@ -18,7 +18,8 @@ from ..core.errors import ConfigError
 from ..core.events import Event
 from ..core.sample import Sample
 from ..devices.base import batches
-from ..recordings.capture import CaptureWriteError, keep_first_samples, open_capture_tap
+from ..recordings.capture import CaptureWriteError, open_capture_tap
+from ..recordings.capture_cut import keep_first_samples
 from .common import Progress, device_settings, document, open_from_settings, print_json
 from .exits import Exit
 from .options import add

@@ -336,23 +336,13 @@ class ProtocolDevice(Device):
 
     def _start(self, rate_hz: int | None) -> None:
         if self.passive:
-            self._rate_from_stream()
+            _rate_from_stream(self)
             return
         if rate_hz:
             self.command("R", int(rate_hz))
             if self.identity is not None:  # what the device now runs at, for reports
                 self.identity = replace(self.identity, rate_hz=int(rate_hz))
         self.command("G")
-
-    def _rate_from_stream(self) -> None:
-        """A recording runs at the rate its device was set to (the R reply it carries, read up
-        to its first sample), not at the hello's boot rate nor at one asked for now."""
-        for _ in range(40):
-            if self.inbox.pending or self._eof:
-                break
-            self._pump(0.05)
-        if self.inbox.rate_set_hz and self.identity is not None:
-            self.identity = replace(self.identity, rate_hz=self.inbox.rate_set_hz)
 
     def _stop(self) -> None:
         if not self.passive:
@@ -523,6 +513,17 @@ def _stored_record_of(device: ProtocolDevice) -> StoredRecord:
     device.counters["record_invalid"] += 1
     return StoredRecord(RecordState.INVALID, problem="the device's record reply was longer than a protocol "
                         "line (120 bytes): its record holds values no calibration has")
+
+
+def _rate_from_stream(dev: "ProtocolDevice") -> None:
+    """A recording runs at the rate its device was set to (the R reply it carries, read up to
+    its first sample), not at the hello's boot rate nor at one asked for now."""
+    for _ in range(40):
+        if dev.inbox.pending or dev._eof:
+            break
+        dev._pump(0.05)
+    if dev.inbox.rate_set_hz and dev.identity is not None:
+        dev.identity = replace(dev.identity, rate_hz=dev.inbox.rate_set_hz)
 
 
 def open_serial(port: Port, dialect: Dialect = Dialect.NATIVE, *, baud: int = 115200, tap=None,
