@@ -34,31 +34,30 @@ def add_arguments(p) -> None:
 
 
 def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
-    """The live display: a status line, the direction map and the next move (pure)."""
+    """The live display: a status line, the live estimate, the direction map with a legend for
+    each of its glyphs, the gates waited on and the next move (pure). Each line is short enough
+    for 80 columns, or is wrapped there between words (``Progress``), so no number is cut."""
     from ..logic.session import Status
     from .common import duration
-    from .coverage_map import hint, render
+    from .coverage_map import LEGEND, hint, render
 
     p = session.progress()
     kept = session.kept
-    est = ""
-    if p["offset_ut"]:
-        o = p["offset_ut"]
-        est = f"  {p['model']} offset [{o[0]:.1f} {o[1]:.1f} {o[2]:.1f}] µT  |B| {p['field_ut']:.1f} µT"
     rate = p["samples"] / elapsed if elapsed > 0.5 else 0.0
     need = session.gates_cfg.min_coverage
-    head = (f"{p['status']}: {p['samples']} samples ({rate:.0f}/s), {100 * p['coverage']:.0f}% of directions "
-            f"(need {100 * need:.0f}%), {len(kept)} kept, gives up in {duration(max(0, timeout_s - elapsed))}{est}")
-    collecting = session.status is Status.COLLECTING
-    failing = [g.name for g in session.failing_gates()] if collecting else []
-    lines = [head]
-    if collecting:
+    lines = [f"{p['status']}: {p['samples']} samples ({rate:.0f}/s), {100 * p['coverage']:.0f}% of directions "
+             f"(need {100 * need:.0f}%), {len(kept)} kept, gives up in {duration(max(0, timeout_s - elapsed))}"]
+    if p["offset_ut"]:
+        o = p["offset_ut"]
+        lines.append(f"  live {p['model']}: offset [{o[0]:.1f} {o[1]:.1f} {o[2]:.1f}] µT, |B| {p['field_ut']:.1f} µT")
+    if session.status is Status.COLLECTING:
         direction = None
         if session.last_field_ut is not None:
             direction = session.last_field_ut - kept.centre_ut
         counts = kept.cell_counts()
         lines.append(render(counts, kept.per_cell, kept.bands, kept.sectors, direction, colour))
-        lines.append(f"  ██ full  ▒▒ some  ·· none  ◆ the field now   waiting on: {', '.join(failing) or '—'}")
+        lines.append("  " + LEGEND)
+        lines.append(f"  waiting on: {', '.join(g.name for g in session.failing_gates()) or '—'}")
         lines.append("  " + hint(counts, kept.bands, kept.sectors, direction))
     return "\n".join(lines)
 
@@ -147,9 +146,10 @@ def format_text(r: dict) -> str:
             lines.append(("soft iron  " if i == 0 else "           ") + "  ".join(f"{v: .5f}" for v in row))
         n_out = len(r.get("outliers") or [])
         lines.append(f"rms_ut     {r['rms_ut']:.3f}")
-        lines.append(f"samples    {r['n_samples']} received at {_rate(r)}; {r['n_kept']} kept (at most 8 per "
-                     f"direction cell, so no pose outweighs another), {r['n_used']} fitted after {n_out} "
-                     f"outlier(s); {100 * r['coverage']:.0f}% of directions covered")
+        lines.append(f"samples    {r['n_samples']} received at {_rate(r)}")
+        lines.append(f"           {r['n_kept']} kept (at most 8 per direction cell: no pose outweighs another)")
+        lines.append(f"           {r['n_used']} fitted after {n_out} outlier(s)")
+        lines.append(f"coverage   {100 * r['coverage']:.0f}% of directions")
     if r["written"]:
         lines.append("written    yes, and " + ("VERIFIED by read-back" if r["verified"] else "NOT verified"))
     elif cal and r["status"] == "done":

@@ -192,6 +192,52 @@ def clip(line: str, width: int) -> str:
     return "".join(out)
 
 
+def stream_columns(stream, fallback: int = 80) -> int:
+    """The width of the terminal ``stream`` is on (not stdout's: ``diagnose --json > d.json``
+    draws on stderr); ``COLUMNS`` when set, else ``fallback`` when it is no terminal."""
+    import os
+
+    if os.environ.get("COLUMNS", "").isdigit():
+        return max(20, int(os.environ["COLUMNS"]))
+    try:
+        return max(20, os.get_terminal_size(stream.fileno()).columns)
+    except (AttributeError, OSError, ValueError):
+        return fallback
+
+
+def wrap_visible(line: str, width: int) -> list[str]:
+    """``line`` as lines of at most ``width`` visible characters (colour escapes not counted),
+    broken at spaces so no number is cut; the continuation indented two spaces more than the
+    line. A single word longer than the width is broken, not cut (pure)."""
+    import re
+
+    visible = len(re.sub(r"\033\[[0-9;]*m", "", line))
+    if visible <= width:
+        return [line]
+    indent = " " * (len(line) - len(line.lstrip(" ")) + 2)
+    out, cur, cur_len = [], "", 0
+    for piece in re.findall(r"\s*\S+", line):  # each word with the spaces before it
+        p_len = len(re.sub(r"\033\[[0-9;]*m", "", piece))
+        if cur and cur_len + p_len > width:
+            out.append(cur)
+            cur = indent + piece.lstrip(" ")
+            cur_len = len(indent) + p_len - (len(piece) - len(piece.lstrip(" ")))
+        else:
+            cur, cur_len = cur + piece, cur_len + p_len
+    out.append(cur)
+    return [piece for part in out for piece in _break_word(part, width)]
+
+
+def _break_word(part: str, width: int) -> list[str]:
+    """A line still wider than ``width`` (one long word, such as a path): broken into pieces
+    of ``width`` characters, none lost; clipped only when it carries colour escapes (pure)."""
+    if len(part) <= width or width < 1:
+        return [part]
+    if "\033[" in part:
+        return [clip(part, width)]
+    return [part[i:i + width] for i in range(0, len(part), width)]
+
+
 class Progress:
     """A live display on stderr, redrawn in place (one or several lines). Silent when stderr is
     not a terminal or with ``quiet``: a log or a pipe gets only the results."""
@@ -217,10 +263,8 @@ class Progress:
         if not force and now - self._last < self.every_s:
             return
         self._last = now
-        import shutil
-
-        width = shutil.get_terminal_size((100, 24)).columns - 1
-        lines = [clip(line, width) for line in text.split("\n")]  # a wrapped line would break the redraw
+        width = stream_columns(self.stream) - 1
+        lines = [part for line in text.split("\n") for part in wrap_visible(line, width)]
         up = f"\033[{self._drawn - 1}A" if self._drawn > 1 else ""
         self.stream.write("\r" + up + "\033[J" + "\n".join(lines))
         self._drawn = len(lines)
@@ -236,7 +280,8 @@ class Progress:
             self.stream.write("\n")
             self._drawn = 0
         if text:
-            self.stream.write(text + "\n")
+            lines = wrap_visible(text, stream_columns(self.stream) - 1) if self.active else [text]
+            self.stream.write("\n".join(lines) + "\n")
         self.stream.flush()
 
     def working(self, label: str):
@@ -271,6 +316,7 @@ class _Ticker:
         """Step ``i`` of ``n`` (0-based, steps of like size) begins: ETA from the pace so far."""
         elapsed = self.progress.clock() - self.t0
         eta = f", ETA {duration(elapsed * (n - i) / i)}" if i > 0 and elapsed > 1 else ""
+        self.total_s = None  # an earlier share's whole no longer applies: the steps' pace does
         self.counted = f"  [{i + 1}/{n}{eta}]"
 
     def doing(self, what: str) -> None:

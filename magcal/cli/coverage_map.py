@@ -18,6 +18,7 @@ from ..fit.coverage import cell_centres, side_name
 
 FULL, EMPTY, HERE, NEXT = "██", "··", "◆◆", "◎◎"
 SHADES = ("░░", "▒▒", "▓▓")
+LEGEND = "██ full  ▓▓ ▒▒ ░░ partly (most to least)  ·· none  ◆◆ field now  ◎◎ next"
 _GREEN, _YELLOW, _DIM, _CYAN, _RESET = "\033[32m", "\033[33m", "\033[2m", "\033[1;36m", "\033[0m"
 
 
@@ -51,8 +52,8 @@ def hint(counts, bands: int, sectors: int, direction) -> str:
     cell, angle = found
     side = side_name(cell_centres(bands, sectors)[cell])
     turn = f", about {angle:.0f}° from now" if np.isfinite(angle) else ""
-    return (f"next: aim the board's {side} side along the field (north, dipping down in the northern "
-            f"hemisphere): ◎ on the map{turn}")
+    return (f"next: aim the board's {side} side along the field (north, dipping down in the north): "
+            f"◎◎ on the map{turn}")
 
 
 def _cell_text(n: int, per_cell: int, colour: bool) -> str:

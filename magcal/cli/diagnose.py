@@ -393,6 +393,8 @@ def _twin(args, series, d: dict, diagnosis, ticker):
     if not args.twin:
         return None
     ticker.doing(f"comparing with {args.draws} twins per step")
-    report = twin.compare_steps(model, series, draws=args.draws, seed=args.seed)
+    report = twin.compare_steps(model, series, draws=args.draws, seed=args.seed,
+                                on_step=lambda i, n, name: (ticker.step(i, n, name),
+                                                            ticker.doing(f"twins of step {name}")))
     d["twin"] = report.to_dict()
     return report

@@ -91,7 +91,14 @@ def step_models(model: SensorModel, series: Series, free: bool = True) -> list[t
     return out
 
 
-def compare_steps(model: SensorModel, series: Series, draws: int = DRAWS, seed: int = 0, free: bool = True) -> TwinReport:
-    """Compare each step with the recording on the same seeds."""
-    steps = tuple(compare(m, series, draws, seed, name, free) for name, m in step_models(model, series, free))
-    return TwinReport(model=model, steps=steps)
+def compare_steps(model: SensorModel, series: Series, draws: int = DRAWS, seed: int = 0, free: bool = True,
+                  on_step=None) -> TwinReport:
+    """Compare each step with the recording on the same seeds; ``on_step(i, n, name)`` is
+    called as step ``i`` of ``n`` begins (steps of like cost: a display's stage and ETA)."""
+    models = step_models(model, series, free)
+    steps = []
+    for i, (name, m) in enumerate(models):
+        if on_step is not None:
+            on_step(i, len(models), name)
+        steps.append(compare(m, series, draws, seed, name, free))
+    return TwinReport(model=model, steps=tuple(steps))
