@@ -3,6 +3,7 @@ how fast and how long is left — and during ``calibrate`` a map of the directio
 missing with the next move; in a pipe, or with --quiet, only the results."""
 
 import io
+import itertools
 import os
 import pty
 import re
@@ -84,17 +85,10 @@ def test_record_shows_rate_and_time_left_in_a_terminal_only(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def big(tmp_path_factory):
-    path = tmp_path_factory.mktemp("big") / "big.csv"
-    assert main(["simulate", "-o", str(path), "--seconds", "4000", "--temp-swing", "10", "--quiet"]) == 0
-    return path  # 200 000 samples
-
-
-@pytest.fixture(scope="module")
-def long(tmp_path_factory):
-    path = tmp_path_factory.mktemp("long") / "long.csv"
-    assert main(["simulate", "-o", str(path), "--seconds", "1000", "--temp-swing", "10", "--quiet"]) == 0
-    return path  # 50 000 samples: a diagnosis of several seconds, past the display's first second
+def short(tmp_path_factory):
+    path = tmp_path_factory.mktemp("short") / "short.csv"
+    assert main(["simulate", "-o", str(path), "--seconds", "100", "--temp-swing", "10", "--quiet"]) == 0
+    return path  # 5 000 samples: a fit of a fraction of a second, a diagnosis of about a second
 
 
 class _Terminal(io.StringIO):
@@ -102,31 +96,64 @@ class _Terminal(io.StringIO):
         return True
 
 
-@pytest.mark.slow
-def test_a_long_fit_says_what_it_is_doing(big, monkeypatch, capsys):
-    """What a fit is doing, drawn while it works. The display waits a second before it draws
-    (nothing flashes past on short work); this 200 000-sample fit now takes about that long, so
-    the wait is taken away here and the fit is watched on a stand-in terminal in-process — in a
-    real one the fit could finish just before the first frame."""
+@pytest.fixture
+def in_slow_terminal(monkeypatch):
+    """``magcal ARGV`` in-process with stderr on a stand-in terminal and the display on a slow clock: long
+    work is played by short work. The display's clock moves half a second each time it is read,
+    so it draws after its first second, and the steps' pace gives an ETA; the real display thread
+    draws, and each step waits (at most 2 s) until it is on the screen, so a fast machine misses
+    no frame."""
     from magcal.cli import common
 
-    monkeypatch.setattr(common._Ticker, "SHOW_AFTER_S", 0.0)
+    ticks = itertools.count()
+
+    class SlowClock(common.Progress):
+        def __init__(self, quiet=False, stream=None, clock=None, every_s=0.1):
+            super().__init__(quiet, stream, lambda: 0.5 * next(ticks), every_s)
+
     screen = _Terminal()
-    monkeypatch.setattr(sys, "stderr", screen)
-    assert main(["fit", str(big), "--model", "ellipsoid"]) == 0
-    plain = ANSI.sub("", screen.getvalue())
-    assert re.search(r"fit  \d+ s  fitting 200 000 samples", plain), plain[-500:]
+
+    def drawn(step):
+        def step_and_see_it_drawn(ticker, *args):
+            step(ticker, *args)
+            until = time.monotonic() + 2.0
+            while args[-1] not in screen.getvalue() and time.monotonic() < until:
+                time.sleep(0.02)
+        return step_and_see_it_drawn
+
+    def run(*argv) -> tuple[int, str]:
+        """(status, what it drew without the colour and cursor codes)."""
+        with monkeypatch.context() as m:  # stderr set here: pytest's capture resets it for the test
+            m.setattr(sys, "stderr", screen)
+            code = main(list(argv))
+        return code, ANSI.sub("", screen.getvalue())
+
+    monkeypatch.setattr(common, "Progress", SlowClock)
+    monkeypatch.setattr(common._Ticker, "share", drawn(common._Ticker.share))
+    monkeypatch.setattr(common._Ticker, "doing", drawn(common._Ticker.doing))
+    monkeypatch.setenv("COLUMNS", "400")  # each frame on one line, whatever the temporary path
+    return run
+
+
+@pytest.mark.slow
+def test_a_long_fit_says_what_it_is_doing(short, in_slow_terminal, capsys):
+    """What a fit is doing, drawn while it works (a long fit played by a short one on the slow
+    clock); in a pipe, nothing on stderr."""
+    code, plain = in_slow_terminal("fit", str(short), "--model", "ellipsoid")
+    assert code == 0 and re.search(r"fit  \d+ s  fitting 5 000 samples", plain), plain[-500:]
     assert "offset_ut" in capsys.readouterr().out
-    p = in_pipe("fit", str(big), "--model", "ellipsoid")
+    p = in_pipe("fit", str(short), "--model", "ellipsoid")
     assert p.returncode == 0 and p.stderr == ""
 
 
 @pytest.mark.slow
-def test_a_long_diagnosis_gives_its_step_and_an_eta(long):
-    code, out = in_terminal("diagnose", str(long))
-    plain = ANSI.sub("", out)
-    assert code == 0 and re.search(r"50 000 samples: \w+ \(\d+ % done\)  ETA \d+ s", plain), plain[-600:]
-    p = in_pipe("diagnose", str(long), "--quiet")
+def test_a_long_diagnosis_gives_its_step_and_an_eta(short, in_slow_terminal, capsys):
+    """The step a diagnosis is in, how much of it is done and its ETA (a long diagnosis played by
+    a short one on the slow clock); in a pipe with --quiet, nothing on stderr."""
+    code, plain = in_slow_terminal("diagnose", str(short))
+    assert code == 0 and re.search(r"5 000 samples: \w+ \(\d+ % done\)  ETA \d+ s", plain), plain[-600:]
+    assert "findings" in capsys.readouterr().out
+    p = in_pipe("diagnose", str(short), "--quiet")
     assert p.returncode == 0 and p.stderr == ""
 
 
