@@ -33,7 +33,7 @@ def add_arguments(p) -> None:
     add_view_option(p)
 
 
-def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
+def _live(session, timeout_s: float, elapsed: float, colour: bool, guide=None) -> str:
     """The live display: a status line, the live estimate, the direction map with a legend for
     each of its glyphs, the gates waited on and the next move (pure). Each line is short enough
     for 80 columns, or is wrapped there between words (``Progress``), so no number is cut."""
@@ -58,14 +58,38 @@ def _live(session, timeout_s: float, elapsed: float, colour: bool) -> str:
         lines.append(render(counts, kept.per_cell, kept.bands, kept.sectors, direction, colour))
         lines.append("  " + LEGEND)
         lines.append(f"  waiting on: {', '.join(g.name for g in session.failing_gates()) or '—'}")
-        lines.append("  " + hint(counts, kept.bands, kept.sectors, direction))
+        lines += _next_move(guide, hint(counts, kept.bands, kept.sectors, direction))
     return "\n".join(lines)
+
+
+def _next_move(guide, field_hint: str) -> list[str]:
+    """What to do next: with an accelerometer, the side to lay the board on or to turn on and
+    the six sides ticked off; without one, the field-relative hint — after "you are not
+    moving" when the board has been still (``magcal.logic.guidance``) (pure)."""
+    from ..logic.guidance import Nudge
+
+    advice = guide.advice() if guide is not None else None
+    if advice is None or advice.nudge is Nudge.FIELD_ONLY:
+        still = advice is not None and advice.still
+        return ["  " + ("you are not moving: " if still else "") + field_hint]
+    return ["  " + advice.checklist, "  next: " + advice.text]
+
+
+def _look(guide, session) -> None:
+    """Show the guide where the board is now: the latest sample, about the kept centre."""
+    s = session.last_sample
+    if s is None or session.last_field_ut is None:
+        return
+    a = s.aux
+    accel = (a["ax_g"], a["ay_g"], a["az_g"]) if "ax_g" in a else None
+    guide.update(s.t_s, session.last_field_ut - session.kept.centre_ut, accel)
 
 
 def run(args) -> int:
     import time
 
     from ..app.procedure import calibrate
+    from ..logic.guidance import Guide
     from .common import Progress, device_settings, document, open_from_settings, print_json
 
     settings = device_settings(args, timeout_s=args.timeout, rate_hz=args.rate, model=args.model)
@@ -83,9 +107,12 @@ def run(args) -> int:
         progress.done(f"connected: {settings.port} ({ident.transport}, firmware {ident.firmware or '?'}, "
                       f"ASA {'/'.join(str(a) for a in ident.asa)})")
         progress.t0 = time.monotonic()
+        guide = Guide()
         outcome = calibrate(
             device, settings, write=settings.write and not args.no_write, clock=time.monotonic,
-            on_progress=lambda s: (progress.show(_live(s, settings.timeout_s, progress.elapsed(), progress.active)),
+            on_progress=lambda s: (_look(guide, s),
+                                   progress.show(_live(s, settings.timeout_s, progress.elapsed(), progress.active,
+                                                       guide)),
                                    view and view.progress(s)),
             **({"progress_every_s": view.every_s} if view else {}),
         )

@@ -116,7 +116,8 @@ class MotionCalDevice(Device):
             field = self._asm.push(line)
             if field is not None:
                 self._queue.append(
-                    Sample(seq=self._seq % 65536, t_s=self._data_clock() - self._t0_data, field_ut=field)
+                    Sample(seq=self._seq % 65536, t_s=self._data_clock() - self._t0_data, field_ut=field,
+                           aux=accel_aux(line))
                 )
                 self._seq += 1
             elif isinstance(line, mc.CalLine):
@@ -328,6 +329,21 @@ class MotionCalDevice(Device):
             except Exception:
                 pass
             self._ser = None
+
+
+def accel_aux(line) -> dict:
+    """The accelerometer a ``Raw:``/``Uni:`` line carries, in g, as a sample's ``ax_g, ay_g,
+    az_g`` (which side of the board is down: ``magcal.logic.guidance``)."""
+    if isinstance(line, mc.RawLine):
+        a = [c * mc.G_PER_RAW_ACCEL for c in line.accel_counts]
+    elif isinstance(line, mc.UniLine):
+        a = [v / STANDARD_GRAVITY_MS2 for v in line.accel_ms2]
+    else:
+        return {}
+    return dict(zip(("ax_g", "ay_g", "az_g"), map(float, a)))
+
+
+STANDARD_GRAVITY_MS2 = 9.80665
 
 
 def open_motioncal(port, dialect: Dialect = Dialect.MOTIONCAL, *, baud: int = 115200, tap=None, open_timeout_s: float = 3.0,

@@ -77,6 +77,7 @@ class Session:
         self._ready = False  # every gate passed at the last check: later samples are not taken
         self._last_seq: int | None = None
         self.last_field_ut = None  # the latest valid sample (µT): where the board points now
+        self.last_sample = None  # that sample whole (its time, and an accelerometer in aux when sent)
 
     # -- the one choke point -------------------------------------------------------------------
     def _set_status(self, new: Status, failure: Failure | None = None, message: str = "") -> None:
@@ -126,6 +127,7 @@ class Session:
             return
         self.accumulator.add(m)
         self.last_field_ut = m
+        self.last_sample = item
         self.tracker.add(m, item.t_s)
         aux = {"t_s": item.t_s}
         if item.temp_c is not None:

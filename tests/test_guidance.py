@@ -1,0 +1,101 @@
+"""Body-relative guidance (magcal.logic.guidance): the side that is down named from the
+accelerometer, the six sides ticked off once turned a full circle, and "you are not moving"
+within a few seconds of stillness; boards without an accelerometer keep the field's hint."""
+
+import numpy as np
+
+from magcal.logic.guidance import STILL_S, Guide, Nudge, Side, side_down
+
+
+def _turn(guide, side, t0=0.0, degrees=360.0, steps=40, dip_deg=60.0):
+    """The board lies on ``side`` and turns about the vertical: the field's horizontal part
+    goes round in the plane across ``side.down``; the accelerometer reads up."""
+    d = side.down
+    e1 = np.roll(d, 1)
+    e2 = np.cross(d, e1)
+    dip = np.radians(dip_deg)
+    for k in range(steps + 1):
+        th = np.radians(degrees) * k / steps
+        u = np.cos(dip) * (np.cos(th) * e1 + np.sin(th) * e2) + np.sin(dip) * d
+        guide.update(t0 + 0.25 * k, 48.0 * u, accel_g=-d * 1.0 + 0.01 * e1)
+    return t0 + 0.25 * steps
+
+
+def test_the_side_that_is_down_is_named_from_the_accelerometer():
+    for side in Side:
+        assert side_down(-side.down) is side
+        assert side_down(-9.81 * side.down) is side  # any unit
+    assert side_down([0.7, 0.0, 0.7]) is None  # on an edge between two sides
+    assert side_down([0.0, 0.0, 0.0]) is None
+
+
+def test_lying_on_a_side_asks_for_a_full_circle_and_ticks_it_off():
+    g = Guide()
+    _turn(g, Side.LEFT, degrees=120)
+    a = g.advice()
+    assert a.nudge is Nudge.TURN and a.side is Side.LEFT
+    assert "turn it a full circle as it lies on its left side" in a.text and "of 360°" in a.text
+    assert "· left side" in a.checklist
+    _turn(g, Side.LEFT, t0=20.0)
+    a = g.advice()
+    assert g.done(Side.LEFT) and "✓ left side" in a.checklist
+    assert a.nudge is Nudge.LAY and a.side is not Side.LEFT and a.text.startswith("lay it ")
+    assert "then turn it a full circle" in a.text
+
+
+def test_a_half_turn_back_and_forth_is_not_a_full_circle():
+    g = Guide()
+    t = _turn(g, Side.TOP, degrees=150)
+    _turn(g, Side.TOP, t0=t, degrees=150)  # and again over the same headings
+    assert not g.done(Side.TOP)
+
+
+def test_every_side_done_says_so():
+    g = Guide()
+    t = 0.0
+    for side in Side:
+        t = _turn(g, side, t0=t) + 1
+    a = g.advice()
+    assert a.nudge is Nudge.DONE and all(f"✓ {s.label.split(' (')[0]}" in a.checklist for s in Side)
+
+
+def test_holding_still_is_noticed_within_a_few_seconds():
+    g = Guide()
+    t = _turn(g, Side.RIGHT, degrees=90)
+    u = 48.0 * np.array([0.5, 0.0, 0.866])
+    for k in range(int(STILL_S / 0.25) + 2):
+        g.update(t + 0.25 * k, u + 0.05 * np.sin(k), accel_g=-Side.RIGHT.down)  # noise, no turn
+    a = g.advice()
+    assert a.still and a.text.startswith("you are not moving: turn it a full circle")
+    _turn(g, Side.RIGHT, t0=t + 10, degrees=60)
+    assert not g.advice().still
+
+
+def test_without_an_accelerometer_only_the_stillness_nudge_is_given():
+    g = Guide()
+    for k in range(20):
+        g.update(0.25 * k, [30.0, 10.0 * np.sin(k), 40.0])
+    a = g.advice()
+    assert a.nudge is Nudge.FIELD_ONLY and a.checklist == "" and not a.still
+    for k in range(20):
+        g.update(5 + 0.25 * k, [30.0, 0.0, 40.0])
+    assert g.advice().still and g.advice().text.startswith("you are not moving")
+
+
+def test_a_motioncal_board_sends_its_accelerometer_with_each_sample():
+    from magcal.devices.motioncal_client import accel_aux
+    from magcal.wire import motioncal as mc
+
+    raw = accel_aux(mc.parse_line(b"Raw:0,0,8192,0,0,0,100,200,300"))
+    assert raw == {"ax_g": 0.0, "ay_g": 0.0, "az_g": 1.0}
+    assert side_down((raw["ax_g"], raw["ay_g"], raw["az_g"])) is Side.BOTTOM
+    uni = accel_aux(mc.parse_line(b"Uni:-9.80665,0,0,0,0,0,10,20,30"))
+    assert side_down((uni["ax_g"], uni["ay_g"], uni["az_g"])) is Side.RIGHT  # +X down reads −1 g on X
+
+
+def test_calibrate_on_a_still_board_says_you_are_not_moving(tmp_path):
+    from test_terminal_width import _in_terminal
+
+    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&motion=still&seed=3", "--timeout", "3"], 80)
+    assert code == 3, out[-1500:]
+    assert "you are not moving: next: aim the board's" in out
