@@ -75,6 +75,8 @@ class Disturbances:
         """(k, 3): start, duration and signed size of the events starting in one cell."""
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, _KEY, cell + _CELL_OFFSET])
         k = rng.poisson(self.rate_per_s * width)
+        if k == 0:  # most cells of a short-event model: no further draws (their values went unused)
+            return np.zeros((0, 3))
         start = (cell + rng.random(k)) * width
         if self.events:
             pair = np.asarray(self.events)[rng.integers(0, len(self.events), k)]
