@@ -3,6 +3,7 @@ accelerometer, the six sides ticked off once turned a full circle, and "you are 
 within a few seconds of stillness; boards without an accelerometer keep the field's hint."""
 
 import numpy as np
+import pytest
 
 from magcal.logic.guidance import STILL_S, Guide, Nudge, Side, side_down
 
@@ -93,6 +94,7 @@ def test_a_motioncal_board_sends_its_accelerometer_with_each_sample():
     assert side_down((uni["ax_g"], uni["ay_g"], uni["az_g"])) is Side.RIGHT  # +X down reads −1 g on X
 
 
+@pytest.mark.slow
 def test_calibrate_on_a_still_board_says_you_are_not_moving(tmp_path):
     from test_terminal_width import _in_terminal
 

@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from magcal.cli.common import stream_columns, wrap_visible
 from magcal.cli.coverage_map import EMPTY, FULL, HERE, LEGEND, NEXT, SHADES
 
@@ -47,6 +49,7 @@ def _screen_lines(out: str) -> list[str]:
     return [part for part in re.split(r"\r|\n|\x1b\[\d*[AJK]", out) if part.strip()]
 
 
+@pytest.mark.slow
 def test_a_whole_calibrate_session_fits_80_columns_with_every_number_whole(tmp_path):
     code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&seed=2"], 80)
     assert code == 0, out[-2000:]
@@ -92,6 +95,7 @@ def test_the_width_comes_from_the_stream_drawn_on(monkeypatch):
         os.close(follower)
 
 
+@pytest.mark.slow
 def test_diagnose_twin_with_json_on_stdout_draws_its_stages_at_the_terminals_width(tmp_path):
     data = REPO / "tests" / "data" / "hmc5883l_sunsided_full_sphere_every3rd.csv"
     leader, follower = pty.openpty()

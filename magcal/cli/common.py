@@ -320,8 +320,10 @@ class _Ticker:
         self.counted = f"  [{i + 1}/{n}{eta}]"
 
     def doing(self, what: str) -> None:
-        """What the work is doing now (no ETA of its own: its parts are not alike)."""
+        """What the work is doing now (no ETA of its own: its parts are not alike; an earlier
+        share's ETA would be stale, so none is shown until a share or a step gives one)."""
         self.what = f"  {what}"
+        self.total_s = None
 
     def share(self, done: float, what: str) -> None:
         """``done`` (0…1) of the work is behind, by a known share per step: the ETA follows

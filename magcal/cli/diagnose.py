@@ -36,6 +36,7 @@ the baseline (hard iron + white noise), in the text, as ``"twin"`` in the JSON a
 
 from __future__ import annotations
 
+import os
 import sys
 
 from ..core.errors import ConfigError
@@ -188,7 +189,7 @@ def run(args) -> int:
         raise ConfigError(f"--draws must be at least 10 (a 2.5–97.5 % band needs them), got {args.draws}")
     if args.report:
         _report_dir(args.report)  # a folder that cannot be written is said now, not after the work
-    with Progress(quiet=args.quiet).working(f"diagnose {args.file}") as ticker:
+    with Progress(quiet=args.quiet).working(f"diagnose {os.path.basename(str(args.file))}") as ticker:
         ticker.doing("reading")
         series, notes, flight_log = load_with_log(args.file, table_format(args), args.mag)
         for w in notes:
