@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_once import diagnose_both_ways
+
 DATA = Path(__file__).parent / "data"
 PLAIN = DATA / "lsm9ds1_ckexplorer_every4th.csv"
 LOG = DATA / "ardupilot_log171_excerpt.bin"
@@ -63,10 +65,11 @@ def assert_same(a: dict, b: dict):
 
 @pytest.fixture(scope="module")
 def plain(tmp_path_factory):
+    """One diagnosis, printed as JSON and as text (cli_once), its page; and magcal fit's JSON."""
     out = tmp_path_factory.mktemp("plain")
-    doc = json.loads(magcal("diagnose", PLAIN, "--json", "--report", out / "page", "--model-out", out / "m.yaml"))
+    doc, text = diagnose_both_ways(PLAIN, "--report", out / "page", "--model-out", out / "m.yaml")
     fit = json.loads(magcal("fit", PLAIN, "--json"))["fits"][0]
-    return doc, magcal("diagnose", PLAIN), out / "page" / "index.html", fit
+    return doc, text, out / "page" / "index.html", fit
 
 
 @pytest.mark.slow
@@ -91,11 +94,11 @@ def test_a_plain_recording_shows_one_calibration_in_text_report_and_json(plain):
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
+    """One diagnosis, printed as JSON and as text (cli_once), its page; magcal fit's JSON and text."""
     out = tmp_path_factory.mktemp("log")
-    doc = json.loads(magcal("diagnose", LOG, "--mag", "1", "--json", "--report", out / "page"))
+    doc, text = diagnose_both_ways(LOG, "--mag", "1", "--report", out / "page")
     fit = json.loads(magcal("fit", LOG, "--mag", "1", "--json"))["fits"][0]
-    return (doc, magcal("diagnose", LOG, "--mag", "1"), out / "page" / "index.html", fit,
-            magcal("fit", LOG, "--mag", "1"), out)
+    return doc, text, out / "page" / "index.html", fit, magcal("fit", LOG, "--mag", "1"), out
 
 
 @pytest.mark.slow
