@@ -31,15 +31,15 @@ MIN_HORIZONTAL = 0.2  # the field's horizontal share needed to read a heading
 class Side(Enum):
     """A side of the board by the body axis that points down when it lies on it."""
 
-    BOTTOM = ("flat (components up)", 2, -1)
-    TOP = ("upside down", 2, +1)
-    LEFT = ("left side (−X down)", 0, -1)
-    RIGHT = ("right side (+X down)", 0, +1)
-    FRONT = ("front edge (+Y down)", 1, +1)
-    BACK = ("back edge (−Y down)", 1, -1)
+    BOTTOM = ("flat", "flat (components up)", 2, -1)
+    TOP = ("upside down", "upside down", 2, +1)
+    LEFT = ("left", "left side (−X down)", 0, -1)
+    RIGHT = ("right", "right side (+X down)", 0, +1)
+    FRONT = ("front", "front edge (+Y down)", 1, +1)
+    BACK = ("back", "back edge (−Y down)", 1, -1)
 
-    def __init__(self, label: str, axis: int, sign: int):
-        self.label, self.axis, self.sign = label, axis, sign
+    def __init__(self, short: str, label: str, axis: int, sign: int):
+        self.short, self.label, self.axis, self.sign = short, label, axis, sign
 
     @property
     def down(self) -> np.ndarray:
@@ -137,7 +137,7 @@ class Guide:
         still = self.still()
         if not self.has_accel:
             return Advice(Nudge.FIELD_ONLY, None, still, "you are not moving: turn the board" if still else "", "")
-        checklist = "sides " + "  ".join(("✓ " if self.done(s) else "· ") + s.label.split(" (")[0] for s in Side)
+        checklist = "sides: " + "  ".join(("✓ " if self.done(s) else "· ") + s.short for s in Side)
         nudge, side, text = self._next()
         if still and nudge is not Nudge.DONE:
             text = "you are not moving: " + text
