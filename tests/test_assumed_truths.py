@@ -14,8 +14,12 @@ def test_record_count_n_records_exactly_n_samples_in_summary_and_capture(tmp_pat
     # a source that answers a read with a thousand samples at once used to overshoot (3000 → 3072)
     cap = tmp_path / "n.cap"
     assert main(["record", "--port", "sim://?pace=0&seed=3", "-o", str(cap), "--count", "3000", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["n_samples"] == 3000
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["n_samples"] == 3000
     assert len(load_series(str(cap))) == 3000
+    from magcal.recordings.capture import CaptureReader
+
+    assert summary["capture"]["bytes"] == len(CaptureReader(cap).data())  # the file as it is after the cut
 
 
 def test_replay_reports_the_rate_the_capture_was_taken_at(tmp_path, capsys):

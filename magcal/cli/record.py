@@ -77,6 +77,14 @@ def _progress_text(done, total, unit, elapsed, samples) -> str:
     return f"{rate}  {duration(elapsed)} elapsed{left}"
 
 
+def _recount(writer) -> None:
+    """After a cut, the writer's counts are those of the file as it now is."""
+    from ..recordings.capture import CaptureReader
+
+    kept = CaptureReader(writer.path)
+    writer.chunks, writer.bytes_recorded = len(kept), sum(len(chunk) for _, chunk in kept)
+
+
 def run(args) -> int:
     if args.seconds is None and args.count is None:
         raise ConfigError("say when to stop: --seconds S and/or --count N")
@@ -108,7 +116,8 @@ def run(args) -> int:
         writer.close()
         progress.clear()
     if args.count is not None and writer.error is None:
-        keep_first_samples(writer.path, args.count)
+        if keep_first_samples(writer.path, args.count):
+            _recount(writer)
     samples, gaps, resets = counts["samples"], counts["gaps"], counts["resets"]
     summary = document("record", {
         "file": writer.path,
