@@ -7,6 +7,7 @@ ArduPilot ``AP_Compass_Backend::correct_field``: corrected = M·(s·(raw + OFS))
 PX4 ``calibration::Magnetometer::Correct``: body = R·S·((raw + P·COMP) − OFF).
 """
 
+import functools
 import json
 import os
 import subprocess
@@ -15,6 +16,7 @@ import sys
 import numpy as np
 import pytest
 
+from cli_once import diagnose_both_ways
 from logs_extra import need
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
@@ -36,6 +38,18 @@ def one_fit(r) -> dict:
     doc = json.loads(r.stdout)
     assert doc["schema"] == "magcal.fit/1" and len(doc["fits"]) == 1
     return doc["fits"][0]
+
+
+@functools.cache
+def whole_fit(path) -> dict:
+    """``magcal fit PATH --mag 0 --json`` of an undamaged log, run once for the tests of its damage."""
+    return one_fit(magcal("fit", path, "--mag", "0", "--json"))
+
+
+@pytest.fixture(scope="module")
+def mag1():
+    """``magcal diagnose BIN --mag 1``, run once: (its JSON, its text) (cli_once)."""
+    return diagnose_both_ways(BIN, "--mag", "1")
 
 
 def ap_formula(raw_mg, params, suffix, x):
@@ -151,6 +165,7 @@ def test_px4_undo_reapplied_by_its_formula_gives_the_logged_field():
 
 # -- damaged logs -------------------------------------------------------------------------------
 @pytest.mark.slow
+@pytest.mark.xdist_group("flightlogs_whole_fit")  # one whole_fit per log under make test -n
 @pytest.mark.parametrize("damage", ["truncate", "corrupt"])
 @pytest.mark.parametrize("path", [BIN, ULG], ids=["dataflash", "ulog"])
 def test_a_damaged_log_is_read_up_to_the_damage(tmp_path, path, damage):
@@ -170,7 +185,7 @@ def test_a_damaged_log_is_read_up_to_the_damage(tmp_path, path, damage):
     assert r.returncode in (Exit.OK, Exit.GATE), r.stderr
     d = one_fit(r)
     assert any("damaged" in w or "cut short" in w for w in d["warnings"])
-    whole = one_fit(magcal("fit", path, "--mag", "0", "--json"))
+    whole = whole_fit(path)
     n = d["log"]["magnetometer"]["samples"]
     assert 0 < n <= whole["log"]["magnetometer"]["samples"]
     if r.returncode == Exit.GATE:  # what survived may be too short to fit: said so, not a crash
@@ -224,14 +239,13 @@ def test_internal_compass_gets_a_current_term_the_external_none():
 
 
 @pytest.mark.slow
-def test_diagnose_tests_the_current_against_the_expected_field():
+@pytest.mark.xdist_group("flightlogs_mag1")  # one mag1 under make test -n
+def test_diagnose_tests_the_current_against_the_expected_field(mag1):
     """|m| alone cannot test a current term on a flight; diagnose on a log judges it against the
     expected field vector, and still does so where |m| alone cannot be diagnosed (level flight)."""
-    found = {}
+    found, texts = {}, {}
     for i in (0, 2):
-        r = magcal("diagnose", BIN, "--mag", str(i), "--json")
-        assert r.returncode == 0, r.stderr
-        doc = json.loads(r.stdout)
+        doc, texts[i] = diagnose_both_ways(BIN, "--mag", str(i))  # its status 0
         assert doc["schema"] == "magcal.diagnose/1" and ("findings" in doc or "magnitude_failure" in doc)
         log = doc["flight_log"]
         assert log["mode"] == "vector" and log["heldout_ut"]["chosen"] < log["heldout_ut"]["none"]
@@ -242,11 +256,10 @@ def test_diagnose_tests_the_current_against_the_expected_field():
             assert not term["kept"] or term["norm_ut_per_unit"] < term["floor_ut_per_unit"]
         else:
             assert term["kept"] and term["norm_ut_per_unit"] > 3 * term["floor_ut_per_unit"]
-    text = magcal("diagnose", BIN, "--mag", "2").stdout
-    assert "finding     current_interference: current_a kept" in text
+    assert "finding     current_interference: current_a kept" in texts[2]
     # a |m| limit on the current (where |m| alone could not test it) points at the test below it,
     # and nothing says the current could not be tested without doing so
-    text = magcal("diagnose", BIN, "--mag", "1").stdout
+    text = mag1[1]
     said = [ln for ln in text.splitlines() if ln.startswith("limit       current_interference")]
     assert all("tested against the expected field below" in ln for ln in said)
     assert not [ln for ln in text.splitlines() if "following current_a could not be tested" in ln and ln not in said]
@@ -254,9 +267,10 @@ def test_diagnose_tests_the_current_against_the_expected_field():
 
 
 @pytest.mark.slow
-def test_export_of_a_log_diagnosis_writes_its_vector_calibration(tmp_path):
+@pytest.mark.xdist_group("flightlogs_mag1")
+def test_export_of_a_log_diagnosis_writes_its_vector_calibration(tmp_path, mag1):
     diag, fit = tmp_path / "diag.json", tmp_path / "fit.json"
-    diag.write_text(magcal("diagnose", BIN, "--mag", "1", "--json").stdout)
+    diag.write_text(json.dumps(mag1[0]))  # what diagnose --json printed
     fit.write_text(magcal("fit", BIN, "--mag", "1", "--json").stdout)
     outs = [tmp_path / "d.param", tmp_path / "f.param"]
     for src, out in zip((diag, fit), outs):
