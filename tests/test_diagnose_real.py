@@ -34,6 +34,15 @@ def _current(t, seed):
     return sc.current_a(t)
 
 
+@pytest.fixture(scope="module")
+def with_current(tilt_sphere):
+    """The recording with an unrelated current column (seed 7), diagnosed once for the tests of
+    its floor and of its twin."""
+    t, h = tilt_sphere
+    cur = _current(t, 7)
+    return cur, diagnose(Series(t_s=t, field_ut=h, channels={"current_a": cur}))
+
+
 @pytest.mark.slow
 def test_an_unrelated_current_column_is_not_credited_with_real_residual_structure(tilt_sphere):
     t, h = tilt_sphere
@@ -46,12 +55,12 @@ def test_an_unrelated_current_column_is_not_credited_with_real_residual_structur
 
 
 @pytest.mark.slow
-def test_a_current_that_acts_on_the_real_recording_is_found_with_its_coefficient(tilt_sphere):
+@pytest.mark.xdist_group("diagnose_real_with_current")  # one with_current under make test -n
+def test_a_current_that_acts_on_the_real_recording_is_found_with_its_coefficient(tilt_sphere, with_current):
     """Placed against the floor diagnosis states on the plain recording with the same channel:
     twice its upper end (its largest over directions) is found, within 30 %."""
     t, h = tilt_sphere
-    cur = _current(t, 7)
-    plain = diagnose(Series(t_s=t, field_ut=h, channels={"current_a": cur}))
+    cur, plain = with_current
     upper = plain.floors["current_a"]["range_ut_per_unit"][1]
     assert 0.0 < upper < 5.0  # µT/A: a current of a few amperes is testable on this recording
     coef = 2.0 * upper * np.array([0.3, -0.4, 0.2]) / np.linalg.norm([0.3, -0.4, 0.2])
@@ -117,13 +126,13 @@ def test_a_current_twice_the_stated_floor_on_the_raw_recording_is_found_inside_i
     assert diff @ np.linalg.pinv(np.array(f.evidence["coef_cov_ut_per_unit"])) @ diff <= f.evidence["coef_region95_wald"]
 
 
-def test_on_a_wandering_recording_every_test_is_judged_against_its_twin(tilt_sphere):
+@pytest.mark.xdist_group("diagnose_real_with_current")
+def test_on_a_wandering_recording_every_test_is_judged_against_its_twin(with_current):
     """The real recording's offset wanders: its twin is learned and drawn, and a drift in time,
     which lines up with a wander far more often than the F distribution says, is judged by how
     often it does on the twin (its statistic divided by that inflation, which is exactly 1 for
     a twin without wander; with the band-spectrum wander twin it measured 1.08 here)."""
-    t, h = tilt_sphere
-    d = diagnose(Series(t_s=t, field_ut=h, channels={"current_a": _current(t, 7)}))
+    _, d = with_current
     twin = d.tests["twin_null"]
     assert twin["draws"] >= 20 and any(max(c["sigma_ut"]) > 0.05 for c in twin["wander"])
     assert d.tests["candidates"]["time_drift"]["twin_inflation"] > 1.0
