@@ -109,3 +109,17 @@ def test_a_replayed_new_chip_keeps_its_counts_across_a_board_reset(query, tmp_pa
     assert dev.counters["device_resets"] == 1
     recorded = load_series(str(cap)).field_ut  # the stream as it came, read in the chip's counts
     assert replayed.shape == recorded.shape and np.allclose(replayed, recorded, equal_nan=True)
+
+
+@pytest.mark.parametrize("chip,url", CHIP_PORTS, ids=lambda v: getattr(v, "label", v))
+def test_show_self_test_over_i2c_passes_inside_each_chips_window_in_the_counts_it_names(chip, url, monkeypatch,
+                                                                                       tmp_path, capsys):
+    monkeypatch.setattr(smbus2, "SMBus", lambda bus: FakeBus(demo_scenario(5), chip=chip))
+    monkeypatch.setenv("MAGCAL_STORE_DIR", str(tmp_path / "store"))
+    main(["show", "--port", url, "--self-test"])
+    shown = capsys.readouterr().out
+    assert f"chip        {chip.label}" in shown and "self-test   PASS" in shown, shown
+    assert ("ASA-adjusted counts" in shown) == chip.has_asa, shown  # the AK09916 has no sensitivity adjustment
+    assert f"window from the {chip.magnetometer.value} datasheet" in shown
+    for axis, (lo, hi) in zip("xyz", chip.self_test_window):
+        assert f"window [{lo}, {hi}]  ok" in shown, shown

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.chips import MPU9150, Chip
 from ..core.errors import DeviceError
 from .common import device_settings, document, open_from_settings, print_json
 from .exits import Exit
@@ -62,8 +63,13 @@ def format_text(identity: dict, cal, where: str | None, record=None) -> str:
     return "\n".join(lines)
 
 
-def format_self_test(result, magnetometer: str = "AK8975") -> str:
-    lines = [f"self-test   {'PASS' if result.passed else 'FAIL'} (ASA-adjusted counts; window from the {magnetometer} datasheet)"]
+def format_self_test(result, chip: Chip | None = None) -> str:
+    """The self-test judgement in the counts the window is stated in: ASA-adjusted where the
+    part has sensitivity adjustment, its plain counts where it has none (the AK09916)."""
+    chip = chip or MPU9150
+    counts = "ASA-adjusted counts" if chip.has_asa else f"counts; the {chip.magnetometer.value} has no sensitivity adjustment"
+    lines = [f"self-test   {'PASS' if result.passed else 'FAIL'} ({counts}; window from the "
+             f"{chip.magnetometer.value} datasheet)"]
     for name, raw, adj, (lo, hi), ok in zip("xyz", result.raw, result.adjusted, result.window, result.axis_passed):
         lines.append(f"  {name}  raw {raw:6d}  adjusted {adj:8.1f}  window [{lo}, {hi}]  {'ok' if ok else 'OUT'}")
     return "\n".join(lines)
@@ -92,8 +98,8 @@ def run(args) -> int:
     else:
         print(format_text(identity.to_dict(), cal, where, record))
         if result is not None:
-            chip = identity.chip
-            print(format_self_test(result, chip.magnetometer.value if chip else "AK8975"))
+            print(format_self_test(result, identity.chip))
+
     if result is not None:
         return Exit.OK if result.passed else Exit.GATE
     return Exit.OK if cal is not None else Exit.NO

@@ -57,6 +57,18 @@ class Chip:
     def counts_in_range(self, value: int) -> bool:
         return self.count_min <= int(value) <= self.count_max
 
+    def on_rail(self, raw) -> bool:
+        """True when a count sits at or past either end of the range (a clipped axis)."""
+        return any(v <= self.count_min or v >= self.count_max for v in raw)
+
+    def temp_c(self, temp_raw):
+        """TEMP_OUT (a signed count, or an array of them) → die temperature, °C."""
+        return temp_raw / self.temp_lsb_per_c + self.temp_offset_c
+
+    def temp_raw(self, temp_c: float) -> int:
+        """Die temperature, °C → the TEMP_OUT count this part reports (16-bit signed)."""
+        return int(min(max(round((float(temp_c) - self.temp_offset_c) * self.temp_lsb_per_c), -32768), 32767))
+
 
 MPU9150 = Chip(
     name="mpu9150", label="MPU-9150 (AK8975, 13-bit)", magnetometer=Magnetometer.AK8975,

@@ -39,8 +39,6 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from ..core.chips import MPU9150, Chip, chip_named
 from ..core.errors import DeviceError, PortError, PortUnavailable
 from ..recordings.state import user_state_dir
@@ -83,15 +81,6 @@ class EmuChip:
     def has_asa(self) -> bool:
         return self.part.has_asa
 
-    def counts(self, m_ut: np.ndarray, asa) -> tuple[np.ndarray, np.ndarray]:
-        """Fields in µT (n, 3) → the data registers (n, 3) and ST2's HOFL flag (n,)."""
-        p = self.part
-        lsb = p.ut_per_count * np.array([asa_gain(a) for a in asa])
-        raw = np.clip(np.round(m_ut / lsb), p.count_min, p.count_max).astype(np.int64)
-        return raw, np.abs(m_ut).sum(axis=1) >= p.overflow_sum_ut
-
-    def temp_raw(self, temp_c: float) -> int:
-        return int(round((temp_c - self.part.temp_offset_c) * self.part.temp_lsb_per_c))
 
     def self_test_raw(self, adjusted_ak8975, asa) -> list[int]:
         """The data registers in self-test mode for a coil that reads ``adjusted_ak8975`` on an
@@ -170,8 +159,8 @@ class EmulatedBoard:
         chip: EmuChip | None = None,
     ):
         self.chip = chip or emu_chip()
-        if not self.chip.has_asa:  # no fuse ROM: the host reads 128 (a factor of 1) from the hello
-            scenario = scenario.with_physics(asa=(128, 128, 128))
+        if scenario.physics.chip != self.chip.part:  # the physics reads in this chip's counts
+            scenario = scenario.with_physics(chip=self.chip.part)  # (no fuse ROM: ASA 128, a factor of 1)
         self.scenario = scenario
         self._tmpdir = None  # removed when the board is dropped: its EEPROM lives across restarts
         if eeprom_path is None:
@@ -230,14 +219,8 @@ class EmulatedBoard:
 
     def measure(self, t_s: float, k: int) -> tuple[tuple[int, int, int], int, int]:
         """The chip's data registers, ST2 (HOFL) and TEMP_OUT for measurement k at t_s."""
-        sc = self.scenario
-        if self.chip.bits == 13:  # the MPU-9150: the physics' own AK8975 registers
-            raw, st2, temp = sc.measure([t_s], [k])
-            return tuple(int(v) for v in raw[0]), int(st2[0]), int(temp[0])
-        m_ut, _ = sc.field_ut([t_s], [k])
-        raw, hofl = self.chip.counts(m_ut, sc.physics.asa)
-        temp = self.chip.temp_raw(float(sc.temp_c([t_s])[0]))
-        return tuple(int(v) for v in raw[0]), 0x08 if hofl[0] else 0, temp
+        raw, st2, temp = self.scenario.measure([t_s], [k])  # the physics on this chip (its counts, rails, HOFL, TEMP_OUT)
+        return tuple(int(v) for v in raw[0]), int(st2[0]), int(temp[0])
 
     def _answer(self, parts: list[str]) -> str:
         """``M t_us k [bits]`` → ``hx hy hz hofl temp``; the firmware's resolution must be the

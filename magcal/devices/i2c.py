@@ -460,8 +460,10 @@ class I2CDevice(ChipBringUp, HostStore, Device):
             field_ut=(float(field[0]), float(field[1]), float(field[2])),
             raw=raw,
             st2=st2,
-            temp_c=temp_raw_to_c(temp_raw),
+            temp_c=temp_raw_to_c(temp_raw, self.chip),
+            chip=self.chip,
         )
+
 
     def _wait_drdy(self, t_trigger: float) -> bool:
         """Poll ST1.DRDY on the monotonic clock until ``drdy_timeout_s`` after the trigger."""

@@ -110,9 +110,11 @@ class Inbox:
         if isinstance(item, RawSample):
             self.pending.append(self._sample(item))
         elif isinstance(item, CalibratedSample):
+            chip = hello_chip(self.hello) or MPU9150
             self.pending.append(Sample(seq=item.seq, t_s=self._time(item.ms),
                                        field_ut=tuple(v / 1000.0 for v in item.field_nt), st2=item.st2,
-                                       temp_c=temp_raw_to_c(item.temp_raw), aux={"calibrated": 1.0}))
+                                       temp_c=temp_raw_to_c(item.temp_raw, chip), aux={"calibrated": 1.0},
+                                       chip=chip))
         elif isinstance(item, Gap):
             self.pending.append(Event("gap", seq=item.seq, count=item.count))
         elif isinstance(item, Restart):
@@ -158,7 +160,8 @@ class Inbox:
         chip = hello_chip(self.hello) or MPU9150
         field = counts_to_ut(s.raw, asa) * (chip.ut_per_count / MPU9150.ut_per_count)
         return Sample(seq=s.seq, t_s=self._time(s.ms), field_ut=(float(field[0]), float(field[1]), float(field[2])),
-                      raw=s.raw, st2=s.st2, temp_c=temp_raw_to_c(s.temp_raw))
+                      raw=s.raw, st2=s.st2, temp_c=temp_raw_to_c(s.temp_raw, chip), chip=chip)
+
 
 
 class ProtocolDevice(Device):

@@ -363,7 +363,7 @@ class SimBoard(SerialEnd):
         """The stored record applied to one reading, in nT (what a ``U`` line carries)."""
         cal = calibration_from_record(values)
         m_ut = counts_to_ut(raw, self.asa) * (self.chip.ut_per_count / MPU9150.ut_per_count)
-        h_ut = cal.correct(m_ut, {"temp_c": [temp_raw_to_c(temp_raw)]})[0]
+        h_ut = cal.correct(m_ut, {"temp_c": [temp_raw_to_c(temp_raw, self.chip)]})[0]
         return tuple(int(round(x * 1000.0)) for x in h_ut)
 
     # -- the firmware's standalone fit ------------------------------------------------------

@@ -54,12 +54,9 @@ import numpy as np
 
 from .. import __version__
 from ..core.errors import InputError, MagcalError
-from ..core.chips import MPU9150, chip_from_ids
-from ..core.sample import COUNT_MAX, COUNT_MIN, ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
-from ..core.series import Series
 from ..wire.bulk import Frames, parse_blocks
 from ..wire.dialect import Dialect, dialect_of
-from ..wire.protocol import Hello, Restart, hello_applies
+from .frames_series import series_from_frames  # noqa: F401  (read with the capture: the loaders' import)
 
 FORMAT = "magcal-capture"
 VERSION = 1
@@ -485,96 +482,6 @@ class CaptureReader:
     def data(self) -> bytes:
         """All recorded bytes, concatenated."""
         return b"".join(chunk for _, chunk in self)
-
-
-# -- samples from frames, exactly as the live client builds them ---------------------------
-def series_from_frames(frames: Frames) -> Series:
-    """The Series a passive ``ProtocolDevice`` reading the same bytes would collect:
-    field from the latest hello's ASA (unity before any hello), device time unwrapped per
-    reset epoch, validity by ``Sample.valid``'s rules. Bit-identical (tests hold it). Built
-    ``_ROWS`` samples at a time, so the temporaries stay small beside the result."""
-    n = len(frames)
-    hellos, refused = _applied_hellos(frames)
-    h_pos = np.array([p for p, _ in hellos], np.int64)
-    gains = np.array([[1.0, 1.0, 1.0]] + [[asa_gain(a) for a in m.asa] for _, m in hellos], np.float64)
-    scales = np.array([1.0] + [_chip_scale(m) for _, m in hellos], np.float64)
-    r_pos = np.array([p for p, e in frames.events if isinstance(e, Restart)], np.int64)
-    field = np.empty((n, 3), np.float64)
-    t = np.empty(n, np.float64)
-    valid = np.empty(n, bool)
-    for a in range(0, n, _ROWS):
-        b = min(n, a + _ROWS)
-        _field_rows(frames, a, b, h_pos, (gains, scales), field, valid)
-        _time_rows(frames, a, b, r_pos, t)
-    temp_c = frames.temp / 340.0 + 36.53
-    raw_kind = frames.kind == ord("S")
-    channels = {"temp_c": temp_c} if n else {}
-    if n and not raw_kind.all():
-        channels["calibrated"] = np.where(raw_kind, np.nan, 1.0)
-    reading = {**frames.counters, "hellos_refused": refused}
-    return Series(t_s=t, field_ut=field, channels=channels, valid=valid, seq=frames.seq.copy(), reading=reading)
-
-
-_ROWS = 1 << 17  # samples per step of series_from_frames
-
-
-def _chip_scale(hello: Hello) -> float:
-    """The chip's count over the AK8975's (1 for an MPU-9150 or ids no known part answers),
-    exactly as the live client scales (``protocol_client.hello_chip``)."""
-    try:
-        chip = chip_from_ids(hello.who_am_i, hello.wia, hello.bits or None)
-    except ValueError:
-        chip = MPU9150
-    return chip.ut_per_count / MPU9150.ut_per_count
-
-
-def _field_rows(frames: Frames, a: int, b: int, h_pos, gains_scales, field, valid) -> None:
-    """Field (µT) and validity of samples ``a`` … ``b-1``; ``gains_scales``: each hello's
-    ASA gains and the chip's count over the AK8975's."""
-    gains, scales = gains_scales
-    which = np.searchsorted(h_pos, frames.pos[a:b])  # 0: before any hello
-    raw_kind = frames.kind[a:b] == ord("S")
-    vals = frames.values[a:b]
-    out = field[a:b]
-    # the live client's counts_to_ut(raw, asa) * (chip µT/count / 0.3), element by element
-    w = which[raw_kind]
-    out[raw_kind] = vals[raw_kind].astype(np.float64) * (UT_PER_COUNT * gains[w]) * scales[w][:, None]
-    out[~raw_kind] = vals[~raw_kind].astype(np.float64) / 1000.0
-    st2_bad = (frames.st2[a:b] & (ST2_DERR | ST2_HOFL)) != 0
-    rails = np.any((vals <= COUNT_MIN) | (vals >= COUNT_MAX), axis=1)
-    zero = np.all(vals == 0, axis=1)
-    valid[a:b] = ~st2_bad & np.where(raw_kind, ~rails & ~zero, True)
-
-
-def _time_rows(frames: Frames, a: int, b: int, r_pos, t) -> None:
-    """Device time of samples ``a`` … ``b-1``: t_k = t_{k-1} + Δ, with Δ = ms/1000 at the
-    start of an epoch (after a reset), else the ms step (mod 2³²) / 1000; summed in order, so
-    the figures equal one pass over all samples."""
-    p = max(a - 1, 0)  # the sample before, for the step and the epoch
-    epoch = np.searchsorted(r_pos, frames.pos[p:b], side="right")
-    ms = frames.ms[p:b]
-    first = np.ones(len(ms), bool)
-    first[1:] = epoch[1:] != epoch[:-1]
-    step = np.zeros(len(ms), np.int64)
-    step[1:] = (ms[1:] - ms[:-1]) % (1 << 32)
-    inc = np.where(first, ms / 1000.0, step / 1000.0)[a - p :]
-    if a:
-        inc[0] = t[a - 1] + inc[0]
-    t[a:b] = np.cumsum(inc)
-
-
-def _applied_hellos(frames: Frames) -> tuple[list, int]:
-    """The hellos that set the gain of later samples, by the live client's rule
-    (``hello_applies``), and how many were refused."""
-    out, current, refused = [], None, 0
-    for p, m in frames.others:
-        if isinstance(m, Hello):
-            if hello_applies(current, m):
-                out.append((p, m))
-                current = m
-            else:
-                refused += 1
-    return out, refused
 
 
 def recorded_dialect(reader: "CaptureReader") -> Dialect:

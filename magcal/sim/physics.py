@@ -289,7 +289,7 @@ class Scenario:
     def measure(self, t_s, k) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the chip reports: raw counts (n, 3) int, ST2 (n,), TEMP_OUT raw (n,)."""
         m, _ = self.field_ut(t_s, k)
-        return self.to_counts(m) + (np.array([temp_c_to_raw(x) for x in self.temp_c(t_s)]),)
+        return self.to_counts(m) + (np.array([temp_c_to_raw(x, self.physics.chip) for x in self.temp_c(t_s)]),)
 
     def to_counts(self, m_ut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ph = self.physics
