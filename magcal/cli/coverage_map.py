@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fit.coverage import cell_centres, side_name
+from ..fit.coverage import cell_centres, nearest_empty_cell, side_name
 
 FULL, EMPTY, HERE, NEXT = "██", "··", "◆◆", "◎◎"
 SHADES = ("░░", "▒▒", "▓▓")
@@ -30,18 +30,8 @@ def cell_of(direction, bands: int, sectors: int) -> int:
 
 def next_cell(counts, bands: int, sectors: int, direction) -> tuple[int, float] | None:
     """The empty cell nearest to where the field points now, and the turn to it in degrees
-    (None when no cell is empty)."""
-    empty = np.flatnonzero(np.asarray(counts) == 0)
-    if len(empty) == 0:
-        return None
-    centres = cell_centres(bands, sectors)[empty]
-    if direction is None:
-        return int(empty[0]), float("nan")
-    u = np.asarray(direction, dtype=np.float64)
-    u = u / (np.linalg.norm(u) or 1.0)
-    cosang = np.clip(centres @ u, -1.0, 1.0)
-    k = int(np.argmax(cosang))
-    return int(empty[k]), float(np.degrees(np.arccos(cosang[k])))
+    (None when no cell is empty): ``fit.coverage.nearest_empty_cell``."""
+    return nearest_empty_cell(counts, bands, sectors, direction)
 
 
 def hint(counts, bands: int, sectors: int, direction) -> str:

@@ -46,6 +46,23 @@ def cell_centres(bands: int = DEFAULT_BANDS, sectors: int = DEFAULT_SECTORS) -> 
     return np.stack([r * np.cos(ll), r * np.sin(ll), zz], axis=-1).reshape(-1, 3)
 
 
+def nearest_empty_cell(counts, bands: int, sectors: int, direction) -> tuple[int, float] | None:
+    """The empty cell nearest to ``direction`` (any vector; None: the first empty cell) and the
+    angle to it in degrees (nan without a direction); None when no cell is empty."""
+    empty = np.flatnonzero(np.asarray(counts) == 0)
+    if len(empty) == 0:
+        return None
+    if direction is None:
+        return int(empty[0]), float("nan")
+    u = np.asarray(direction, dtype=np.float64)
+    norm = float(np.linalg.norm(u))
+    if not norm > 0 or not np.isfinite(norm):
+        return int(empty[0]), float("nan")
+    cosang = np.clip(cell_centres(bands, sectors)[empty] @ (u / norm), -1.0, 1.0)
+    k = int(np.argmax(cosang))
+    return int(empty[k]), float(np.degrees(np.arccos(cosang[k])))
+
+
 def side_name(direction) -> str:
     """The side of the sensor a direction points out of: ``−Z``, ``+X/−Z`` (strongest first)."""
     u = np.asarray(direction, dtype=np.float64)

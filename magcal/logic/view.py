@@ -26,7 +26,7 @@ from enum import Enum
 
 import numpy as np
 
-from ..fit.coverage import cell_centres, side_name
+from ..fit.coverage import cell_centres, nearest_empty_cell, side_name
 from .session import Session, Status
 
 MAX_POINTS = 2048  # the page draws at most this many points (the kept set holds 1024)
@@ -134,19 +134,14 @@ def motioncal_numbers(field_ut, calibration, counts, bands: int, sectors: int) -
 def next_turn(counts, bands: int, sectors: int, here) -> Turn | None:
     """The empty direction cell nearest to where the field points now (``here``, any vector or
     None), as the side of the board to aim along the field; None when no cell is empty."""
-    empty = np.flatnonzero(np.asarray(counts) == 0)
-    if len(empty) == 0:
-        return None
-    centres = cell_centres(bands, sectors)[empty]
     u = _unit(here)
-    if u is None:
-        k, angle = 0, None
-    else:
-        cosang = np.clip(centres @ u, -1.0, 1.0)
-        k = int(np.argmax(cosang))
-        angle = _r(np.degrees(np.arccos(cosang[k])), 1)
-    target = centres[k]
-    return Turn(side=side_name(target), target=tuple(_r(v) for v in target), angle_deg=angle,
+    found = nearest_empty_cell(counts, bands, sectors, u)
+    if found is None:
+        return None
+    cell, angle = found
+    target = cell_centres(bands, sectors)[cell]
+    return Turn(side=side_name(target), target=tuple(_r(v) for v in target),
+                angle_deg=None if u is None else _r(angle, 1),
                 here=None if u is None else tuple(_r(v) for v in u))
 
 
