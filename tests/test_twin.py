@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from cli_once import diagnose_both_ways
 from magcal.app.load import load_series
 from magcal.app.sensor_file import load_model
 from magcal.core.calibration import Calibration
@@ -113,11 +114,20 @@ def _run(*args, cwd):
     return subprocess.run([sys.executable, "-m", "magcal", *args], cwd=cwd, capture_output=True, text=True, env=env)
 
 
+@pytest.fixture(scope="module")
+def real_twin(tmp_path_factory):
+    """``magcal diagnose REAL --model-out m.yaml --twin --draws 20 --report rep``, run once and
+    printed both ways (cli_once): (its folder, its JSON, its text)."""
+    out = tmp_path_factory.mktemp("twin")
+    doc, text = diagnose_both_ways(REAL, "--model-out", out / "m.yaml", "--twin", "--draws", "20",
+                                   "--report", out / "rep")
+    return out, doc, text
+
+
 @pytest.mark.slow
-def test_diagnose_writes_a_model_that_simulate_draws_twins_from(tmp_path):
-    r = _run("diagnose", REAL, "--model-out", "m.yaml", "--twin", "--draws", "20", "--json", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    d = json.loads(r.stdout)
+@pytest.mark.xdist_group("twin_real_twin")  # one real_twin under make test -n
+def test_diagnose_writes_a_model_that_simulate_draws_twins_from(real_twin):
+    tmp_path, d, _ = real_twin
     steps = d["twin"]["steps"]
     assert steps[0]["step"] == "baseline" and steps[-1]["step"] == "final"
     assert steps[-1]["inside"] > steps[0]["inside"]
@@ -138,10 +148,10 @@ def test_diagnose_writes_a_model_that_simulate_draws_twins_from(tmp_path):
 
 
 @pytest.mark.slow
-def test_diagnose_twin_text_shows_the_steps(tmp_path):
-    r = _run("diagnose", REAL, "--twin", "--draws", "12", "--report", "rep", cwd=tmp_path)
-    assert r.returncode == 0, r.stderr
-    assert "baseline" in r.stdout and "final" in r.stdout and "inside" in r.stdout
+@pytest.mark.xdist_group("twin_real_twin")
+def test_diagnose_twin_text_shows_the_steps(real_twin):
+    tmp_path, _, text = real_twin
+    assert "baseline" in text and "final" in text and "inside" in text
     page = (tmp_path / "rep" / "twin.html").read_text()
     assert "✓" in page and "twin_time.png" in page
     assert "twin.html" in (tmp_path / "rep" / "index.html").read_text()
