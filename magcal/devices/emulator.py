@@ -21,10 +21,13 @@ again on the same EEPROM file.
 
 The physics answers in the chip's own counts: its quantum (0.3 µT AK8975, 0.6 or 0.15 µT AK8963,
 0.15 µT AK09916, each times the ASA gain where the part has one; the AK09916 has none: ASA 128),
-its range and overflow (``EmuChip``), and its die-temperature register.
+its range and overflow, and its die-temperature register: ``Scenario.measure`` with the physics
+on this chip (``Physics.chip``, the one chip table), as the simulators read.
 
-Nothing is built implicitly unless the build is missing: then ``make -C firmware`` and
-``make -C firmware/emulator`` run once, and a missing toolchain is a clear ``DeviceError``.
+Nothing is built implicitly unless the build is missing: then the firmware and the harness are
+built once from the packaged sources (``magcal.devices.firmware``: in place in a source checkout,
+else in the user's cache, so ``emu://`` works from an installed package), and a missing toolchain
+is a clear ``DeviceError``.
 """
 
 from __future__ import annotations
@@ -45,15 +48,15 @@ from ..recordings.state import user_state_dir
 from ..core.sample import asa_gain
 from ..sim.physics import Scenario
 from ..wire.dialect import Dialect
+from . import firmware
 from .faults import register_flags
 from .port import Port, scenario_of
 from .transport import WrappedTransport
 
-REPO = Path(__file__).resolve().parents[2]
-FIRMWARE_DIR = REPO / "firmware"
-ELF = FIRMWARE_DIR / "build" / "magcal_mpu9150.elf"
-ELF_AK8963_14BIT = FIRMWARE_DIR / "build" / "magcal_mpu9150_ak8963_14bit.elf"  # AK8963_BITS=14
-HARNESS = FIRMWARE_DIR / "emulator" / "build" / "magcal-emu"
+FIRMWARE_DIR = firmware.FIRMWARE_DIR  # the packaged sources (the tree's own in a checkout)
+ELF = firmware.IMAGE.elf
+ELF_AK8963_14BIT = firmware.IMAGE_AK8963_14BIT.elf  # AK8963_BITS=14
+HARNESS = firmware.EMULATOR_BUILD_DIR / "magcal-emu"
 ARDUINO_CORE = Path("/usr/share/arduino/hardware/arduino/avr")
 SIMAVR_HEADER = Path("/usr/include/simavr/sim_avr.h")
 AVR_PACKAGES = "gcc-avr avr-libc binutils-avr arduino-core-avr simavr libsimavr-dev"
@@ -62,8 +65,8 @@ _build_lock = threading.Lock()
 
 @dataclass(frozen=True)
 class EmuChip:
-    """What the emulated board's magnetometer makes of a field: one row of the chip table
-    (``magcal.core.chips``: quantum, range, overflow, self-test window, die temperature). The
+    """The emulated board's magnetometer: one row of the chip table (``magcal.core.chips``),
+    whose counts, range, overflow and die temperature the physics reads in. The
     healthy coil of the physics (``Physics.self_test_counts``, an AK8975's reading) is placed at
     the same point of this chip's window, so a dead or weak coil stays outside it."""
 
@@ -126,16 +129,14 @@ def ensure_built() -> tuple[Path, Path]:
     with _build_lock:
         if ELF.exists() and ELF_AK8963_14BIT.exists() and HARNESS.exists():
             return ELF, HARNESS
-        if not (FIRMWARE_DIR / "Makefile").exists():
-            raise DeviceError(f"emu:// needs a source checkout: no firmware/Makefile at {FIRMWARE_DIR}")
         problem = toolchain_problem()
         if problem:
             raise DeviceError(f"emu:// needs the firmware build: {problem}")
-        for target in (FIRMWARE_DIR, FIRMWARE_DIR / "emulator"):
-            r = subprocess.run(["make", "-C", str(target)], capture_output=True, text=True)
-            if r.returncode != 0:
-                tail = (r.stderr or r.stdout).strip().splitlines()[-5:]
-                raise DeviceError(f"emu://: building {target.name} failed: " + " | ".join(tail))
+        try:
+            firmware.build_firmware()
+            firmware.build_harness()
+        except DeviceError as exc:
+            raise DeviceError(f"emu://: {exc}") from None
         return ELF, HARNESS
 
 
