@@ -225,7 +225,7 @@ def read_file(path: str) -> dict:
         raise ConfigError(f"config file {path}: cannot read: {exc.strerror or exc}") from None
     if len(blob) > MAX_FILE_BYTES:
         raise ConfigError(f"config file {path}: larger than {MAX_FILE_BYTES} bytes: not a magcal config "
-                          "(config/magcal.yaml lists every setting)")
+                          "(`magcal config` prints every setting)")
     try:
         text = blob.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -37,6 +37,9 @@ COMMANDS = {
     "status": "report a daemon's live state: samples, coverage, last calibration, faults",
     "simulate": "write a simulated MPU-9150 recording (CSV, µT) with known physics",
     "fleet": "analyse every log of a fleet (pool or Dask cluster): each compass's history and where it changed",
+    "config": "print the configuration template: every setting, its default and meaning (for --config)",
+    "service": "install the systemd unit (magcal@PORT.service), its config file and docs",
+    "firmware": "build the Arduino firmware from the packaged sources, or flash it to a board",
 }
 
 DESCRIPTION = "Calibrate the MPU-9150's magnetometer: stream, fit, diagnose, write back, verify."

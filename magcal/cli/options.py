@@ -142,7 +142,7 @@ VOCABULARY: dict[str, tuple[tuple, dict]] = {
                                      help="wire convention: magcal's protocol v1 (native), a PJRC/Adafruit "
                                      "sketch's Raw: lines (motioncal), or detect (auto); default: the "
                                      "config's dialect, native")),
-    "config": (("--config",), dict(metavar="FILE", help="YAML settings (every key: config/magcal.yaml); "
+    "config": (("--config",), dict(metavar="FILE", help="YAML settings (every key: magcal config); "
                                    "default: $MAGCAL_CONFIG, else built-in defaults")),
     "json": (("--json",), dict(action="store_true", help="print one JSON object (its \"schema\" key names "
                                "the shape and version) instead of text")),

@@ -2,8 +2,8 @@
 
 It is not a second register model: every byte goes through the one C model
 (``firmware/emulator/mpu9150_model.c``, loaded with ctypes from
-``firmware/emulator/build/libmpu9150model.so``, built with ``make``/``cc`` when missing or
-stale), whose field comes from the one physics simulator (``Scenario.measure``). So the bypass
+``firmware/emulator/build/libmpu9150model.so``, or from an installed package the user's cache:
+``magcal.devices.firmware``; built with ``make``/``cc`` when missing or stale), whose field comes from the one physics simulator (``Scenario.measure``). So the bypass
 gating, DRDY after the measurement delay, DERR, HOFL and clamping, fuse-ROM-only ASA and the
 burst wrap are exactly what the simavr-emulated Arduino sees.
 
@@ -35,8 +35,9 @@ from ..core.chips import DEFAULT, Chip, Magnetometer, chip_named
 from ..core.errors import DeviceError
 from ..core.sample import ST2_HOFL
 from ..sim.physics import Scenario, demo_scenario
+from . import firmware
 
-EMULATOR_DIR = Path(__file__).resolve().parents[2] / "firmware" / "emulator"
+EMULATOR_DIR = firmware.FIRMWARE_DIR / "emulator"  # the packaged sources (magcal.devices.firmware)
 LIB_NAME = "libmpu9150model.so"
 ENV_LIB = "MAGCAL_MODEL_LIB"
 BLOCK_MAX = 32  # smbus2's I2C_SMBUS_BLOCK_MAX
@@ -81,7 +82,7 @@ def _build(lib: Path) -> None:
     if not source.exists():
         raise DeviceError(f"the register model source {source} is missing; the fake I2C bus needs it")
     if shutil.which("make"):
-        proc = subprocess.run(["make", "-s", "-C", str(EMULATOR_DIR), "lib"], capture_output=True, text=True)
+        proc = subprocess.run(["make", "-s", "-C", str(EMULATOR_DIR), f"BUILD={lib.parent}", "lib"], capture_output=True, text=True)
         if proc.returncode == 0 and lib.exists():
             return
         detail = (proc.stderr or proc.stdout).strip()
@@ -117,7 +118,7 @@ def load_model_library() -> ctypes.CDLL:
             if not path.exists():
                 raise DeviceError(f"${ENV_LIB} names {path}, which does not exist")
         else:
-            path = EMULATOR_DIR / "build" / LIB_NAME
+            path = firmware.EMULATOR_BUILD_DIR / LIB_NAME
             if _stale(path):
                 _build(path)
         lib = ctypes.CDLL(str(path))
