@@ -23,8 +23,10 @@ def _files():
         for dirpath, dirnames, files in os.walk(os.path.join(ROOT, top)):
             dirnames[:] = [d for d in dirnames if d not in ("build", "__pycache__")]
             for f in files:
-                if f.endswith(TEXT):
-                    yield os.path.join(dirpath, f)
+                path = os.path.join(dirpath, f)
+                # magcal/share's links name the top level's one copy, read where it lives
+                if f.endswith(TEXT) and not os.path.islink(path):
+                    yield path
 
 
 def _read(path: str) -> str:

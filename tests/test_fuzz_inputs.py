@@ -130,7 +130,9 @@ def argv_of(draw, command: str, files: dict):
     if command in ("fit", "diagnose", "export", "write"):
         argv.append(draw(st.sampled_from([files["csv"], files["cap"], files["json"], files["bin"], files["dir"],
                                           "/no/such/file", "-" if command == "write" else files["csv"]])))
-    for action in draw(st.lists(st.sampled_from(_options(command)), max_size=4, unique_by=lambda a: a.dest)):
+    options = _options(command)  # none at the top of a command made of subcommands (service, firmware)
+    drawn = draw(st.lists(st.sampled_from(options), max_size=4, unique_by=lambda a: a.dest)) if options else []
+    for action in drawn:
         flag = draw(st.sampled_from(action.option_strings))
         if action.dest == "port":
             argv += [flag, draw(st.sampled_from(_ports(command, files)))]
