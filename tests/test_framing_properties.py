@@ -12,8 +12,8 @@ from magcal.wire.protocol import MAX_LINE, Framer, Gap, Hello, RawSample, Restar
 SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
-def sample_line(seq, ms=1000, raw=(-123, 456, -789), st2=0, temp=-2150):
-    return encode_line("S", (seq, ms, *raw, st2, temp))
+def sample_line(seq, ms=1000, raw=(-123, 456, -789), st2=0, temp=-2150, accel=()):
+    return encode_line("S", (seq, ms, *raw, st2, temp, *accel))
 
 
 def hello_line(seq=0, asa=(176, 178, 166)):
@@ -24,6 +24,8 @@ ints16 = st.integers(-40000, 40000)
 good_lines = st.one_of(
     st.builds(sample_line, st.integers(0, 65535), st.integers(-(2**33), 2**33), st.tuples(ints16, ints16, ints16),
               st.integers(0, 255), ints16),
+    st.builds(sample_line, st.integers(0, 65535), st.integers(-(2**33), 2**33), st.tuples(ints16, ints16, ints16),
+              st.integers(0, 255), ints16, st.tuples(ints16, ints16, ints16)),  # with the accelerometer's fields
     st.builds(hello_line, st.integers(0, 65535), st.tuples(*[st.integers(0, 255)] * 3)),
     st.builds(lambda s, t: encode_line("U", (s, 5, 1000, -2000, 3000, 0, t)), st.integers(0, 65535), ints16),
     st.builds(lambda s, tag: encode_line("A", (s, tag, "G")), st.integers(0, 65535), st.integers(1, 65535)),
@@ -106,7 +108,8 @@ def sent_intact(data):
 
 def payload_of(msg):
     if isinstance(msg, RawSample):
-        return f"S,{msg.seq},{msg.ms},{msg.raw[0]},{msg.raw[1]},{msg.raw[2]},{msg.st2},{msg.temp_raw}"
+        accel = "".join(f",{a}" for a in msg.accel or ())
+        return f"S,{msg.seq},{msg.ms},{msg.raw[0]},{msg.raw[1]},{msg.raw[2]},{msg.st2},{msg.temp_raw}{accel}"
     return None
 
 
@@ -177,7 +180,7 @@ big = st.one_of(
 
 @SETTINGS
 @pytest.mark.slow
-@given(st.lists(st.tuples(st.sampled_from(["+", "-", "", "0", "00"]), big), min_size=7, max_size=7),
+@given(st.lists(st.tuples(st.sampled_from(["+", "-", "", "0", "00"]), big), min_size=7, max_size=11),
        st.sampled_from([b"S", b"U"]))
 def test_bulk_fast_path_agrees_on_odd_but_legal_numbers(tokens, kind):
     """Leading zeros, '+' signs, numbers at and beyond int64: the fast path must either agree
@@ -194,7 +197,7 @@ def test_bulk_fast_path_agrees_on_odd_but_legal_numbers(tokens, kind):
 @given(
     st.lists(
         st.integers(0, 65535).map(str) | st.just("") | st.text(alphabet="0123456789+-", max_size=6),
-        min_size=6, max_size=8,
+        min_size=6, max_size=11,
     ).map(",".join)
     | st.text(alphabet="0123456789+-,*", max_size=60),
     st.sampled_from([b"S", b"U"]),

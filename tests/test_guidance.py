@@ -98,11 +98,47 @@ def test_a_motioncal_board_sends_its_accelerometer_with_each_sample():
 
 @pytest.mark.slow
 def test_calibrate_on_a_still_board_says_you_are_not_moving(tmp_path):
-    from test_terminal_width import _in_terminal
+    from test_terminal_width import ESC, _in_terminal
 
-    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&motion=still&seed=3", "--timeout", "3"], 80)
+    # a board that sends no accelerometer keeps the field-relative hint
+    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&motion=still&seed=3&accel=off", "--timeout", "3"], 80)
     assert code == 3, out[-1500:]
-    assert "you are not moving: next: aim the board's" in out
+    assert "you are not moving: next: aim the board's" in out and "sides:" not in out
+    # one that does is told so in the sides' terms
+    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&motion=still&seed=3", "--timeout", "3"], 80)
+    plain = ESC.sub("", out)
+    assert code == 3, plain[-1500:]
+    assert re.search(r"next: you are not moving: (lay it|turn it a full circle)", plain), plain[-1500:]
+
+
+@pytest.mark.slow
+def test_calibrate_on_the_simulated_board_names_the_sides_from_its_accelerometer():
+    from test_terminal_width import ESC, _in_terminal
+
+    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&seed=3&eeprom=none", "--timeout", "3"], 80)
+    plain = ESC.sub("", out)
+    assert code == 3, plain[-1500:]
+    assert "sides: · flat  · upside down  · left  · right  · front  · back" in plain, plain[-1500:]
+    assert re.search(r"next: (lay it|turn it a full circle)", plain)
+    assert "next: aim the board's" not in plain
+
+
+def test_the_simulated_board_sends_the_side_that_is_down():
+    """sim:// samples carry the accelerometer (±2 g counts on the wire, g on the sample): the
+    reaction to gravity in the magnetometer's body axes, +1 g on z when the board lies flat."""
+    from magcal.devices import open_device
+
+    with open_device("sim://?pace=0&eeprom=none&seed=4") as dev:
+        dev.open()
+        dev.start()
+        got = []
+        while len(got) < 100:
+            got += [s for s in dev.read(0.2) if hasattr(s, "aux")]
+        sc = dev.board.scenario
+    t = np.array([s.t_s for s in got])
+    accel = np.array([[s.aux["ax_g"], s.aux["ay_g"], s.aux["az_g"]] for s in got])
+    up = np.einsum("nji,j->ni", sc.orientation(t), [0.0, 0.0, 1.0])
+    assert np.allclose(accel, up, atol=0.02)
 
 
 @pytest.mark.slow

@@ -57,6 +57,29 @@ def test_round_trip_of_every_device_message():
     assert f.counters["lines"] == 6
 
 
+def test_sample_lines_may_carry_the_accelerometer_and_old_ones_still_read():
+    """Three trailing fields: the accelerometer's registers (±2 g counts); a line without them
+    (an older board, an old capture) reads as before; one or two of them is no sample."""
+    f = Framer()
+    old, new, cal = f.feed(hello() + encode_line("S", [1, 10, 1, 2, 3, 0, -2150])
+                           + encode_line("S", [2, 20, 1, 2, 3, 0, -2150, 120, -340, 16384])
+                           + encode_line("U", [3, 30, 1000, 2000, 3000, 0, -2150, 0, 0, -16384, 7]))[1:]
+    assert old.raw == (1, 2, 3) and old.accel is None
+    assert new.raw == (1, 2, 3) and new.temp_raw == -2150 and new.accel == (120, -340, 16384)
+    assert cal.field_nt == (1000, 2000, 3000) and cal.accel == (0, 0, -16384)  # a later field after them: ignored
+    for extra in ([5], [5, 6]):
+        assert not f.feed(encode_line("S", [4, 40, 1, 2, 3, 0, -2150, *extra]))
+    assert f.counters["bad_syntax"] == 2
+
+
+def test_the_client_puts_the_accelerometer_on_the_sample_in_g():
+    from magcal.devices.protocol_client import accel_aux
+
+    m = RawSample(1, 10, (1, 2, 3), 0, 0, (8192, 0, -16384))
+    assert accel_aux(m) == {"ax_g": 0.5, "ay_g": 0.0, "az_g": -1.0}
+    assert accel_aux(RawSample(1, 10, (1, 2, 3), 0, 0)) == {}
+
+
 def test_torn_noise_overlong_and_bad_crc_are_counted_not_merged():
     good = sample(2, raw=(7, 8, 9))
     bad_crc = sample(3)[:-3] + b"00\n"

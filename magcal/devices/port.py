@@ -20,6 +20,7 @@ An option means the same wherever it is taken; each backend takes the ones marke
 | ``measure_us`` | the AK8975's measurement time in µs                    |     |  ✓  |        |     |
 | ``chip``     | mpu9150 (default), mpu9250 or icm20948 (``core.chips``)  |  ✓  |  ✓  |        |  ✓  |
 | ``bits``     | magnetometer resolution: 14 or 16 for the mpu9250 (16)   |  ✓  |  ✓  |        |  ✓  |
+| ``accel``    | on: samples carry the accelerometer (default); off: none |  ✓  |     |        |     |
 
 On ``i2c:`` the chip is found by its ids; ``chip=`` there says which one is expected (another
 is refused) and ``bits=`` picks the AK8963's resolution.
@@ -141,6 +142,13 @@ def _bits(text: str) -> int:
     return bits
 
 
+def _on_off(text: str) -> bool:
+    word = text.strip().lower()
+    if word not in ("on", "off"):
+        raise ValueError("accel is on or off")
+    return word == "on"
+
+
 @dataclass(frozen=True)
 class Option:
     name: str
@@ -158,6 +166,7 @@ VOCABULARY = {o.name: o for o in (
     Option("noise", _positive, "sensor noise in µT"),
     Option("field", _positive, "Earth field in µT"),
     Option("fault", str, "KIND[@T][+D][=VALUE], repeatable"),
+    Option("accel", _on_off, "on: samples carry the accelerometer, off: none"),
     Option("addr", _addr, "I2C address 0x68 or 0x69"),
     Option("measure_us", _whole, "AK8975 measurement time in µs"),
     Option("chip", _chip, "mpu9150, mpu9250 or icm20948"),
@@ -180,7 +189,7 @@ class Scheme:
 
 
 SCHEMES = {s.name: s for s in (
-    Scheme("sim", "", ("seed", "rate", "pace", "eeprom", "motion", "offset", "noise", "field", "fault", "chip", "bits"),
+    Scheme("sim", "", ("seed", "rate", "pace", "eeprom", "motion", "offset", "noise", "field", "fault", "chip", "bits", "accel"),
            LINK_FAULTS | BOARD_FAULTS, (("speed", "pace"),)),
     Scheme("emu", "", ("seed", "pace", "eeprom", "offset", "noise", "fault", "addr", "measure_us", "chip", "bits"),
            frozenset(REGISTER_FAULTS)),

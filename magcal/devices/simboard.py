@@ -8,7 +8,8 @@ Options (the port string's, ``magcal.devices.port``): ``seed``, ``rate`` (initia
 100), ``pace`` (1 = real time, the default, as a board would; N = N× real time; 0 = as fast as
 the host reads, for quick trials, tests and benchmarks: ``sim://?pace=0``),
 ``eeprom`` (a file kept across runs; by default one per seed in the user's state directory,
-as for ``emu://``; ``eeprom=none`` for a throwaway one), ``motion``, ``offset``, ``noise``, ``field`` and ``fault`` — every fault of
+as for ``emu://``; ``eeprom=none`` for a throwaway one), ``motion``, ``offset``, ``noise``, ``field``, ``accel`` (``off``: samples without the
+accelerometer's three trailing fields, as from a board that has none) and ``fault`` — every fault of
 ``magcal.devices.faults`` but the register-model ones, fired when the board's physics time
 reaches it. Board flags can also be set directly in ``SimBoard.faults`` (``mute``,
 ``no_write_ack``, ``corrupt_write``).
@@ -37,6 +38,7 @@ from ..recordings.atomic import write_atomic
 from ..sim.physics import Scenario, demo_scenario
 from ..wire.dialect import Dialect
 from ..wire.protocol import (
+    ACCEL_COUNTS_PER_G,
     MAX_LINE,
     RECORD_FIELDS,
     RECORD_VERSION,
@@ -274,6 +276,7 @@ class SimBoard(SerialEnd):
         asa: tuple[int, int, int] | None = None,
         faults: tuple[Fault, ...] = (),
         clock=time.monotonic,
+        accel: bool = True,
     ):
         self.scenario = scenario or demo_scenario()
         self.chip = self.scenario.physics.chip  # the part on the board: its ids, quantum, range
@@ -281,6 +284,7 @@ class SimBoard(SerialEnd):
         self.rate_hz = rate_hz
         self.pace = pace
         self.eeprom = SimEeprom(eeprom_path)
+        self.accel = accel  # samples carry the accelerometer's three registers (a board without one: False)
         super().__init__(LinkFaults(faults, clock), clock)  # the scheduled faults and the link they act on
         self.faults: dict = {}  # board flags in effect: mute, no_write_ack, corrupt_write
         self.sent: Counter = Counter()  # lines emitted, by kind (tests count samples sent)
@@ -293,7 +297,8 @@ class SimBoard(SerialEnd):
         scenario = scenario or scenario_of(port)
         chip = chip_of(port)
         return cls(scenario if chip is None else scenario.on_chip(chip), rate_hz=port.get("rate", 100),
-                   pace=port.get("pace", REAL_TIME), eeprom_path=eeprom_of(port, chip), faults=port.faults)
+                   pace=port.get("pace", REAL_TIME), eeprom_path=eeprom_of(port, chip), faults=port.faults,
+                   accel=port.get("accel", True))
 
     # -- board state -------------------------------------------------------------------------
     def _boot(self) -> None:
@@ -339,15 +344,17 @@ class SimBoard(SerialEnd):
         k = self._k + np.arange(due)
         t_s = self._t0_s + ms / 1000.0
         raw, st2, temp = self.scenario.measure(t_s, k)
+        accel = accel_counts(self.scenario.accel_body_g(t_s, k))
         self._k += due
         self._ms = float(ms[-1])
         self._t_s = float(t_s[-1])
         for i in range(due):
-            self._measurement(int(ms[i]), raw[i], int(st2[i]), int(temp[i]))
+            self._measurement(int(ms[i]), raw[i], int(st2[i]), int(temp[i]), accel[i])
         self._fire_due()
 
-    def _measurement(self, ms: int, raw, st2: int, temp: int) -> None:
+    def _measurement(self, ms: int, raw, st2: int, temp: int, accel) -> None:
         hx, hy, hz = (int(v) for v in raw)
+        more = tuple(int(v) for v in accel) if self.accel else ()
         if self._fit is not None:
             self._fit_add(hx, hy, hz, st2)
         if not self._streaming:
@@ -355,9 +362,9 @@ class SimBoard(SerialEnd):
         if self._mode == 1:
             status, values = self.eeprom.load_record()
             h = self._apply(values, (hx, hy, hz), temp)
-            self._emit("U", ms, *h, st2, temp)
+            self._emit("U", ms, *h, st2, temp, *more)
         else:
-            self._emit("S", ms, hx, hy, hz, st2, temp)
+            self._emit("S", ms, hx, hy, hz, st2, temp, *more)
 
     def _apply(self, values, raw, temp_raw) -> tuple[int, int, int]:
         """The stored record applied to one reading, in nT (what a ``U`` line carries)."""
@@ -502,6 +509,11 @@ class SimBoard(SerialEnd):
     def _fire_due(self) -> None:
         for fault in self.link.due(self._t_s):
             self.inject(fault)
+
+
+def accel_counts(accel_g: np.ndarray) -> np.ndarray:
+    """Accelerometer readings in g → the registers' signed counts at ±2 g, as the board sends them."""
+    return np.clip(np.round(accel_g * ACCEL_COUNTS_PER_G), -32768, 32767).astype(np.int64)
 
 
 def serve_fd(board: SimBoard, fd: int) -> None:

@@ -10,7 +10,7 @@ from ..core.chips import MPU9150, Chip, chip_from_ids
 from ..core.sample import ST2_DERR, ST2_HOFL, UT_PER_COUNT, asa_gain
 from ..core.series import Series
 from ..wire.bulk import Frames
-from ..wire.protocol import Hello, Restart, hello_applies
+from ..wire.protocol import ACCEL_COUNTS_PER_G, Hello, Restart, hello_applies
 
 
 # -- samples from frames, exactly as the live client builds them ---------------------------
@@ -35,6 +35,9 @@ def series_from_frames(frames: Frames) -> Series:
         _time_rows(frames, a, b, r_pos, t)
     raw_kind = frames.kind == ord("S")
     channels = {"temp_c": temp_c} if n else {}
+    if n and not np.isnan(frames.accel).all():  # the accelerometer, as the live client names it (NaN: none sent)
+        for i, name in enumerate(("ax_g", "ay_g", "az_g")):
+            channels[name] = frames.accel[:, i] / ACCEL_COUNTS_PER_G
     if n and not raw_kind.all():
         channels["calibrated"] = np.where(raw_kind, np.nan, 1.0)
     reading = {**frames.counters, "hellos_refused": refused}

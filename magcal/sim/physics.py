@@ -83,6 +83,7 @@ class Physics:
     hard_iron_ut: tuple = (0.0, 0.0, 0.0)
     distortion: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     noise_ut: float = 0.4
+    accel_noise_g: float = 0.003  # the accelerometer's white noise, per axis (an MPU's ±2 g range at ~40 Hz bandwidth)
     asa: tuple = (176, 178, 166)
     quantize: bool = True
     temp_coef_ut_per_c: tuple = (0.0, 0.0, 0.0)
@@ -208,6 +209,16 @@ class Scenario:
         hw = self.physics.field_ut * np.array([np.cos(dip), 0.0, np.sin(dip)])
         r = self.orientation(t_s)
         return np.einsum("nji,j->ni", r, hw)
+
+    def accel_body_g(self, t_s, k) -> np.ndarray:
+        """What the accelerometer of reads ``k`` at ``t_s`` shows, (n, 3) g: the reaction to
+        gravity, Rᵀ·(0, 0, 1) — a board lying flat and still reads +1 g on z, as an MPU does —
+        plus white noise. The hand's own accelerations are left out (the waving is slow), so
+        the reading says which way is up, which is all the guidance needs of it; it shares the
+        body axes with the magnetometer's reading."""
+        r = self.orientation(t_s)
+        noise = _accel_noise(self.seed, np.asarray(k, dtype=np.int64))
+        return r[:, 2, :] + self.physics.accel_noise_g * noise
 
     def temp_c(self, t_s) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
@@ -382,6 +393,22 @@ def _block(seed: int, block: int, glitch_rate: float, glitch_ut: tuple, axis_sha
     for a in (noise, glitch, along):
         a.setflags(write=False)
     return noise, glitch, along
+
+
+def _accel_noise(seed: int, k: np.ndarray) -> np.ndarray:
+    """Unit white noise of the accelerometer reads ``k``, (n, 3): a function of (seed, k) only."""
+    out = np.empty((len(k), 3))
+    for b in np.unique(k // _BLOCK):
+        sel = (k // _BLOCK) == b
+        out[sel] = _accel_block(int(seed), int(b))[k[sel] % _BLOCK]
+    return out
+
+
+@lru_cache(maxsize=64)
+def _accel_block(seed: int, block: int) -> np.ndarray:
+    noise = np.random.default_rng([int(seed), 0xACCE1, block]).standard_normal((_BLOCK, 3))
+    noise.setflags(write=False)
+    return noise
 
 
 def demo_scenario(seed: int = 1) -> Scenario:

@@ -11,7 +11,7 @@ at a time beside the sample arrays (steps 1–3 run per block, cut after a newli
    tail, and ``noise_bytes`` is everything that is not a complete line or the tail;
 2. complete ``S``/``U`` lines are grouped by length, so each group is a rectangular byte
    matrix: printability, the ``*CC`` position, the CRC-8 (one table lookup per column across
-   all lines of the group) and the seven decimal fields (digit weights summed per token) are
+   all lines of the group) and the seven decimal fields (ten with the accelerometer's) (digit weights summed per token) are
    checked and parsed column-wise;
 3. any line the fast path does not accept — other message types, odd but legal spellings,
    numbers too long for int64, and every defective line — is judged by
@@ -50,6 +50,7 @@ from .protocol import (
 
 _DOLLAR, _NL, _CR, _COMMA, _STAR = 0x24, 0x0A, 0x0D, 0x2C, 0x2A
 _MAX_DIGITS = 18  # a decimal token of at most 18 digits fits int64 exactly
+_WITH_ACCEL = 10  # the tokens of a sample line that carries the accelerometer's three
 _BLOCK = 16384  # lines per vectorised block (bounds the temporary index arrays)
 _HEXVAL = np.full(256, -1, np.int16)
 for _i, _ch in enumerate(b"0123456789ABCDEF"):
@@ -69,6 +70,7 @@ class Frames:
     values: np.ndarray  # (n, 3) int64: raw counts (S) or nT (U)
     st2: np.ndarray  # (n,) int64
     temp: np.ndarray  # (n,) int64 TEMP_OUT
+    accel: np.ndarray  # (n, 3) float64: the accelerometer's counts, NaN for a line without them
     others: list[tuple[int, Message]]  # (position, message) for every non-sample message
     events: list[tuple[int, Frame]]  # (position of the message it precedes, Gap | Restart)
     counters: Counter = field(default_factory=Counter)
@@ -85,10 +87,12 @@ class Frames:
         st2 = self.st2.tolist()
         temp = self.temp.tolist()
         kinds = self.kind.tolist()
+        acc = self.accel.tolist()
         merged: list[tuple[int, int, object]] = []
         for k, p in enumerate(self.pos.tolist()):
             cls = RawSample if kinds[k] == ord("S") else CalibratedSample
-            merged.append((p, 1, cls(seq[k], ms[k], tuple(vals[k]), st2[k], temp[k])))
+            a = None if acc[k][0] != acc[k][0] else tuple(int(x) for x in acc[k])  # NaN: none sent
+            merged.append((p, 1, cls(seq[k], ms[k], tuple(vals[k]), st2[k], temp[k], a)))
         merged.extend((p, 1, m) for p, m in self.others)
         merged.extend((p, 0, e) for p, e in self.events)
         merged.sort(key=lambda x: (x[0], x[1]))
@@ -145,7 +149,7 @@ for _p in range(4):
 
 def _fast_group(a: np.ndarray, starts: np.ndarray, le: int):
     """Lines of effective length ``le`` (no '\\r') starting at ``starts``, all beginning with
-    ``$S,`` or ``$U,``: returns (ok mask, values (k, 7) int64)."""
+    ``$S,`` or ``$U,``: returns (ok mask, values (k, 10) int64, which carry the accelerometer)."""
     k = len(starts)
     m = np.lib.stride_tricks.sliding_window_view(a, le)[starts]  # (k, le) uint8 copy
     ok = np.all((m - np.uint8(32)) < 95, axis=1)  # printable ASCII (uint8 wraps below 32)
@@ -164,14 +168,15 @@ def _fast_group(a: np.ndarray, starts: np.ndarray, le: int):
     if j < len(pt):
         crc = CRC8_TABLE_NP[crc ^ pt[j]].astype(np.uint16)
     ok &= crc.astype(np.int16) == (h1 * 16 + h0)
-    # the seven decimal tokens after "S," with a closing comma appended
+    # the seven (or, with the accelerometer's, ten) decimal tokens after "S," and a closing comma
     w = le - 5
     f = np.empty((k, w), np.uint8)
     f[:, :-1] = m[:, 3 : le - 3]
     f[:, -1] = _COMMA
     cls = _CLASS[f]
     comma = cls == 1
-    ok &= np.count_nonzero(comma, axis=1) == 7
+    ntok = np.count_nonzero(comma, axis=1)
+    ok &= (ntok == 7) | (ntok == _WITH_ACCEL)
     # (previous class, class) pairs, with a virtual comma before column 0: one table says
     # which pairs break "[+-]?digits" tokens
     pairs = np.empty((k, w), np.uint8)
@@ -181,10 +186,20 @@ def _fast_group(a: np.ndarray, starts: np.ndarray, le: int):
     start = np.empty_like(comma)  # a token starts at column 0 and after every comma
     start[:, 0] = True
     start[:, 1:] = comma[:, :-1]
-    if not ok.any():
-        return ok, np.zeros((k, 7), np.int64)
-    sel = np.flatnonzero(ok)
-    fs, cs, st = f[sel], cls[sel], start[sel]
+    vals = np.zeros((k, _WITH_ACCEL), np.int64)
+    has = ntok == _WITH_ACCEL
+    for width in (7, _WITH_ACCEL):
+        sel = np.flatnonzero(ok & (has == (width == _WITH_ACCEL)))
+        if len(sel):
+            good, vals[sel, :width] = _token_values(f[sel], cls[sel], start[sel], width)
+            ok[sel[~good]] = False
+    return ok, vals, has
+
+
+def _token_values(fs: np.ndarray, cs: np.ndarray, st: np.ndarray, width: int):
+    """The ``width`` decimal tokens of each line (its bytes ``fs``, their classes ``cs``, token
+    starts ``st``): (which lines hold numbers the arrays take, the values)."""
+    w = fs.shape[1]
     cols = np.arange(w, dtype=np.int16)
     nxt = np.where(cs == 1, cols, np.int16(w))
     nxt = np.minimum.accumulate(nxt[:, ::-1], axis=1)[:, ::-1]  # next comma at or after
@@ -193,20 +208,17 @@ def _fast_group(a: np.ndarray, starts: np.ndarray, le: int):
     long_tok = np.any(digit & (expo >= _MAX_DIGITS), axis=1)
     pw = 10 ** np.arange(_MAX_DIGITS + 1, dtype=np.int64)
     contrib = np.where(digit, (fs - np.uint8(0x30)).astype(np.int64) * pw[np.minimum(expo, _MAX_DIGITS)], 0)
-    tok_start = np.flatnonzero(st.reshape(-1))  # exactly 7 per line, in order
-    sums = np.add.reduceat(contrib.reshape(-1), tok_start).reshape(len(sel), 7)
-    neg = (fs.reshape(-1)[tok_start] == 0x2D).reshape(len(sel), 7)
+    tok_start = np.flatnonzero(st.reshape(-1))  # exactly ``width`` per line, in order
+    sums = np.add.reduceat(contrib.reshape(-1), tok_start).reshape(len(fs), width)
+    neg = (fs.reshape(-1)[tok_start] == 0x2D).reshape(len(fs), width)
     v = np.where(neg, -sums, sums)
-    good = ~long_tok & (v[:, 0] >= 0) & (v[:, 0] < SEQ_MOD)
-    ok[sel[~good]] = False
-    vals = np.zeros((k, 7), np.int64)
-    vals[sel] = v
-    return ok, vals
+    exact = np.all(np.abs(v[:, 7:]) < 2**53, axis=1)  # the accelerometer's column is float64
+    return ~long_tok & (v[:, 0] >= 0) & (v[:, 0] < SEQ_MOD) & exact, v
 
 
-def _fast_lines(a: np.ndarray, ls: np.ndarray, le_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _fast_lines(a: np.ndarray, ls: np.ndarray, le_: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sample lines (``S``/``U``) the vectorised path parses, grouped by length:
-    (which lines it took, their 7 values)."""
+    (which lines it took, their 10 values, which of them carry the accelerometer's 3)."""
     eff = le_ - ls  # the length without a trailing '\r'
     has_cr = np.zeros(len(ls), bool)
     nz = eff > 1
@@ -218,16 +230,15 @@ def _fast_lines(a: np.ndarray, ls: np.ndarray, le_: np.ndarray) -> tuple[np.ndar
         a[ls[ok_len] + 2] == _COMMA
     )
     fast_ok = np.zeros(len(ls), bool)
-    fast_vals = np.zeros((len(ls), 7), np.int64)
+    fast_vals = np.zeros((len(ls), _WITH_ACCEL), np.int64)
+    fast_has = np.zeros(len(ls), bool)
     ci = np.flatnonzero(cand)
     for le in np.unique(eff[ci]):
         grp = ci[eff[ci] == le]
         for b in range(0, len(grp), _BLOCK):
             g = grp[b : b + _BLOCK]
-            ok, vals = _fast_group(a, ls[g], int(le))
-            fast_ok[g] = ok
-            fast_vals[g] = vals
-    return fast_ok, fast_vals
+            fast_ok[g], fast_vals[g], fast_has[g] = _fast_group(a, ls[g], int(le))
+    return fast_ok, fast_vals, fast_has
 
 
 def _judged_lines(raw: bytes, ls: np.ndarray, le_: np.ndarray, counters: Counter):
@@ -246,7 +257,7 @@ def _judged_lines(raw: bytes, ls: np.ndarray, le_: np.ndarray, counters: Counter
             sample_pos.append(p)
             sample_kind.append(ord("S") if isinstance(msg, RawSample) else ord("U"))
             v = msg.raw if isinstance(msg, RawSample) else msg.field_nt
-            sample_vals.append((msg.seq, msg.ms, *v, msg.st2, msg.temp_raw))
+            sample_vals.append((msg.seq, msg.ms, *v, msg.st2, msg.temp_raw, *(msg.accel or (np.nan,) * 3)))
         else:
             others.append((p, msg))
     return sample_pos, sample_kind, sample_vals, others
@@ -282,7 +293,7 @@ class _Lines:
     place (few large allocations, so memory freed between pieces is reused, not scattered)."""
 
     _COLS = (("pos", np.int64, ()), ("kind", np.uint8, ()), ("seq", np.int64, ()), ("ms", np.int64, ()),
-             ("values", np.int64, (3,)), ("st2", np.int64, ()), ("temp", np.int64, ()))
+             ("values", np.int64, (3,)), ("st2", np.int64, ()), ("temp", np.int64, ()), ("accel", np.float64, (3,)))
 
     def __init__(self):
         self.cols = {name: np.empty((1024, *shape), dtype) for name, dtype, shape in self._COLS}
@@ -305,16 +316,18 @@ class _Lines:
         self.counters["torn_lines"] += int(np.sum(kind == 1))
         self.counters["overlong_lines"] += int(np.sum(kind == 2))
         self.counters["noise_bytes"] += int(len(a) - np.sum(le_ - ls + 1) - tail_len)
-        fast_ok, fast_vals = _fast_lines(a, ls, le_)
+        fast_ok, fast_vals, fast_has = _fast_lines(a, ls, le_)
         sample_pos, sample_kind, sample_vals, others = _judged_lines(data, ls[~fast_ok], le_[~fast_ok], self.counters)
         fi = np.flatnonzero(fast_ok)
         pos = np.concatenate([ls[fi], np.array(sample_pos, np.int64)])
         kinds = np.concatenate([a[ls[fi] + 1], np.array(sample_kind, np.uint8)])
-        vals = np.concatenate([fast_vals[fi], np.array(sample_vals, np.int64).reshape(-1, 7)])
+        fast = np.where(fast_has[fi, None], fast_vals[fi].astype(np.float64), np.nan)  # NaN accel: none sent
+        vals = np.concatenate([fast, np.array(sample_vals, np.float64).reshape(-1, _WITH_ACCEL)])
         order = np.argsort(pos, kind="stable")
         vals = vals[order]
-        self._append(pos=pos[order] + at, kind=kinds[order], seq=vals[:, 0], ms=vals[:, 1], values=vals[:, 2:5],
-                     st2=vals[:, 5], temp=vals[:, 6])
+        ints = np.concatenate([fast_vals[fi, :7], np.array([v[:7] for v in sample_vals], np.int64).reshape(-1, 7)])[order]
+        self._append(pos=pos[order] + at, kind=kinds[order], seq=ints[:, 0], ms=ints[:, 1], values=ints[:, 2:5],
+                     st2=ints[:, 5], temp=ints[:, 6], accel=vals[:, 7:])
         self.others.extend((p + at, m) for p, m in others)
 
     def _append(self, **rows) -> None:
@@ -346,7 +359,7 @@ class _Lines:
 
 def _fits(msg) -> bool:
     vals = (msg.seq, msg.ms, *(msg.raw if isinstance(msg, RawSample) else msg.field_nt), msg.st2, msg.temp_raw)
-    return all(-(2**62) < v < 2**62 for v in vals)
+    return all(-(2**62) < v < 2**62 for v in vals) and all(-(2**53) < v < 2**53 for v in msg.accel or ())
 
 
 def _sequence(pos: np.ndarray, seq: np.ndarray, others: list, counters: Counter):

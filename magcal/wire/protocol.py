@@ -26,6 +26,7 @@ MAX_LINE = 120  # bytes including '$' and '\n'
 SEQ_MOD = 65536
 RECORD_VERSION = 1
 RECORD_FIELDS = 18  # v, ox, oy, oz, r, w00, w11, w22, w01, w02, w12, tx, ty, tz, tref, ix, iy, iz
+ACCEL_COUNTS_PER_G = 16384  # the samples' accelerometer fields: an MPU's ACCEL_*OUT registers at ±2 g
 TOO_LONG = "TOO_LONG"  # a C reply cut at MAX_LINE: the record's values are too long to be a calibration's
 
 
@@ -87,13 +88,15 @@ class Hello:
 
 @dataclass(frozen=True, slots=True)
 class Measurement:
-    """A measurement line: device ``millis()`` at the trigger, three values, ST2, TEMP_OUT."""
+    """A measurement line: device ``millis()`` at the trigger, three values, ST2, TEMP_OUT and the
+    accelerometer's registers (``ACCEL_COUNTS_PER_G``; None from a board that sends none)."""
 
     seq: int
     ms: int
     values: tuple[int, int, int]
     st2: int
     temp_raw: int
+    accel: tuple[int, int, int] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -214,6 +217,13 @@ def _need(toks, n, what):
         raise ParseError(f"{what} needs {n} fields, got {len(toks)}")
 
 
+def _measurement_fields(f: Sequence[bytes], kind: bytes) -> Sequence[bytes]:
+    """The six fields of every ``S``/``U`` line; the accelerometer's three (then any) may follow."""
+    if len(f) < 6 or len(f) in (7, 8):
+        raise ParseError(f"{kind.decode()} needs 6 fields, or 9 with the accelerometer's, got {len(f)}")
+    return f[:6]
+
+
 def parse_payload(payload: bytes) -> Message:
     """Parse the bytes between '$' and '*' (checksum already verified)."""
     toks = payload.split(b",")
@@ -224,14 +234,10 @@ def parse_payload(payload: bytes) -> Message:
     if not 0 <= seq < SEQ_MOD:
         raise ParseError(f"sequence number out of range: {seq}")
     f = toks[2:]
-    if kind == b"S":
-        _need(f, 6, "S")
-        ms, hx, hy, hz, st2, temp = _ints(f)
-        return RawSample(seq, ms, (hx, hy, hz), st2, temp)
-    if kind == b"U":
-        _need(f, 6, "U")
-        ms, x, y, z, st2, temp = _ints(f)
-        return CalibratedSample(seq, ms, (x, y, z), st2, temp)
+    if kind in (b"S", b"U"):
+        ms, x, y, z, st2, temp = _ints(_measurement_fields(f, kind))
+        accel = _ints(f[6:9]) if len(f) >= 9 else None
+        return (RawSample if kind == b"S" else CalibratedSample)(seq, ms, (x, y, z), st2, temp, accel)
     if kind == b"H":
         if len(f) < 8:
             raise ParseError(f"H needs at least 8 fields, got {len(f)}")
