@@ -189,6 +189,8 @@ def test_each_chip_is_named_self_tested_read_in_its_counts_and_calibrated(tmp_pa
         samples = link.collect(lambda m: isinstance(m, RawSample), n=40)
         served = list(link.board.served)
         assert [s.raw for s in samples] == [r for (_, _, r, _, _) in served[:40]]
+        # the accelerometer's registers, served from the physics' gravity, arrive as read
+        assert [s.accel for s in samples] == [link.board.accel(t, k) for (t, k, *_rest) in served[:40]]
         # AK8963 ST2 carries BITM (0x10) at 16-bit output
         assert {s.st2 for s in samples} == {0x10 if (chip, bits) == ("mpu9250", 16) else 0}
         lsb = ut_per_count * np.array([asa_gain(a) for a in hello.asa])

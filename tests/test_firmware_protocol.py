@@ -133,6 +133,7 @@ def test_samples_carry_the_sensor_registers(board):
     s = board.wait_for(lambda i: isinstance(i, RawSample), 5, "sample")
     assert s.raw == (100, -200, 300)
     assert s.st2 == 0 and s.temp_raw == -2150
+    assert s.accel == (0, 0, 16384)  # ACCEL_XOUT_H..ZOUT_L as read: the harness's board lies flat, +1 g on z
 
 
 def _record(offset_nt=(23500, -41200, 12800)):

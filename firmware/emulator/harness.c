@@ -6,7 +6,8 @@
  *     mpu9150 (AK8975, the default), mpu9250 or mpu9255 (AK8963), icm20948 (AK09916);
  *   - the field coming from the host over stdio: for each completed measurement the harness
  *     prints "M <t_us> <k> <bits>" (bits: the resolution the firmware set, 13, 14 or 16) and
- *     reads back "<hx> <hy> <hz> <hofl> <temp_raw>" in the chip's counts at that resolution
+ *     reads back "<hx> <hy> <hz> <hofl> <temp_raw> [<ax> <ay> <az>]" in the chip's counts at that
+ *     resolution, the accelerometer's at +-2 g (none: 0, 0, +1 g, a board lying flat)
  *     (or a fixed field with --field, for use without a host);
  *   - EEPROM kept in a file across restarts (--eeprom);
  *   - the CPU started only once a host has opened the pty (and restarted when a host opens it
@@ -103,6 +104,7 @@ static int provide(void *ctx, uint64_t t_us, mpu_measurement *out)
         out->hz = h->field[2];
         out->hofl = 0;
         out->temp_raw = -2150;
+        out->az = 16384; /* lying flat */
         return 0;
     }
     printf("M %llu %llu %d\n", (unsigned long long)t_us, (unsigned long long)k, mpu_model_mag_bits(h->model));
@@ -116,8 +118,9 @@ static int provide(void *ctx, uint64_t t_us, mpu_measurement *out)
         g_stop = 1; /* the host is gone */
         return -1;
     }
-    int hx, hy, hz, hofl, temp;
-    if (sscanf(line, "%d %d %d %d %d", &hx, &hy, &hz, &hofl, &temp) != 5) {
+    int hx, hy, hz, hofl, temp, ax = 0, ay = 0, az = 16384;
+    int got = sscanf(line, "%d %d %d %d %d %d %d %d", &hx, &hy, &hz, &hofl, &temp, &ax, &ay, &az);
+    if (got != 5 && got != 8) {
         fprintf(stderr, "magcal-emu: bad provider reply: %s", line);
         return -1;
     }
@@ -126,6 +129,9 @@ static int provide(void *ctx, uint64_t t_us, mpu_measurement *out)
     out->hz = (int16_t)hz;
     out->hofl = (uint8_t)hofl;
     out->temp_raw = (int16_t)temp;
+    out->ax = (int16_t)ax;
+    out->ay = (int16_t)ay;
+    out->az = (int16_t)az;
     return 0;
 }
 

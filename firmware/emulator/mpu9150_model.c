@@ -6,11 +6,12 @@
  * AK8975 (MS1187-E-02), AK8963 (MS1356-E-02) and AK09916 datasheets. One table per chip and
  * one per magnetometer hold what differs; the behaviour is shared:
  *
- *   chip       IMU WHO_AM_I   PWR_MGMT_1  USER_CTRL  INT_PIN_CFG  TEMP_OUT_H   magnetometer
- *   MPU-9150   0x75 = 0x68    0x6B        0x6A       0x37         0x41         AK8975
- *   MPU-9250   0x75 = 0x71    0x6B        0x6A       0x37         0x41         AK8963
- *   MPU-9255   0x75 = 0x73    0x6B        0x6A       0x37         0x41         AK8963
- *   ICM-20948  0x00 = 0xEA    0x06        0x03       0x0F         0x39         AK09916
+ *   chip       IMU WHO_AM_I   PWR_MGMT_1  USER_CTRL  INT_PIN_CFG  TEMP_OUT_H  ACCEL_XOUT_H  magnetometer
+ *   MPU-9150   0x75 = 0x68    0x6B        0x6A       0x37         0x41        0x3B          AK8975
+ *   MPU-9250   0x75 = 0x71    0x6B        0x6A       0x37         0x41        0x3B          AK8963
+ *   MPU-9255   0x75 = 0x73    0x6B        0x6A       0x37         0x41        0x3B          AK8963
+ *   ICM-20948  0x00 = 0xEA    0x06        0x03       0x0F         0x39        0x2D          AK09916
+ * (the accelerometer's six bytes X, Y, Z high then low, at its reset range of +-2 g)
  *   (the ICM-20948's registers are those of bank 0; REG_BANK_SEL 0x7F bits 5:4 pick the bank)
  *
  *   magnetometer  WIA        ST1   data       ST2    mode register     single self  fuse ROM
@@ -63,14 +64,14 @@
 enum { MAG_AK8975, MAG_AK8963, MAG_AK09916 };
 
 typedef struct {
-    uint8_t who_reg, who, pwr_reg, pwr_reset, user_ctrl_reg, int_pin_reg, temp_reg, banked, mag;
+    uint8_t who_reg, who, pwr_reg, pwr_reset, user_ctrl_reg, int_pin_reg, temp_reg, accel_reg, banked, mag;
 } chip_desc;
 
 static const chip_desc CHIPS[MPU_CHIP_COUNT] = {
-    [MPU_CHIP_MPU9150] = {0x75, 0x68, 0x6B, IMU_SLEEP, 0x6A, 0x37, 0x41, 0, MAG_AK8975},
-    [MPU_CHIP_MPU9250] = {0x75, 0x71, 0x6B, 0x01, 0x6A, 0x37, 0x41, 0, MAG_AK8963},
-    [MPU_CHIP_MPU9255] = {0x75, 0x73, 0x6B, 0x01, 0x6A, 0x37, 0x41, 0, MAG_AK8963},
-    [MPU_CHIP_ICM20948] = {0x00, 0xEA, 0x06, IMU_SLEEP | 0x01, 0x03, 0x0F, 0x39, 1, MAG_AK09916},
+    [MPU_CHIP_MPU9150] = {0x75, 0x68, 0x6B, IMU_SLEEP, 0x6A, 0x37, 0x41, 0x3B, 0, MAG_AK8975},
+    [MPU_CHIP_MPU9250] = {0x75, 0x71, 0x6B, 0x01, 0x6A, 0x37, 0x41, 0x3B, 0, MAG_AK8963},
+    [MPU_CHIP_MPU9255] = {0x75, 0x73, 0x6B, 0x01, 0x6A, 0x37, 0x41, 0x3B, 0, MAG_AK8963},
+    [MPU_CHIP_ICM20948] = {0x00, 0xEA, 0x06, IMU_SLEEP | 0x01, 0x03, 0x0F, 0x39, 0x2D, 1, MAG_AK09916},
 };
 
 typedef struct {
@@ -235,6 +236,11 @@ static void settle(mpu_model *m, uint64_t t_us)
         uint16_t t = (uint16_t)meas.temp_raw;
         m->regs[0][m->c->temp_reg] = (uint8_t)(t >> 8);
         m->regs[0][m->c->temp_reg + 1] = (uint8_t)(t & 0xFF);
+        const int16_t a[3] = {meas.ax, meas.ay, meas.az};
+        for (int i = 0; i < 3; i++) {
+            m->regs[0][m->c->accel_reg + 2 * i] = (uint8_t)((uint16_t)a[i] >> 8);
+            m->regs[0][m->c->accel_reg + 2 * i + 1] = (uint8_t)((uint16_t)a[i] & 0xFF);
+        }
     }
 }
 
@@ -343,7 +349,8 @@ static void imu_write(mpu_model *m, uint8_t reg, uint8_t v)
     }
     if (m->bank == 0) {
         uint8_t t = m->c->temp_reg;
-        if (reg == m->c->who_reg || reg == t || reg == t + 1)
+        if (reg == m->c->who_reg || reg == t || reg == t + 1 ||
+            (reg >= m->c->accel_reg && reg < m->c->accel_reg + 6)) /* read-only outputs */
             return;
         if (reg == m->c->pwr_reg && (v & IMU_DEVICE_RESET)) {
             imu_reset_registers(m);

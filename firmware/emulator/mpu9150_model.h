@@ -32,6 +32,7 @@ typedef struct {
     int16_t hx, hy, hz;
     uint8_t hofl;         /* 1 when the magnetic sensor overflowed */
     int16_t temp_raw;     /* the IMU's TEMP_OUT at this time */
+    int16_t ax, ay, az;   /* the IMU's ACCEL_*OUT at this time: counts at +-2 g (16384 per g) */
 } mpu_measurement;
 
 /* Called when a single measurement completes; returns 0 on success. */

@@ -27,7 +27,7 @@
 
 #include "sphere_fit.h"
 
-#define FW_VERSION "0.2.0" // 0.2: the MPU-9250/9255 and ICM-20948; the hello states bits
+#define FW_VERSION "0.3.0" // 0.2: the MPU-9250/9255 and ICM-20948; the hello states bits; 0.3: samples carry the accelerometer
 #define PROTO_VERSION 1
 
 #ifndef AK8963_BITS
@@ -40,6 +40,7 @@
 // ---- chip facts ---------------------------------------------------------------------------
 // IMUs: the MPU-6050/9150 and MPU-9250 register maps; the ICM-20948 datasheet (bank 0).
 static const uint8_t MPU_ADDR_AD0_LOW = 0x68, MPU_ADDR_AD0_HIGH = 0x69;
+static const uint8_t MPU_ACCEL_XOUT_H = 0x3B, ICM_ACCEL_XOUT_H = 0x2D; // X, Y, Z high then low, +-2 g
 static const uint8_t MPU_INT_PIN_CFG = 0x37, MPU_TEMP_OUT_H = 0x41, MPU_USER_CTRL = 0x6A,
                      MPU_PWR_MGMT_1 = 0x6B, MPU_WHO_AM_I = 0x75;
 static const uint8_t ICM_WHO_AM_I = 0x00, ICM_USER_CTRL = 0x03, ICM_PWR_MGMT_1 = 0x06,
@@ -131,7 +132,7 @@ static void start_measurement(uint32_t now_us);
 static void finish_measurement();
 static void self_test(uint16_t tag);
 static void poll_measurement();
-static void emit_sample(const int16_t h[3], uint8_t st2, int16_t temp);
+static void emit_sample(const int16_t h[3], uint8_t st2, int16_t temp, const int16_t *accel);
 static void fit_add(const int16_t h[3]);
 static void fit_finish();
 static float counts_to_ut(int16_t counts, uint8_t axis);
@@ -548,8 +549,14 @@ static void finish_measurement()
     uint8_t t[2] = {0, 0};
     i2c_read(g_mpu, g_imu == IMU_ICM20948 ? ICM_TEMP_OUT_H : MPU_TEMP_OUT_H, t, 2);
     int16_t temp = (int16_t)(((uint16_t)t[0] << 8) | t[1]);
+    uint8_t a[6];
+    int16_t accel[3];
+    bool icm = g_imu == IMU_ICM20948;
+    bool has_accel = g_imu != IMU_NONE && i2c_read(g_mpu, icm ? ICM_ACCEL_XOUT_H : MPU_ACCEL_XOUT_H, a, 6);
+    for (uint8_t i = 0; i < 3; i++)
+        accel[i] = (int16_t)(((uint16_t)a[2 * i] << 8) | a[2 * i + 1]);
     if (g_streaming)
-        emit_sample(h, st2, temp);
+        emit_sample(h, st2, temp, has_accel ? accel : 0);
     bool valid = !(st2 & (ST2_DERR | ST2_HOFL)) && (h[0] | h[1] | h[2]) != 0;
     for (uint8_t i = 0; i < 3; i++)
         if (h[i] <= g_count_min || h[i] >= g_count_max)
@@ -604,7 +611,9 @@ static void self_test(uint16_t tag)
     out_end();
 }
 
-static void emit_sample(const int16_t h[3], uint8_t st2, int16_t temp)
+// S (or U) ms, h, st2, temp and, when the accelerometer answered, its three registers as
+// read (raw counts at the reset range, +-2 g: 16384 per g) — trailing fields of protocol v1.
+static void emit_sample(const int16_t h[3], uint8_t st2, int16_t temp, const int16_t *accel)
 {
     if (g_mode == 1 && g_rec_status == REC_OK) {
         // h = W (m - o - t (T - tref)), all in nT; W in 1e-6, tref in 0.01 degC
@@ -634,6 +643,8 @@ static void emit_sample(const int16_t h[3], uint8_t st2, int16_t temp)
     }
     out_int(st2);
     out_int(temp);
+    for (uint8_t i = 0; accel && i < 3; i++)
+        out_int(accel[i]);
     out_end();
 }
 

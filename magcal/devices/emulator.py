@@ -51,6 +51,7 @@ from ..wire.dialect import Dialect
 from . import firmware
 from .faults import register_flags
 from .port import Port, scenario_of
+from .simboard import accel_counts
 from .transport import WrappedTransport
 
 FIRMWARE_DIR = firmware.FIRMWARE_DIR  # the packaged sources (the tree's own in a checkout)
@@ -223,8 +224,12 @@ class EmulatedBoard:
         raw, st2, temp = self.scenario.measure([t_s], [k])  # the physics on this chip (its counts, rails, HOFL, TEMP_OUT)
         return tuple(int(v) for v in raw[0]), int(st2[0]), int(temp[0])
 
+    def accel(self, t_s: float, k: int) -> tuple[int, int, int]:
+        """The accelerometer's ACCEL_*OUT registers (±2 g counts) for measurement k at t_s."""
+        return tuple(int(v) for v in accel_counts(self.scenario.accel_body_g([t_s], [k]))[0])
+
     def _answer(self, parts: list[str]) -> str:
-        """``M t_us k [bits]`` → ``hx hy hz hofl temp``; the firmware's resolution must be the
+        """``M t_us k [bits]`` → ``hx hy hz hofl temp ax ay az``; the firmware's resolution must be the
         board's (a mismatch would rescale every sample)."""
         if len(parts) == 4 and int(parts[3]) != self.chip.bits:
             raise DeviceError(f"emu://: the firmware runs the magnetometer at {parts[3]}-bit output, "
@@ -232,7 +237,8 @@ class EmulatedBoard:
         t_s, k = int(parts[1]) / 1e6, int(parts[2])
         (hx, hy, hz), s2, tr = self.measure(t_s, k)
         self.served.append((t_s, k, (hx, hy, hz), s2, tr))
-        return f"{hx} {hy} {hz} {1 if s2 & 0x08 else 0} {tr}\n"
+        ax, ay, az = self.accel(t_s, k)
+        return f"{hx} {hy} {hz} {1 if s2 & 0x08 else 0} {tr} {ax} {ay} {az}\n"
 
     def _serve(self) -> None:
         """Answer every ``M t_us k [bits]`` with the physics' measurement at (t, k)."""

@@ -36,6 +36,7 @@ from ..core.errors import DeviceError
 from ..core.sample import ST2_HOFL
 from ..sim.physics import Scenario, demo_scenario
 from . import firmware
+from .simboard import accel_counts
 
 EMULATOR_DIR = firmware.FIRMWARE_DIR / "emulator"  # the packaged sources (magcal.devices.firmware)
 LIB_NAME = "libmpu9150model.so"
@@ -61,6 +62,9 @@ class _Measurement(ctypes.Structure):
         ("hz", ctypes.c_int16),
         ("hofl", ctypes.c_uint8),
         ("temp_raw", ctypes.c_int16),
+        ("ax", ctypes.c_int16),
+        ("ay", ctypes.c_int16),
+        ("az", ctypes.c_int16),
     ]
 
 
@@ -249,6 +253,7 @@ class FakeBus:
             m.hx, m.hy, m.hz = (int(v) for v in raw[0])
             m.hofl = 1 if int(st2[0]) & ST2_HOFL else 0
             m.temp_raw = int(np.clip(temp_raw[0], -32768, 32767))
+            m.ax, m.ay, m.az = (int(v) for v in accel_counts(scenario.accel_body_g([t_s], [k]))[0])
             self.measurements += 1
             self.measurement_times_s.append(t_s)
             return 0
