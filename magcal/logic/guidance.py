@@ -6,7 +6,7 @@ The accelerometer of a board at rest reads the reaction to gravity: +1 g along t
 points up, so the axis that points down is the one most against it. A side counts as down within
 35° of that axis. While it is down, turning the board about the vertical sweeps the field's
 horizontal part through the headings; the side is done when ``DONE_BINS`` of the ``HEADING_BINS``
-30° headings were seen. Boards without an accelerometer (protocol v1 sends none) get only the
+30° headings were seen. Boards that send no accelerometer (firmware before 0.3.0, sim://?accel=off) get only the
 stillness nudge; the field-relative hint (``magcal.cli.coverage_map``) stays theirs.
 
 Axes as printed on the boards: +X to the right, +Y to the front, +Z up out of the components
