@@ -125,7 +125,7 @@ def test_calibrate_on_the_simulated_board_names_the_sides_from_its_accelerometer
 
 def test_the_simulated_board_sends_the_side_that_is_down():
     """sim:// samples carry the accelerometer (±2 g counts on the wire, g on the sample): the
-    reaction to gravity in the magnetometer's body axes, +1 g on z when the board lies flat."""
+    reaction to gravity in the magnetometer's body axes (the client turns the wire's IMU axes into them)."""
     from magcal.devices import open_device
 
     with open_device("sim://?pace=0&eeprom=none&seed=4") as dev:

@@ -72,12 +72,17 @@ def test_sample_lines_may_carry_the_accelerometer_and_old_ones_still_read():
     assert f.counters["bad_syntax"] == 2
 
 
-def test_the_client_puts_the_accelerometer_on_the_sample_in_g():
+def test_the_client_puts_the_accelerometer_on_the_sample_in_g_in_the_magnetometer_axes():
+    """The line carries the IMU's registers in the IMU's axes; the sample's three are in the
+    magnetometer's, the frame of its field (AK8975/AK8963: X↔Y swapped, Z flipped; AK09916: Y, Z flipped)."""
+    from magcal.core.chips import ICM20948, MPU9150, MPU9250_16
     from magcal.devices.protocol_client import accel_aux
 
     m = RawSample(1, 10, (1, 2, 3), 0, 0, (8192, 0, -16384))
-    assert accel_aux(m) == {"ax_g": 0.5, "ay_g": 0.0, "az_g": -1.0}
-    assert accel_aux(RawSample(1, 10, (1, 2, 3), 0, 0)) == {}
+    assert accel_aux(m, MPU9150) == {"ax_g": 0.0, "ay_g": 0.5, "az_g": 1.0}
+    assert accel_aux(m, MPU9250_16) == {"ax_g": 0.0, "ay_g": 0.5, "az_g": 1.0}
+    assert accel_aux(m, ICM20948) == {"ax_g": 0.5, "ay_g": 0.0, "az_g": 1.0}
+    assert accel_aux(RawSample(1, 10, (1, 2, 3), 0, 0), MPU9150) == {}
 
 
 def test_torn_noise_overlong_and_bad_crc_are_counted_not_merged():

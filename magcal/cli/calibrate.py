@@ -107,7 +107,7 @@ def run(args) -> int:
         progress.done(f"connected: {settings.port} ({ident.transport}, firmware {ident.firmware or '?'}, "
                       f"ASA {'/'.join(str(a) for a in ident.asa)})")
         progress.t0 = time.monotonic()
-        guide = Guide()
+        guide = Guide(chip=ident.chip)  # names the sides in the IMU axes (None: a MotionCal board, one frame)
         outcome = calibrate(
             device, settings, write=settings.write and not args.no_write, clock=time.monotonic,
             on_progress=lambda s: (_look(guide, s),

@@ -10,6 +10,11 @@ Sources (each figure below names its own):
 - AK8975: AKM datasheet MS1187-E-02 (inside the MPU-9150; MPU-9150 register map RM-MPU-9150A-00).
 - AK8963: AKM datasheet MS1356-E-02 (inside the MPU-9250/9255; register map RM-MPU-9250A-00).
 - AK09916: AKM datasheet AK09916C 015007392-E-02 (inside the ICM-20948; InvenSense DS-000189).
+
+The magnetometer die sits in the package turned against the IMU, so its axes are not the
+accelerometer's: ``mag_from_accel`` is that turn as a signed permutation, the one place the fact
+lives (the host turns the accelerometer into the magnetometer's frame; the simulated boards turn
+the physics' body frame, which is the magnetometer's, back into the IMU's).
 """
 
 from __future__ import annotations
@@ -17,7 +22,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
+import numpy as np
+
 Window = tuple[tuple[int, int], tuple[int, int], tuple[int, int]]
+AxisMap = tuple[tuple[int, int], tuple[int, int], tuple[int, int]]  # per magnetometer axis: (accelerometer axis, sign)
+
+# The orientation-of-axes figures (accelerometer/gyroscope and magnetometer drawn on the package):
+# MPU-9150 product specification PS-MPU-9150A-00 and MPU-9250 PS-MPU-9250A-01 — the AK8975/AK8963
+# has X along the accelerometer's Y, Y along its X, Z opposite its Z (a left-right swap of X and Y
+# keeps the magnetometer right-handed only with Z flipped); ICM-20948 DS-000189 §11.1 — the AK09916
+# has X along the accelerometer's X, Y and Z opposite its Y and Z.
+AK89XX_IN_MPU = ((1, +1), (0, +1), (2, -1))  # mag X = accel Y, mag Y = accel X, mag Z = −accel Z
+AK09916_IN_ICM = ((0, +1), (1, -1), (2, -1))  # mag X = accel X, mag Y = −accel Y, mag Z = −accel Z
 
 
 class Magnetometer(Enum):
@@ -48,6 +64,20 @@ class Chip:
     self_test_typical: tuple[int, int, int]  # a healthy coil's reading, inside the window
     temp_lsb_per_c: float  # the IMU's die temperature: T = TEMP_OUT / temp_lsb_per_c + temp_offset_c
     temp_offset_c: float
+    mag_from_accel: AxisMap  # the accelerometer's axes → the magnetometer's (a signed permutation)
+
+    def accel_to_mag(self, accel):
+        """Accelerometer readings (..., 3), the IMU's own axes → the magnetometer's axes (same unit)."""
+        a = np.asarray(accel, dtype=np.float64)
+        return np.stack([sign * a[..., k] for k, sign in self.mag_from_accel], axis=-1)
+
+    def mag_to_accel(self, vector):
+        """Vectors (..., 3) in the magnetometer's axes → the accelerometer's (``accel_to_mag`` undone)."""
+        v = np.asarray(vector, dtype=np.float64)
+        out = np.empty_like(v)
+        for i, (k, sign) in enumerate(self.mag_from_accel):
+            out[..., k] = sign * v[..., i]
+        return out
 
     @property
     def range_ut(self) -> float:
@@ -83,6 +113,7 @@ MPU9150 = Chip(
     overflow_sum_ut=2400.0,  # MS1187-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 2400 µT
     self_test_typical=(12, -18, -640),
     temp_lsb_per_c=340.0, temp_offset_c=36.53,  # RM-MPU-9150A-00 TEMP_OUT: raw / 340 + 36.53 °C
+    mag_from_accel=AK89XX_IN_MPU,
 )
 
 
@@ -103,6 +134,7 @@ def _mpu9250(bits: int) -> Chip:
         overflow_sum_ut=4912.0,  # MS1356-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 4912 µT
         self_test_typical=(48, -72, -2000) if sixteen else (12, -18, -500),
         temp_lsb_per_c=333.87, temp_offset_c=21.0,  # RM-MPU-9250A-00 TEMP_OUT: raw / 333.87 + 21 °C
+        mag_from_accel=AK89XX_IN_MPU,
     )
 
 
@@ -122,6 +154,7 @@ ICM20948 = Chip(
     overflow_sum_ut=4912.0,  # 015007392-E-02 ST2 HOFL: |X|+|Y|+|Z| >= 4912 µT
     self_test_typical=(24, -36, -600),
     temp_lsb_per_c=333.87, temp_offset_c=21.0,  # DS-000189 TEMP_OUT: raw / 333.87 + 21 °C
+    mag_from_accel=AK09916_IN_ICM,
 )
 
 CHIPS: tuple[Chip, ...] = (MPU9150, MPU9250_16, MPU9250_14, ICM20948)

@@ -225,8 +225,8 @@ class EmulatedBoard:
         return tuple(int(v) for v in raw[0]), int(st2[0]), int(temp[0])
 
     def accel(self, t_s: float, k: int) -> tuple[int, int, int]:
-        """The accelerometer's ACCEL_*OUT registers (±2 g counts) for measurement k at t_s."""
-        return tuple(int(v) for v in accel_counts(self.scenario.accel_body_g([t_s], [k]))[0])
+        """The accelerometer's ACCEL_*OUT registers (±2 g counts, the IMU's axes) for measurement k at t_s."""
+        return tuple(int(v) for v in accel_counts(self.scenario.accel_body_g([t_s], [k]), self.chip.part)[0])
 
     def _answer(self, parts: list[str]) -> str:
         """``M t_us k [bits]`` → ``hx hy hz hofl temp ax ay az``; the firmware's resolution must be the

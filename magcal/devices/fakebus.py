@@ -253,7 +253,7 @@ class FakeBus:
             m.hx, m.hy, m.hz = (int(v) for v in raw[0])
             m.hofl = 1 if int(st2[0]) & ST2_HOFL else 0
             m.temp_raw = int(np.clip(temp_raw[0], -32768, 32767))
-            m.ax, m.ay, m.az = (int(v) for v in accel_counts(scenario.accel_body_g([t_s], [k]))[0])
+            m.ax, m.ay, m.az = (int(v) for v in accel_counts(scenario.accel_body_g([t_s], [k]), self.chip)[0])
             self.measurements += 1
             self.measurement_times_s.append(t_s)
             return 0

@@ -116,7 +116,7 @@ class Inbox:
             self.pending.append(Sample(seq=item.seq, t_s=self._time(item.ms),
                                        field_ut=tuple(v / 1000.0 for v in item.field_nt), st2=item.st2,
                                        temp_c=temp_raw_to_c(item.temp_raw, chip),
-                                       aux={"calibrated": 1.0, **accel_aux(item)}, chip=chip))
+                                       aux={"calibrated": 1.0, **accel_aux(item, chip)}, chip=chip))
         elif isinstance(item, Gap):
             self.pending.append(Event("gap", seq=item.seq, count=item.count))
         elif isinstance(item, Restart):
@@ -162,15 +162,18 @@ class Inbox:
         chip = hello_chip(self.hello) or MPU9150
         field = counts_to_ut(s.raw, asa) * (chip.ut_per_count / MPU9150.ut_per_count)
         return Sample(seq=s.seq, t_s=self._time(s.ms), field_ut=(float(field[0]), float(field[1]), float(field[2])),
-                      raw=s.raw, st2=s.st2, temp_c=temp_raw_to_c(s.temp_raw, chip), chip=chip, aux=accel_aux(s))
+                      raw=s.raw, st2=s.st2, temp_c=temp_raw_to_c(s.temp_raw, chip), chip=chip, aux=accel_aux(s, chip))
 
 
-def accel_aux(m: Measurement) -> dict:
+def accel_aux(m: Measurement, chip: Chip) -> dict:
     """The accelerometer a sample line carries, in g, as a sample's ``ax_g, ay_g, az_g`` (which
-    side of the board is down: ``magcal.logic.guidance``); nothing from a board that sends none."""
+    side of the board is down: ``magcal.logic.guidance``); nothing from a board that sends none.
+    The line carries the IMU's registers in the IMU's own axes; the sample's three are turned
+    into the magnetometer's axes (``chip.mag_from_accel``), the frame of its ``field_ut``."""
     if m.accel is None:
         return {}
-    return {name: c / ACCEL_COUNTS_PER_G for name, c in zip(("ax_g", "ay_g", "az_g"), m.accel)}
+    a = chip.accel_to_mag(m.accel) / ACCEL_COUNTS_PER_G
+    return {name: float(v) for name, v in zip(("ax_g", "ay_g", "az_g"), a)}
 
 
 

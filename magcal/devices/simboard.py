@@ -344,7 +344,7 @@ class SimBoard(SerialEnd):
         k = self._k + np.arange(due)
         t_s = self._t0_s + ms / 1000.0
         raw, st2, temp = self.scenario.measure(t_s, k)
-        accel = accel_counts(self.scenario.accel_body_g(t_s, k))
+        accel = accel_counts(self.scenario.accel_body_g(t_s, k), self.chip)
         self._k += due
         self._ms = float(ms[-1])
         self._t_s = float(t_s[-1])
@@ -511,9 +511,12 @@ class SimBoard(SerialEnd):
             self.inject(fault)
 
 
-def accel_counts(accel_g: np.ndarray) -> np.ndarray:
-    """Accelerometer readings in g → the registers' signed counts at ±2 g, as the board sends them."""
-    return np.clip(np.round(accel_g * ACCEL_COUNTS_PER_G), -32768, 32767).astype(np.int64)
+def accel_counts(accel_g: np.ndarray, chip) -> np.ndarray:
+    """The physics' accelerometer readings in g (its body frame, which is the magnetometer's) →
+    the IMU's ACCEL_*OUT signed counts at ±2 g, in the IMU's own axes (``chip.mag_from_accel``
+    undone), as a real board sends them."""
+    counts = np.round(chip.mag_to_accel(accel_g) * ACCEL_COUNTS_PER_G)
+    return np.clip(counts, -32768, 32767).astype(np.int64)
 
 
 def serve_fd(board: SimBoard, fd: int) -> None:

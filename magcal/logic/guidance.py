@@ -9,8 +9,11 @@ horizontal part through the headings; the side is done when ``DONE_BINS`` of the
 30° headings were seen. Boards that send no accelerometer (firmware before 0.3.0, sim://?accel=off) get only the
 stillness nudge; the field-relative hint (``magcal.cli.coverage_map``) stays theirs.
 
-Axes as printed on the boards: +X to the right, +Y to the front, +Z up out of the components
-side. Pure: samples in, advice out; times come with the samples, no clock is read.
+Axes as printed on the boards, which are the IMU's (its accelerometer's): +X to the right, +Y to
+the front, +Z up out of the components side. The samples' accelerometer comes in the field's frame,
+the magnetometer's (``magcal.devices.protocol_client.accel_aux``); given the chip, the guide names
+the side in the IMU's axes (``Chip.mag_to_accel``) and reads headings in the magnetometer's. Pure:
+samples in, advice out; times come with the samples, no clock is read.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 import numpy as np
+
+from ..core.chips import Chip
 
 STILL_S = 3.0  # no turn of more than MOVE_DEG for this long: "you are not moving"
 MOVE_DEG = 4.0
@@ -99,8 +104,10 @@ def heading_bin(field_ut, down) -> int | None:
 @dataclass
 class Guide:
     """The guidance's memory: headings seen per side, when the board last moved, whether an
-    accelerometer was ever read."""
+    accelerometer was ever read. ``chip``: the part whose IMU axes name the sides (None: the
+    samples' accelerometer is already in the printed axes, as a MotionCal board sends it)."""
 
+    chip: Chip | None = None
     seen: dict = field(default_factory=lambda: {s: set() for s in Side})
     has_accel: bool = False
     side: Side | None = None
@@ -121,9 +128,11 @@ class Guide:
         if accel_g is None:
             return
         self.has_accel = True
-        self.side = side_down(accel_g)
+        printed = accel_g if self.chip is None else self.chip.mag_to_accel(accel_g)
+        self.side = side_down(printed)
         if self.side is not None:
-            b = heading_bin(u, self.side.down)
+            down = self.side.down if self.chip is None else self.chip.accel_to_mag(self.side.down)
+            b = heading_bin(u, down)
             if b is not None:
                 self.seen[self.side].add(b)
 

@@ -36,8 +36,7 @@ def series_from_frames(frames: Frames) -> Series:
     raw_kind = frames.kind == ord("S")
     channels = {"temp_c": temp_c} if n else {}
     if n and not np.isnan(frames.accel).all():  # the accelerometer, as the live client names it (NaN: none sent)
-        for i, name in enumerate(("ax_g", "ay_g", "az_g")):
-            channels[name] = frames.accel[:, i] / ACCEL_COUNTS_PER_G
+        channels.update(_accel_channels(frames, h_pos, chips))
     if n and not raw_kind.all():
         channels["calibrated"] = np.where(raw_kind, np.nan, 1.0)
     reading = {**frames.counters, "hellos_refused": refused}
@@ -45,6 +44,16 @@ def series_from_frames(frames: Frames) -> Series:
 
 
 _ROWS = 1 << 17  # samples per step of series_from_frames
+
+
+def _accel_channels(frames: Frames, h_pos, chips: "_ChipTable") -> dict:
+    """``ax_g, ay_g, az_g`` as the live client makes them (``protocol_client.accel_aux``): the
+    IMU's counts turned into the magnetometer's axes by the chip of the hello before each sample."""
+    which = np.searchsorted(h_pos, frames.pos)
+    rows, out = np.arange(len(which)), {}
+    for i, name in enumerate(("ax_g", "ay_g", "az_g")):
+        out[name] = chips.accel_sign[which, i] * frames.accel[rows, chips.accel_axis[which, i]] / ACCEL_COUNTS_PER_G
+    return out
 
 
 def _hello_chip(hello: Hello) -> Chip:
@@ -58,7 +67,7 @@ def _hello_chip(hello: Hello) -> Chip:
 
 class _ChipTable:
     """Per hello (row 0: before any), the chip's figures as arrays: its count over the
-    AK8975's, its rails and its die-temperature formula."""
+    AK8975's, its rails, its die-temperature formula and its accelerometer-to-magnetometer axes."""
 
     def __init__(self, chips: list[Chip]):
         self.scales = np.array([c.ut_per_count / MPU9150.ut_per_count for c in chips], np.float64)
@@ -66,6 +75,8 @@ class _ChipTable:
         self.count_max = np.array([c.count_max for c in chips], np.int64)
         self.temp_lsb_per_c = np.array([c.temp_lsb_per_c for c in chips], np.float64)
         self.temp_offset_c = np.array([c.temp_offset_c for c in chips], np.float64)
+        self.accel_axis = np.array([[k for k, _ in c.mag_from_accel] for c in chips], np.int64)
+        self.accel_sign = np.array([[sgn for _, sgn in c.mag_from_accel] for c in chips], np.float64)
 
 
 def _field_rows(frames: Frames, a: int, b: int, h_pos, gains_chips, out_rows) -> None:
