@@ -212,10 +212,11 @@ class Scenario:
 
     def accel_body_g(self, t_s, k) -> np.ndarray:
         """What the accelerometer of reads ``k`` at ``t_s`` shows, (n, 3) g: the reaction to
-        gravity, Rᵀ·(0, 0, 1) — a board lying flat and still reads +1 g on z, as an MPU does —
-        plus white noise. The hand's own accelerations are left out (the waving is slow), so
-        the reading says which way is up, which is all the guidance needs of it; it shares the
-        body axes with the magnetometer's reading."""
+        gravity, Rᵀ·(0, 0, 1) — +1 g on the body axis that points up — plus white noise. The
+        hand's own accelerations are left out (the waving is slow), so the reading says which way
+        is up, which is all the guidance needs of it. It is in the body axes, which are the
+        magnetometer's; a real IMU's accelerometer has its own (``Chip.mag_from_accel``), which
+        the simulated boards turn it into before sending (``magcal.devices.simboard.accel_counts``)."""
         r = self.orientation(t_s)
         noise = _accel_noise(self.seed, np.asarray(k, dtype=np.int64))
         return r[:, 2, :] + self.physics.accel_noise_g * noise
