@@ -24,8 +24,13 @@ judges extrapolation, which on a short recording is a handful of samples decidin
 model the rest determines well (such blocks, under ``SEEN_SHARE`` of their samples seen, are
 named in ``HeldOut.unseen_blocks`` so the reason can say so). The direction balance is judged
 on all of them, since the directions a recording holds least are what it is for: an
-ellipsoid is refitted with it and without, and the balance is dropped only where the plain
-fit predicts ``BALANCE_MARGIN`` times better.
+ellipsoid is refitted with it and without, on the blocks both refits reach, and the balance is
+dropped only where the plain fit predicts them ``BALANCE_MARGIN`` times better (on the
+real recordings the blocks inside the fitted part are a poor judge of what the balance does
+forward in time: dropping it wherever the plain fit predicts them better, or better per
+direction cell, lost more forward cells than it won). Models are compared on the
+blocks every one of them refitted (a refit that does not converge on one block is no verdict on
+the others; the ArduPilot log's first compass, first 70 %, lost its plain ellipsoid to one).
 
 The blocks are few and short, so their figures carry noise of several per cent: a model the
 in-sample criterion (``fit``'s BIC) prefers is replaced only by one that predicts its blocks
@@ -127,20 +132,39 @@ def _rms(parts: list) -> float:
     return float(np.sqrt(sum(k * v**2 for k, v in parts) / n)) if n else float("inf")
 
 
-def _score(m, g, keep, tests: dict, edges, balanced: bool, at_whole: tuple) -> dict:
-    """{name: RMS over blocks (weighted by judged samples) of one model's held-out spread} for
-    each set of judged samples in ``tests`` ({name: per-block masks}); one refit per block."""
-    parts: dict = {name: [] for name in tests}
+def _score(m, g, keep, tests: dict, edges, balanced: bool, at_whole: tuple) -> list:
+    """Per block, {name: (samples judged, held-out spread)} of one model for each set of judged
+    samples in ``tests`` ({name: per-block masks}; a set under ``MIN_BLOCK`` left out), or None
+    where the refit without the block failed; one refit per block."""
+    blocks: list = []
     for j in range(len(edges) - 1):
         rows = keep.copy()
         rows[edges[j] : edges[j + 1]] = False
         theta = _refit(m, rows, g, balanced, at_whole)
         if isinstance(theta, FitFailure):
-            return {name: float("inf") for name in tests}
-        for name, masks in tests.items():
-            if masks[j].sum() >= MIN_BLOCK:
-                parts[name].append((int(masks[j].sum()), spread(m[masks[j]], theta, g.kind)))
-    return {name: _rms(p) for name, p in parts.items()}
+            blocks.append(None)
+            continue
+        blocks.append({name: (int(masks[j].sum()), spread(m[masks[j]], theta, g.kind))
+                       for name, masks in tests.items() if masks[j].sum() >= MIN_BLOCK})
+    return blocks
+
+
+def _over(blocks: list, name: str, on: np.ndarray) -> float:
+    """RMS (weighted by samples judged) of ``name``'s spreads over the blocks ``on``; inf
+    where a block of them failed or none is left."""
+    if any(b is None for b, use in zip(blocks, on) if use):
+        return float("inf")
+    return _rms([b[name] for b, use in zip(blocks, on) if use and name in b])
+
+
+def _balance_kept(plain: list, weighted: list) -> bool:
+    """Keep the direction balance unless the plain fit predicts the blocks both refitted,
+    judged on all their samples, ``BALANCE_MARGIN`` times better (a refit that failed to
+    converge on one block is no verdict on the other variant)."""
+    both = np.array([p is not None and w is not None for p, w in zip(plain, weighted)])
+    if not both.any():
+        return weighted.count(None) <= plain.count(None)
+    return _over(weighted, "all", both) <= BALANCE_MARGIN * _over(plain, "all", both)
 
 
 def _tests(m, judged, edges, offset_ut) -> tuple[dict, list]:
@@ -169,13 +193,21 @@ def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOut 
         return None
     sphere = candidates.get("sphere", next(iter(candidates.values())))[0]
     tests, unseen = _tests(m, judged, edges, sphere.offset_ut)
-    scores, balanced = {}, {}
+    kept, balanced = {}, {}
     for k, (g, keep) in candidates.items():
         at_whole = geometric.residual_jacobian(g.theta, m, g.kind)
         plain = _score(m, g, keep, tests, edges, False, at_whole)
         weighted = plain if k == "sphere" else _score(m, g, keep, tests, edges, True, at_whole)
-        balanced[k] = k != "sphere" and weighted["all"] <= BALANCE_MARGIN * plain["all"]
-        scores[k] = (weighted if balanced[k] else plain)["seen"]
+        balanced[k] = k != "sphere" and _balance_kept(plain, weighted)
+        kept[k] = weighted if balanced[k] else plain
+    scores = {k: _over(b, "seen", _common(kept)) for k, b in kept.items()}
     if not np.isfinite(min(scores.values())):
         return None
     return HeldOut(scores, n_blocks, tuple(unseen), balanced)
+
+
+def _common(kept: dict) -> np.ndarray:
+    """The blocks every candidate refitted, or every block where none is (each model then
+    scored inf where it failed): the models are compared on the same blocks."""
+    ok = np.logical_and.reduce([[b is not None for b in blocks] for blocks in kept.values()])
+    return ok if ok.any() else np.ones(len(ok), bool)
