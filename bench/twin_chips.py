@@ -5,7 +5,8 @@ comparison: how many of the recording-vs-twins statistics a chip-driven recordin
 the twins' 2.5–97.5 % band, beside the real recording's own count and beside a plain twin draw
 (the same model, no chip: what a perfect chip model would score, the bench's own reference).
 The chip-driven recording is loaded as the real one was (the AK8963 log's repeated rows dropped:
-``twin_recordings.estibone``). Figures pooled over ``--seeds`` first seeds; pass: ≥ 90 % of the
+``twin_recordings.estibone``). Figures pooled over ``--seeds`` comparisons whose seeds lie
+``spacing`` apart (each with twins of its own); pass: ≥ 90 % of the
 statistics inside, twin_real.py's criterion.
 
 Run: MAGCAL_REAL_DATA=… python bench/twin_chips.py [--draws 50] [--seed N] [--seeds 10]
@@ -72,14 +73,22 @@ def outside(rep) -> list[str]:
     return [b.name for b in rep.bands if not b.low <= b.real <= b.high]
 
 
+def spacing(draws: int) -> int:
+    """Seeds of successive comparisons this far apart: each draws its own twins (consecutive
+    seeds shared all but one of their draws, one band counted ten times)."""
+    return max(1000, 2 * draws + 2)
+
+
 def one_chip(name, chip, distinct, draws, seeds) -> dict:
     """Pooled (inside, total) and the statistics outside, per kind of recording."""
     series, fixed = tr.load(name)
     series = series.only_valid()
     cal, free = calibration_of(series, fixed)
     model = twin.learn(series, cal, source={"recording": name}, free=free)
-    kinds = {"real recording": lambda s: series, "chip-driven": lambda s: chip_driven(model, series, chip, s + 10_000, distinct),
-             "plain twin": lambda s: plain_twin(model, series, s + 10_000)}
+    # a twin recording's seed sits half a spacing past its comparison's draw seeds (s … s + draws − 1)
+    offset = spacing(draws) // 2
+    kinds = {"real recording": lambda s: series, "chip-driven": lambda s: chip_driven(model, series, chip, s + offset, distinct),
+             "plain twin": lambda s: plain_twin(model, series, s + offset)}
     out = {k: [0, 0, Counter()] for k in kinds}
     for seed in seeds:
         for kind, make in kinds.items():
@@ -104,9 +113,10 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, default=10)
     args = p.parse_args(argv)
     seed = args.seed if args.seed is not None else int.from_bytes(os.urandom(4), "little") % 1_000_000
-    print(f"draws {args.draws}; seeds {seed}…{seed + args.seeds - 1}")
+    seeds = range(seed, seed + args.seeds * spacing(args.draws), spacing(args.draws))
+    print(f"draws {args.draws}; seeds {seeds[0]}, {seeds[1] if len(seeds) > 1 else ''} … {seeds[-1]}")
     for name, chip, distinct in PAIRS:
-        one_chip(name, chip, distinct, args.draws, range(seed, seed + args.seeds))
+        one_chip(name, chip, distinct, args.draws, seeds)
     return 0
 
 
