@@ -144,7 +144,7 @@ def _lagged(name, t, m, rng, amp_ut) -> list[Case]:
     beta = rng.standard_normal(3)
     beta *= amp_ut / 8.0 / np.linalg.norm(beta)
     return [Case(f"{name}/lagged_current", "lagged_channel", _s(t, m + np.outer(lagged, beta), {"current_a": cur}),
-                 {"channel": "current_a", "lag_s": tau_s})]
+                 {"channel": "current_a", "lag_s": tau_s, "coef_ut_per_unit": beta})]
 
 
 def _faults(name, t, m, rng) -> list[Case]:
@@ -230,7 +230,29 @@ def judge(d: dict, case: Case, carried: list[float]) -> dict:
     return {"case": case.name, "control": False, "named": bool(named),
             "located": any(located_right(x, case, span) for x in named),
             "said": sorted({x.get("effect") for x in items if x.get("effect")}),
-            "false_claims": [x["effect"] for x in specific if x["effect"] != case.effect]}
+            "false_claims": [x["effect"] for x in specific if x["effect"] != case.effect],
+            "false_where": [x.get("where", {}) for x in specific if x["effect"] != case.effect]} | lag_verdict(d, case)
+
+
+def lag_verdict(d: dict, case: Case) -> dict:
+    """For a lagged channel: the located term on that channel (the lagged one first) — its
+    coefficient's error against the truth (as a share of the true size), whether the true size is
+    inside its stated 95 % interval, and its lag's error (as a share of the true time constant)."""
+    truth = case.where.get("coef_ut_per_unit")
+    if truth is None:
+        return {}
+    on = [x for x in d["located"]["found"] if x.get("params", {}).get("channel") == case.where["channel"]
+          and "coef_ut_per_unit" in x.get("params", {})]
+    on.sort(key=lambda x: x.get("effect") != "lagged_channel")
+    if not on:
+        return {"lag": None}
+    p, tb = on[0]["params"], np.asarray(truth)
+    lo, hi = p.get("coef_magnitude_interval", [np.nan, np.nan])
+    lag = on[0].get("where", {}).get("lag_s")
+    return {"lag": {"effect": on[0]["effect"], "form": p.get("form"),
+                    "coef_error": float(np.linalg.norm(np.asarray(p["coef_ut_per_unit"]) - tb) / np.linalg.norm(tb)),
+                    "inside_95": bool(lo <= np.linalg.norm(tb) <= hi),
+                    "lag_error": None if lag is None else float(abs(lag - case.where["lag_s"]) / case.where["lag_s"])}}
 
 
 def main(argv=None) -> int:
@@ -259,8 +281,8 @@ def main(argv=None) -> int:
                     continue
                 rows.append(judge_case(case, carried) | {"size": size})
                 r = rows[-1]
-                print(f"{r['case']:50s} x{size:<4} named {r['named']!s:5} located {r['located']!s:5} said {r['said']}",
-                      flush=True)
+                print(f"{r['case']:50s} x{size:<4} named {r['named']!s:5} located {r['located']!s:5} said {r['said']}"
+                      + (f" lag {r['lag']}" if "lag" in r else ""), flush=True)
     summarise(rows)
     if args.json:
         with open(args.json, "w") as fh:
@@ -279,6 +301,7 @@ def summarise(rows: list[dict]) -> None:
               f"false {sum(bool(r['false_claims']) for r in rs)}/{len(rs)}")
     print(f"effects: located {np.mean([r['located'] for r in eff]):.0%}, named {np.mean([r['named'] for r in eff]):.0%}, "
           f"specific false claims {np.mean([bool(r['false_claims']) for r in eff]):.0%} of {len(eff)}")
+    summarise_lags([r for r in eff if "lag" in r])
     win = [r for r in ctl if "/control_w" in r["case"]]
     real = [r for r in ctl if not r["case"].startswith("sim_")]
     print(f"controls: false claims {sum(bool(r['false_claims']) for r in ctl)}/{len(ctl)} "
@@ -288,6 +311,19 @@ def summarise(rows: list[dict]) -> None:
     for r in ctl:
         if r["false_claims"]:
             print(f"  control {r['case']}: {r['false_claims']}")
+
+
+def summarise_lags(rows: list[dict]) -> None:
+    """The lagged channel's coefficient (within 20 %, truth inside its 95 % interval) and lag
+    (within 30 %), over the lagged cases (a case with no term on the channel fails all three)."""
+    if not rows:
+        return
+    got = [r["lag"] or {} for r in rows]
+    coef = sum(g.get("coef_error", np.inf) <= 0.2 for g in got)
+    inside = sum(bool(g.get("inside_95")) for g in got)
+    lag = sum(g.get("lag_error") is not None and g["lag_error"] <= 0.3 for g in got)
+    print(f"lagged channel: coefficient within 20 % {coef}/{len(rows)}, inside its 95 % interval {inside}/{len(rows)}, "
+          f"lag within 30 % {lag}/{len(rows)}")
 
 
 if __name__ == "__main__":
