@@ -90,50 +90,27 @@ def locate_and_model(m_ut, t_s, chans: dict, final: ModelFit, fit_model_name: st
     if not any(f.kind is Kind.PHYSICS for f in found):
         return LocateStep(found, (), None, floor)
     model = PLAIN.get(fit_model_name, "auto")
-    table = {e.name: replacing(e, cal, chans) for e in effects}
+    table = {e.name: e for e in effects}
     cleaned, verdicts = judge.judge(m_ut - shift, t_s, chans, found, table, model, known)
     if not any(v.kept for v in verdicts):
         return LocateStep(found, verdicts, None, floor)
-    replaced = {v.located.params.get("channel") for v in verdicts if v.kept}
-    refit = _refit(cleaned, final, model, replaced)
-    plain = {e.name: e for e in effects}  # the returned model carries no term on a replaced channel
-    removals = tuple((plain[v.located.effect].remove, v.located) for v in verdicts if v.kept)
-    if refit is None:
-        return LocateStep(found, verdicts, None, floor, None, removals)
-    return LocateStep(found, verdicts, refit, floor, cleaned + refit.calibration().channel_offset_ut(chans, len(m_ut)), removals)
+    refit = _refit(cleaned, final, model)
+    removals = tuple((table[v.located.effect].remove, v.located) for v in verdicts if v.kept)
+    return LocateStep(found, verdicts, refit, floor, None if refit is None else cleaned + shift, removals)
 
 
-def replacing(effect: Effect, cal, chans: dict) -> Effect:
-    """``effect`` whose ``remove`` of a located channel term first puts back the calibration's
-    own (no-lag) term on that channel: the located term (a lag, a gain, a curve) replaces it
-    rather than being taken out on top of it, which would take the channel's field out twice."""
-    if effect.remove is None:
-        return effect
-
-    def remove(m_ut, t_s, channels, located):
-        name = located.params.get("channel")
-        coef = cal.coef_ut_per_unit.get(name) if name is not None else None
-        if coef is not None and name in chans:
-            m_ut = m_ut + np.outer(np.asarray(chans[name], np.float64) - cal.reference.get(name, 0.0), coef)
-        return effect.remove(m_ut, t_s, channels, located)
-
-    return replace(effect, remove=remove)
-
-
-def _refit(cleaned: np.ndarray, final: ModelFit, model: str, replaced: set = frozenset()) -> ModelFit | None:
-    """The geometry refitted on the cleaned samples, with ``final``'s channel terms kept except
-    those a kept located term ``replaced``."""
+def _refit(cleaned: np.ndarray, final: ModelFit, model: str) -> ModelFit | None:
+    """The geometry refitted on the cleaned samples, with ``final``'s channel terms kept."""
     result = fit_calibration(cleaned, model=model)
     if not result:
         return None
-    chans = tuple(c for c in final.spec.channels if c not in replaced)
-    covs = {c: _channel_cov(final, j) for j, c in enumerate(final.spec.channels) if c in chans}
+    covs = {c: _channel_cov(final, j) for j, c in enumerate(final.spec.channels)}
     geometry = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty, covs)
-    if not chans:
+    if not final.spec.channels:
         return geometry
-    spec = replace(geometry.spec, channels=chans)
-    params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in chans])
-    return ModelFit(spec, params, {c: final.reference[c] for c in chans}, geometry.rms_ut, geometry.n, 0, geometry.cov)
+    spec = replace(geometry.spec, channels=final.spec.channels)
+    params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in final.spec.channels])
+    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, geometry.cov)
 
 
 def _channel_cov(final: ModelFit, j: int) -> np.ndarray | None:
