@@ -44,7 +44,7 @@ from pathlib import Path
 
 from ..core.chips import MPU9150, Chip, chip_named
 from ..core.errors import DeviceError, PortError, PortUnavailable
-from ..recordings.state import user_state_dir
+from ..recordings.state import board_eeprom, chip_suffix
 from ..core.sample import asa_gain
 from ..sim.physics import Scenario
 from ..wire.dialect import Dialect
@@ -320,15 +320,8 @@ def _harness_connector(board: EmulatedBoard, baud: int):
 def eeprom_of(port: Port, chip: EmuChip | None = None) -> str | None:
     """The EEPROM file an ``emu://`` port keeps: ``eeprom=PATH``; by default one per seed,
     address and chip in the user's state directory; None (a throwaway file) for ``eeprom=none``."""
-    given = port.get("eeprom")
-    if given == "none":
-        return None
-    if given:
-        return given
-    folder = user_state_dir() / "emu"
-    folder.mkdir(parents=True, exist_ok=True)
-    board = "" if chip is None or chip.name == "mpu9150" else f"-{chip.name}-{chip.bits}bit"
-    return str(folder / f"eeprom-seed{port.get('seed', 1)}-{port.get('addr', 0x68):#04x}{board}.bin")
+    name = f"eeprom-seed{port.get('seed', 1)}-{port.get('addr', 0x68):#04x}{chip_suffix(chip)}.bin"
+    return board_eeprom(port.get("eeprom"), "emu", name)
 
 
 def open_emulated(port: Port, dialect: Dialect = Dialect.NATIVE, *, scenario: Scenario | None = None, asa=None,

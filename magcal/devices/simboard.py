@@ -61,17 +61,9 @@ def eeprom_of(port: Port, chip=None) -> str | None:
     """The EEPROM file a ``sim://`` port keeps, as ``emu://`` does: ``eeprom=PATH``; by default
     one per seed and chip in the user's state directory, so what ``calibrate`` wrote is there
     for ``show`` in the next command; None (a throwaway store) for ``eeprom=none``."""
-    from ..recordings.state import user_state_dir
+    from ..recordings.state import board_eeprom, chip_suffix
 
-    given = port.get("eeprom")
-    if given == "none":
-        return None
-    if given:
-        return given
-    folder = user_state_dir() / "sim"
-    folder.mkdir(parents=True, exist_ok=True)
-    board = "" if chip is None or chip.name == "mpu9150" else f"-{chip.name}-{chip.bits}bit"
-    return str(folder / f"eeprom-seed{port.get('seed', 1)}{board}.bin")
+    return board_eeprom(port.get("eeprom"), "sim", f"eeprom-seed{port.get('seed', 1)}{chip_suffix(chip)}.bin")
 
 
 class SimEeprom:

@@ -81,6 +81,24 @@ def user_state_dir() -> Path:
     return Path(base) / "magcal"
 
 
+def board_eeprom(given: str | None, kind: str, name: str) -> str | None:
+    """The EEPROM file a simulated or emulated board keeps: ``given`` (a port's ``eeprom=``) when
+    set, None (a throwaway store) for ``none``, else ``name`` in the user's state directory under
+    ``kind`` (``sim``, ``emu``), created, so what one command wrote the next one reads."""
+    if given == "none":
+        return None
+    if given:
+        return given
+    folder = user_state_dir() / kind
+    folder.mkdir(parents=True, exist_ok=True)
+    return str(folder / name)
+
+
+def chip_suffix(chip) -> str:
+    """The part of a board's EEPROM file name that tells a chip other than the MPU-9150 apart."""
+    return "" if chip is None or chip.name == "mpu9150" else f"-{chip.name}-{chip.bits}bit"
+
+
 def state_directory(path, create: bool = True) -> Path:
     """The daemon's state directory (empty: the user's, ``user_state_dir``), checked before
     anything is put in it: ConfigError naming the path and the fix when it is a file, cannot be
