@@ -21,10 +21,11 @@ REPO = Path(__file__).resolve().parents[1]
 ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
-def in_terminal(*argv, timeout=600, cwd=None) -> tuple[int, str]:
-    """Run ``magcal ARGV`` with stdin, stdout and stderr on a pseudo-terminal: (status, all it wrote)."""
+def in_terminal(*argv, timeout=600, cwd=None, columns: int = 120, lines: int = 40) -> tuple[int, str]:
+    """Run ``magcal ARGV`` with stdin, stdout and stderr on a pseudo-terminal of ``columns`` ×
+    ``lines``: (status, all it wrote)."""
     leader, follower = pty.openpty()
-    env = dict(os.environ, PYTHONPATH=str(REPO), TERM="xterm", COLUMNS="120", LINES="40")
+    env = dict(os.environ, PYTHONPATH=str(REPO), TERM="xterm", COLUMNS=str(columns), LINES=str(lines))
     p = subprocess.Popen([sys.executable, "-m", "magcal", *argv], stdin=follower, stdout=follower,
                          stderr=follower, env=env, close_fds=True, cwd=cwd)
     os.close(follower)

@@ -9,7 +9,6 @@ import re
 import select
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -22,26 +21,9 @@ ESC = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
 def _in_terminal(argv, columns: int, timeout_s: float = 120) -> tuple[int, str]:
-    leader, follower = pty.openpty()
-    env = dict(os.environ, PYTHONPATH=str(REPO), TERM="xterm", COLUMNS=str(columns), LINES="24")  # state: conftest's
-    p = subprocess.Popen([sys.executable, "-m", "magcal", *argv], stdin=follower, stdout=follower,
-                         stderr=follower, env=env, close_fds=True)
-    os.close(follower)
-    out, deadline = bytearray(), time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if select.select([leader], [], [], 0.2)[0]:
-            try:
-                chunk = os.read(leader, 65536)
-            except OSError:
-                break
-            if not chunk:
-                break
-            out += chunk
-        elif p.poll() is not None:
-            break
-    p.wait(timeout=10)
-    os.close(leader)
-    return p.returncode, out.decode("utf-8", "replace")
+    from test_progress import in_terminal
+
+    return in_terminal(*argv, timeout=timeout_s, columns=columns, lines=24)
 
 
 def _screen_lines(out: str) -> list[str]:
