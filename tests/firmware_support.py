@@ -46,9 +46,12 @@ def require_firmware() -> None:
 class RawBoard:
     """The harness driven with raw pyserial on its pty: protocol-level tests with no host client.
 
-    ``lines`` are the framer's items in arrival order."""
+    ``lines`` are the framer's items in arrival order. ``eager``: each read returns what has
+    arrived instead of waiting out the port's 50 ms timeout for a full buffer — for a test that
+    waits for every reply it expects before it writes again (the board's 64-byte receive buffer
+    overflows when a host writes a long line while the board is still sending a long reply)."""
 
-    def __init__(self, tmp_path, field=(100, -200, 300), eeprom=None, extra=()):
+    def __init__(self, tmp_path, field=(100, -200, 300), eeprom=None, extra=(), eager=False):
         import serial
 
         self.eeprom = str(eeprom or (tmp_path / "eeprom.bin"))
@@ -62,6 +65,7 @@ class RawBoard:
         self.items: list = []  # everything received, in order
         self._unseen: list = []  # received but not yet looked at by wait_for/pump
         self._tag = 0
+        self._eager = eager
 
     def send(self, cmd: str, *args) -> int:
         self._tag += 1
@@ -72,7 +76,7 @@ class RawBoard:
         self.port.write(data)
 
     def _receive(self) -> None:
-        data = self.port.read(4096)
+        data = self.port.read(max(1, self.port.in_waiting) if self._eager else 4096)
         if data:
             got = self.framer.feed(data)
             self.items.extend(got)

@@ -6,7 +6,8 @@ out-of-range values and over-long lines. Noise between the lines must not distur
 to the lines after it. Afterwards the board still identifies itself.
 
 The streams are drawn from a seeded generator (the same kinds of lines as the sim board's fuzz
-in ``test_daemon_fuzz.py``), one line at a time, each waiting for its reply."""
+in ``test_daemon_fuzz.py``), one line at a time, each waiting for its whole reply (an ``I`` or
+``Z`` is answered by an ``A`` and a hello, a ``W`` by an ``A`` and its record) before the next."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ from magcal.wire.protocol import (
 
 LINES = 250
 REPLY_TIMEOUT_S = 5.0
+THEN = {"I": Hello, "Z": Hello, "W": RecordReply}  # what follows the A of these commands
 
 
 @pytest.fixture(autouse=True)
@@ -55,7 +57,7 @@ def random_line(rng: random.Random) -> bytes:
 @pytest.mark.slow
 def test_firmware_replies_to_every_random_line(tmp_path):
     rng = random.Random(9150)
-    b = RawBoard(tmp_path)
+    b = RawBoard(tmp_path, eager=True)
     try:
         b.wait_for(lambda i: isinstance(i, Hello), 5, "boot hello")
         b.pump(0.05)
@@ -70,11 +72,14 @@ def test_firmware_replies_to_every_random_line(tmp_path):
                 tag = parse_command(line[line.rfind(b"$"):])[1]
             except ParseError:
                 tag = 0  # the device answers a line it cannot parse with tag 0
+            reply = None
             try:
-                b.wait_for(lambda i: isinstance(i, (Ack, ErrorReply, RecordReply)) and i.tag in (tag, 0),
-                           REPLY_TIMEOUT_S, f"reply to line {n}")
+                reply = b.wait_for(lambda i: isinstance(i, (Ack, ErrorReply, RecordReply)) and i.tag in (tag, 0),
+                                   REPLY_TIMEOUT_S, f"reply to line {n}")
             except AssertionError:
                 no_reply.append(line)
+            if isinstance(reply, Ack) and reply.cmd in THEN:
+                b.wait_for(lambda i: isinstance(i, THEN[reply.cmd]), REPLY_TIMEOUT_S, f"the rest of the reply to {line!r}")
             assert b.proc.poll() is None, f"the emulator died after {line!r}"
             b.pump(0.0)
             if b._unseen and len(b._unseen) > 2000:
