@@ -16,6 +16,7 @@ import sys
 import numpy as np
 import pytest
 
+from cli_inproc import run_magcal
 from cli_once import diagnose_both_ways
 from logs_extra import need
 
@@ -29,8 +30,9 @@ def _logs_extra():
     need("pymavlink", "pyulog", "pygeomag")
 
 
-def magcal(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "magcal", *args], capture_output=True, text=True, cwd=cwd)
+def magcal(*args):
+    """``magcal ARGS`` in a new interpreter: for what must hold from one process to the next."""
+    return subprocess.run([sys.executable, "-m", "magcal", *args], capture_output=True, text=True)
 
 
 def one_fit(r) -> dict:
@@ -41,9 +43,12 @@ def one_fit(r) -> dict:
 
 
 @functools.cache
-def whole_fit(path) -> dict:
-    """``magcal fit PATH --mag 0 --json`` of an undamaged log, run once for the tests of its damage."""
-    return one_fit(magcal("fit", path, "--mag", "0", "--json"))
+def whole_samples(path) -> int:
+    """The samples of magnetometer 0 in the undamaged log, as read (what ``magcal fit PATH --mag 0
+    --json`` gives as ``log.magnetometer.samples``)."""
+    from magcal.recordings.logs import read_log
+
+    return read_log(path).mags[0].samples
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +100,7 @@ def test_dataflash_lists_its_compasses_and_names_channels_physically():
 def test_several_magnetometers_and_no_choice_lists_them():
     from magcal.cli.exits import Exit
 
-    r = magcal("fit", BIN)
+    r = run_magcal("fit", BIN)
     assert r.returncode == Exit.USAGE and "Traceback" not in r.stderr
     for line in ("--mag 0: MAG, device id 73225", "external", "--mag 2: MAG3", "internal", "Hz"):
         assert line in r.stderr
@@ -165,7 +170,6 @@ def test_px4_undo_reapplied_by_its_formula_gives_the_logged_field():
 
 # -- damaged logs -------------------------------------------------------------------------------
 @pytest.mark.slow
-@pytest.mark.xdist_group("flightlogs_whole_fit")  # one whole_fit per log under make test -n
 @pytest.mark.parametrize("damage", ["truncate", "corrupt"])
 @pytest.mark.parametrize("path", [BIN, ULG], ids=["dataflash", "ulog"])
 def test_a_damaged_log_is_read_up_to_the_damage(tmp_path, path, damage):
@@ -180,17 +184,16 @@ def test_a_damaged_log_is_read_up_to_the_damage(tmp_path, path, damage):
     bad.write_bytes(bytes(data))
     from magcal.cli.exits import Exit
 
-    r = magcal("fit", str(bad), "--mag", "0", "--json")
+    r = run_magcal("fit", bad, "--mag", "0", "--json")
     assert "Traceback" not in r.stderr
     assert r.returncode in (Exit.OK, Exit.GATE), r.stderr
     d = one_fit(r)
     assert any("damaged" in w or "cut short" in w for w in d["warnings"])
-    whole = whole_fit(path)
     n = d["log"]["magnetometer"]["samples"]
-    assert 0 < n <= whole["log"]["magnetometer"]["samples"]
+    assert 0 < n <= whole_samples(path)
     if r.returncode == Exit.GATE:  # what survived may be too short to fit: said so, not a crash
         assert d["failure"] == "too_few_samples"
-    r = magcal("diagnose", str(bad), "--mag", "0", "--json")
+    r = run_magcal("diagnose", bad, "--mag", "0", "--json")
     assert "Traceback" not in r.stderr
     assert "damaged" in r.stderr or "cut short" in r.stderr  # the warning, whatever follows
     assert r.returncode in (Exit.OK, Exit.GATE), r.stderr  # what survived may be too short: a refusal, as fit
@@ -206,7 +209,7 @@ def test_a_file_that_only_starts_like_a_log_is_a_named_error(tmp_path):
     bad.write_bytes(b"ULog\x01\x12\x35" + b"\x00" * 40)
     from magcal.cli.exits import Exit
 
-    r = magcal("fit", str(bad))
+    r = run_magcal("fit", str(bad))
     assert r.returncode == Exit.INPUT and "Traceback" not in r.stderr and str(bad) in r.stderr
 
 
@@ -271,10 +274,10 @@ def test_diagnose_tests_the_current_against_the_expected_field(mag1):
 def test_export_of_a_log_diagnosis_writes_its_vector_calibration(tmp_path, mag1):
     diag, fit = tmp_path / "diag.json", tmp_path / "fit.json"
     diag.write_text(json.dumps(mag1[0]))  # what diagnose --json printed
-    fit.write_text(magcal("fit", BIN, "--mag", "1", "--json").stdout)
+    fit.write_text(run_magcal("fit", BIN, "--mag", "1", "--json").stdout)
     outs = [tmp_path / "d.param", tmp_path / "f.param"]
     for src, out in zip((diag, fit), outs):
-        r = magcal("export", str(src), "--ardupilot", "-o", str(out))
+        r = run_magcal("export", str(src), "--ardupilot", "-o", str(out))
         assert r.returncode == 0, r.stderr
     values = [[ln for ln in o.read_text().splitlines() if not ln.startswith("#")] for o in outs]
     assert values[0] == values[1] and any(v.startswith("COMPASS_MOT2_X") for v in values[0])
@@ -342,7 +345,7 @@ def test_ardupilot_parameters_round_trip(tmp_path):
 
     cal = _truth()
     path = _result_file(tmp_path, cal, "ardupilot", np.eye(3), 1)
-    r = magcal("export", str(path), "--ardupilot")
+    r = run_magcal("export", str(path), "--ardupilot")
     assert r.returncode == 0, r.stderr
     params = parse_params((tmp_path / "result-ardupilot-2.param").read_text())
     assert params["COMPASS_MOTCT"] == 2 and "COMPASS_OFS2_X" in params
@@ -360,7 +363,7 @@ def test_px4_parameters_round_trip_through_a_rotation(tmp_path):
     cal = _truth()
     rot = px4_rotation(2)  # yaw 90: the sensor turned in the airframe
     path = _result_file(tmp_path, cal, "px4", rot, 1)
-    r = magcal("export", str(path), "--px4", "--json")
+    r = run_magcal("export", str(path), "--px4", "--json")
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)["output"]
     text = open(out).read()
@@ -376,10 +379,10 @@ def test_px4_parameters_round_trip_through_a_rotation(tmp_path):
 
 
 def test_export_of_a_log_fit_writes_the_logs_compass(tmp_path):  # make check's one run of exportparams
-    r = magcal("fit", BIN, "--mag", "2", "--json")
+    r = run_magcal("fit", BIN, "--mag", "2", "--json")
     res = tmp_path / "r.json"
     res.write_text(r.stdout)
-    e = magcal("export", str(res), "--ardupilot", "--json")
+    e = run_magcal("export", str(res), "--ardupilot", "--json")
     assert e.returncode == 0, e.stderr
     d = json.loads(e.stdout)
     assert d["schema"] == "magcal.export-params/1" and d["slot"] == 3 and "COMPASS_MOT3_Z" in d["parameters"] and d["parameters"]["COMPASS_MOTCT"] == 2
@@ -391,7 +394,7 @@ def test_export_refuses_what_is_not_a_fit(tmp_path):
     bad.write_text('{"hello": 1}')
     from magcal.cli.exits import Exit
 
-    r = magcal("export", str(bad), "--px4", "0")
+    r = run_magcal("export", str(bad), "--px4", "0")
     assert r.returncode == Exit.INPUT and "not the JSON of a successful" in r.stderr and "Traceback" not in r.stderr
 
 
