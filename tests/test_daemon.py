@@ -52,10 +52,12 @@ class Tracked:
     def on_sample(self, epoch, s):
         self.collected.append((epoch, s.seq, s.raw))
 
-    def run(self, tmp_path, samples, **daemon):
+    def run(self, tmp_path, samples, device_clock=None, **daemon):
         settings = make_settings(self.url, **daemon)
+        opener = open_device if device_clock is None else _opened_on(device_clock)
         d = Daemon(settings, state_dir=tmp_path / "state", max_samples=samples,
-                   collaborators=Collaborators(on_sample=self.on_sample, device_options=self.options(reply_timeout_s=0.25)))
+                   collaborators=Collaborators(open_device=opener, on_sample=self.on_sample,
+                                               device_options=self.options(reply_timeout_s=0.25)))
         # a daemon that cannot reach its sample count (a board that stopped answering is retried
         # for ever, as it should be) fails here instead of hanging the suite
         guard = threading.Timer(WALL_LIMIT_S, d.request_stop)
@@ -76,6 +78,33 @@ class Tracked:
         for epoch, group in itertools.groupby(self.collected, key=lambda c: c[0]):
             seqs = [c[1] for c in group]
             assert all(0 < (b - a) % 65536 < 32768 for a, b in zip(seqs, seqs[1:])), f"sequence went back in epoch {epoch}"
+
+
+class LookClock:
+    """A device's clock of its own that moves on ``step_s`` each time it is read, not with the
+    wall: a reply timeout is then a fixed number of looks at the link, the same on an idle
+    machine and a loaded one. A reply the board sent is read at the first look (it answers a
+    command at once), so only a board that never answers waits the timeout out — in two looks
+    (0.25 s at 0.1 s a look) instead of a wall-clock 0.25 s in which the unpaced board streams
+    thousands of lines that the daemon then has to take in."""
+
+    def __init__(self, step_s: float = 0.1):
+        self.step_s, self.t_s = step_s, 0.0
+
+    def __call__(self) -> float:
+        self.t_s += self.step_s
+        return self.t_s
+
+
+def _opened_on(clock):
+    """``open_device`` whose device keeps time by ``clock`` (its reply and read timeouts)."""
+
+    def opened(url, **options):
+        dev = open_device(url, **options)
+        dev.clock = clock
+        return dev
+
+    return opened
 
 
 def within(value, bounds) -> bool:
@@ -126,8 +155,10 @@ def _calibrated_then(tmp_path, faults, samples=12500):
     t = 50 s together with ``faults``."""
     t = Tracked(f"seed=7&fault=hard_iron@50=30.5,-38.2,14.8{faults}")
     # the alarm path (the tracker's: test_daemon_keeping); a stall limit no loaded machine reaches
-    # by accident (a spurious reconnect after the board went mute can never identify it again)
-    d = t.run(tmp_path, samples, recalibrate=True, keep="alarm", stall_s=3.0)
+    # by accident (a spurious reconnect after the board went mute can never identify it again);
+    # the device keeps time by looks (LookClock): a command the board never answers times out
+    # after two looks at the link, not after 0.25 s of lines the unpaced board streams meanwhile
+    d = t.run(tmp_path, samples, device_clock=LookClock(), recalibrate=True, keep="alarm", stall_s=3.0)
     t.assert_exactly_once()
     return t, d
 
