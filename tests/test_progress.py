@@ -55,8 +55,9 @@ def in_pipe(*argv, timeout=600) -> subprocess.CompletedProcess:
 
 @pytest.mark.slow
 def test_calibrate_in_a_terminal_maps_the_directions_and_says_where_to_turn(tmp_path):
-    # a board without an accelerometer is told where to turn relative to the field
-    code, out = in_terminal("calibrate", "--port", f"sim://?pace=4&accel=off&eeprom={tmp_path}/e.bin")
+    # a board without an accelerometer is told where to turn relative to the field; at 10× real
+    # time its ~38 s of turning take ~4 s, still ~15 of the display's quarter-second frames
+    code, out = in_terminal("calibrate", "--port", f"sim://?pace=10&accel=off&eeprom={tmp_path}/e.bin")
     assert code == 0, out[-2000:]
     plain = ANSI.sub("", out)
     assert "+Z │" in plain and "−Z │" in plain and "−X" in plain and "+Y" in plain  # the map and its axes
@@ -69,9 +70,11 @@ def test_calibrate_in_a_terminal_maps_the_directions_and_says_where_to_turn(tmp_
 
 @pytest.mark.slow
 def test_calibrate_quiet_or_piped_shows_no_map(tmp_path):
-    code, out = in_terminal("calibrate", "--quiet", "--port", f"sim://?pace=0&eeprom={tmp_path}/e.bin")
+    # at 20 Hz the same turning is ~800 samples instead of ~1 900: the display's absence does
+    # not depend on how many samples the calibration took
+    code, out = in_terminal("calibrate", "--quiet", "--rate", "20", "--port", f"sim://?pace=0&eeprom={tmp_path}/e.bin")
     assert code == 0 and "│" not in out and "next: aim" not in out and "VERIFIED" in out
-    p = in_pipe("calibrate", "--port", f"sim://?pace=0&eeprom={tmp_path}/f.bin")
+    p = in_pipe("calibrate", "--rate", "20", "--port", f"sim://?pace=0&eeprom={tmp_path}/f.bin")
     assert p.returncode == 0 and "│" not in p.stderr and "\x1b[" not in p.stderr + p.stdout
 
 
@@ -79,10 +82,12 @@ def test_calibrate_quiet_or_piped_shows_no_map(tmp_path):
 def test_record_shows_rate_and_time_left_in_a_terminal_only(tmp_path):
     # a short output name: the line is clipped to the terminal's 120 columns, and a long
     # temporary path (as under pytest -n) pushed "left" past the edge
-    code, out = in_terminal("record", "--port", "sim://", "--seconds", "3", "-o", "a.cap", cwd=tmp_path)
+    # (the rate is drawn after the first half second, so 1.5 s leaves ten frames that show it;
+    # the display, drawn from the first batch on, would show in a pipe within the 1 s there)
+    code, out = in_terminal("record", "--port", "sim://", "--seconds", "1.5", "-o", "a.cap", cwd=tmp_path)
     plain = ANSI.sub("", out)
     assert code == 0 and re.search(r"\d+ samples/s", plain) and "left" in plain and "recorded" in plain
-    p = in_pipe("record", "--port", "sim://", "--seconds", "2", "-o", str(tmp_path / "b.cap"))
+    p = in_pipe("record", "--port", "sim://", "--seconds", "1", "-o", str(tmp_path / "b.cap"))
     assert p.returncode == 0 and p.stderr == "" and "recorded" in p.stdout
 
 
