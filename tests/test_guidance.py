@@ -100,12 +100,13 @@ def test_a_motioncal_board_sends_its_accelerometer_with_each_sample():
 def test_calibrate_on_a_still_board_says_you_are_not_moving(tmp_path):
     from test_terminal_width import ESC, _in_terminal
 
+    # (8× real time for 1.5 s: the same 12 s of board time as 4× for 3 s, in half the wait)
     # a board that sends no accelerometer keeps the field-relative hint
-    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&motion=still&seed=3&accel=off", "--timeout", "3"], 80)
+    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=8&motion=still&seed=3&accel=off", "--timeout", "1.5"], 80)
     assert code == 3, out[-1500:]
     assert "you are not moving: next: aim the board's" in out and "sides:" not in out
     # one that does is told so in the sides' terms
-    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&motion=still&seed=3", "--timeout", "3"], 80)
+    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=8&motion=still&seed=3", "--timeout", "1.5"], 80)
     plain = ESC.sub("", out)
     assert code == 3, plain[-1500:]
     assert re.search(r"next: you are not moving: (lay it|turn it a full circle)", plain), plain[-1500:]
@@ -115,7 +116,8 @@ def test_calibrate_on_a_still_board_says_you_are_not_moving(tmp_path):
 def test_calibrate_on_the_simulated_board_names_the_sides_from_its_accelerometer():
     from test_terminal_width import ESC, _in_terminal
 
-    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=4&seed=3&eeprom=none", "--timeout", "3"], 80)
+    # 12 s of board time, as in the test above: too short to calibrate, long enough to be drawn
+    code, out = _in_terminal(["calibrate", "--port", "sim://?pace=8&seed=3&eeprom=none", "--timeout", "1.5"], 80)
     plain = ESC.sub("", out)
     assert code == 3, plain[-1500:]
     assert "sides: · flat  · upside down  · left  · right  · front  · back" in plain, plain[-1500:]
@@ -146,7 +148,8 @@ def test_calibrate_on_a_board_that_sends_its_accelerometer_names_the_sides():
     from adafruit_device import AdafruitBoard
     from test_terminal_width import ESC, _in_terminal
 
-    with AdafruitBoard(cal_period=40, lines_per_s=200, seed=3) as board:
+    # 300 readings/s, six times the sketch's 50 Hz: its turning is done in ~3 s, a dozen frames
+    with AdafruitBoard(cal_period=40, lines_per_s=600, seed=3) as board:
         code, out = _in_terminal(["calibrate", "--port", board.port, "--dialect", "motioncal", "--timeout", "60"], 80)
     plain = ESC.sub("", out)
     assert code == 0, plain[-1500:]
