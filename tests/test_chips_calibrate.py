@@ -32,7 +32,10 @@ def _json(capsys, *argv) -> tuple[int, dict]:
 def test_calibrate_writes_and_verifies_and_the_self_test_passes_on_each_chip(tmp_path, capsys, chip):
     require_firmware()
     port = f"emu://?eeprom={tmp_path / 'e.bin'}&{chip}"
-    code, done = _json(capsys, "calibrate", "--port", port, "--json")
+    # at 20 Hz the firmware, the physics and the host handle ~750 samples instead of ~1 750 for
+    # the same turning; what differs between chips (counts, ASA, resolution, self-test) does not
+    # depend on the rate, and the gates still hold the offset to 0.5 µT (1σ) before it is written
+    code, done = _json(capsys, "calibrate", "--port", port, "--rate", "20", "--json")
     assert code == 0 and done["status"] == "done", done.get("message")
     assert done["written"] and done["verified"]
     assert done["device"]["chip"].startswith(CHIPS[chip])
