@@ -54,8 +54,9 @@ def wrap(text: str, width: int) -> str:
 
 def save(fig, directory, name: str, plt) -> str:
     """Write ``fig`` as ``directory/name.png`` and close it; the file name. Every text on the
-    figure must lie inside it (a clipped title is refused here, not found by a reader)."""
-    fig.canvas.draw()
+    figure must lie inside it (a clipped title is refused here, not found by a reader). The
+    check lays the figure out without rendering it: savefig renders it once."""
+    fig.draw_without_rendering()
     problems = clipped_texts(fig)
     if problems:
         plt.close(fig)
