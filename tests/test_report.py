@@ -5,17 +5,16 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from cli_inproc import run_magcal
 from magcal.app.report import Figure, Section, save, write_report
 from magcal.diagnose import diagnose
 from magcal.recordings.table import load_table
 
-REPO = Path(__file__).resolve().parents[1]
 IMAGES = ("coverage.png", "magnitude.png", "directions.png", "time.png", "channels.png", "heldout.png")
 
 
@@ -36,18 +35,13 @@ def browse(page: Path, tmp_path: Path, *what: str, height: int = 9000) -> subpro
     return subprocess.run([chromium(), *flags, *what, page.as_uri()], capture_output=True, text=True, timeout=120)
 
 
-def magcal(*argv):
-    return subprocess.run([sys.executable, "-m", "magcal", *argv], capture_output=True, text=True, timeout=300,
-                          env=dict(os.environ, PYTHONPATH=str(REPO)))
-
-
 @pytest.fixture(scope="module")
 def temperature_report(tmp_path_factory):
     d = tmp_path_factory.mktemp("report")
     rec = d / "temp.csv"
-    assert magcal("simulate", "-o", str(rec), "--seconds", "300", "--temp-swing", "20",
-                  "--temp-coef", "0.1,-0.05,0.06").returncode == 0
-    p = magcal("diagnose", str(rec), "--report", str(d / "page"))
+    assert run_magcal("simulate", "-o", rec, "--seconds", "300", "--temp-swing", "20",
+                      "--temp-coef", "0.1,-0.05,0.06").returncode == 0
+    p = run_magcal("diagnose", rec, "--report", d / "page")
     assert p.returncode == 0, p.stderr
     return d / "page"
 
@@ -93,7 +87,7 @@ def test_figures_are_readable_shapes_with_relative_time(tmp_path):
 
     rng = np.random.default_rng(4)
     rec = tmp_path / "wide.csv"
-    assert magcal("simulate", "-o", str(rec), "--seconds", "120", "--temp-swing", "10").returncode == 0
+    assert run_magcal("simulate", "-o", rec, "--seconds", "120", "--temp-swing", "10").returncode == 0
     lines = rec.read_text().splitlines()
     head = lines[0].split(",")
     t = head.index("t")
@@ -104,7 +98,7 @@ def test_figures_are_readable_shapes_with_relative_time(tmp_path):
         cells[t] = repr(1739394679.0 + float(cells[t]))  # unix time, as loggers write it
         out.append(",".join(cells + [f"{v:.4f}" for v in rng.normal(size=len(extra))]))
     rec.write_text("\n".join(out) + "\n")
-    p = magcal("diagnose", str(rec), "--report", str(tmp_path / "page"))
+    p = run_magcal("diagnose", rec, "--report", tmp_path / "page")
     assert p.returncode == 0, p.stderr
     with Image.open(tmp_path / "page" / "channels.png") as im:
         w, h = im.size
@@ -151,7 +145,7 @@ def test_a_channel_left_out_of_the_tests_is_said_so_not_drawn_as_tested(tmp_path
     """The same field in raw counts is screened out of the candidates; the channel figure must not
     show it as a panel saying 'nothing found' (it was never tested) and must say why."""
     rec = tmp_path / "sim.csv"
-    assert magcal("simulate", "-o", str(rec), "--seconds", "60", "--scale", "1.04,0.97,1.0").returncode == 0
+    assert run_magcal("simulate", "-o", rec, "--seconds", "60", "--scale", "1.04,0.97,1.0").returncode == 0
     lines = rec.read_text().splitlines()
     head = lines[0].split(",")
     mx = head.index("mx")
@@ -159,7 +153,7 @@ def test_a_channel_left_out_of_the_tests_is_said_so_not_drawn_as_tested(tmp_path
     with_counts = [",".join(lines[0].split(",") + ["mag_x_counts"])]
     with_counts += [",".join(r + [str(round(float(r[mx]) / 0.3))]) for r in rows]
     rec.write_text("\n".join(with_counts) + "\n")
-    p = magcal("diagnose", str(rec), "--report", str(tmp_path / "page"))
+    p = run_magcal("diagnose", rec, "--report", tmp_path / "page")
     assert p.returncode == 0, p.stderr
     assert "left out    mag_x_counts" in p.stdout
     page = (tmp_path / "page" / "index.html").read_text()
@@ -168,22 +162,26 @@ def test_a_channel_left_out_of_the_tests_is_said_so_not_drawn_as_tested(tmp_path
 
 
 @pytest.mark.slow
-def test_a_recording_without_time_is_drawn_by_sample_number_not_in_minutes(tmp_path):
+def test_a_recording_without_time_is_drawn_by_sample_number_not_in_minutes(tmp_path, monkeypatch):
     """A table with no time column is read by sample index; the page must not turn that index
     into seconds or minutes (4960 samples were once shown as '82.7 min')."""
+    import magcal.diagnose as library
     from magcal.app.report.views import views_of
 
     rec = tmp_path / "sim.csv"
-    assert magcal("simulate", "-o", str(rec), "--seconds", "100").returncode == 0
+    assert run_magcal("simulate", "-o", rec, "--seconds", "100").returncode == 0
     lines = rec.read_text().splitlines()
     cols = [lines[0].split(",").index(c) for c in ("mx", "my", "mz")]
     rec.write_text("\n".join(",".join(line.split(",")[k] for k in cols) for line in lines) + "\n")
     series = load_table(rec)
     assert not series.clock
-    v = views_of(diagnose(series))
-    assert v.t_axis == "sample number (the recording has no time)" and v.t[-1] == len(series) - 1
-    p = magcal("diagnose", str(rec), "--report", str(tmp_path / "page"))
+    made = []  # the diagnosis the command drew its page from: one diagnosis for the views and the page
+    monkeypatch.setattr(library, "diagnose", lambda *a, **k: made.append(diagnose(*a, **k)) or made[-1])
+    p = run_magcal("diagnose", rec, "--report", tmp_path / "page")
     assert p.returncode == 0, p.stderr
+    assert len(made) == 1 and len(made[0].series) == len(series)
+    v = views_of(made[0])
+    assert v.t_axis == "sample number (the recording has no time)" and v.t[-1] == len(series) - 1
     page = (tmp_path / "page" / "index.html").read_text()
     assert f"over {len(series)} samples (the recording has no time)" in page
     assert " min." not in page and " min<" not in page
