@@ -5,11 +5,10 @@ the ledger — so no kill, at any moment, lets the daemon wear the EEPROM past i
 import json
 import os
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
+from forked_magcal import Launcher
 
 from magcal.app import config
 from magcal.app.daemon import Daemon, Decision
@@ -19,9 +18,11 @@ from magcal.logic.gates import Gates
 from magcal.recordings.state import StateFiles
 
 # the real ``magcal run``, with the simulated board's every EEPROM store counted first (fsynced
-# before the store, so the count is never below what the board took, whatever the kill)
-CHILD = """
-import os, sys
+# before the store, so the count is never below what the board took, whatever the kill); each
+# boot a process of its own, forked by a launcher that imported magcal once (forked_magcal)
+PATCH = """
+import os
+import magcal.app.daemon, magcal.cli.run  # what `magcal run` imports, imported once for every boot
 from magcal.devices import simboard
 real = simboard.SimEeprom.put
 def put(self, offset, payload):
@@ -29,8 +30,6 @@ def put(self, offset, payload):
     os.write(fd, b"put\\n"); os.fsync(fd); os.close(fd)
     real(self, offset, payload)
 simboard.SimEeprom.put = put
-from magcal.cli import main
-sys.exit(main(sys.argv[1:]))
 """
 
 
@@ -45,47 +44,56 @@ def _intents(state_dir) -> int:
     return read_history(state_dir / LEDGER_NAME, time.time()).cycles
 
 
-def _start(tmp_path, offset: str, count: int | None = None) -> subprocess.Popen:
+def _start(launcher: Launcher, tmp_path, offset: str, count: int | None = None) -> int:
     cfg = tmp_path / "c.yaml"
     cfg.write_text("daemon:\n  write_budget_per_day: 1\n  write_burst: 1\n  socket: false\n  state_every_s: 0.2\n")
     port = f"sim://?pace=0&eeprom={tmp_path}/ee.bin&offset={offset}"
-    argv = [sys.executable, "-c", CHILD, "run", "--port", port, "--config", str(cfg), "--state-dir",
-            str(tmp_path / "st"), "--recalibrate", "--log-level", "WARNING"]
-    env = {**os.environ, "BOARD_LOG": str(tmp_path / "board.log"), "MAGCAL_CONFIG": ""}
-    return subprocess.Popen(argv + (["--count", str(count)] if count else []), env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    argv = ["run", "--port", port, "--config", str(cfg), "--state-dir", str(tmp_path / "st"), "--recalibrate",
+            "--log-level", "WARNING"]
+    return launcher.start(argv + (["--count", str(count)] if count else []), stderr=tmp_path / "err.txt")
 
 
-def _kill_when(proc, grew, limit_s: float) -> None:
+def _kill_when(launcher: Launcher, pid: int, grew, limit_s: float) -> None:
     """SIGKILL as soon as ``grew()`` is true, or after ``limit_s``."""
     end = time.monotonic() + limit_s
-    while time.monotonic() < end and proc.poll() is None and not grew():
+    while time.monotonic() < end and not grew():
+        if launcher.poll(pid) is not None:
+            return  # it ended on its own (and is reaped)
         time.sleep(0.002)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait(timeout=10)
+    os.kill(pid, signal.SIGKILL)
+    launcher.wait(pid, timeout_s=10)
 
 
 @pytest.mark.slow
 def test_kill_9_around_writes_never_exceeds_the_budget(tmp_path):
     """Budget 1 a day, burst 1: six boots of ``magcal run``, each against a board whose hard
     iron moved (the tracker wants to write every time), killed at a random moment, right after
-    the ledger's intent, or right after the board's store. The board stores once in all."""
+    the ledger's intent, or right after the board's store. The board stores once in all.
+
+    Each moment is one of the command's life: a boot no longer pays the interpreter's start-up
+    and imports (the launcher paid them once, ``startup_s``), so every wait, counted from the
+    fork, is the one a fresh ``python -m magcal`` had left after them."""
     st, board = tmp_path / "st", tmp_path / "board.log"
     moments = ["store", "intent", "random", "store", "intent", "random"]
-    for i, moment in enumerate(moments):
-        proc = _start(tmp_path, f"{10 + 7 * i},-20,{5 * i}")
-        before_board, before_intents = _lines(board), _intents(st)
-        if moment == "store":
-            _kill_when(proc, lambda: _lines(board) > before_board, 3.5)
-        elif moment == "intent":
-            _kill_when(proc, lambda: _intents(st) > before_intents, 3.5)
-        else:
-            _kill_when(proc, lambda: False, 0.8 + 0.4 * i)
-        assert _lines(board) <= _intents(st)  # every store the board took was recorded first
-        assert _lines(board) <= 1, f"boot {i} ({moment}): the board stored {_lines(board)} times"
-    proc = _start(tmp_path, "40,-20,30", count=2500)  # a clean run: it resumes, then says what it counts
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err.decode()[-2000:]
+    env = {**os.environ, "BOARD_LOG": str(board), "MAGCAL_CONFIG": ""}
+    with Launcher(PATCH, env) as launcher:
+        def after_startup(s: float) -> float:
+            return max(0.0, s - launcher.startup_s)
+
+        for i, moment in enumerate(moments):
+            before_board, before_intents = _lines(board), _intents(st)
+            pid = _start(launcher, tmp_path, f"{10 + 7 * i},-20,{5 * i}")
+            if moment == "store":
+                _kill_when(launcher, pid, lambda: _lines(board) > before_board, after_startup(3.5))
+            elif moment == "intent":
+                _kill_when(launcher, pid, lambda: _intents(st) > before_intents, after_startup(3.5))
+            else:
+                _kill_when(launcher, pid, lambda: False, after_startup(0.8 + 0.4 * i))
+            assert _lines(board) <= _intents(st)  # every store the board took was recorded first
+            assert _lines(board) <= 1, f"boot {i} ({moment}): the board stored {_lines(board)} times"
+        pid = _start(launcher, tmp_path, "40,-20,30", count=2500)  # a clean run: it resumes, then says what it counts
+        code = launcher.wait(pid, timeout_s=60)
+    assert code == 0, (tmp_path / "err.txt").read_text()[-2000:]
     keeping = StateFiles(st).load()["resume"]["keeping"]
     assert keeping["cycles"] == _intents(st) >= _lines(board) == 1
     assert keeping["tokens"] < 1.0
