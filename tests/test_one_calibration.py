@@ -5,13 +5,12 @@ in the JSON of the same run carries the same calibration numbers, the one ``writ
 import html
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from cli_inproc import run_magcal
 from cli_once import diagnose_both_ways
 
 DATA = Path(__file__).parent / "data"
@@ -20,7 +19,7 @@ LOG = DATA / "ardupilot_log171_excerpt.bin"
 
 
 def magcal(*args):
-    r = subprocess.run([sys.executable, "-m", "magcal", *map(str, args)], capture_output=True, text=True, timeout=300)
+    r = run_magcal(*args)
     assert r.returncode == 0, r.stderr
     return r.stdout
 
