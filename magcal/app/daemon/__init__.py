@@ -38,7 +38,17 @@ listener.
 """
 
 from .control import query_socket
-from .daemon import Collaborators, Daemon, Stop
 from .journal import Decision
 
 __all__ = ["Collaborators", "Daemon", "Decision", "Stop", "query_socket"]
+
+
+def __getattr__(name: str):
+    """``Daemon``, ``Collaborators`` and ``Stop`` are imported on first use: the daemon's parts
+    import the tracker and the monitor (scipy.stats), which ``magcal status`` — asking the
+    socket or reading the state file — has no use for."""
+    if name in ("Collaborators", "Daemon", "Stop"):
+        from . import daemon
+
+        return getattr(daemon, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
