@@ -29,6 +29,20 @@ def magcal(*argv, env=None, cwd=None, timeout=120, stdin=subprocess.DEVNULL):
                           env=base, cwd=cwd, timeout=timeout, stdin=stdin)
 
 
+@pytest.fixture
+def in_process(capsys, monkeypatch):
+    """``magcal`` run in this process, for what does not depend on the environment (no MAGCAL_*
+    of the caller's, as with ``magcal``): no interpreter to start, nothing imported again."""
+    for name in [k for k in os.environ if k.startswith("MAGCAL_")]:
+        monkeypatch.delenv(name)
+
+    def run(*argv) -> subprocess.CompletedProcess:
+        code = main(list(argv))
+        return subprocess.CompletedProcess(argv, code, *capsys.readouterr())
+
+    return run
+
+
 def subparsers():
     parser = build_parser("all")
     action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -185,16 +199,8 @@ def _keys(obj, path=""):
 
 
 @pytest.mark.slow
-def test_every_command_prints_one_versioned_json_shape_with_one_vocabulary(tmp_path, capsys, monkeypatch):
-    """What each command prints does not depend on the environment: run in this process (no
-    interpreter started and numpy, scipy and magcal imported again for each of eleven runs)."""
-    for name in [k for k in os.environ if k.startswith("MAGCAL_")]:
-        monkeypatch.delenv(name)
-
-    def magcal(*argv):
-        code = main(list(argv))
-        return subprocess.CompletedProcess(argv, code, *capsys.readouterr())
-
+def test_every_command_prints_one_versioned_json_shape_with_one_vocabulary(tmp_path, in_process):
+    magcal = in_process  # what each command prints does not depend on the environment
     sim, cap, csv, js = "sim://?speed=0&seed=2", tmp_path / "r.cap", tmp_path / "r.csv", tmp_path / "f.json"
     eeprom = f"sim://?speed=0&seed=2&eeprom={tmp_path}/e.bin"
     runs = {
@@ -226,8 +232,8 @@ def test_every_command_prints_one_versioned_json_shape_with_one_vocabulary(tmp_p
 
 
 @pytest.mark.slow
-def test_calibrate_json_reports_the_rate_it_used(tmp_path):
-    p = magcal("calibrate", "--port", "sim://?speed=0", "--rate", "20", "--no-write", "--json")
+def test_calibrate_json_reports_the_rate_it_used(in_process):
+    p = in_process("calibrate", "--port", "sim://?speed=0", "--rate", "20", "--no-write", "--json")
     d = json.loads(p.stdout)
     assert p.returncode == 0 and d["rate_hz"] == 20 and d["device"]["rate_hz"] == 20
     assert d["measured_rate_hz"] > 0
@@ -301,9 +307,9 @@ def test_emu_keeps_its_eeprom_in_the_users_state_directory(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_short_timeout_names_the_gate_it_stopped_on_or_calibrates():
+def test_a_short_timeout_names_the_gate_it_stopped_on_or_calibrates(in_process):
     for _ in range(3):
-        p = magcal("calibrate", "--port", "sim://?pace=0", "--timeout", "0.2", "--no-write")
+        p = in_process("calibrate", "--port", "sim://?pace=0", "--timeout", "0.2", "--no-write")
         assert p.returncode in (Exit.OK, Exit.GATE), p.stderr
         if p.returncode == Exit.GATE:
             failing = re.search(r"failing: ([a-z_, ]+) \(", p.stdout)
