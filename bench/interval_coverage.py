@@ -16,8 +16,11 @@ its own, and for each parameter θ with a stated 1σ the pair is *covered* when
             field and the soft-iron diagonal (3). A diagonal that both halves fixed at 1 (a
             sphere on each) states nothing and is left out; a sphere's 0 σ beside an ellipsoid
             counts (the sphere claimed the axis gains are exact).
-* tracker — a fresh ``Tracker`` fed each half, its final estimate: the offset (3), the only
-            parameter it states a σ for; beside it, the tracker's σ over fit's on the same half.
+* tracker — a fresh ``Tracker`` fed each half, its final calibration as ``magcal track``
+            reports it (``tracker_check.checked`` with the half: a model fit's gates accept on
+            memory and on the half, each σ at least fit's there): the same seven parameters,
+            two spheres' diagonals left out as for fit; beside it, the tracker's offset σ over
+            fit's on the same half (≥ 1 by construction).
 
 Per row: the change in units of its stated 2-sided 95 % half-width (≤ 1 covered), so a row
 shows how far short an interval falls, not only whether it does.
@@ -41,6 +44,7 @@ import real_recordings as rr  # noqa: E402
 
 from magcal.fit import fit_calibration  # noqa: E402
 from magcal.fit.tracker import Tracker  # noqa: E402
+from magcal.fit.tracker_check import checked  # noqa: E402
 
 Z95 = 1.96
 NAMES = ("offset_x", "offset_y", "offset_z", "field", "W_xx", "W_yy", "W_zz")
@@ -79,13 +83,19 @@ def fit_params(m) -> tuple[np.ndarray, np.ndarray, str] | None:
 
 
 def tracker_params(t, m) -> tuple[np.ndarray, np.ndarray, str] | None:
-    """(offset (3), its σ (3), model) of a fresh tracker's final estimate on (t, m)."""
+    """(θ (7), σ (7), model) of a fresh tracker's final calibration on (t, m) as ``magcal track``
+    reports it (``tracker_check.checked``: a model fit's gates accept, σ at least fit's)."""
     tr = Tracker()
     tr.add_many(m, t)
-    e = tr.estimate
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        e = checked(tr, m)
     if e is None:
         return None
-    return np.asarray(e.calibration.offset_ut, float), np.asarray(e.offset_sigma_ut, float), e.model
+    c = e.calibration
+    th = np.r_[c.offset_ut, c.field_ut, np.diag(np.asarray(c.soft_iron))]
+    sg = np.r_[e.offset_sigma_ut, e.field_sigma_ut, np.diag(np.asarray(e.soft_iron_sigma))]
+    return th, sg, e.model + (f" (not {e.refused_model})" if e.refused_model else "")
 
 
 def ratios(a, b, sphere_both: bool) -> np.ndarray:
@@ -112,9 +122,9 @@ def score(name, t, m, tracker: bool) -> dict:
     if tracker:
         r1, r2 = tracker_params(t[:k], m[:k]), tracker_params(t[k:], m[k:])
         if r1 and r2:
-            out["tracker"] = ratios(r1, r2, False)
+            out["tracker"] = ratios(r1, r2, r1[2] == "sphere" and r2[2] == "sphere")
             out["tracker_models"] = f"{r1[2]} / {r2[2]}"
-            out["tracker_sigma"] = np.sqrt(r1[1] ** 2 + r2[1] ** 2)
+            out["tracker_sigma"] = np.sqrt(r1[1][:3] ** 2 + r2[1][:3] ** 2)
             out["fit_sigma"] = (np.sqrt(f1[1][:3] ** 2 + f2[1][:3] ** 2) if f1 and f2 else None)
         else:
             out["tracker_models"] = "no estimate"
@@ -144,7 +154,7 @@ def summary(rows, key: str) -> str:
 
 def run(recs: dict, tracker: bool) -> list[dict]:
     print("| recording | n | fit models (halves) | fit: |Δ|/95 % half-width (ox oy oz F Wxx Wyy Wzz) | "
-          "tracker models | tracker: offset ratios | tracker σ / fit σ (offset) |")
+          "tracker models | tracker: |Δ|/95 % half-width (ox oy oz F Wxx Wyy Wzz) | tracker σ / fit σ (offset) |")
     print("|---|---|---|---|---|---|---|")
     rows = []
     for name, (t, m) in recs.items():

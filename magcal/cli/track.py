@@ -11,8 +11,12 @@ force. A change at ``sample`` k holds for the samples after k (0-based, FILE's d
 
 (a calibrated sample is ``soft_iron @ (m − offset_ut)``). When the samples in memory stop
 determining a calibration the change says so: ``offset_ut``, ``soft_iron``, ``field_ut`` and
-``model`` null and a ``reason``. ``--jsonl`` prints one such object per line as they happen;
-``--json`` one object ``{"format": "magcal.track", "version": 1, "samples", "skipped", "changes":
+``model`` null and a ``reason``. The last change is the calibration as it is reported
+(``fit.tracker_check``): where fit's gates, on the samples in memory or on the whole of FILE,
+refuse the tracker's model it falls back to the fullest model they accept (``refused_model``
+names the one refused), and every σ — ``offset_sigma_ut``, ``field_sigma_ut``,
+``soft_iron_sigma`` — is at least ``fit``'s on the same samples. ``--jsonl`` prints one such
+object per line as they happen; ``--json`` one object ``{"format": "magcal.track", "version": 1, "samples", "skipped", "changes":
 [...], "final": {...} | null, "input"}``; without either, a summary. ``--rate HZ`` times the rows
 at HZ (for a file without a time column, whose rows are otherwise one second apart). A flight
 log (PX4 ULog, ArduPilot DataFlash) is replayed as its magnetometer's raw samples, the log's own
@@ -96,6 +100,8 @@ def _summary(changes: list[dict], n: int, skipped: int, source: str | None, why:
 def run(args) -> int:
     from ..app.load import load_series
     from ..core.errors import InputError
+    import numpy as np
+
     from ..fit.tracker import Tracker
     from .common import field_warning, print_json
 
@@ -114,15 +120,37 @@ def run(args) -> int:
         if args.jsonl:
             sys.stdout.write(json.dumps(changes[-1], allow_nan=False) + "\n")
             sys.stdout.flush()
+    final = _reported(tracker, m[np.all(np.isfinite(m), axis=1)])
+    if final is not None and (not changes or final.to_dict() != changes[-1]):
+        changes.append(final.to_dict())
+        if args.jsonl:
+            sys.stdout.write(json.dumps(changes[-1], allow_nan=False) + "\n")
     code = Exit.OK if any(c.get("offset_ut") is not None for c in changes) else Exit.GATE
     if args.json:
         print_json({"format": FORMAT, "version": VERSION, "input": series.source, "samples": tracker.n,
                     "skipped": tracker.skipped, "changes": changes,
-                    "final": None if tracker.estimate is None else tracker.estimate.to_dict()})
+                    "final": changes[-1] if changes and changes[-1].get("offset_ut") is not None else None})
     elif not args.jsonl:
         print(_summary(changes, tracker.n, tracker.skipped, series.source, _why_none(tracker)))
     if code:
         print(f"magcal track: no calibration came into force: {_why_none(tracker)}", file=sys.stderr)
-    elif tracker.estimate is not None:
-        field_warning(tracker.estimate.calibration.field_ut)
+    elif changes[-1].get("field_ut") is not None:
+        field_warning(changes[-1]["field_ut"])
     return code
+
+
+def _reported(tracker, recording):
+    """The calibration in force at the end as it is reported (``fit.tracker_check.checked``: a
+    model fit's gates accept on the memory and on the whole recording, σ at least fit's there),
+    a last change at the sample of the last refit; a withdrawal where fit refuses every model;
+    None where the tracker has no calibration."""
+    from ..fit.tracker import Withdrawal
+    from ..fit.tracker_check import checked
+
+    if tracker.estimate is None:
+        return None
+    rep = checked(tracker, recording)
+    if rep is None:
+        return Withdrawal(sample=tracker.estimate.sample, t_s=tracker.estimate.t_s,
+                          reason="fit's gates refuse every model on the samples in memory or in the recording")
+    return rep

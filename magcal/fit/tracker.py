@@ -19,11 +19,10 @@ ellipsoid up to date as samples arrive, with bounded memory and bounded time per
   ``geometric.residual`` every ``refit_every`` samples but at most once per ``refit_min_s`` of
   sample time (the wander it follows lasts seconds to hours, so a faster sensor does not need
   more refits a second: the cost per second of stream is bounded whatever the rate), started
-  from the previous solution, with Huber weights against spikes. The model grows sphere → diagonal → full ellipsoid when the
-  buffer's coverage determines it (the information-matrix and shape-σ gates of ``pipeline``,
-  with the sphere's condition limit for every model: on the buffer the shape gate binds first,
-  and the ellipsoid's looser limit moved nothing but one flight log, for the worse),
-  checked at most every ``ladder_every`` samples.
+  from the previous solution, with Huber weights against spikes. The model grows sphere →
+  diagonal → full ellipsoid when the buffer's coverage determines it (information condition,
+  the sphere's limit for every model, and shape σ), checked at most every ``ladder_every``
+  samples; a calibration *reported* is judged by fit's own gates (``tracker_check``).
 * **A field the Earth could give.** A first solution is also refused when its field is below
   ``min_field_ut`` (the Earth's 15 µT, ``EARTH_FIELD_UT``). A board that has hardly turned yet
   gives a small cloud of noisy samples, and a sphere of a few µT wraps such a cloud with every
@@ -57,7 +56,7 @@ from .failure import FitFailure
 from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
 from .result import MODEL_NAMES
 from .sphere import sphere_start
-from .tracker_memory import CellBuffer, Wander
+from .tracker_memory import CellBuffer, Wander, robust_scale, sample_weights
 from .uncertainty import direction_jackknife_variance, gain_widening, shape_sigma
 
 LADDER = ("sphere", "diagonal", "full")
@@ -115,6 +114,9 @@ class Estimate:
     jackknife's over the directions in memory (``direction_widening``) and, on a sphere, with what
     axis gains it takes as equal would do to it (``gain_widening``);
     ``buffered``: samples in memory; ``coverage``: share of direction cells holding any.
+    A *reported* estimate (``tracker_check.checked``) also states ``field_sigma_ut`` and
+    ``soft_iron_sigma`` (3×3), each at least fit's on the same samples, and ``refused_model``: the
+    model the tracker ran that fit's gates refused there (None: none was).
     """
 
     sample: int
@@ -126,6 +128,9 @@ class Estimate:
     offset_sigma_ut: np.ndarray = field(repr=False)
     buffered: int
     coverage: float
+    field_sigma_ut: float = math.nan
+    soft_iron_sigma: np.ndarray | None = field(default=None, repr=False)
+    refused_model: str | None = None
 
     def to_dict(self) -> dict:
         c = self.calibration
@@ -139,8 +144,10 @@ class Estimate:
             "offset_sigma_ut": [float(v) if math.isfinite(v) else None for v in self.offset_sigma_ut],
             "wander_ut2_per_s": self.wander_ut2_per_s,
             "noise_ut": self.noise_ut,
-            "buffered": self.buffered,
-            "coverage": self.coverage,
+            "buffered": self.buffered, "coverage": self.coverage,
+            "field_sigma_ut": self.field_sigma_ut if math.isfinite(self.field_sigma_ut) else None,
+            "soft_iron_sigma": None if self.soft_iron_sigma is None else np.asarray(self.soft_iron_sigma).tolist(),
+            "refused_model": self.refused_model,
         }
 
     @classmethod
@@ -151,8 +158,10 @@ class Estimate:
             calibration=Calibration(offset_ut=d["offset_ut"], field_ut=d["field_ut"], soft_iron=d["soft_iron"]),
             wander_ut2_per_s=float(d["wander_ut2_per_s"]), noise_ut=float(d["noise_ut"]),
             offset_sigma_ut=np.array([np.inf if v is None else v for v in d["offset_sigma_ut"]], dtype=np.float64),
-            buffered=int(d["buffered"]),
-            coverage=float(d["coverage"]),
+            buffered=int(d["buffered"]), coverage=float(d["coverage"]),
+            field_sigma_ut=math.nan if d.get("field_sigma_ut") is None else float(d["field_sigma_ut"]),
+            soft_iron_sigma=None if d.get("soft_iron_sigma") is None else np.asarray(d["soft_iron_sigma"], float),
+            refused_model=d.get("refused_model"),
         )
 
 
@@ -177,11 +186,6 @@ def condition(A: np.ndarray) -> float:
         return float("inf")
     ev = np.linalg.eigvalsh(A / np.outer(d, d))
     return float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
-
-
-def _robust_scale(e: np.ndarray) -> float:
-    med = float(np.median(e))
-    return max(1.4826 * float(np.median(np.abs(e - med))), 1e-9)
 
 
 def _damped_step(pts, kind, theta, w, e, J, lam: float):
@@ -298,6 +302,7 @@ class Tracker:
         self._sum = [0.0, 0.0, 0.0]
         self.n_used = 0
         self.low_field_ut: float | None = None  # set when the last first solution was refused for its field
+        self.solved = None  # (model, θ, JᵀWJ, s²) of the last estimate published (``tracker_check``)
 
     def coverage(self) -> float:
         return self.memory.occupied() / len(self.memory.count)
@@ -369,25 +374,21 @@ class Tracker:
     def _weights(self, idx, t, wc, e) -> tuple[np.ndarray, float, float]:
         """Cell balance × age × Huber from the residuals e under the calibration in force;
         returns (w with mean 1, s², q). The wander q is learnt first from the new samples
-        (``Wander``); s is the residual scale of a fresh sample: the robust scale of e/√(1 + q·a/s²),
-        solved by fixed point, since old samples are expected to sit further off."""
-        scale = _robust_scale(e)
+        (``Wander``), then ``tracker_memory.sample_weights``."""
+        scale = robust_scale(e)
         d, delta, other, dt = self.memory.pairs(idx, e, self._seq_at_refit, self.theta[:3])
         self._seq_at_refit = self.memory.seq_count
         if not self._changed(d, delta, other, dt, scale):
             self.wander.add(np.clip(d, -HUBER_K * scale, HUBER_K * scale), delta, other, dt)
         _, q = self.wander.solve()
-        age = np.maximum(self._t_last - t, 0.0)
-        stretch = np.ones(len(e))
-        for _ in range(3 if q > 0 else 0):
-            stretch = np.sqrt(1.0 + (q / (scale * scale)) * age)
-            scale = _robust_scale(e / stretch)
-        s2 = scale * scale
+        w, s2 = self.weights_now(idx, t, wc, e, q)
         self.memory.rho_per_s = q / s2
-        cap = HUBER_K * scale * stretch
-        jump = self._jump_ratio(self.memory.epoch_of[idx], s2)
-        w = wc * np.minimum(1.0, cap / np.maximum(np.abs(e), 1e-300)) / (1.0 + (q / s2) * age + jump)
-        return w / w.mean(), s2, q
+        return w, s2, q
+
+    def weights_now(self, idx, t, wc, e, q: float) -> tuple[np.ndarray, float]:
+        """(w, s²) of the memory's samples ``idx`` from their residuals ``e``, at wander rate q."""
+        steps = self._jump_ratio(self.memory.epoch_of[idx], 1.0)
+        return sample_weights(e, np.maximum(self._t_last - t, 0.0), wc, q, steps, HUBER_K)
 
     def _changed(self, d, delta, other, dt, scale) -> bool:
         """Did the sensor change at once (a payload's magnet, a knock)? Most new samples differ
@@ -489,6 +490,7 @@ class Tracker:
             sig = np.sqrt(np.clip(np.diag(s2 * np.linalg.inv(A))[:3], 0.0, None)) * (1.0 if widen is None else widen)
         except np.linalg.LinAlgError:
             sig = np.full(3, np.inf)
+        self.solved = (self.kind, self.theta, A, s2)
         self.estimate = Estimate(
             sample=self.n - 1, t_s=self._t_last, model=MODEL_NAMES[self.kind],
             calibration=Calibration(offset_ut=b, field_ut=r, soft_iron=W),
@@ -569,9 +571,9 @@ class Comparison:
                 "sigma": self.sigma, "z": self.z if math.isfinite(self.z) else None, "cells": self.cells}
 
 
-def compare(tracker: "Tracker", other: Calibration) -> Comparison | None:
-    """``Comparison`` of the tracker's estimate with ``other`` on its memory (None: no estimate)."""
-    est = tracker.estimate
+def compare(tracker: "Tracker", other: Calibration, ours: Estimate | None = None) -> Comparison | None:
+    """``Comparison`` of ``ours`` (else the tracker's estimate) with ``other`` on its memory (None: none)."""
+    est = ours or tracker.estimate
     if est is None:
         return None
     slots, m, t, wc = tracker.memory.samples()

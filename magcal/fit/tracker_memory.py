@@ -28,6 +28,28 @@ GAMMA_GRID_PER_RAD2 = np.concatenate([[0.0], np.logspace(0, 6, 7)])
 KAPPA_GRID = np.concatenate([[0.0], np.logspace(-2, 2, 13)])
 
 
+def robust_scale(e: np.ndarray) -> float:
+    """1.4826 × the median absolute deviation (σ of Gaussian residuals, spikes ignored)."""
+    med = float(np.median(e))
+    return max(1.4826 * float(np.median(np.abs(e - med))), 1e-9)
+
+
+def sample_weights(e, age_s, wc, q: float, steps_ut2, huber_k: float) -> tuple[np.ndarray, float]:
+    """(w with mean 1, s²): cell balance ``wc`` × age × Huber, from the radial residuals ``e``
+    under the calibration in force. s is the residual scale of a fresh sample: the robust
+    scale of e/√(1 + q·a/s²), solved by fixed point, since old samples are expected to sit further
+    off; a sample of age a counts 1/(1 + q·a/s² + its squared steps since, ``steps_ut2``, over s²)."""
+    scale = robust_scale(e)
+    stretch = np.ones(len(e))
+    for _ in range(3 if q > 0 else 0):
+        stretch = np.sqrt(1.0 + (q / (scale * scale)) * age_s)
+        scale = robust_scale(e / stretch)
+    s2 = scale * scale
+    cap = huber_k * scale * stretch
+    w = wc * np.minimum(1.0, cap / np.maximum(np.abs(e), 1e-300)) / (1.0 + (q / s2) * age_s + steps_ut2 / s2)
+    return w / w.mean(), s2
+
+
 class Wander:
     """q (µT²/s), the rate at which the calibration wanders, by maximum likelihood.
 

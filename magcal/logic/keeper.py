@@ -10,7 +10,9 @@ the one written last. ``Keeper.decide`` says whether to write the tracker's now 
 2. it is better than the device's by more than chance: ``tracker.compare`` judges both on the
    tracker's memory, cell by cell, and the gain must reach z ≥ z(α) (one-sided; α the drift
    monitor's false-alarm probability) — a device holding no calibration needs no such test;
-3. the EEPROM budget allows a write.
+3. the EEPROM budget allows a write;
+4. and then the calibration as it may be reported (``fit.tracker_check.checked``: a model fit's
+   gates accept on the tracker's memory, every σ at least fit's there) passes 1–3 again.
 
 **The budget.** The calibration record lives in the ATmega328P's EEPROM, rated for 100 000
 write/erase cycles per cell. Every write rewrites the same record, so every write counts. The
@@ -32,10 +34,12 @@ from scipy.special import ndtri
 from ..core.calibration import Calibration
 from ..core.errors import ConfigError
 from ..fit.tracker import Comparison, Tracker, compare
+from ..fit.tracker_check import checked
 from .gates import GateResult, Gates, model_gates
 
 EEPROM_RATED_CYCLES = 100_000  # ATmega328P datasheet: EEPROM write/erase endurance per cell
 DAY_S = 86400.0
+RECHECK_SAMPLES = 3000  # after fit's check refused the tracker's calibration, samples before it is asked again
 
 
 @dataclass(frozen=True)
@@ -96,6 +100,7 @@ class Keeper:
         self.cycles = 0  # EEPROM write cycles spent (writes, and restores after a failed write)
         self.writes = 0  # writes that were verified by read-back
         self.failed = 0  # writes that were not
+        self._held: tuple[int, Decision] | None = None  # (tracker.n, the decision) of a refused check
 
     def add(self, m_ut, t_s: float):
         """One sample for the tracker; returns its change of calibration, if any."""
@@ -107,14 +112,15 @@ class Keeper:
         gradual wander by itself; a step it would take for outliers. The budget stays: it is
         the EEPROM's."""
         self.tracker = Tracker(self.tracker.config)
+        self._held = None
 
     def _refill(self, now_s: float) -> None:
         dt = max(float(now_s) - self.refilled_s, 0.0)
         self.tokens = min(float(self.budget.burst), self.tokens + dt * self.budget.per_day / DAY_S)
         self.refilled_s = max(self.refilled_s, float(now_s))
 
-    def _gates(self) -> list[GateResult]:
-        est, g = self.tracker.estimate, self.gates
+    def _gates(self, est) -> list[GateResult]:
+        g = self.gates
         n, cov = int(self.tracker.memory.valid.sum()), self.tracker.coverage()
         out = [GateResult("min_samples", n >= g.min_samples, float(n), g.min_samples,
                           f"{n} samples in memory ({g.min_samples} needed)"),
@@ -129,12 +135,32 @@ class Keeper:
         est = self.tracker.estimate
         if est is None:
             return Decision(False, Reason.NO_CALIBRATION, message="the tracker has no calibration yet")
-        gates = tuple(self._gates())
+        first = self._judge(est, device)
+        return self._checked(device, first) if first.write else first
+
+    def _checked(self, device: Calibration | None, first: Decision) -> Decision:
+        """The last step before a write: the calibration as it may be reported
+        (``tracker_check.checked``: a model fit's gates accept on the samples in memory, each σ
+        at least fit's there) judged again. That costs a fit of memory (tens of ms), so it is
+        made only when all else says write, and a refusal stands for ``RECHECK_SAMPLES``."""
+        n = self.tracker.n
+        if self._held is not None and n - self._held[0] < RECHECK_SAMPLES:
+            return self._held[1]
+        rep = checked(self.tracker)
+        out = self._judge(rep, device) if rep is not None else Decision(
+            False, Reason.GATE, first.calibration, first.comparison, first.gates,
+            "fit's gates refuse every model on the samples in memory")
+        self._held = None if out.write else (n, out)
+        return out
+
+    def _judge(self, est, device: Calibration | None) -> Decision:
+        """Gates, significance and budget for the estimate ``est``."""
+        gates = tuple(self._gates(est))
         failing = [g for g in gates if not g.passed]
         if failing:
             return Decision(False, Reason.GATE, est.calibration, gates=gates,
                             message="; ".join(g.message for g in failing))
-        cmp = None if device is None else compare(self.tracker, device)
+        cmp = None if device is None else compare(self.tracker, device, est)
         if cmp is not None and not cmp.z >= self.z_needed:
             return Decision(False, Reason.NOT_SIGNIFICANT, est.calibration, cmp, gates,
                             f"gain z = {cmp.z:.2f} < {self.z_needed:.2f}")
@@ -194,6 +220,7 @@ class Keeper:
         """Resume from ``to_state`` (ValueError when malformed); budget and gates stay this one's."""
         try:
             self.tracker = Tracker.from_state(d["tracker"])
+            self._held = None
             self.tokens = min(float(d["tokens"]), float(self.budget.burst))
             self.refilled_s = float(d["refilled_s"])
             self.cycles, self.writes, self.failed = int(d["cycles"]), int(d["writes"]), int(d["failed"])
