@@ -200,7 +200,7 @@ def test_every_channel_panel_of_a_level_board_shows_its_samples():
     sc = Scenario(physics=Physics(hard_iron_ut=(12.0, -20.0, 5.0), noise_ut=0.4),
                   motion=Motion("tilt", max_tilt_deg=15.0, period_s=20.0),
                   temperature=Temperature(swing_c=10.0, period_s=60.0), current=Current(level_a=2.0), seed=5)
-    d = diagnose(sc.simulate(3000, 50.0).series)
+    d = diagnose(sc.simulate(1500, 50.0).series)  # 30 s: along x, y or the estimate no sample is drawn
     v = views_of(d)
     plt = _plt()
     for c in ("temp_c", "current_a", "t_s"):
