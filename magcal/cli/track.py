@@ -92,6 +92,8 @@ def _summary(changes: list[dict], n: int, skipped: int, source: str | None, why:
         return "\n".join(lines + [f"last        withdrawn after sample {last['sample']}: {last['reason']}"])
     lines.append(f"final       {last['model']}, wander {last['wander_ut2_per_s']:.3g} µT²/s, noise "
                  f"{last['noise_ut']:.3f} µT, {100 * last['coverage']:.0f} % of directions in memory")
+    if last.get("refused_model"):
+        lines.append(f"            (the tracker ran {last['refused_model']}, which fit's gates refuse on these samples)")
     for i, row in enumerate(last["soft_iron"]):
         lines.append(("soft_iron   " if i == 0 else "            ") + " ".join(f"{v:9.5f}" for v in row))
     return "\n".join(lines)
