@@ -136,6 +136,11 @@ class StateFiles:
         self.previous = self.directory / PREVIOUS
         self.last_load_note = ""  # what load() had to do (fell back, found nothing …)
         self.loaded_from: str | None = None  # the file the last load() read (None: none was valid)
+        self._valid_digest: bytes | None = None  # SHA-256 of the last state.json bytes known valid
+
+    def _known_valid(self, data: bytes) -> bool:
+        """Are these the very bytes this object last wrote or read as a valid ``state.json``?"""
+        return self._valid_digest is not None and hashlib.sha256(data).digest() == self._valid_digest
 
     def save(self, payload: dict) -> None:
         """Keep the current good file as the previous one, then replace the current one.
@@ -145,7 +150,7 @@ class StateFiles:
             old = self.current.read_bytes()
         except FileNotFoundError:
             old = None
-        if old is not None:
+        if old is not None and not self._known_valid(old):  # the daemon's own last save: checked when made
             try:
                 decode_state(old)
             except StateError:
@@ -153,6 +158,7 @@ class StateFiles:
         if old is not None:
             write_atomic(self.previous, old)
         write_atomic(self.current, data)
+        self._valid_digest = hashlib.sha256(data).digest()
 
     def load(self) -> dict | None:
         """The newest valid payload; None when there is no state at all.
@@ -178,6 +184,8 @@ class StateFiles:
                 f"loaded {path.name}" + (f" after refusing {self.current.name}: {errors[0]}" if errors else "")
             )
             self.loaded_from = path.name
+            if path == self.current:
+                self._valid_digest = hashlib.sha256(data).digest()
             return payload
         if errors:
             raise StateError("no valid state: " + "; ".join(errors))
