@@ -22,5 +22,5 @@ def run_magcal(*argv) -> subprocess.CompletedProcess:
         try:
             code = main(args)
         except SystemExit as exc:  # argparse's usage errors exit as the command line would
-            code = exc.code if isinstance(exc.code, int) else 1
+            code = 0 if exc.code is None else exc.code if isinstance(exc.code, int) else 1
     return subprocess.CompletedProcess(["magcal", *args], code, out.getvalue(), err.getvalue())
