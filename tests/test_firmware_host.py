@@ -47,7 +47,7 @@ def _is_subsequence(small, big) -> bool:
     return all(any(x == y for y in it) for x in small)
 
 
-def _until_held_back(board, quiet_s=0.3, limit_s=10.0) -> bool:
+def _until_held_back(board, quiet_s=0.3, limit_s=30.0) -> bool:
     """Wait, not reading, until the board has served no measurement for ``quiet_s``: the link's
     buffers are full and the board is held back (True), or ``limit_s`` has passed (False)."""
     served, since = len(board.served), time.monotonic()
