@@ -33,7 +33,7 @@ from scipy.special import ndtri
 
 from ..core.calibration import Calibration
 from ..core.errors import ConfigError
-from ..fit.tracker import Comparison, Tracker, compare
+from ..fit.tracker import Comparison, Estimate, Tracker, compare
 from ..fit.tracker_check import checked
 from .gates import GateResult, Gates, model_gates
 
@@ -75,6 +75,7 @@ class Decision:
     comparison: Comparison | None = None
     gates: tuple[GateResult, ...] = field(default_factory=tuple)
     message: str = ""
+    estimate: Estimate | None = field(default=None, repr=False)  # a write's: the checked estimate (its σ)
 
     def to_dict(self) -> dict:
         return {"write": self.write, "reason": self.reason.value, "message": self.message,
@@ -171,7 +172,7 @@ class Keeper:
         reason = Reason.FIRST if device is None else Reason.BETTER
         msg = "the device holds no calibration" if cmp is None else (
             f"RMS {cmp.rms_other_pct:.3f} % → {cmp.rms_ours_pct:.3f} %, z = {cmp.z:.1f}")
-        return Decision(True, reason, est.calibration, cmp, gates, msg)
+        return Decision(True, reason, est.calibration, cmp, gates, msg, est)
 
     def affords(self, now_s: float) -> bool:
         """Is a write within the budget now?"""

@@ -60,11 +60,12 @@ class TrackingDecider:
         if may_write is not None:
             self._journal.record(Decision.TRACKER_RESTARTED if may_write else Decision.REPORTING_ONLY)
 
-    def _clearance(self, cal: Calibration) -> Clearance:
+    def _clearance(self, cal: Calibration, est) -> Clearance:
         """The gates' decision, on the tracker's own evidence (its memory: samples, directions,
-        the sphere condition the session's gate uses; its residual and offset σ)."""
+        the sphere condition the session's gate uses; the residual and offset σ of ``est``, the
+        estimate the keeper checked, whose σ are at least fit's on that memory)."""
         trk = self.keeper.tracker
-        est = trk.estimate
+        est = est or trk.estimate
         _, m, _, _ = trk.memory.samples()
         acc = SphereAccumulator()
         acc.add_batch(m)
@@ -88,7 +89,7 @@ class TrackingDecider:
             self._faults["write_budget_waits"] += 1
         if not decision.write:
             return None
-        clearance = self._clearance(decision.calibration)
+        clearance = self._clearance(decision.calibration, decision.estimate)
         if not clearance.allowed:
             self._journal.record(Decision.REFUSED, **Failure.of_gate(clearance.blocking[0].name).to_dict(),
                                  message=clearance.summary())
