@@ -308,8 +308,9 @@ class ProtocolDevice(Device):
         while hello is None and self.clock() < deadline:
             try:
                 tag = self._send("I")
-                self._await(lambda r: isinstance(r, Ack) and r.tag == tag, "reply to I", 0.6)
-                hello = self._await(lambda r: isinstance(r, Hello), "hello", 0.6)
+                first = self._await(lambda r: _boot_hello(r) or (isinstance(r, Ack) and r.tag == tag),
+                                    "reply to I", 0.6)
+                hello = first if _boot_hello(first) else self._await(lambda r: isinstance(r, Hello), "hello", 0.6)
             except NoReply:
                 self.inbox.forget_replies()
                 continue
@@ -384,7 +385,7 @@ class ProtocolDevice(Device):
         self.inbox.expect_restart = True
         self.command("Z")
         self.framer.reset_sequence()
-        hello = self._await(lambda r: isinstance(r, Hello), "hello after reset", self.boot_timeout_s)
+        hello = self._await(_boot_hello, "hello after reset", self.boot_timeout_s)
         self.identity = self._identity_from(hello)
         return self.identity
 
@@ -496,6 +497,11 @@ def _self_test_result(url: str, ack: Ack, asa, chip: Chip = MPU9150) -> SelfTest
     except (ValueError, IndexError):
         raise DeviceError(f"{url}: malformed self-test reply {','.join(ack.result)!r}") from None
     return SelfTestResult.from_registers(raw, asa, st2, window=chip.self_test_window)
+
+
+def _boot_hello(r) -> bool:
+    """A board's boot message (its hello with seq 0), as opposed to a hello replying to ``I``."""
+    return isinstance(r, Hello) and r.seq == 0
 
 
 def _refuse_ids(url: str, hello: Hello) -> None:
