@@ -22,6 +22,8 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ...core.calibration import Calibration
+from ..channels import offset_wander
+from ..limits import WANDER_BLOCKS
 
 # the keys a ``where`` object may carry (issue: every finding and limit says where)
 WHERE_KEYS = ("time_s", "channel", "lag_s", "frequency_hz", "axis", "direction")
@@ -119,12 +121,26 @@ class Effect:
     (``Residual`` → found things, empty when nothing is there) and, for a modelled effect, its
     ``remove(m_ut, t_s, channels, located) → m_ut``: the samples with the effect taken out, so
     that the calibration refitted on them is the one in force at the end of the recording (or
-    at the channel's reference value)."""
+    at the channel's reference value). ``simpler``, where the search tested the effect against a
+    simpler account of the same change (a soft-iron change against the offset alone changing at
+    its time), removes that account instead: held-out blocks must prefer the effect to it too."""
 
     name: str
     kind: Kind
     search: Callable[[Residual], tuple[Located, ...]]
     remove: Callable[..., np.ndarray] | None = None
+    simpler: Callable[..., np.ndarray] | None = None  # as ``remove``: the simpler account its search judged it against
+
+
+def noise_and_wander_ut(r_ut: np.ndarray, u: np.ndarray) -> tuple[float, float]:
+    """What a radial residual shows with nothing more in it than the recording's own noise and
+    slow wander, as (noise, wander) RMS per reading (µT): the white noise of one reading from the
+    spread of successive differences (robust), and the offset wander as the ``offset_wander``
+    limit measures it (offsets of ``WANDER_BLOCKS`` time blocks, their scatter beyond the noise).
+    A remainder is judged against both, measured on the residual with that remainder taken out."""
+    d = np.diff(np.asarray(r_ut, float))
+    noise = float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0)) if len(d) else 0.0
+    return noise, float(offset_wander(r_ut, u, WANDER_BLOCKS)[0])
 
 
 def stretches(mask: np.ndarray, t_s: np.ndarray, min_len: int = 1) -> list[tuple[float, float]]:

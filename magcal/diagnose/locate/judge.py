@@ -5,7 +5,17 @@ taken out. The calibration is refitted (``magcal fit``'s own procedure, with the
 on every contiguous time block's complement, with and without the effect removed, and judged on
 the block it left out; an effect is kept when its held-out RMS radial residual is lower by more
 than the scatter of that gain over the blocks allows to be chance. Effects are judged one after
-another, largest first, each on the samples with the ones already kept taken out.
+another, largest first, each on the samples with the ones already kept taken out. An effect whose
+search tested it against a simpler account of the same change (``Effect.simpler``: a soft-iron
+change against the offset alone changing at its time) must beat that on unseen blocks too, and
+is judged against it where it does not: a change of offset does not earn a change of shape.
+
+An effect not kept is still the honest remainder where it took something off unseen blocks —
+unless what it took (the held-out gain as an RMS per reading, µT) is no more than the recording's
+own noise and slow offset wander together (``base.noise_and_wander_ut``, measured on the samples
+with the effect taken out and refitted, so what sizes it never holds the effect itself). That
+much is the noise, and the ``offset_wander`` limit's to state ("a calibration from this
+recording is good to about that much"); it is not also unexplained structure.
 """
 
 from __future__ import annotations
@@ -16,9 +26,10 @@ import numpy as np
 
 from ...fit import fit_calibration
 from ..inference import contiguous_blocks
-from .base import Effect, Kind, Located
+from .base import Effect, Kind, Located, noise_and_wander_ut
 
 FOLDS = 5
+SIMPLER_WORDS = "the simpler account its search tested it against (Effect.simpler)"
 MIN_GAIN_SIGMAS = 2.0  # the held-out gain must exceed this many standard errors of its block scatter
 
 
@@ -31,18 +42,34 @@ class Verdict:
     heldout_without_ut: float
     heldout_with_ut: float
     reason: str
-
+    wander_ut: float = float("nan")  # the slow wander left with it taken out (nan: not measured)
+    noise_ut: float = float("nan")  # the noise of one reading, likewise
     @property
     def contradicted(self) -> bool:
         """Modelling it made unseen blocks worse: the recording itself speaks against it."""
         return bool(self.heldout_with_ut >= self.heldout_without_ut)
 
+    @property
+    def gain_ut(self) -> float:
+        """What modelling it took off unseen blocks, as an RMS (µT; 0 when nothing)."""
+        return float(np.sqrt(max(self.heldout_without_ut**2 - self.heldout_with_ut**2, 0.0)))
+
+    @property
+    def within_noise_and_wander(self) -> bool:
+        """Not kept, and what it took off unseen blocks is no more than the noise and slow wander
+        the recording keeps without it: the noise, and the wander limit's to state — no remainder."""
+        allowed = np.hypot(self.noise_ut, self.wander_ut)
+        return bool(not self.kept and np.isfinite(allowed) and self.gain_ut <= allowed)
+
     def evidence(self) -> dict:
+        wander = ({"heldout_gain_ut": self.gain_ut, "noise_without_ut": self.noise_ut, "wander_without_ut": self.wander_ut}
+                  if np.isfinite(self.wander_ut) else {})
         return {
             "heldout_rms_without_ut": self.heldout_without_ut,
             "heldout_rms_with_ut": self.heldout_with_ut,
             "modelled": self.kept,
             "why": self.reason,
+            **wander,
         }
 
 
@@ -99,11 +126,40 @@ def judge(m_ut, t_s, channels, found, table: dict[str, Effect], model: str,
         if after is None:
             verdicts.append(Verdict(loc, False, _rms(base), np.nan, "the calibration could not be refitted with it"))
             continue
-        kept, why = compare(base, after)
-        verdicts.append(Verdict(loc, kept, _rms(base), _rms(after), why))
+        kept, why, without = _against_simpler(m_ut, t_s, channels, loc, effect, model, base, after)
+        left = without_it(cleaned, model) if not kept and after.mean() < without.mean() else (np.nan, np.nan)
+        verdicts.append(Verdict(loc, kept, _rms(without), _rms(after), why, left[1], left[0]))
         if kept:
             m_ut, base = cleaned, after
     return m_ut, tuple(verdicts)
+
+
+def _against_simpler(m_ut, t_s, channels, loc, effect: Effect, model: str, base, after):
+    """(kept, why, the held-out figures it was judged against): better than nothing beyond
+    chance, and, where the effect has a simpler account (``Effect.simpler``), better than that
+    too — else it is judged against the simpler account, which is what it must beat."""
+    kept, why = compare(base, after)
+    if not kept or effect.simpler is None:
+        return kept, why, base
+    simpler = heldout_sq(effect.simpler(m_ut, t_s, channels, loc), model)
+    if simpler is None:
+        return kept, why, base
+    beats, why_simpler = compare(simpler, after)
+    if beats:
+        return True, why, base
+    return False, f"{why}, but against {SIMPLER_WORDS}: {why_simpler}", simpler
+
+
+def without_it(m_ut: np.ndarray, model: str) -> tuple[float, float]:
+    """(noise, slow wander) of ``m_ut``'s radial residual around its own calibration
+    (``base.noise_and_wander_ut``); nan where no calibration fits."""
+    result = fit_calibration(m_ut, model=model)
+    if not result:
+        return float("nan"), float("nan")
+    cal = result.calibration
+    h = cal.correct(m_ut)
+    norm = np.linalg.norm(h, axis=1)
+    return noise_and_wander_ut(norm - cal.field_ut, h / norm[:, None])
 
 
 def _rms(sq: np.ndarray) -> float:

@@ -40,7 +40,7 @@ import numpy as np
 from ...fit import fit_calibration
 from ...fit.tails import chi2_isf
 from . import steps_scan as scan
-from .base import Effect, Kind, Located, Residual, runs
+from .base import Effect, Kind, Located, Residual, noise_and_wander_ut, runs
 
 STEP = "hard_iron_step"
 SOFT = "soft_iron_change"
@@ -217,6 +217,8 @@ class ShapeChange:
     threshold: float
     determined: tuple[bool, bool]
     typical: float = 0.0  # the median statistic over the grid
+    explained_ut: float = float("inf")  # RMS per sample after τ of what the change adds to the step-only fit
+    allowed_ut: float = 0.0  # the noise and slow offset wander of the residual with that taken out, together
 
 
 def _thin(n: int) -> np.ndarray:
@@ -275,8 +277,20 @@ def shape_change(u, t, r, field_ut: float, half: float, step_times=()) -> ShapeC
     inside = np.concatenate([inside, [taus[i]]])
     sigma = np.sqrt(np.clip(np.diag(var[i] * inv)[-6:], 0.0, None))
     det = (_determined(u, q, t, r, t < taus[i], f2), _determined(u, q, t, r, t >= taus[i], f2))
+    explained, allowed = _net(base, u, q, t, r, float(taus[i]), coef)
     return ShapeChange(float(taus[i]), (float(inside.min()), float(inside.max())), coef[-6:], sigma,
-                       float(stats[i]), threshold, det, typical)
+                       float(stats[i]), threshold, det, typical, explained, allowed)
+
+
+def _net(base, u, q, t, r, tau: float, coef: np.ndarray) -> tuple[float, float]:
+    """(what a shape change at τ adds to the fit with an offset step at τ alone, as an RMS per
+    sample after τ; the noise and slow offset wander of ``r`` with that part taken out, together,
+    ``base.noise_and_wander_ut``) — the change sized against the recording measured without it."""
+    after = (t >= tau)[:, None]
+    x0 = np.hstack([base, u * after])
+    net = np.hstack([x0, q * after]) @ coef - x0 @ scan.lsq(x0, r).coef
+    explained = float(np.sqrt(np.sum(net**2) / max(int(after.sum()), 1)))
+    return explained, float(np.hypot(*noise_and_wander_ut(r - net, u)))
 
 
 def _determined(u, q, t, r, side: np.ndarray, f2: float) -> bool:
@@ -291,19 +305,27 @@ def _determined(u, q, t, r, side: np.ndarray, f2: float) -> bool:
     return bool(np.all(sig <= SHAPE_SIGMA_MAX))
 
 
-def _soft_located(c: ShapeChange, floor_ut: float, field_ut: float) -> Located:
+def _soft_located(c: ShapeChange, floor_ut: float, field_ut: float) -> Located | None:
+    """The change as a named effect where both sides determine it; where one side does not,
+    the honest remainder — unless what it adds is no more than the noise and slow wander the
+    recording shows without it (the ``offset_wander`` limit states that wander, and this says
+    nothing more: a side that cannot determine the shape lets its columns stand in for a wander
+    in time)."""
     gains = c.e[:3]
     size_ut = float(np.max(np.abs(c.e)) * field_ut)
     half = max(c.tau_s - c.interval_s[0], c.interval_s[1] - c.tau_s)
     where = {"time_s": [c.tau_s], "axis": ["x", "y", "z"][int(np.argmax(np.abs(gains)))]}
     evidence = {"size_ut": size_ut, "size_over_floor": size_ut / floor_ut if floor_ut > 0 else float("inf"),
-                "statistic": c.stat, "threshold": c.threshold, "alpha": ALPHA}
+                "statistic": c.stat, "threshold": c.threshold, "alpha": ALPHA, "explained_ut": c.explained_ut,
+                "noise_and_wander_without_ut": c.allowed_ut}
     params = {"time_s": c.tau_s, "time_interval_s": list(c.interval_s), "gain_change": gains,
               "gain_change_sigma": c.sigma[:3], "shape_change": c.e, "shape_change_sigma": c.sigma}
     g = ", ".join(f"{100 * x:+.1f} %" for x in gains)
     if all(c.determined):
         summary = f"the soft iron changed at {c.tau_s:.1f} s (±{half:.1f} s): gains x, y, z by {g}"
         return Located(SOFT, Kind.PHYSICS, summary, where, params, evidence)
+    if c.explained_ut <= c.allowed_ut:
+        return None
     side = "before" if not c.determined[0] else "after"
     summary = (f"the calibration's shape seems to change at {c.tau_s:.1f} s (±{half:.1f} s), but the coverage "
                f"{side} it cannot determine the gains, so the change cannot be told")
@@ -324,6 +346,20 @@ def remove_soft(m_ut, t_s, channels, located: Located) -> np.ndarray:
     h = cb.correct(m[before]) * (ca.field_ut / cb.field_ut)
     out = m.copy()
     out[before] = ca.distort(h)
+    return out
+
+
+def remove_offset_change(m_ut, t_s, channels, located: Located) -> np.ndarray:
+    """The simpler account of a soft-iron change, the one its scan tested it against: only the
+    offset changes at τ (each side's own fitted offset), the shape stays as it is. Unchanged
+    where either side cannot be fitted."""
+    m = np.asarray(m_ut, dtype=np.float64)
+    before = np.asarray(t_s, float) < float(located.params["time_s"])
+    fb = fit_calibration(m[before], model="ellipsoid")
+    fa = fit_calibration(m[~before], model="ellipsoid")
+    out = m.copy()
+    if fb and fa:
+        out[before] += fa.calibration.offset_ut - fb.calibration.offset_ut
     return out
 
 
@@ -444,7 +480,7 @@ def search(res: Residual) -> tuple[Located, ...]:
     shape = _soft_change(u, t, r, cal.field_ut, floor, half, steps)
     found: list[Located] = []
     if shape is not None:
-        found.append(_soft_located(shape, floor, cal.field_ut))
+        found += [x for x in (_soft_located(shape, floor, cal.field_ut),) if x is not None]
         steps, rest = _all_steps(u, t, r, np.hstack([q, q * (t >= shape.tau_s)[:, None]]), half, f2)
         steps = [s for s in steps if abs(s.tau_s - shape.tau_s) > half]
     steps = measure(u, t, r, q, f2, steps) if steps else steps
@@ -456,5 +492,5 @@ def search(res: Residual) -> tuple[Located, ...]:
 
 EFFECTS: tuple[Effect, ...] = (
     Effect(STEP, Kind.PHYSICS, search, remove_step),
-    Effect(SOFT, Kind.PHYSICS, lambda res: (), remove_soft),
+    Effect(SOFT, Kind.PHYSICS, lambda res: (), remove_soft, remove_offset_change),
 )
