@@ -308,8 +308,7 @@ class ProtocolDevice(Device):
         while hello is None and self.clock() < deadline:
             try:
                 tag = self._send("I")
-                first = self._await(lambda r: _boot_hello(r) or (isinstance(r, Ack) and r.tag == tag),
-                                    "reply to I", 0.6)
+                first = self._await(lambda r: _boot_hello(r) or _acks(r, tag), "reply to I", 0.6)
                 hello = first if _boot_hello(first) else self._await(lambda r: isinstance(r, Hello), "hello", 0.6)
             except NoReply:
                 self.inbox.forget_replies()
@@ -497,6 +496,10 @@ def _self_test_result(url: str, ack: Ack, asa, chip: Chip = MPU9150) -> SelfTest
     except (ValueError, IndexError):
         raise DeviceError(f"{url}: malformed self-test reply {','.join(ack.result)!r}") from None
     return SelfTestResult.from_registers(raw, asa, st2, window=chip.self_test_window)
+
+
+def _acks(r, tag: int) -> bool:
+    return isinstance(r, Ack) and r.tag == tag
 
 
 def _boot_hello(r) -> bool:
