@@ -81,6 +81,13 @@ def f_isf(q, dfn, dfd):
     return dfd / dfn * (1.0 - w) / w
 
 
+def beta_ppf(q, a, b):
+    """x with P(B ≤ x) = q for the beta distribution of shape (``a``, ``b``): the q-quantile
+    of the k-th smallest of a + b − 1 uniform draws when a = k."""
+    _check_df(a, b)
+    return _special().betaincinv(a, b, _check_q(q))
+
+
 def chi2_log10_sf(x, df):
     """−log₁₀ P(χ² > x), finite where the tail underflows a float (there the leading terms of
     the asymptotic series of the upper incomplete gamma function): scores on one scale across

@@ -46,10 +46,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import beta, chi2
 
 from ..core.calibration import EARTH_FIELD_UT, Calibration
-from . import geometric
+from . import geometric, tails
 from .accumulator import check_state
 from .ellipsoid import algebraic_start
 from .failure import FitFailure
@@ -402,7 +401,7 @@ class Tracker:
         if v is None or k < CHANGE_MIN_PAIRS or self.wander.n < CHANGE_MIN_EVIDENCE:
             return False
         half = k // 2 + 1
-        level = chi2.isf(beta.ppf(CHANGE_ALPHA, half, k - half + 1), 1)
+        level = tails.chi2_isf(tails.beta_ppf(CHANGE_ALPHA, half, k - half + 1), 1)
         if np.sort(d * d / v)[k - half] <= level:
             self._suspect = False
             return False
