@@ -8,10 +8,16 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
+import itertools
+
 import pytest
+
+_STATE = itertools.count()
 
 
 @pytest.fixture(autouse=True)
 def _own_state_directory(tmp_path_factory, monkeypatch):
-    """Each test keeps what a user's state directory would hold (emu:// EEPROMs) to itself."""
-    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("state")))
+    """Each test keeps what a user's state directory would hold (emu:// EEPROMs) to itself: a
+    folder of its own, named here and made by magcal only when something is kept in it, as a
+    user's is (mktemp per test scanned the ever fuller base folder: ~0.7 ms CPU a test)."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.getbasetemp() / f"xdg-state-{next(_STATE)}"))
