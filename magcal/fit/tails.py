@@ -41,6 +41,11 @@ def _check_df(*dfs) -> None:
             raise ValueError(f"degrees of freedom must be > 0, got {df}")
 
 
+def norm_isf(q):
+    """x with P(Z > x) = q for a standard normal Z."""
+    return -_special().ndtri(_check_q(q))
+
+
 def t_sf(x, df):
     """P(T > x) for Student's t with ``df`` degrees of freedom."""
     _check_df(df)

@@ -54,9 +54,9 @@ import enum
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from ..core.calibration import Calibration
+from ..fit import tails
 from ..fit.outliers import robust_sigma
 
 EIG_FLOOR = 2e-3  # a direction of θ is tested when its share of its information / n exceeds this
@@ -143,7 +143,7 @@ def window_fit(cal: Calibration, m_ut: np.ndarray, channels=None) -> dict:
     e = norm - cal.field_ut
     s = (np.arange(len(e)) + 0.5) / len(e) - 0.5
     x = np.column_stack([np.ones(len(e)), h / norm[:, None], s])
-    keep = _near(e, float(stats.norm.isf(TAIL / (2 * len(e)))))
+    keep = _near(e, float(tails.norm_isf(TAIL / (2 * len(e)))))
     a, b = x[keep].T @ x[keep], x[keep].T @ e[keep]
     r = e - x @ (np.linalg.pinv(a, rcond=1e-10, hermitian=True) @ b)
     r = np.where(keep, r, 0.0)  # a left-out sample carries no residual into σ or the batch means
@@ -444,7 +444,7 @@ class DriftMonitor:
         t2, k, seen, moments = statistic(delta, info, n, ref_inv, self._var(), (phi, q))
         if k == 0:
             return t2, k, seen, moments, 1.0, float("inf")
-        return t2, k, seen, moments, float(stats.f.sf(t2 / k, k, nu)), float(k * stats.f.isf(self.alpha, k, nu))
+        return t2, k, seen, moments, float(tails.f_sf(t2 / k, k, nu)), float(k * tails.f_isf(self.alpha, k, nu))
 
     def _join(self, w: dict) -> None:
         """A baseline window, or a test window that passed, joins both references, which forget

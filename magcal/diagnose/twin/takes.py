@@ -16,8 +16,8 @@ one degree per start, beyond TAKE_P.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
 
+from ...fit import tails
 from ...sim.takes import Takes
 
 TAKE_MIN_DEG = 2.0
@@ -65,7 +65,7 @@ def steps_exceed(real: np.ndarray, twins: list) -> bool:
     ref = float(np.mean([np.mean(x * x) for x in twins if len(x)])) if twins else 0.0
     if not len(real) or not ref > 0:
         return False
-    return bool(chi2.sf(float(real @ real) / ref, len(real)) < TAKE_P)
+    return bool(tails.chi2_sf(float(real @ real) / ref, len(real)) < TAKE_P)
 
 
 def with_levels(takes: Takes, e: np.ndarray, t_s: np.ndarray) -> Takes:
