@@ -75,9 +75,9 @@ for line in sys.stdin:
 class Launcher:
     """One interpreter with magcal imported, forking a ``magcal`` process per ``start``."""
 
-    def __init__(self, preamble: str = "", env: dict | None = None, cwd=None, timeout_s: float = 120.0):
+    def __init__(self, preamble: str = "", env: dict | None = None, timeout_s: float = 120.0):
         t0 = time.monotonic()
-        self._proc = subprocess.Popen([sys.executable, "-c", _SERVER, preamble], env=env, cwd=cwd, text=True,
+        self._proc = subprocess.Popen([sys.executable, "-c", _SERVER, preamble], env=env, text=True,
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         self._live: set[int] = set()  # children started and not yet reaped
         self._ask(None, timeout_s)

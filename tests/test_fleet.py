@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -126,23 +128,17 @@ def test_a_dask_cluster_gives_the_same_rows_as_the_pool(pooled, logs, tmp_path):
 
 @_on_fleet
 def test_a_run_killed_midway_and_restarted_gives_the_same_dataset_with_no_row_twice(pooled, logs, tmp_path):
-    from forked_magcal import Launcher
-
     root, _ = logs
     out = tmp_path / "resumed"
-    # `magcal fleet` in a process of its own, forked from a launcher that imported the command
-    # once (its start-up, not its work, was most of this test's price); killed -9 as before
-    with Launcher("import magcal.cli.fleet, magcal.app.fleet.runner, magcal.app.fleet.analyse", cwd=ROOT) as launcher:
-        pid = launcher.start(["fleet", str(root / "logs"), "-o", str(out), "--workers", "1", "-q"])
-        deadline, ended = time.monotonic() + 60, None
-        while time.monotonic() < deadline and ended is None:
-            if len([f for f in os.listdir(out / "rows") if f.endswith(".parquet")] if (out / "rows").exists() else []) >= 3:
-                break
-            time.sleep(0.05)
-            ended = launcher.poll(pid)
-        if ended is None:
-            os.kill(pid, signal.SIGKILL)
-            launcher.wait(pid)
+    cmd = [sys.executable, "-m", "magcal", "fleet", str(root / "logs"), "-o", str(out), "--workers", "1", "-q"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:
+        if len([f for f in os.listdir(out / "rows") if f.endswith(".parquet")] if (out / "rows").exists() else []) >= 3:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
     kept = [f for f in os.listdir(out / "rows") if f.endswith(".parquet") and not f.startswith(".")]
     assert 3 <= len(kept) < 3 * FLIGHTS + 1, "the run was to be killed midway"
     assert _fleet(root / "logs", "-o", out) == 0
