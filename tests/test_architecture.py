@@ -312,6 +312,10 @@ def tail_implementations(tree) -> set[str]:
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
             out |= {a.name for a in node.names} & TAIL_PRIMITIVES
+            if node.module == "scipy.stats" or (node.module == "scipy" and any(a.name == "stats" for a in node.names)):
+                out.add("scipy.stats")
+        elif isinstance(node, ast.Import) and any(a.name == "scipy.stats" for a in node.names):
+            out.add("scipy.stats")
         elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and _TAIL_NAME.search(node.name):
             out.add(f"def {node.name}")
         elif _name(node) in TAIL_PRIMITIVES:
@@ -377,4 +381,6 @@ def test_the_one_of_each_rules_find_a_planted_second_one():
         "        x = x + np.linalg.solve(A + lam * np.eye(3), -g)\n    return x\n\n"
         "def smooth(A, b):\n    for _ in range(3):\n        b = np.linalg.solve(A, b)\n    return math.log(b[0])\n")
     assert tail_implementations(tree) == {"lgamma", "def chi2_isf"}
+    assert tail_implementations(ast.parse("from scipy import stats\n")) == {"scipy.stats"}
+    assert tail_implementations(ast.parse("from scipy.stats import chi2\n")) == {"scipy.stats"}
     assert damped_solver_loops(tree) == {"lm"}

@@ -32,9 +32,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize
 
 from ..core.calibration import Calibration
+from . import tails
 from .failure import FitFailure
 
 MIN_SAMPLES = 60
@@ -367,10 +368,10 @@ def _term_stats(s: Solve, j: int) -> dict:
     norm = float(np.linalg.norm(k))
     u = k / norm if norm > 0 else np.array([1.0, 0.0, 0.0])
     chi2 = float(k @ np.linalg.pinv(cov) @ k)
-    reach = float(np.sqrt(stats.chi2.isf(P_KEEP, 3)))  # 4.03σ: where the keep test starts to report
+    reach = float(np.sqrt(tails.chi2_isf(P_KEEP, 3)))  # 4.03σ: where the keep test starts to report
     return {"coef_ut_per_unit": [float(v) for v in k], "sigma_ut_per_unit": [float(v) for v in np.sqrt(np.diag(cov))],
             "norm_ut_per_unit": norm, "floor_ut_per_unit": float(reach * np.sqrt(max(u @ cov @ u, 0.0))),
-            "p_value": float(stats.chi2.sf(chi2, 3))}
+            "p_value": float(tails.chi2_sf(chi2, 3))}
 
 
 def choose_term(channels: dict, candidates=("current_a", "throttle")) -> str | None:

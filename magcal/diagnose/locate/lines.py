@@ -27,8 +27,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import fft as sfft
-from scipy import ndimage, stats
+from scipy import ndimage
 
+from ...fit import tails
 from .base import AXES, Effect, Kind, Located, Residual
 
 NAME = "narrowband_line"
@@ -70,7 +71,7 @@ class Spectrum:
         stat/dof is F(dof, LEVEL_DOF); the oversampled grid's maximum counts GRID_TRIALS tries
         per independent bin."""
         trials = max(self.n_independent, 1.0) * GRID_TRIALS
-        return float(self.dof * stats.f.isf(ALPHA / trials, self.dof, LEVEL_EFFICIENCY * self.dof * 2 * (HALF_WINDOW - GAP)))
+        return float(self.dof * tails.f_isf(ALPHA / trials, self.dof, LEVEL_EFFICIENCY * self.dof * 2 * (HALF_WINDOW - GAP)))
 
 
 @dataclass(frozen=True)
@@ -153,7 +154,7 @@ def local_level(ess: np.ndarray, dof: int) -> np.ndarray:
     med = ndimage.median_filter(coarse, footprint=foot, mode="mirror")
     med = np.maximum(med, np.finfo(float).tiny)
     fine = np.exp(np.interp(np.arange(len(ess)) / PAD, np.arange(len(coarse)), np.log(med)))
-    return fine / stats.chi2.median(dof)
+    return fine / tails.chi2_isf(0.5, dof)
 
 
 # -- one line -----------------------------------------------------------------------------
