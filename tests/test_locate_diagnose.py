@@ -77,3 +77,25 @@ def test_the_report_draws_the_samples_as_the_returned_calibration_takes_them(tmp
     assert np.sqrt(np.mean(v.after[v.good] ** 2)) < 1.2 * d.final.rms_ut
     assert abs(d.final_heldout_rms_ut - d.to_dict()["final"]["heldout_rms_ut"]) < 1e-12
     assert not [x for x in d.to_dict()["limits"] if x["effect"] == "offset_wander"]
+
+
+def test_a_lagged_current_is_one_finding_on_its_channel_in_place_of_the_no_lag_term():
+    """The channel test finds a current through a 0.4 s lag as a plain no-lag offset and the
+    locate step finds its lag: the user reads one finding on current_a — the lagged one, with its
+    lag — and the calibration carries no no-lag current term beside it."""
+    from magcal.diagnose.locate.channel_terms import low_passed
+    from magcal.sim.physics import Current
+
+    sc = Scenario(physics=Physics(hard_iron_ut=HARD, noise_ut=0.3), motion=Motion("sphere", period_s=20.0),
+                  current=Current(level_a=4.0, segment_s=4.0), seed=21)
+    s = sc.simulate(3000, 50.0).series
+    beta = np.array([0.75, -0.6, 0.45])  # µT/A: up to 4.2 µT at 4 A
+    cur = s.channels["current_a"]
+    d = diagnose(Series(t_s=s.t_s, field_ut=s.field_ut + np.outer(low_passed(cur, s.t_s, 0.4), beta),
+                        channels={"current_a": cur})).to_dict()
+    on = [f for f in d["findings"] if f["where"].get("channel") == "current_a"]
+    assert [f["effect"] for f in on] == ["lagged_channel"], [f["effect"] for f in d["findings"]]
+    assert abs(on[0]["where"]["lag_s"] - 0.4) <= 0.3 * 0.4
+    assert np.linalg.norm(np.asarray(on[0]["params"]["coef_ut_per_unit"]) - beta) <= 0.2 * np.linalg.norm(beta)
+    assert on[0]["evidence"]["replaces"]["effect"] == "current_interference"
+    assert "current_a" not in d["calibration"].get("coef_ut_per_unit", {})

@@ -152,8 +152,8 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         n_samples=len(series),
         baseline=baseline,
         final=found.model or chosen.model,
-        findings=statements.findings(analysed, selected, final, base_kept, alpha, noise_ut)
-        + locate.as_findings(found.found, found.verdicts),
+        findings=locate.one_per_channel(statements.findings(analysed, selected, final, base_kept, alpha, noise_ut),
+                                        locate.as_findings(found.found, found.verdicts)),
         baseline_heldout_rms_ut=chosen.heldout.rms_ut[0],
         final_heldout_rms_ut=chosen.heldout_rms_ut if found.model is None else found.heldout_rms_ut,
         simulated_rms_ut=simulated,

@@ -10,6 +10,8 @@ found here: ``as_findings`` (data faults, and named effects that earned their pl
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ..finding import Finding
 from . import channel_forms, faults, lines, steps
 from .base import AXES, WHERE_KEYS, Effect, Kind, Located, Residual, runs, stretches
@@ -26,18 +28,40 @@ def as_findings(found: tuple[Located, ...], verdicts: tuple) -> tuple[Finding, .
     return faults + kept
 
 
+def one_per_channel(catalogue: tuple[Finding, ...], located: tuple[Finding, ...]) -> tuple[Finding, ...]:
+    """The catalogue's findings then the located ones, one finding per channel: a located term
+    kept on a channel the catalogue also found (its lag, gain or curve fitted to the channel's
+    whole effect, ``step.replacing``) stands in place of the catalogue's no-lag term, which it
+    names in its evidence (``replaces``)."""
+    on = {f.where.get("channel"): f for f in located if f.where.get("channel")}
+    out, gone = [], {}
+    for f in catalogue:
+        if f.where.get("channel") in on:
+            gone[f.where["channel"]] = f
+        else:
+            out.append(f)
+    return tuple(out) + tuple(_in_place_of(f, gone.get(f.where.get("channel"))) for f in located)
+
+
+def _in_place_of(f: Finding, old: Finding | None) -> Finding:
+    if old is None:
+        return f
+    was = {"effect": old.effect, "coef_ut_per_unit": old.params.get("coef_ut_per_unit"), "summary": old.summary}
+    note = f" It stands in place of the no-lag {old.effect.replace('_', ' ')} the channel test found."
+    return replace(f, summary=f.summary + note, evidence={**f.evidence, "replaces": was})
+
+
 def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[dict, ...]:
     """The honest remainder (``unexplained_structure``), with its ``where``: what was located
     but named by no physics, and what was located and resembles a named effect but did not
     improve unseen blocks when modelled — that is no finding, and is not named as one."""
     judged = {id(v.located): v for v in verdicts}
-    out = []  # one the held-out blocks contradict (worse with it modelled), or whose held-out gain is within the noise
-    # and slow wander the recording keeps without it (the offset_wander limit states that), stays in the JSON's located only
+    out = []  # one the held-out blocks contradict (worse with it modelled) stays in the JSON's located only
     for x in found:
         v = judged.get(id(x))
         if x.kind is Kind.REMAINDER:
             out.append(_remainder(x, x.summary, {}))
-        elif x.kind is Kind.PHYSICS and not (v and (v.kept or v.contradicted or v.within_noise_and_wander)):
+        elif x.kind is Kind.PHYSICS and not (v and v.kept) and not (v and v.contradicted):
             why = v.reason if v is not None else "no held-out verdict"
             out.append(_remainder(x, f"Structure located that resembles a {x.effect.replace('_', ' ')}, not claimed as "
                                      f"one because modelling it did not earn its place ({why}): {x.summary}",
@@ -57,4 +81,4 @@ def _finding(x: Located, extra: dict) -> Finding:
 
 
 __all__ = ["AXES", "WHERE_KEYS", "EFFECTS", "Effect", "Kind", "Located", "Residual", "as_findings", "as_limits",
-           "runs", "stretches"]
+           "one_per_channel", "runs", "stretches"]

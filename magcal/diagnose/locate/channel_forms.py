@@ -14,6 +14,12 @@ calibration's own linearised refit is projected out:
 * ``SQUARE`` — β₁Δc + β₂Δc²; ``STEP`` — β·[c > threshold]; ``ANGLE`` — v₁ cos c + v₂ sin c for a
   channel named as an angle (a servo arm), in degrees or in radians, whichever fits.
 
+The search reads the residual with the calibration's own (no-lag) channel terms put back
+(``whole``), so a lag, gain or curve is fitted to the channel's whole effect and not to the
+misfit a no-lag term fitted first leaves at each switch; a no-lag offset found on a channel the
+calibration already carries is its own term again and is not returned (``own_term``); a term
+found in its place replaces it (``step.replacing``).
+
 Lags and time constants run on a geometric grid from one sample period to a sixth of the span;
 an optimum on the grid's upper edge is not reported as a lag. The error rate is controlled over
 every channel × form × lag × threshold at once: the largest score (−log₁₀ p) of all candidates is
@@ -23,7 +29,10 @@ which the best candidate's series is nearly uncorrelated with itself are used: a
 still lines the channel up with an effect that is there would learn the null from the effect
 and raise it (learning the null on the residual with the best term taken out instead removes
 the residual's own slow structure too, and under no effect claims it on most recordings). Found
-terms are taken out one at a time (at most one per channel) before the next search.
+terms are taken out one at a time (at most one per channel) before the next search. A best
+candidate that is slow and fails the wander gate (``slow_enough``) sets its channel's slow
+candidates aside and the search goes on: on a long recording a current low-passed over minutes
+can match the recording's own wander and hide the same current's short lag.
 
 Coefficients come with a 95 % interval from the block (HAC) covariance, widened over every lag
 within the 95 % profile of the best (the lag's own uncertainty); the lag gets that profile's range.
@@ -31,6 +40,7 @@ within the 95 % profile of the best (the lag's own uncertainty); the lag gets th
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Mapping
 
 import numpy as np
@@ -56,6 +66,7 @@ N_FINE = 21  # lags of the refined grid about the best coarse lag (± two coarse
 CLEAN_RATIO = 2.5  # the best must beat the null learned without it by this factor (see module doc)
 ALPHA = 0.002  # family-wise false-claim rate over everything searched
 MAX_FOUND = 3
+MAX_SLOW_SKIPS = 2  # searches that may set a channel's slow candidates aside (``without_slow``)
 ANGLE_WORDS = ("angle", "servo", "deg", "rad", "theta", "phi", "arm", "gimbal", "pan", "rotor")
 
 
@@ -228,6 +239,20 @@ def slow_enough(fr: cs.Frame, pick: cs.Pick, clean: cs.Frame) -> bool:
     return term_e >= WANDER_RATIO * rem_e
 
 
+def without_slow(fams: list[cs.Family], channel: str) -> list[cs.Family]:
+    """``fams`` without the candidates of ``channel`` whose series is slow (``slow_share`` at
+    least SLOW_GATE): a slow candidate that matched the recording's own wander is set aside, and
+    the channel's fast forms (a short lag of a switching current) are searched on."""
+    out = []
+    for f in fams:
+        if f.channel == channel:
+            fast = np.array([slow_share(f.series[:, j, 0]) < SLOW_GATE for j in range(f.series.shape[1])], bool)
+            f = cs.Family(f.form, f.channel, f.basis, f.series[:, fast], f.values[fast]) if fast.any() else None
+        if f is not None:
+            out.append(f)
+    return out
+
+
 def shifts_for(g: np.ndarray, max_lag: int) -> np.ndarray:
     """Circular shifts for the null, evenly spread among those at which the picked candidate's
     series ``g`` — shifted, then delayed by any lag the search tries (up to ``max_lag`` samples)
@@ -257,8 +282,35 @@ def null_maxima(fr: cs.Frame, fams: list[cs.Family], shifts: np.ndarray) -> np.n
     return np.array([best(fr, [f.rolled(int(k)) for f in fams]).score for k in shifts])
 
 
+def whole(res: Residual) -> Residual:
+    """``res`` with the calibration's own channel terms put back (its offset moved to where the
+    terms sit on average): the search sees each channel's whole effect, so a lag or a gain is
+    fitted to all of it rather than to what a no-lag term fitted first left behind."""
+    cal = res.calibration
+    if not cal.coef_ut_per_unit:
+        return res
+    shift = cal.channel_offset_ut(res.channels, len(res)).mean(axis=0)
+    bare = replace(cal, offset_ut=cal.offset_ut + shift, coef_ut_per_unit={}, reference={})
+    return Residual(res.t_s, res.m_ut, bare, res.noise_ut, res.floor_ut, res.channels)
+
+
+def own_term(x: Located, cal) -> bool:
+    """Whether ``x`` is the calibration's own term found again: a no-lag offset on a channel
+    the calibration already carries (nothing to add beside it)."""
+    p = x.params
+    return bool(p.get("channel") in cal.coef_ut_per_unit and x.effect != LAGGED
+                and Form(p["form"]) in (Form.OFFSET_DELAY, Form.OFFSET_FIRST_ORDER))
+
+
 def search(res: Residual) -> tuple[Located, ...]:
-    """Channel terms in ``res``'s residual, each with its form, lag and coefficient interval."""
+    """Channel terms in the residual of ``res``'s calibration with its own channel terms put back
+    (``whole``), each with its form, lag and coefficient interval; a term that is the
+    calibration's own again (``own_term``) is not returned."""
+    found = _search(whole(res))
+    return tuple(x for x in found if not own_term(x, res.calibration))
+
+
+def _search(res: Residual) -> tuple[Located, ...]:
     chans = candidates(res)
     if not chans or len(res) < 200:
         return ()
@@ -268,9 +320,9 @@ def search(res: Residual) -> tuple[Located, ...]:
     fr = cs.frame(res.r_ut, res.u, np.asarray(cal.soft_iron), cal.field_ut, rows, t)
     fams = [f for name, c in chans.items() for f in families(name, c, t, rows)]
     found = []
-    for _ in range(MAX_FOUND):
+    for _ in range(MAX_FOUND + MAX_SLOW_SKIPS):
         pick = best(fr, fams)
-        if pick is None:
+        if pick is None or len(found) == MAX_FOUND:
             break
         score = pick.score
         clean = fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
@@ -282,7 +334,8 @@ def search(res: Residual) -> tuple[Located, ...]:
         pick = refined(fr, simpler(fr, pick, fams), chans[pick.fam.channel], t)
         clean = fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
         if not slow_enough(fr, pick, clean):
-            break
+            fams = without_slow(fams, pick.fam.channel)  # its fast forms may still be there
+            continue
         null = null_raw
         evidence = {"score": score, "threshold": threshold, "null_max": float(np.max(null)), "n_shifts": len(null)}
         located, fr = relinearized(res, fr, pick, fams, evidence)
@@ -347,7 +400,8 @@ def _searched_above(res: Residual) -> tuple[Located, ...]:
 
 
 # every effect name the search can return, each with its model; the search runs once (first row)
-NAMES = ("lagged_channel", "temperature_drift", "current_interference", "channel_offset", "temperature_gain",
+LAGGED = "lagged_channel"
+NAMES = (LAGGED, "temperature_drift", "current_interference", "channel_offset", "temperature_gain",
          "channel_gain", "channel_square", "channel_step", "channel_angle")
 EFFECTS = tuple(Effect(n, Kind.PHYSICS, search if i == 0 else _searched_above, remove) for i, n in enumerate(NAMES))
 EFFECT = EFFECTS[0]

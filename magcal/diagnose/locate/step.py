@@ -4,7 +4,11 @@
 row of ``EFFECTS`` on it, keeps each named effect only where removing it improves time-blocked
 held-out prediction (``judge``), and refits the calibration on the samples with the kept
 effects removed — the calibration in force at the end of the recording, which is what ``write``
-puts on the device. Channel terms the diagnosis already found stay as they are.
+puts on the device. Channel terms the diagnosis already found stay as they are, except where a
+located term on the same channel (a lag, a gain, a curve) earns its place: that term *replaces*
+the calibration's own no-lag term on the channel — in what is judged, in the refit and in the
+findings (``replaced``: one finding per channel) — rather than being taken out on top of it,
+which would take the channel's field out twice.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ class LocateStep:
     floor_ut: float
     cleaned_ut: np.ndarray | None = None  # the samples with every modelled effect removed (with ``model``)
     removals: tuple = ()  # (remove, located) of each modelled effect, in the order it was removed
+    replaced: tuple[str, ...] = ()  # channels whose no-lag calibration term a kept located term replaced
 
     def modelled(self, m_ut: np.ndarray, t_s: np.ndarray, chans: dict) -> np.ndarray:
         """Any samples of the recording with the modelled effects removed, as the returned
@@ -90,27 +95,51 @@ def locate_and_model(m_ut, t_s, chans: dict, final: ModelFit, fit_model_name: st
     if not any(f.kind is Kind.PHYSICS for f in found):
         return LocateStep(found, (), None, floor)
     model = PLAIN.get(fit_model_name, "auto")
-    table = {e.name: e for e in effects}
+    table = {e.name: replacing(e, cal, chans) for e in effects}
     cleaned, verdicts = judge.judge(m_ut - shift, t_s, chans, found, table, model, known)
     if not any(v.kept for v in verdicts):
         return LocateStep(found, verdicts, None, floor)
-    refit = _refit(cleaned, final, model)
-    removals = tuple((table[v.located.effect].remove, v.located) for v in verdicts if v.kept)
-    return LocateStep(found, verdicts, refit, floor, None if refit is None else cleaned + shift, removals)
+    replaced = tuple(sorted({str(v.located.params.get("channel")) for v in verdicts if v.kept} & set(cal.coef_ut_per_unit)))
+    refit = _refit(cleaned, final, model, replaced)
+    plain = {e.name: e for e in effects}  # the returned model carries no term on a replaced channel
+    removals = tuple((plain[v.located.effect].remove, v.located) for v in verdicts if v.kept)
+    if refit is None:
+        return LocateStep(found, verdicts, None, floor, None, removals)
+    in_force = cleaned + refit.calibration().channel_offset_ut(chans, len(m_ut))
+    return LocateStep(found, verdicts, refit, floor, in_force, removals, replaced)
 
 
-def _refit(cleaned: np.ndarray, final: ModelFit, model: str) -> ModelFit | None:
-    """The geometry refitted on the cleaned samples, with ``final``'s channel terms kept."""
+def replacing(effect: Effect, cal, chans: dict) -> Effect:
+    """``effect`` whose ``remove`` of a located channel term first puts back the calibration's
+    own (no-lag) term on that channel: the located term was fitted to the channel's whole effect
+    (``channel_forms.search``) and replaces that term rather than being taken out on top of it."""
+    if effect.remove is None:
+        return effect
+
+    def remove(m_ut, t_s, channels, located):
+        name = located.params.get("channel")
+        coef = cal.coef_ut_per_unit.get(name) if name is not None else None
+        if coef is not None and name in chans:
+            m_ut = m_ut + np.outer(np.asarray(chans[name], np.float64) - cal.reference.get(name, 0.0), coef)
+        return effect.remove(m_ut, t_s, channels, located)
+
+    return replace(effect, remove=remove)
+
+
+def _refit(cleaned: np.ndarray, final: ModelFit, model: str, replaced: tuple = ()) -> ModelFit | None:
+    """The geometry refitted on the cleaned samples, with ``final``'s channel terms kept except
+    those a kept located term ``replaced``."""
     result = fit_calibration(cleaned, model=model)
     if not result:
         return None
-    covs = {c: _channel_cov(final, j) for j, c in enumerate(final.spec.channels)}
+    kept = tuple(c for c in final.spec.channels if c not in replaced)
+    covs = {c: _channel_cov(final, j) for j, c in enumerate(final.spec.channels) if c in kept}
     geometry = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty, covs)
-    if not final.spec.channels:
+    if not kept:
         return geometry
-    spec = replace(geometry.spec, channels=final.spec.channels)
-    params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in final.spec.channels])
-    return ModelFit(spec, params, dict(final.reference), geometry.rms_ut, geometry.n, 0, geometry.cov)
+    spec = replace(geometry.spec, channels=kept)
+    params = np.concatenate([geometry.params] + [final.coef_ut_per_unit[c] for c in kept])
+    return ModelFit(spec, params, {c: final.reference[c] for c in kept}, geometry.rms_ut, geometry.n, 0, geometry.cov)
 
 
 def _channel_cov(final: ModelFit, j: int) -> np.ndarray | None:
