@@ -24,6 +24,8 @@ from ..recordings.shared import shared_path
 HELP = "install the systemd unit (magcal@PORT.service), its config file and docs"
 UNIT = "magcal@.service"
 DEFAULT_EXEC = "/usr/bin/env magcal"
+# what the unit's ProtectHome=yes hides from the service (and a dynamic user could not read)
+HIDDEN_FROM_SERVICE = (Path("/home"), Path("/root"), Path("/run/user"))
 
 
 def add_arguments(p) -> None:
@@ -41,6 +43,13 @@ def this_magcal() -> str:
     if script.is_file() and os.access(script, os.X_OK):
         return str(script.absolute())
     return DEFAULT_EXEC
+
+
+def hidden_installation(prefix: Path) -> Path | None:
+    """The protected directory an installation under ``prefix`` (a virtual environment's or the
+    interpreter's ``sys.prefix``) lies in, when the unit's service cannot reach it; else None."""
+    prefix = Path(os.path.abspath(prefix))
+    return next((h for h in HIDDEN_FROM_SERVICE if prefix == h or h in prefix.parents), None)
 
 
 def unit_text() -> str:
@@ -88,6 +97,13 @@ def run(args) -> int:
         raise ConfigError(f"cannot write {exc.filename}: permission denied (run as root, or use --root DIR)") from None
     for path, what in done:
         print(f"{path}: {what}")
+    hidden = hidden_installation(Path(sys.prefix))
+    if hidden is not None:
+        print(f"warning: this magcal is installed under {sys.prefix}, inside {hidden}, which the unit hides"
+              " from its service (ProtectHome=yes, a dynamic user): the service would fail to start."
+              " Install magcal outside home directories (e.g. python3 -m venv /opt/magcal, then"
+              " /opt/magcal/bin/pip install the same package) and run that one's 'magcal service install'.",
+              file=sys.stderr)
     print("next: systemctl daemon-reload; systemctl enable --now magcal@ttyACM0.service"
           " (the instance name is the device node)")
     return 0
