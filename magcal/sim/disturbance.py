@@ -27,6 +27,7 @@ import numpy as np
 _KEY = 0xD157
 _CELL_OFFSET = 1 << 40  # cells before t = 0 still key a non-negative seed
 _KEEP = 16  # draws kept (``_kept``): a twin learner's seeds for one recording
+_KEEP_VALUES = 1 << 22  # and no more values than this among them (32 MB): a long flight log keeps fewer
 _KEPT: dict = {}
 
 
@@ -39,9 +40,9 @@ def _kept(key: tuple, make) -> np.ndarray:
     out = _KEPT.pop(key, None)
     if out is None:
         out = make()
-        for old in list(_KEPT)[: max(len(_KEPT) - _KEEP + 1, 0)]:
-            _KEPT.pop(old, None)
     _KEPT[key] = out
+    while len(_KEPT) > 1 and (len(_KEPT) > _KEEP or sum(v.size for v in list(_KEPT.values())) > _KEEP_VALUES):
+        _KEPT.pop(list(_KEPT)[0], None)  # the one asked for longest ago
     return out.copy()
 
 
