@@ -74,6 +74,20 @@ def test_current_through_a_first_order_lag_is_found_with_its_lag_and_coefficient
     assert "first-order lag of" in f.summary and "µT/A" in f.summary
 
 
+def test_a_first_order_lag_on_a_clock_that_comes_in_bursts_is_found_in_seconds():
+    # samples in bursts (three 4 ms apart, then a 60 ms wait): the median interval is a quarter of
+    # the mean, and a filter run at the median interval put the lag at about a quarter of 0.6 s
+    m, _ = _sim(5)
+    t = np.cumsum(np.tile([0.004, 0.004, 0.004, 0.060], len(m) // 4 + 1)[: len(m)])
+    c = _current(t, 5)
+    lagged, a = np.zeros(len(t)), np.exp(-np.diff(t, prepend=t[0]) / 0.6)
+    for i in range(1, len(t)):  # the lag as the hardware has it, step by step in time
+        lagged[i] = a[i] * lagged[i - 1] + (1 - a[i]) * c[i]
+    beta = np.array([0.3, -0.45, 0.2])
+    f = _only(cf.search(_residual(m + np.outer(lagged, beta), t, {"current_a": c})), "lagged_channel")
+    assert abs(f.where["lag_s"] - 0.6) <= 0.3 * 0.6
+
+
 def test_a_gain_that_follows_temperature_is_told_from_an_offset():
     m, t = _sim(2)
     temp = _temp(t)

@@ -20,7 +20,7 @@ misfit a no-lag term fitted first leaves at each switch; a no-lag offset found o
 calibration already carries is its own term again and is not returned (``own_term``); a term
 found in its place replaces it (``step.replacing``).
 
-Lags and time constants run on a geometric grid from one sample period to a sixth of the span;
+Lags and time constants run on a geometric grid from a quarter of a sample period to a sixth of the span;
 an optimum on the grid's upper edge is not reported as a lag. The error rate is controlled over
 every channel × form × lag × threshold at once: the largest score (−log₁₀ p) of all candidates is
 compared with the largest score of the same search with each channel circularly shifted against

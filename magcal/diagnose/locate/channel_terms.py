@@ -30,13 +30,16 @@ class Form(Enum):
 
 N_LAGS = 24  # lags / time constants on the geometric grid (plus 0 for the delay)
 MAX_LAG_SHARE = 1.0 / 6.0  # the longest lag tried, as a share of the recording's span
+MIN_LAG_SAMPLES = 0.25  # the shortest, in sample periods
+EVEN_CLOCK = 0.01  # intervals within this share of their median are one clock
 
 
 def lag_grid(t_s: np.ndarray) -> np.ndarray:
-    """Lags and time constants tried (s): one sample period to a sixth of the span."""
+    """Lags and time constants tried (s): a quarter of a sample period to a sixth of the span —
+    a slowly sampled log (1.2 Hz) still shows a 0.4 s lag as a smaller first step at each switch."""
     dt = float(np.median(np.diff(t_s)))
     top = max(float(np.ptp(t_s)) * MAX_LAG_SHARE, 3 * dt)
-    return np.geomspace(dt, top, N_LAGS)
+    return np.geomspace(MIN_LAG_SAMPLES * dt, top, N_LAGS)
 
 
 def delayed(c: np.ndarray, t_s: np.ndarray, lag_s: float) -> np.ndarray:
@@ -45,10 +48,22 @@ def delayed(c: np.ndarray, t_s: np.ndarray, lag_s: float) -> np.ndarray:
 
 
 def low_passed(c: np.ndarray, t_s: np.ndarray, tau_s: float) -> np.ndarray:
-    """c through a first-order lag exp(−dt/τ) (at the median sample period), started settled."""
-    dt = float(np.median(np.diff(t_s)))
-    a = 1.0 - np.exp(-dt / tau_s)
-    y, _ = lfilter([a], [1.0, a - 1.0], c, zi=[(1.0 - a) * c[0]])
+    """c through a first-order lag, y_i = a_i·y_(i−1) + (1 − a_i)·c_i with a_i = exp(−Δt_i/τ) at
+    each sample's own interval, started settled: a log whose samples come in bursts (a few ms,
+    then 60 ms) has its time constant in seconds, not in samples."""
+    t = np.asarray(t_s, np.float64)
+    c = np.asarray(c, np.float64)
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    if np.all(np.abs(dt - med) <= EVEN_CLOCK * med):  # an even clock: one filter at its period
+        a = 1.0 - np.exp(-med / tau_s)
+        y, _ = lfilter([a], [1.0, a - 1.0], c, zi=[(1.0 - a) * c[0]])
+        return y
+    keep = np.exp(-np.maximum(dt, 0.0) / tau_s)
+    y = np.empty_like(c)
+    y[0] = c[0]
+    for i in range(1, len(c)):
+        y[i] = keep[i - 1] * y[i - 1] + (1.0 - keep[i - 1]) * c[i]
     return y
 
 
