@@ -8,7 +8,7 @@ recorded bytes), so a recording yields the samples the live run saw.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Callable, Iterator
+from typing import Callable, Iterator, NamedTuple
 
 from ..core.errors import DeviceError, InputError
 from ..core.series import Series
@@ -92,22 +92,26 @@ def _motioncal_capture(reader: CaptureReader) -> Series:
 
 
 # -- any recording -------------------------------------------------------------------------
+class Loaded(NamedTuple):
+    """A recording as read: its samples, the reading's warnings (a damaged flight log read up to
+    the damage) and, for a flight log, the magnetometer as read (``LogMag``: the attitude, the
+    expected field and the parameters a log-aware step needs; None otherwise)."""
+
+    series: Series
+    warnings: tuple[str, ...]
+    log: LogMag | None
+
+
 def load_series(path, table: TableFormat | None = None, mag: int | None = None) -> Series:
+    """The samples of ``load_recording``: what every command but ``diagnose`` needs."""
+    return load_recording(path, table, mag).series
+
+
+def load_recording(path, table: TableFormat | None = None, mag: int | None = None) -> Loaded:
     """A capture, a table (magcal's CSV or other delimited text, read as ``table`` says), a
     MotionCal log, a raw protocol-v1 byte dump, or a flight log (PX4 ULog, ArduPilot DataFlash:
     magnetometer ``mag``), told apart by content. InputError (naming file, line and problem) for
     anything else."""
-    return load_with_warnings(path, table, mag)[0]
-
-
-def load_with_warnings(path, table: TableFormat | None = None, mag: int | None = None) -> tuple[Series, tuple[str, ...]]:
-    """``load_series`` and the warnings of the reading (a damaged flight log read up to the damage)."""
-    return load_with_log(path, table, mag)[:2]
-
-
-def load_with_log(path, table: TableFormat | None = None, mag: int | None = None) -> tuple[Series, tuple[str, ...], LogMag | None]:
-    """``load_with_warnings`` and, for a flight log, the magnetometer as read (``LogMag``: the
-    attitude, the expected field and the parameters a log-aware step needs); None otherwise."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(MAX_HEADER)
@@ -124,13 +128,13 @@ def load_with_log(path, table: TableFormat | None = None, mag: int | None = None
     if log_kind(head[:HEAD_BYTES]):
         not_a_table("a flight log")
         got = load_log(str(path), mag)
-        return got.series, got.warnings, got
+        return Loaded(got.series, got.warnings, got)
     if mag is not None:
         raise InputError(f"{path}: --mag chooses a magnetometer of a flight log; this file is not one")
-    return _load_recording(path, head, table, explicit, not_a_table), (), None
+    return Loaded(_series_of_file(path, head, table, explicit, not_a_table), (), None)
 
 
-def _load_recording(path, head: bytes, table, explicit: bool, not_a_table) -> Series:
+def _series_of_file(path, head: bytes, table, explicit: bool, not_a_table) -> Series:
     if is_capture(head):
         not_a_table("a magcal capture")
         return load_capture(path)

@@ -182,7 +182,7 @@ def _report_dir(path: str) -> None:
 
 
 def run(args) -> int:
-    from ..app.load import load_with_log
+    from ..app.load import load_recording
     from .common import Progress
 
     if args.draws < 10:
@@ -191,7 +191,7 @@ def run(args) -> int:
         _report_dir(args.report)  # a folder that cannot be written is said now, not after the work
     with Progress(quiet=args.quiet).working(f"diagnose {os.path.basename(str(args.file))}") as ticker:
         ticker.doing("reading")
-        series, notes, flight_log = load_with_log(args.file, table_format(args), args.mag)
+        series, notes, flight_log = load_recording(args.file, table_format(args), args.mag)
         for w in notes:
             print(f"magcal: warning: {args.file}: {w}", file=sys.stderr)
         series = series.only_valid()
