@@ -302,23 +302,23 @@ class ProtocolDevice(Device):
         self.inbox.feed(initial)
         if self.passive:
             return self._identity_passive()
-        # A board that was just reset (DTR) sends its boot hello first; otherwise ask.
+        # A board that was just reset (DTR) may lose the first I while it boots: its boot
+        # hello says it now listens, and the I is asked again at once. Identified = answers I.
         deadline = self.clock() + self.boot_timeout_s
         hello = None
         while hello is None and self.clock() < deadline:
             try:
                 tag = self._send("I")
-                first = self._await(lambda r: _boot_hello(r) or _acks(r, tag), "reply to I", 0.6)
-                hello = first if _boot_hello(first) else self._await(lambda r: isinstance(r, Hello), "hello", 0.6)
+                if _boot_hello(self._await(lambda r: _boot_hello(r) or _acks(r, tag), "reply to I", 0.6)):
+                    tag = self._send("I")
+                    self._await(lambda r: _acks(r, tag), "reply to I", 0.6)
+                hello = self._await(lambda r: isinstance(r, Hello) and not _boot_hello(r), "hello", 0.6)
             except NoReply:
                 self.inbox.forget_replies()
-                continue
         if hello is None:
             seen = ", ".join(f"{k}={v}" for k, v in sorted(self.framer.counters.items())) or "nothing"
-            raise NoReply(
-                f"{self.url}: the device did not identify within {self.boot_timeout_s:.0f} s "
-                f"(is it running magcal firmware at this baud rate? link saw: {seen})"
-            )
+            raise NoReply(f"{self.url}: the device did not identify within {self.boot_timeout_s:.0f} s "
+                          f"(is it running magcal firmware at this baud rate? link saw: {seen})")
         self.inbox.forget_replies()
         return self._identity_from(hello)
 
