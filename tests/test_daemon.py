@@ -227,6 +227,32 @@ def test_full_disk_for_captures_keeps_streaming(tmp_path, monkeypatch):
     assert "disk full" in d.capture.stats()["error"]
 
 
+def test_a_disk_that_fills_as_the_daemon_stops_is_reported_and_the_stop_completes(tmp_path, monkeypatch):
+    """The capture has just failed (disk full) when the daemon sends its stop command, so the
+    failure surfaces while the stop waits for its reply: it is counted once, the stop asked
+    again, every sample already received handed over, and the daemon exits 0."""
+    import errno
+
+    from magcal.devices.protocol_client import ProtocolDevice
+
+    t = Tracked("seed=9")
+    real_stop = ProtocolDevice._stop
+    filled = []
+
+    def stop(self):
+        if not filled:
+            filled.append(True)
+            self.transport.writer._fail(OSError(errno.ENOSPC, "No space left on device"), 0)
+        return real_stop(self)
+
+    monkeypatch.setattr(ProtocolDevice, "_stop", stop)
+    d = t.run(tmp_path, 600, capture_max_bytes=1 << 20)
+    assert filled, "the daemon never stopped the device: the test checked nothing"
+    assert d.faults["capture_failed"] == 1
+    assert "disk full" in d.capture.stats()["error"]
+    t.assert_exactly_once()
+
+
 @pytest.mark.slow
 def test_rolling_capture_stays_within_its_bound(tmp_path):
     t = Tracked("seed=10")

@@ -184,12 +184,16 @@ class LinkSupervisor:
         if dev is None or not dev.abilities.live:
             return
         try:
-            try:
-                dev.stop()
-            except PortUnavailable:
-                return
-            except DeviceError:
-                pass
+            for _ in range(2):  # a full disk found while stopping is reported, and stop asked again
+                try:
+                    dev.stop()
+                    break
+                except PortUnavailable:
+                    return
+                except DeviceError:
+                    break
+                except CaptureWriteError as exc:
+                    self._capture_error(exc)
             for _ in range(DRAIN_READS):
                 try:
                     items = dev.read(0.02)
