@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_inproc import run_magcal
 
 from magcal.cli import COMMANDS, build_parser, main
 from magcal.cli.exits import MEANING, Exit
@@ -30,17 +31,12 @@ def magcal(*argv, env=None, cwd=None, timeout=120, stdin=subprocess.DEVNULL):
 
 
 @pytest.fixture
-def in_process(capsys, monkeypatch):
+def in_process(monkeypatch):
     """``magcal`` run in this process, for what does not depend on the environment (no MAGCAL_*
     of the caller's, as with ``magcal``): no interpreter to start, nothing imported again."""
     for name in [k for k in os.environ if k.startswith("MAGCAL_")]:
         monkeypatch.delenv(name)
-
-    def run(*argv) -> subprocess.CompletedProcess:
-        code = main(list(argv))
-        return subprocess.CompletedProcess(argv, code, *capsys.readouterr())
-
-    return run
+    return run_magcal
 
 
 def subparsers():
