@@ -45,6 +45,20 @@ def test_json_is_versioned_and_ends_with_the_final_calibration(capsys):
     assert d["final"]["model"] == "ellipsoid"
 
 
+def test_the_summary_states_the_json_s_final_calibration_and_its_sigma(capsys):
+    assert main(["track", LSM, "--json"]) == 0
+    final = json.loads(capsys.readouterr().out)["final"]
+    assert main(["track", LSM]) == 0
+    out = capsys.readouterr().out
+    offset_line = next(x for x in out.splitlines() if x.startswith("offset_ut "))
+    stated, sigma = offset_line.split("± (1σ)")
+    assert [float(v) for v in stated.split()[1:]] == [round(v, 3) for v in final["offset_ut"]]
+    assert [float(v) for v in sigma.split()] == [round(v, 3) for v in final["offset_sigma_ut"]]
+    field_line = next(x for x in out.splitlines() if x.startswith("field_ut "))
+    assert float(field_line.split()[1]) == round(final["field_ut"], 3)
+    assert float(field_line.split()[-1]) == round(final["field_sigma_ut"], 3)
+
+
 def test_summary_and_failures(tmp_path, capsys):
     assert main(["track", LSM]) == 0
     out = capsys.readouterr().out

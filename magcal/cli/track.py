@@ -94,6 +94,10 @@ def _summary(changes: list[dict], n: int, skipped: int, source: str | None, why:
                  f"{last['noise_ut']:.3f} µT, {100 * last['coverage']:.0f} % of directions in memory")
     if last.get("refused_model"):
         lines.append(f"            (the tracker ran {last['refused_model']}, which fit's gates refuse on these samples)")
+    lines.append("offset_ut   " + " ".join(f"{v:9.3f}" for v in last["offset_ut"]) + "  ± (1σ) "
+                 + " ".join(f"{v:.3f}" for v in last["offset_sigma_ut"]))
+    if last.get("field_sigma_ut") is not None:
+        lines.append(f"field_ut    {last['field_ut']:9.3f}  ± (1σ) {last['field_sigma_ut']:.3f}")
     for i, row in enumerate(last["soft_iron"]):
         lines.append(("soft_iron   " if i == 0 else "            ") + " ".join(f"{v:9.5f}" for v in row))
     return "\n".join(lines)
