@@ -90,7 +90,7 @@ def test_an_installed_wheel_configures_installs_builds_calibrates_shows_and_runs
     assert len(hexes) == 1 and str(hexes[0]) in fw.stdout
 
     cal = run("calibrate", "--port", "emu://?seed=3", "--json")
-    assert cal.returncode == 0 and json.loads(cal.stdout)["verified"], cal.stderr[-2000:]
+    assert cal.returncode == 0 and json.loads(cal.stdout)["verified"], (cal.stderr[-2000:], cal.stdout[-3000:])
     stored = run("show", "--port", "emu://?seed=3", "--json")
     assert stored.returncode == 0 and json.loads(stored.stdout)["calibration"]["offset_ut"] == pytest.approx(
         json.loads(cal.stdout)["calibration"]["offset_ut"], abs=0.01)
