@@ -21,9 +21,12 @@ TRAIN_READS = 4  # the shortest period sought, in read intervals
 def _departure_score(g: np.ndarray) -> np.ndarray:
     """Per row of ``g`` (each sample's departure from its neighbours' mean, one column per
     component), the largest over the columns of the departure in units of the local noise (a
-    running median over ±LOCAL samples, so fast motion raises the bar)."""
+    running median over ±LOCAL samples, so fast motion raises the bar; taken column by column,
+    where scipy's one-dimensional median filter is ~10x faster than a (2·LOCAL+1, 1) window on
+    the whole array and gives the same values)."""
     a = np.abs(g - np.median(g, axis=0))
-    local = ndimage.median_filter(a, size=(2 * ts.LOCAL + 1, 1), mode="nearest") / 0.6745
+    local = np.column_stack([ndimage.median_filter(a[:, k], size=2 * ts.LOCAL + 1, mode="nearest")
+                             for k in range(a.shape[1])]) / 0.6745
     floor = np.maximum(np.median(a, axis=0) / 0.6745, 1e-9)
     return np.max(a / np.maximum(local, 0.25 * floor), axis=1)
 
