@@ -49,6 +49,7 @@ from numpy.polynomial import legendre
 from .. import channels as catalogue
 from .. import hygiene
 from . import channel_scores as cs
+from . import channel_whiten as cw
 from .channel_report import describe
 from .channel_terms import ANGLE_UNITS, N_LAGS, Form, angle_scale, delayed, lag_grid, low_passed, term_ut
 from ...fit import FitFailure, fit_calibration
@@ -201,21 +202,25 @@ def material(fr: cs.Frame, pick: cs.Pick) -> bool:
 
 
 def refined(fr: cs.Frame, pick: cs.Pick, c: np.ndarray, t_s: np.ndarray) -> cs.Pick:
-    """A lag pick on a fine grid about its coarse lag (± two coarse steps), unless it is at an
-    edge of the coarse grid (no lag, or beyond the longest tried)."""
+    """A lag pick's lag and ESS from the prewhitened fit (``channel_whiten``): the best lag of
+    the coarse grid, then a continuous search between its neighbours, and a fine family about it
+    (± two coarse steps, the optimum in it, no lag first) — unless the pick is at an edge of the
+    coarse grid (no lag, or beyond the longest tried)."""
     v, j = pick.fam.values, pick.j
     if pick.fam.form not in (Form.OFFSET_DELAY, Form.OFFSET_FIRST_ORDER) or v[j] <= 0 or j == len(v) - 1:
         return pick
-    lo, hi = v[max(j - 2, 0)], v[min(j + 2, len(v) - 1)]
-    lo = lo if lo > 0 else v[j] / 4
-    lags = np.concatenate([[0.0], np.geomspace(lo, hi, N_FINE)])  # 0: the no-lag fit it must beat
+    wf = cw.whiten(fr, fr.r - cs.term(fr, pick.fam, j))
     x = c - c.mean()
     make = delayed if pick.fam.form is Form.OFFSET_DELAY else low_passed
+    inner = np.flatnonzero(v > 0)[:-1]  # the coarse grid without its edges
+    lag = cw.best_lag(wf, v[inner], pick.fam.series[:, inner, 0], lambda lag: make(x, t_s, lag)[fr.rows])
+    step = float(v[-1] / v[-2]) ** 2
+    lags = np.concatenate([[0.0], np.unique(np.append(np.geomspace(lag / step, lag * step, N_FINE), lag))])
     series = np.column_stack([x] + [make(x, t_s, lag) for lag in lags[1:]])[fr.rows]
-    fam = cs.Family(pick.fam.form, pick.fam.channel, "offset", series[:, :, None], lags)
-    ess, _ = cs.scores(fr, fam)
+    ess = np.array([wf.ess(series[:, k]) for k in range(len(lags))])
     k = int(np.argmax(ess))
-    return cs.Pick(fam, k, float(cs.log10_p(fr.f_ratio(ess[k], 3), 3)), ess)
+    fam = cs.Family(pick.fam.form, pick.fam.channel, "offset", series[:, :, None], lags)
+    return cs.Pick(fam, k, float(cs.log10_p(ess[k] / max(wf.s2_after(ess[k]), 1e-300), 3)), ess, wf)
 
 
 def slow_share(g: np.ndarray) -> float:
@@ -365,7 +370,7 @@ def relinearized(res: Residual, fr: cs.Frame, pick: cs.Pick, fams: list[cs.Famil
     same = [f for f in fams if f.channel == pick.fam.channel]
     again = best(fr2, same)
     again = refined(fr2, simpler(fr2, again, same), c, np.asarray(res.t_s, np.float64))
-    found = describe(res2, fr2, cs.Pick(again.fam, again.j, pick.score, again.ess), c, evidence)
+    found = describe(res2, fr2, replace(again, score=pick.score), c, evidence)
     return found, fr2.with_r(fr2.r - cs.term(fr2, again.fam, again.j))
 
 

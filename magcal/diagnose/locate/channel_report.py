@@ -27,16 +27,17 @@ def intervals(fr: cs.Frame, pick: cs.Pick) -> dict:
     """Coefficients at the best candidate and their 95 % intervals, per component and for the
     magnitude of each 3-vector block, widened over the candidates in the 95 % profile (for a lag
     family: the lag's own uncertainty)."""
-    beta, cov, infl = cs.hac_cov(fr, pick.fam, pick.j)
+    beta, cov, infl = _fit_at(fr, pick, pick.j)
     lagged = pick.fam.form in (Form.OFFSET_DELAY, Form.OFFSET_FIRST_ORDER)
-    near = cs.profile(fr, pick.fam, pick.ess, pick.j, infl) if lagged else np.array([pick.j])
+    s2 = _s2_after(fr, pick)
+    near = cs.profile(pick.ess, pick.j, s2, infl) if lagged else np.array([pick.j])
     # a lag is stated only when no lag fits clearly worse (χ²₁ at 0.1 %, with the inflation)
-    lag_zero_fits = bool(lagged and pick.ess[0] >= pick.ess[pick.j] - cs.CHI2_1_999 * fr.s2_after(pick.ess[pick.j], 3) * infl)
+    lag_zero_fits = bool(lagged and pick.ess[0] >= pick.ess[pick.j] - cs.CHI2_1_999 * s2 * infl)
     near = near[np.argsort(-pick.ess[near])][:MAX_PROFILE]
     lo, hi = beta.copy(), beta.copy()
     mag_lo, mag_hi = _mags(beta), _mags(beta)
     for jj in near:
-        b, v, _ = cs.hac_cov(fr, pick.fam, int(jj))
+        b, v, _ = _fit_at(fr, pick, int(jj))
         se = np.sqrt(np.maximum(np.diag(v), 0.0))
         lo, hi = np.minimum(lo, b - cs.T_975_19 * se), np.maximum(hi, b + cs.T_975_19 * se)
         m, sm = _mags(b), _mag_se(b, v)
@@ -44,6 +45,21 @@ def intervals(fr: cs.Frame, pick: cs.Pick) -> dict:
     values = pick.fam.values[near]
     return {"beta": beta, "lo": lo, "hi": hi, "mag_lo": np.maximum(mag_lo, 0.0), "mag_hi": mag_hi,
             "inflation": infl, "values": values, "lag_zero_fits": lag_zero_fits}
+
+
+def _fit_at(fr: cs.Frame, pick: cs.Pick, j: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """(coefficients, covariance, inflation) of candidate j: from the whitened fit where the
+    pick has one (a lag, ``channel_whiten``), else from the frame's own."""
+    if pick.white is not None:
+        return pick.white.hac_cov(pick.fam.series[:, j, 0])
+    return cs.hac_cov(fr, pick.fam, j)
+
+
+def _s2_after(fr: cs.Frame, pick: cs.Pick) -> float:
+    """The residual variance left after the pick's fit, on the scale its ESS were taken."""
+    if pick.white is not None:
+        return pick.white.s2_after(float(pick.ess[pick.j]))
+    return fr.s2_after(pick.ess[pick.j], cs.n_columns(pick.fam))
 
 
 def _mags(b: np.ndarray) -> np.ndarray:

@@ -50,12 +50,14 @@ def n_columns(fam: Family) -> int:
 @dataclass(frozen=True)
 class Pick:
     """The best candidate of a search: its family, index, normal score, and the explained sums
-    of squares of every candidate of that family."""
+    of squares of every candidate of that family (whitened ones where ``white`` is set:
+    ``channel_whiten``)."""
 
     fam: Family
     j: int
     score: float
     ess: np.ndarray
+    white: object = None  # for a lag: the whitened frame its lag, ESS and coefficient come from
 
 
 @dataclass(frozen=True)
@@ -153,21 +155,27 @@ def hac_cov(fr: Frame, fam: Family, j: int) -> tuple[np.ndarray, np.ndarray, flo
     blocks (the residual's own autocorrelation), never below the white-noise covariance;
     inflation = how much larger than white its trace is."""
     _, beta, xt, a = _fit(columns(fr.bases[fam.basis], fam.series[:, j, :]), fr.r, fr.q)
-    e = fr.r - xt @ beta
+    return (beta, *sandwich(xt, fr.r - xt @ beta, a, fr.q.shape[1]))
+
+
+def sandwich(xt: np.ndarray, e: np.ndarray, a: np.ndarray, n_nuisance: int) -> tuple[np.ndarray, float]:
+    """(covariance, inflation) of a fit with projected columns ``xt``, residual ``e`` and normal
+    matrix ``a``: the block sandwich, never below the white-noise covariance."""
     ainv = np.linalg.inv(a)
     edges = np.linspace(0, len(e), N_BLOCKS + 1).astype(int)
     s = np.array([xt[i:k].T @ e[i:k] for i, k in zip(edges[:-1], edges[1:])])
     meat = s.T @ s * N_BLOCKS / (N_BLOCKS - 1)
-    white = ainv * float(e @ e) / max(len(e) - a.shape[0] - fr.q.shape[1], 1)
+    white = ainv * float(e @ e) / max(len(e) - a.shape[0] - n_nuisance, 1)
     hac = ainv @ meat @ ainv
     infl = max(float(np.trace(hac) / max(np.trace(white), 1e-300)), 1.0)
-    return beta, (hac if infl > 1.0 else white), infl
+    return (hac if infl > 1.0 else white), infl
 
 
-def profile(fr: Frame, fam: Family, ess: np.ndarray, j: int, infl: float) -> np.ndarray:
+def profile(ess: np.ndarray, j: int, s2: float, infl: float) -> np.ndarray:
     """The candidates whose fit is within the 95 % profile of the best (j): ESS within
-    χ²₁(95 %) × σ² × inflation of its ESS — the lag's own uncertainty — and j's neighbours."""
-    near = ess >= ess[j] - CHI2_1_95 * fr.s2_after(ess[j], n_columns(fam)) * infl
+    χ²₁(95 %) × σ² (the variance left after j's fit) × inflation of its ESS — the lag's own
+    uncertainty — and j's neighbours."""
+    near = ess >= ess[j] - CHI2_1_95 * s2 * infl
     near[max(j - 1, 0):j + 2] = True  # the grid's own step is part of the lag's uncertainty
     return np.flatnonzero(near)
 

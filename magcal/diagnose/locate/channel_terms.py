@@ -59,11 +59,29 @@ def low_passed(c: np.ndarray, t_s: np.ndarray, tau_s: float) -> np.ndarray:
         a = 1.0 - np.exp(-med / tau_s)
         y, _ = lfilter([a], [1.0, a - 1.0], c, zi=[(1.0 - a) * c[0]])
         return y
-    keep = np.exp(-np.maximum(dt, 0.0) / tau_s)
+    return _varying_lag(c, np.minimum(np.maximum(dt, 0.0) / tau_s, STEP_DECAY))
+
+
+MAX_DECAY = 600.0  # a stretch of the uneven-clock filter spans at most this many time constants (e^600 is finite)
+STEP_DECAY = 37.0  # … and one step at most this many: e^(−37) is below float64's resolution of 1
+
+
+def _varying_lag(c: np.ndarray, decay: np.ndarray) -> np.ndarray:
+    """y_0 = c_0, y_i = a_i·y_(i−1) + (1 − a_i)·c_i with a_i = exp(−decay_(i−1)), in closed form
+    per stretch: y_i = e^(−D_i)·(y_start + Σ_k (1 − a_k)·c_k·e^(D_k)), D the decay summed from
+    the stretch's start (at most MAX_DECAY, so e^(D) stays finite) — vectorised, where a loop
+    over the samples cost 3–4 ms per lag on an 8000-sample log."""
     y = np.empty_like(c)
     y[0] = c[0]
-    for i in range(1, len(c)):
-        y[i] = keep[i - 1] * y[i - 1] + (1.0 - keep[i - 1]) * c[i]
+    total = np.concatenate([[0.0], np.cumsum(decay)])
+    start = 1
+    while start < len(c):
+        stop = max(int(np.searchsorted(total, total[start - 1] + MAX_DECAY, side="right")), start + 1)
+        stop = min(stop, len(c))
+        d = total[start:stop] - total[start - 1]
+        w = -np.expm1(-decay[start - 1 : stop - 1]) * c[start:stop] * np.exp(d)
+        y[start:stop] = np.exp(-d) * (y[start - 1] + np.cumsum(w))
+        start = stop
     return y
 
 
