@@ -56,13 +56,16 @@ def write_text(path, text: str, mode: int = 0o644) -> Path:
     return write_atomic(path, text.encode("utf-8"), mode)
 
 
-def save_figure(fig, path, **savefig_options) -> Path:
+def save_figure(fig, path, check=None, **savefig_options) -> Path:
     """A matplotlib figure as a PNG at ``path``, through ``write_atomic`` (``savefig`` itself
-    would open ``path`` and follow a link planted there)."""
+    would open ``path`` and follow a link planted there). ``check``: called with the figure once
+    it is rendered (its layout the one saved); what it raises leaves ``path`` untouched."""
     import io
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", **savefig_options)
+    if check is not None:
+        check(fig)
     return write_atomic(path, buf.getvalue())
 
 

@@ -54,16 +54,19 @@ def wrap(text: str, width: int) -> str:
 
 def save(fig, directory, name: str, plt) -> str:
     """Write ``fig`` as ``directory/name.png`` and close it; the file name. Every text on the
-    figure must lie inside it (a clipped title is refused here, not found by a reader). The
-    check lays the figure out without rendering it: savefig renders it once."""
-    fig.draw_without_rendering()
-    problems = clipped_texts(fig)
-    if problems:
-        plt.close(fig)
-        raise ValueError(f"{name}: text outside the figure: {problems}")
+    figure must lie inside it (a clipped title is refused here, not found by a reader): the
+    check reads the layout savefig made for the file, before the file is written."""
+
+    def inside(figure) -> None:
+        problems = clipped_texts(figure)
+        if problems:
+            raise ValueError(f"{name}: text outside the figure: {problems}")
+
     path = Path(directory) / f"{name}.png"
-    save_figure(fig, path, dpi=100)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, check=inside, dpi=100)
+    finally:
+        plt.close(fig)
     return os.path.basename(path)
 
 
