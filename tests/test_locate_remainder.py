@@ -1,14 +1,18 @@
 """The honest remainder (``unexplained_structure``) is sized against the recording's own noise
 and slow wander: structure no larger than what the recording keeps without it is its noise and
 the ``offset_wander`` limit's to state, not a second, vaguer statement of the same thing — and
-both are measured with the structure taken out, so an effect never hides behind itself."""
+both are measured with the structure taken out, so an effect never hides behind itself. A
+shape that seems to change only along directions one side's coverage leaves free is no evidence
+of structure at all."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from magcal.diagnose.locate import Kind, Located, as_limits, judge, steps
+from magcal.diagnose.locate.base import Residual
 from magcal.diagnose.locate.judge import Verdict
+from magcal.fit import fit_calibration
 from magcal.sim.physics import Motion, Physics, Scenario
 
 STEP = Located("hard_iron_step", Kind.PHYSICS, "a hard-iron step of (1, 0, 0) µT at 3.0 s", {"time_s": [3.0]})
@@ -24,13 +28,38 @@ def test_a_located_effect_whose_heldout_gain_is_within_the_noise_and_wander_left
     assert large.evidence()["wander_without_ut"] == 0.15
 
 
-def test_an_undetermined_shape_change_stays_the_remainder_with_its_size_against_noise_and_wander():
-    """Its wander still holds part of the change, so it is not sized away; the figures are said."""
-    change = steps.ShapeChange(20.0, (19.0, 21.0), np.full(6, 0.5), np.ones(6), 27.0, 25.7, (False, True),
-                               explained_ut=0.04, allowed_ut=0.05)
+def _tilt_then_sphere(seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A level board tilted within ±8° for 30 s, then turned through every direction for 30 s:
+    before the turn the coverage pins the horizontal gains only."""
+    physics = Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3)
+    a = Scenario(physics=physics, motion=Motion("tilt", max_tilt_deg=8.0), seed=seed).simulate(n, 50.0).series
+    b = Scenario(physics=physics, motion=Motion("sphere", period_s=20.0), seed=seed + 100).simulate(n, 50.0).series
+    return np.concatenate([a.t_s, b.t_s + a.t_s[-1] + 0.02]), np.concatenate([a.field_ut, b.field_ut])
+
+
+def test_a_shape_change_only_one_side_can_see_is_neither_claimed_nor_the_remainder():
+    """The vertical gain grows 10 % when the board starts turning; the level stretch before
+    cannot pin the vertical gain, so the change cannot be told from that side's own misfit: no
+    soft-iron change is claimed and no unexplained structure is left (it was the remainder,
+    "the coverage before it cannot determine the gains", when every shape term was tested)."""
+    t, m = _tilt_then_sphere(3, 1500)
+    centre = fit_calibration(m, model="sphere").calibration.offset_ut
+    after = t >= t[len(t) // 2]
+    m[after, 2] = centre[2] + 1.10 * (m[after, 2] - centre[2])
+    fit = fit_calibration(m, model="ellipsoid")
+    found = steps.search(Residual(t, m, fit.calibration, 0.3, float(fit.rms_ut)))
+    assert [f.effect for f in found if f.effect in (steps.SOFT, steps.REST)] == [], [f.summary for f in found]
+    assert as_limits(found) == ()
+
+
+def test_a_shape_change_tested_in_fewer_than_six_directions_is_named_and_says_so():
+    """A change found along the shape directions both sides determine is the named effect, whose
+    summary says how many of the six were tested."""
+    d = np.eye(6)[:, :4]
+    change = steps.ShapeChange(20.0, (19.0, 21.0), np.array([0.03, 0, 0, 0, 0, 0.0]), np.full(6, 0.002), 40.0, 20.0, d)
     found = steps._soft_located(change, 0.2, 50.0)
-    assert found.effect == "unexplained_structure" and found.kind is Kind.REMAINDER
-    assert found.evidence["explained_ut"] == 0.04 and found.evidence["noise_and_wander_without_ut"] == 0.05
+    assert found.effect == steps.SOFT and found.kind is Kind.PHYSICS and found.where["axis"] == "x"
+    assert "tested in the 4 of 6 shape directions" in found.summary and found.evidence["shape_directions_tested"] == 4
 
 
 def test_the_wander_that_sizes_a_remainder_is_measured_with_the_effect_taken_out():

@@ -12,9 +12,15 @@
   τ with the interval of times whose fit is within χ²₁(95 %) of the best.
 - ``soft_iron_change``: the shape (gains, soft iron) changes at τ. With the offset free to
   wander (piecewise linear in time) and to step at τ, the 6 shape terms after τ (r moves by
-  F·uᵀEu under h → (I + E)h) are tested on a grid of τ (χ²₆, Bonferroni over the grid, the
-  same inflation on shape-weighted sums). Stated as a change only where each side's own
-  coverage determines the shape to ``SHAPE_SIGMA_MAX``; otherwise said to be undeterminable.
+  F·uᵀEu under h → (I + E)h) are tested on a grid of τ (Bonferroni over the grid, the
+  same inflation on shape-weighted sums) — tested only along the shape directions both sides'
+  coverage determines (each side's information on the shape terms, its own offset linear in
+  time fitted, along the directions it pins as ``softiron.determined_directions`` judges them —
+  to ``SHAPE_SIGMA_MAX`` and not trading with the offset; the two sides' parallel sum pins a
+  direction's change to √2 × ``SHAPE_SIGMA_MAX``): at
+  the τ the six-direction scan places, the statistic is χ²_k over those k directions.
+  A shape that seems to change only along directions one side leaves free is that side's own
+  misfit, not evidence of a change, and nothing is said of it.
 - ``unexplained_structure``: a stretch whose residual RMS (after the wander and any found step)
   is ``STRUCTURE_OVER_TYPICAL`` times the recording's typical window and above its floor,
   explained by no step — returned as the honest remainder, with its size over the floor.
@@ -40,6 +46,7 @@ import numpy as np
 from ...fit import fit_calibration
 from ...fit.tails import chi2_isf
 from . import steps_scan as scan
+from ..softiron import MAX_GAIN_SIGMA, MIN_UNIQUE
 from .base import Effect, Kind, Located, Residual, noise_and_wander_ut, runs
 
 STEP = "hard_iron_step"
@@ -59,7 +66,7 @@ SOFT_GRID = 40  # soft-iron candidate times over the middle of the span
 SOFT_EDGE = 0.1  # … leaving this share of the span at each end
 SOFT_KNOT_SHARE = 0.25  # the offset may wander piecewise-linearly with knots this share of the span apart
 SOFT_MAX_N = 3000  # samples the soft-iron scan uses (evenly thinned)
-SHAPE_SIGMA_MAX = 0.01  # 1σ of a shape term (relative gain) a side's coverage must reach
+SHAPE_SIGMA_MAX = MAX_GAIN_SIGMA  # 1σ of a shape direction (relative gain) a side's coverage must reach
 BURST_NET = 0.5
 STRUCTURE_OVER_TYPICAL = 3.0
 STRUCTURE_OVER_FLOOR = 2.0
@@ -207,7 +214,8 @@ def remove_step(m_ut, t_s, channels, located: Located) -> np.ndarray:
 @dataclass(frozen=True)
 class ShapeChange:
     """The best soft-iron change time, its interval over the grid, the change E of the shape
-    terms (xx, yy, zz, xy, xz, yz) with 1σ, the statistic, and whether each side determines it."""
+    terms (xx, yy, zz, xy, xz, yz) with 1σ — tested, and nonzero, only along ``directions``
+    (6, k): the shape directions both sides' coverage determines — and the statistic (χ²_k)."""
 
     tau_s: float
     interval_s: tuple[float, float]
@@ -215,119 +223,147 @@ class ShapeChange:
     sigma: np.ndarray
     stat: float
     threshold: float
-    determined: tuple[bool, bool]
+    directions: np.ndarray
     typical: float = 0.0  # the median statistic over the grid
     explained_ut: float = float("inf")  # RMS per sample after τ of what the change adds to the step-only fit
     allowed_ut: float = 0.0  # the noise and slow offset wander of the residual with that taken out, together
+
+    @property
+    def tested(self) -> int:
+        """How many of the 6 shape directions the change was tested in."""
+        return int(self.directions.shape[1])
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """Per candidate τ: the RSS with an offset step at τ (``rss0``) and with the shape changing
+    too in all 6 directions (``rss_full``, its coefficients), and the latter's normal equations."""
+
+    taus: np.ndarray
+    rss0: np.ndarray
+    rss_full: np.ndarray
+    coef_full: list
+    normal: list
+    rtr: float
 
 
 def _thin(n: int) -> np.ndarray:
     return np.arange(0, n, max(1, int(np.ceil(n / SOFT_MAX_N))))
 
 
-def _shape_scan(base, u, q, t, r, taus) -> tuple[np.ndarray, np.ndarray, list]:
-    """Per τ: RSS with an offset step at τ, RSS with the shape changing too, and the latter's
-    (coefficients, (XᵀX)⁻¹) — from tail Gram matrices, one pass over the samples."""
+def _shape_scan(base, u, q, t, r, taus) -> _Grid:
+    """The grid's fits from tail Gram matrices, one pass over the samples (``_Grid``)."""
     z = np.hstack([base, u, q])
     nb = base.shape[1]
     full, fcross = z.T @ z, z.T @ r
     rtr = float(r @ r)
     grams, cross = scan.tail_grams(z, r, np.searchsorted(t, taus, "left"))
-    rss0, rss1, fits = [], [], []
+    rss0, rss1, coefs, normal = [], [], [], []
     for g, c in zip(grams, cross):
         xtx = np.block([[full[:nb, :nb], g[:nb, nb:]], [g[nb:, :nb], g[nb:, nb:]]])
         xtr = np.concatenate([fcross[:nb], c[nb:]])
         rss0.append(scan.solve_rss(xtx[: nb + 3, : nb + 3], xtr[: nb + 3], rtr)[0])
-        rss, coef, inv = scan.solve_rss(xtx, xtr, rtr)
+        rss, coef, _ = scan.solve_rss(xtx, xtr, rtr)
         rss1.append(rss)
-        fits.append((coef, inv))
-    return np.array(rss0), np.array(rss1), fits
+        coefs.append(coef)
+        normal.append((xtx, xtr))
+    return _Grid(np.asarray(taus, float), np.array(rss0), np.array(rss1), coefs, normal, rtr)
+
+
+def _tested_at(grid: _Grid, j: int, u, q, t, nb: int, f2: float) -> tuple:
+    """The change at the grid's τ number ``j`` fitted only along the shape directions both
+    sides determine (each side's information on the shape terms, with its own offset linear in
+    time fitted): (RSS, variance, base and offset-step coefficients, E, E's covariance, the
+    directions (6, k)). A change along a direction one side leaves free is no evidence."""
+    after = t >= grid.taus[j]
+    s = ((t - t[0]) / max(float(np.ptp(t)), 1e-9))[:, None]
+    w = np.hstack([u, u * s, q])
+    n, m = len(t), nb + 3
+    var = grid.rss_full[j] / max(n - m - 6, 1) * f2
+    info = [scan.shape_information(w[side].T @ w[side], 6, var, SHAPE_SIGMA_MAX, MIN_UNIQUE) for side in (~after, after)]
+    d = scan.shared_directions(*info, SHAPE_SIGMA_MAX)
+    tm = np.zeros((m + 6, m + d.shape[1]))
+    tm[:m, :m] = np.eye(m)
+    tm[m:, m:] = d
+    xtx, xtr = grid.normal[j]
+    rss, coef, inv = scan.solve_rss(tm.T @ xtx @ tm, tm.T @ xtr, grid.rtr)
+    var = rss / max(n - m - d.shape[1], 1) * f2
+    return rss, var, coef[:m], d @ coef[m:], var * d @ inv[m:, m:] @ d.T, d
 
 
 def shape_change(u, t, r, field_ut: float, half: float, step_times=()) -> ShapeChange | None:
     """The soft-iron change scan (module docstring), with the offset stepping at ``step_times``
-    too; None when the span is too short to scan."""
+    too: τ placed by the change in all six shape directions, the change then tested only along
+    those both sides determine. None when the span is too short to scan or no shape direction
+    is determined on both sides of τ."""
     k = _thin(len(t))
     u, t, r = u[k], t[k], r[k]
     q = scan.quad(u, field_ut)
     span = float(t[-1] - t[0])
     steps = [u * (t >= x)[:, None] for x in step_times]
     base = np.hstack([scan.wander_columns(u, t, span * SOFT_KNOT_SHARE), q] + steps)
+    nb = base.shape[1]
     taus = t[0] + span * np.linspace(SOFT_EDGE, 1 - SOFT_EDGE, SOFT_GRID)
     taus = taus[[min(np.sum(t < x), np.sum(t >= x)) >= 6 * MIN_SIDE for x in taus]]
     if len(taus) < 3:
         return None
-    rss0, rss1, fits = _shape_scan(base, u, q, t, r, taus)
-    null = float(np.min(rss0))  # the null: the best single offset step on the grid, wherever it is
-    i = int(np.argmax(null - rss1))
+    grid = _shape_scan(base, u, q, t, r, taus)
+    null = float(np.min(grid.rss0))  # the null: the best single offset step on the grid, wherever it is
+    i = int(np.argmax(null - grid.rss_full))
     after = (t >= taus[i])[:, None]
-    e1 = r - np.hstack([base, u * after, q * after]) @ fits[i][0]
+    e1 = r - np.hstack([base, u * after, q * after]) @ grid.coef_full[i]
     f2 = scan.inflation(e1, q / field_ut, max(1, int(np.sum(t - t[0] < half))))
-    var = rss1 / max(len(t) - base.shape[1] - 9, 1) * f2
-    typical = float(np.median((rss0 - rss1) / var))  # the grid's own typical value of the χ²₆ statistic
-    inside = taus[rss1 <= rss1[i] + INTERVAL_CHI2 * var[i]]
-    threshold = float(chi2_isf(ALPHA / len(taus), 6))
+    var = grid.rss_full / max(len(t) - nb - 9, 1) * f2
+    typical = float(np.median((grid.rss0 - grid.rss_full) / var))  # the grid's own typical value of the χ²₆ statistic
+    inside = taus[grid.rss_full <= grid.rss_full[i] + INTERVAL_CHI2 * var[i]]
     width = taus[1] - taus[0]
-    taus = np.linspace(taus[i] - width, taus[i] + width, 21)
-    rss0, rss1, fits = _shape_scan(base, u, q, t, r, taus)
-    var = rss1 / max(len(t) - base.shape[1] - 9, 1) * f2
-    stats = (min(null, float(np.min(rss0))) - rss1) / var
-    i = int(np.argmax(stats))
-    coef, inv = fits[i]
-    inside = np.concatenate([inside, [taus[i]]])
-    sigma = np.sqrt(np.clip(np.diag(var[i] * inv)[-6:], 0.0, None))
-    det = (_determined(u, q, t, r, t < taus[i], f2), _determined(u, q, t, r, t >= taus[i], f2))
-    explained, allowed = _net(base, u, q, t, r, float(taus[i]), coef)
-    return ShapeChange(float(taus[i]), (float(inside.min()), float(inside.max())), coef[-6:], sigma,
-                       float(stats[i]), threshold, det, typical, explained, allowed)
+    fine = _shape_scan(base, u, q, t, r, np.linspace(taus[i] - width, taus[i] + width, 21))
+    null = min(null, float(np.min(fine.rss0)))
+    j = int(np.argmax(null - fine.rss_full))
+    rss, var_j, coef, e, cov, d = _tested_at(fine, j, u, q, t, nb, f2)
+    if d.shape[1] == 0:
+        return None
+    tau = float(fine.taus[j])
+    threshold = float(chi2_isf(ALPHA / len(taus), d.shape[1]))
+    inside = np.concatenate([inside, [tau]])
+    explained, allowed = _net(base, u, q, t, r, tau, coef, e)
+    return ShapeChange(tau, (float(inside.min()), float(inside.max())), e, np.sqrt(np.clip(np.diag(cov), 0.0, None)),
+                       float((null - rss) / var_j), threshold, d, typical, explained, allowed)
 
 
-def _net(base, u, q, t, r, tau: float, coef: np.ndarray) -> tuple[float, float]:
-    """(what a shape change at τ adds to the fit with an offset step at τ alone, as an RMS per
-    sample after τ; the noise and slow offset wander of ``r`` with that part taken out, together,
-    ``base.noise_and_wander_ut``) — the change sized against the recording measured without it."""
+def _net(base, u, q, t, r, tau: float, coef: np.ndarray, e: np.ndarray) -> tuple[float, float]:
+    """(what a shape change ``e`` at τ adds to the fit with an offset step at τ alone, as an RMS
+    per sample after τ; the noise and slow offset wander of ``r`` with that part taken out,
+    together, ``base.noise_and_wander_ut``) — the change sized against the recording measured
+    without it. ``coef``: the base and offset-step coefficients fitted with the change."""
     after = (t >= tau)[:, None]
     x0 = np.hstack([base, u * after])
-    net = np.hstack([x0, q * after]) @ coef - x0 @ scan.lsq(x0, r).coef
+    net = x0 @ coef + (q * after) @ e - x0 @ scan.lsq(x0, r).coef
     explained = float(np.sqrt(np.sum(net**2) / max(int(after.sum()), 1)))
     return explained, float(np.hypot(*noise_and_wander_ut(r - net, u)))
 
 
-def _determined(u, q, t, r, side: np.ndarray, f2: float) -> bool:
-    """Whether this side's own coverage fixes every shape term to SHAPE_SIGMA_MAX (1σ)."""
-    if side.sum() < 6 * MIN_SIDE:
-        return False
-    x = np.hstack([scan.wander_columns(u[side], t[side], float(np.ptp(t[side])) + 1.0), q[side] / np.max(np.abs(q))])
-    f = scan.lsq(x, r[side])
-    var = f.rss / max(f.n - f.p, 1) * f2
-    scale = np.max(np.abs(q))
-    sig = np.sqrt(np.clip(np.diag(f.xtx_inv)[-6:] * var, 0.0, None)) / scale
-    return bool(np.all(sig <= SHAPE_SIGMA_MAX))
-
-
 def _soft_located(c: ShapeChange, floor_ut: float, field_ut: float) -> Located:
-    """The change as a named effect where both sides determine it; where one side does not,
-    the honest remainder, with what it adds against the noise and slow wander the recording
-    shows without it in its evidence. It is not sized away by them: the wander beside an
-    undetermined change still holds part of the change (on locate_eval seed 4040 at 4× the floor,
-    dropping those within it took the located soft-iron changes from 10 to 6 of 16)."""
+    """The change as a named effect, tested only along the shape directions both sides' coverage
+    determines (``ShapeChange.directions``): a change along a direction one side leaves free
+    cannot be told from that side's own misfit, so it is neither claimed nor left as the
+    remainder; the summary says how many of the six directions were tested."""
     gains = c.e[:3]
     size_ut = float(np.max(np.abs(c.e)) * field_ut)
     half = max(c.tau_s - c.interval_s[0], c.interval_s[1] - c.tau_s)
     where = {"time_s": [c.tau_s], "axis": ["x", "y", "z"][int(np.argmax(np.abs(gains)))]}
     evidence = {"size_ut": size_ut, "size_over_floor": size_ut / floor_ut if floor_ut > 0 else float("inf"),
                 "statistic": c.stat, "threshold": c.threshold, "alpha": ALPHA, "explained_ut": c.explained_ut,
-                "noise_and_wander_without_ut": c.allowed_ut}
+                "noise_and_wander_without_ut": c.allowed_ut, "shape_directions_tested": c.tested}
     params = {"time_s": c.tau_s, "time_interval_s": list(c.interval_s), "gain_change": gains,
-              "gain_change_sigma": c.sigma[:3], "shape_change": c.e, "shape_change_sigma": c.sigma}
+              "gain_change_sigma": c.sigma[:3], "shape_change": c.e, "shape_change_sigma": c.sigma,
+              "tested_directions": c.directions.T}
     g = ", ".join(f"{100 * x:+.1f} %" for x in gains)
-    if all(c.determined):
-        summary = f"the soft iron changed at {c.tau_s:.1f} s (±{half:.1f} s): gains x, y, z by {g}"
-        return Located(SOFT, Kind.PHYSICS, summary, where, params, evidence)
-    side = "before" if not c.determined[0] else "after"
-    summary = (f"the calibration's shape seems to change at {c.tau_s:.1f} s (±{half:.1f} s), but the coverage "
-               f"{side} it cannot determine the gains, so the change cannot be told")
-    return Located(REST, Kind.REMAINDER, summary, where, params, evidence)
+    summary = f"the soft iron changed at {c.tau_s:.1f} s (±{half:.1f} s): gains x, y, z by {g}"
+    if c.tested < 6:
+        summary += (f" (tested in the {c.tested} of 6 shape directions the coverage on both sides determines; "
+                    "a change in the others cannot be told)")
+    return Located(SOFT, Kind.PHYSICS, summary, where, params, evidence)
 
 
 def remove_soft(m_ut, t_s, channels, located: Located) -> np.ndarray:

@@ -194,3 +194,35 @@ def _explained(g: np.ndarray, b: np.ndarray) -> np.ndarray:
     the window cannot determine explains nothing)."""
     coef = np.einsum("mij,mj->mi", np.linalg.pinv(g, hermitian=True), b)
     return np.einsum("mi,mi->m", coef, b)
+
+
+def shape_information(gram: np.ndarray, nuisance: int, var: float, sigma_max: float, min_unique: float) -> np.ndarray:
+    """The information (per unit variance ``var``) a side's Gram matrix holds on its last
+    columns (the shape terms) once its first ``nuisance`` (its offset) are fitted — the Schur
+    complement — kept only along the directions that side determines, as
+    ``magcal.diagnose.softiron.determined_directions`` judges them: pinned to ``sigma_max``
+    (1σ) and keeping ``min_unique`` of their column's length once the offset is fitted (below
+    that the shape trades with the offset along a flat valley, and a wandering offset would be
+    read as a change of shape)."""
+    a, b, c = gram[:nuisance, :nuisance], gram[:nuisance, nuisance:], gram[nuisance:, nuisance:]
+    s = c - b.T @ np.linalg.pinv(a, hermitian=True) @ b
+    lam, vec = np.linalg.eigh(0.5 * (s + s.T))
+    share = lam / np.maximum(vec.T**2 @ np.diag(c), 1e-300)
+    ok = (share >= min_unique**2) & (lam * sigma_max**2 >= max(var, 1e-300))
+    return (vec[:, ok] * (lam[ok] / max(var, 1e-300))) @ vec[:, ok].T
+
+
+def parallel_sum(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A(A + B)⁺B: the information on the difference of a quantity two independent sets of
+    samples each measure (A, B their information) — nothing along a direction either set
+    leaves free, and (A⁻¹ + B⁻¹)⁻¹ where both pin it."""
+    p = a @ np.linalg.pinv(a + b, hermitian=True) @ b
+    return 0.5 * (p + p.T)
+
+
+def shared_directions(before: np.ndarray, after: np.ndarray, sigma_max: float) -> np.ndarray:
+    """(6, k) orthonormal shape directions in which a change from ``before`` to ``after`` (the
+    two sides' information on the shape terms along what each determines, ``shape_information``)
+    is determined to √2 × ``sigma_max`` (1σ; each side pinning it to ``sigma_max``)."""
+    lam, vec = np.linalg.eigh(parallel_sum(before, after))
+    return vec[:, lam * 2.0 * sigma_max**2 >= 1.0 - 1e-9]
