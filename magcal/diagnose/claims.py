@@ -25,6 +25,7 @@ import numpy as np
 from ..fit.tails import chi2_sf
 
 from . import channels, softiron
+from .limits import Limit
 from .locate.steps_scan import inflation
 from .model import FitFailure, ModelFit, fit_model
 
@@ -47,10 +48,10 @@ class Refused:
     group: str
     reason: str
 
-    def limit(self) -> dict:
-        return {"effect": self.group, "suspected": True, "check": "claims",
-                "summary": f"A {self.group.replace('_', ' ')} term passed the tests but is not reported as a finding: "
-                           f"{self.reason}. The calibration is returned without it."}
+    def limit(self) -> Limit:
+        return Limit(self.group, True, f"A {self.group.replace('_', ' ')} term passed the tests but is not reported as "
+                                       f"a finding: {self.reason}. The calibration is returned without it.",
+                     details={"check": "claims"})
 
 
 def term_index(spec, group: str, channel: str | None) -> np.ndarray:

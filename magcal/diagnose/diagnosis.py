@@ -9,6 +9,7 @@ import numpy as np
 from ..core.series import Series
 from . import channels
 from .finding import Finding
+from .limits import Limit
 from .model import ModelFit
 
 
@@ -61,7 +62,7 @@ class Diagnosis:
     tests: dict = field(default_factory=dict, repr=False)
     folds: tuple = field(default=(), repr=False)
     fold_rms: tuple = field(default=(), repr=False)  # ((baseline, final) per fold)
-    limits: tuple = ()  # what this recording could not test, and whether it is suspected (dicts)
+    limits: tuple[Limit, ...] = ()  # what this recording could not test, and whether it is suspected
     floors: dict = field(default_factory=dict)  # channel → the size a term of it must reach to be reported
     fit_heldout_rms_ut: float = float("nan")  # magcal fit --model auto's model on the same held-out blocks
     diagnosis_model: ModelFit | None = field(default=None, repr=False)  # diagnosis's own least-squares model
@@ -114,7 +115,7 @@ class Diagnosis:
                 "fit_heldout_rms_ut": _num(self.fit_heldout_rms_ut),
             },
             "noise_ut": float(self.noise_ut),
-            "limits": [dict(x) for x in self.limits],
+            "limits": [x.to_dict() for x in self.limits],
             "located": self._located_dict(),
             "floors": {c: dict(f) for c, f in self.floors.items()},
             "calibration": calibration_dict(self.final),

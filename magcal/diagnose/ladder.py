@@ -42,6 +42,7 @@ from .diagnosis import Diagnosis
 from .inference import contiguous_blocks, n_test_blocks
 from ..fit import fit_calibration, fit_models
 from .diagnosis import model_name
+from .limits import Limit
 from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms, from_calibration
 
 ALPHA = 0.01
@@ -168,9 +169,9 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         calibration_from=chosen.source if found.model is None else chosen.source + "+located",
         located=found,
         limits=statements.left_out(left_out) + tuple(r.limit() for r in refused)
-        + locate.as_limits(found.found, found.verdicts)
-        + statements.limits(analysed, selected, final, simulated, wander, floors, alpha, noise_ut,
-                           tuple(x.effect for x in found.found))
+        + tuple(Limit.from_dict(x) for x in locate.as_limits(found.found, found.verdicts))
+        + statements.limits(analysed, selected, final, simulated, wander, alpha=alpha,
+                            located=tuple(x.effect for x in found.found))
         + chosen.limits,
         floors={c: f.to_dict() for c, f in floors.items()},
     )
@@ -500,7 +501,7 @@ class Chosen:
     source: str  # "fit" (magcal fit --model auto's), "fit+channels" (its shape and estimator with
     #              diagnosis's channel terms) or "diagnose" (fit found no model)
     heldout: HeldOut  # baseline, the calibration returned, fit's plain model when it was compared
-    limits: tuple
+    limits: tuple[Limit, ...]  # why magcal fit's calibration was returned instead of diagnosis's (never_worse), if it was
     fit_model: str = "auto"  # the shape magcal fit chose ("sphere", "ellipsoid", …; "auto" when it found none)
     known: tuple = ()  # fit's runs on the way: (model, samples, result), for the locate step (locate.judge.fitted)
 
@@ -563,22 +564,21 @@ def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dic
         (model, samples, result)
 
 
-def never_worse(own: ModelFit, fit_auto: ModelFit, heldout: HeldOut) -> dict | None:
+def never_worse(own: ModelFit, fit_auto: ModelFit, heldout: HeldOut) -> Limit | None:
     """When the fit's plain model does better on the held-out blocks than diagnosis's, a limit
     saying so (the fit's calibration is then the one returned); None otherwise."""
     mine, theirs = heldout.rms_ut[1], heldout.rms_ut[2]
     if not (np.isfinite(mine) and np.isfinite(theirs)) or mine <= theirs * (1 + 1e-9):
         return None
-    return {
-        "effect": "calibration",
-        "suspected": False,
-        "heldout_rms_ut_diagnosis": mine,
-        "heldout_rms_ut_fit": theirs,
-        "summary": f"On held-out stretches of the recording the calibration of magcal fit --model auto "
+    return Limit(
+        "calibration",
+        False,
+        f"On held-out stretches of the recording the calibration of magcal fit --model auto "
         f"({model_name(fit_auto)}) leaves {theirs:.3f} µT against {mine:.3f} µT with diagnosis's channel terms "
         f"added ({model_name(own)}), so the fit's calibration is the one returned; the findings stand as "
         "evidence, but what they add did not improve unseen data here.",
-    }
+        details={"heldout_rms_ut_diagnosis": mine, "heldout_rms_ut_fit": theirs},
+    )
 
 
 def compare_with_simulation(fit: ModelFit, m: np.ndarray, chans: dict, noise_ut: float, seed: int = 0) -> float:

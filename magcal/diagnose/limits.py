@@ -1,17 +1,67 @@
 """What a recording could not test, and whether it is suspected: the ``limits`` of a diagnosis.
 
-Silence about a term must not read as "it is not there". Each function returns a tuple of
-dicts (the JSON shape of one limit: ``effect``, ``suspected``, ``summary`` and figures).
+Silence about a term must not read as "it is not there". ``Limit`` is one such statement, as a
+value; each function below returns a tuple of them.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
 
 import numpy as np
 
 from . import channels, softiron
 
 
-def untested_channels(tests: dict, by_effect: dict) -> tuple:
+@dataclass(frozen=True)
+class Limit:
+    """What a recording could not test or pin down, and whether it is suspected there.
+
+    ``to_dict`` is its JSON shape (``magcal.diagnose/1``): ``effect``, ``suspected``, then the
+    ``channel`` it concerns, why the screen left that channel out (magcal.diagnose.hygiene), its
+    own ``details`` (figures, in the order given) and its ``summary``; a limit located in the
+    recording (``where``: magcal.diagnose.locate's remainder) states its summary and where first."""
+
+    effect: str
+    suspected: bool
+    summary: str
+    channel: str | None = None  # the logged channel (or time) it concerns
+    left_out_because: str | None = None  # the screen left ``channel`` out of the candidates, for this reason
+    details: Mapping[str, Any] = field(default_factory=dict)
+    where: Mapping[str, Any] | None = None  # where in the recording it was located
+
+    @property
+    def left_out(self) -> bool:
+        return self.left_out_because is not None
+
+    def to_dict(self) -> dict:
+        head = {"effect": self.effect, "suspected": self.suspected}
+        if self.where is not None:
+            return {**head, "summary": self.summary, "where": dict(self.where), **self.details}
+        if self.channel is not None:
+            head["channel"] = self.channel
+        if self.left_out:
+            head.update(left_out=True, reason=self.left_out_because)
+        return {**head, **self.details, "summary": self.summary}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Limit:
+        """The limit whose ``to_dict`` is ``d`` (key order included); ValueError naming what
+        is missing or out of place otherwise."""
+        missing = [k for k in ("effect", "suspected", "summary") if k not in d]
+        if missing:
+            raise ValueError(f"a limit needs {', '.join(missing)}; got the keys {', '.join(d) or 'none'}")
+        rest = {k: v for k, v in d.items() if k not in ("effect", "suspected", "summary", "where", "channel",
+                                                         "left_out", "reason")}
+        because = d.get("reason") if d.get("left_out") else None
+        limit = cls(d["effect"], bool(d["suspected"]), d["summary"], d.get("channel"), because, rest, d.get("where"))
+        if list(limit.to_dict()) != list(d):
+            raise ValueError(f"a limit's keys are out of their order or unknown: {', '.join(d)}")
+        return limit
+
+
+def untested_channels(tests: dict, by_effect: dict) -> tuple[Limit, ...]:
     """A channel term the recording could not test at all is named, with why: silence about a
     column the user logged must not read as "it has no effect"."""
     out = []
@@ -31,7 +81,7 @@ def untested_channels(tests: dict, by_effect: dict) -> tuple:
             )
         else:
             why = "it varies in too few independent stretches of the recording to be tested against the slow wander"
-        out.append({"effect": g, "suspected": False, "channel": c.channel, "summary": f"An offset following {what} could not be tested: {why}."})
+        out.append(Limit(g, False, f"An offset following {what} could not be tested: {why}.", c.channel))
     return tuple(out)
 
 
@@ -58,7 +108,7 @@ def _searched(chans: dict, located: tuple = ()) -> str:
 
 
 def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: list, clock: bool = True,
-                 located: tuple = ()) -> tuple:
+                 located: tuple = ()) -> tuple[Limit, ...]:
     """Real recordings wander: the offset moves slowly in a way no logged channel explains.
     That is not a calibration term (it cannot be predicted for the next session), but it bounds
     what the calibration is good for and what slow effects this recording can identify, so it
@@ -88,22 +138,19 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
             for c, v in floors.items()
         ) + ")"
     p_text = "p < 1e-12" if p < 1e-12 else f"p = {p:.1g}"
-    return (
-        {
-            "effect": "offset_wander",
-            "suspected": True,
-            "rms_ut": rms,
-            "p_value": p,
-            "blocks": WANDER_BLOCKS,
-            "slow_term_floor_ut_per_unit": floors,
-            "slow_term_floor_range_ut_per_unit": {c: list(r) for c, r in ranges.items() if r},
-            "summary": (
-                f"The offset wanders slowly by about {rms:.2f} µT RMS between {WANDER_BLOCKS} stretches of the recording, "
-                f"more than the noise allows ({p_text}); {_searched(chans, located)}: a calibration from this recording is good "
-                f"to about that much{tail}."
-            ),
-        },
+    summary = (
+        f"The offset wanders slowly by about {rms:.2f} µT RMS between {WANDER_BLOCKS} stretches of the recording, "
+        f"more than the noise allows ({p_text}); {_searched(chans, located)}: a calibration from this recording is good "
+        f"to about that much{tail}."
     )
+    details = {
+        "rms_ut": rms,
+        "p_value": p,
+        "blocks": WANDER_BLOCKS,
+        "slow_term_floor_ut_per_unit": floors,
+        "slow_term_floor_range_ut_per_unit": {c: list(r) for c, r in ranges.items() if r},
+    }
+    return (Limit("offset_wander", True, summary, details=details),)
 
 
 # the final model's residual this much above what it predicts for the measured noise is
@@ -130,7 +177,8 @@ def _soft_iron_reasons(k: int, determined: int, accepted: bool, untested: bool, 
     return reasons
 
 
-def soft_iron_limits(test, accepted: bool, determined: int, rms_ut: float, simulated_rms_ut: float, duration_s: float) -> tuple:
+def soft_iron_limits(test, accepted: bool, determined: int, rms_ut: float, simulated_rms_ut: float,
+                     duration_s: float) -> tuple[Limit, ...]:
     """Say so when the recording could not test soft iron fully — too few directions covered,
     or too few independent stretches of motion — and whether the residual suggests it is
     there: silence must not read as "no soft iron". ``determined``: how many of the five
@@ -149,14 +197,10 @@ def soft_iron_limits(test, accepted: bool, determined: int, rms_ut: float, simul
         if suspected
         else "Soft iron could not be fully tested: "
     )
-    return (
-        {
-            "effect": softiron.EFFECT,
-            "suspected": suspected,
-            "identifiable_directions": k,
-            "determined_directions": int(determined),
-            "of_directions": 5,
-            "residual_over_predicted": float(excess),
-            "summary": lead + "; ".join(reasons) + ".",
-        },
-    )
+    details = {
+        "identifiable_directions": k,
+        "determined_directions": int(determined),
+        "of_directions": 5,
+        "residual_over_predicted": float(excess),
+    }
+    return (Limit(softiron.EFFECT, suspected, lead + "; ".join(reasons) + ".", details=details),)

@@ -13,6 +13,7 @@ import numpy as np
 from . import channels, design, floors, glitches, limits as limits_, longrun, selection, softiron
 from ..fit.tails import f_isf, t_isf
 from .finding import Finding
+from .limits import Limit
 from .model import ModelFit
 
 WANDER_BLOCKS = limits_.WANDER_BLOCKS
@@ -197,35 +198,37 @@ def channel_floors(selected, wander: Wander, chans: dict, alpha: float, noise_ut
     return out
 
 
-def limits(a, selected, final: ModelFit, simulated: float, wander: Wander, floor_of: dict, alpha: float, noise_ut: float,
-           located: tuple = ()) -> tuple:
-    """What the recording could not test: soft iron, untestable channels, the offset wander
-    (``located``: the names of what the locate step found, which the wander's statement cites)."""
+def limits(a, selected, final: ModelFit, simulated_rms_ut: float, wander: Wander, *, alpha: float,
+           located: tuple = ()) -> tuple[Limit, ...]:
+    """What the recording ``a`` could not test: soft iron (``final``'s residual against the
+    ``simulated_rms_ut`` it predicts for the noise says whether it is suspected), channels no
+    test could reach, and the offset ``wander`` when it exceeds the noise at ``alpha`` (``located``:
+    the names of what the locate step found, which the wander's statement cites)."""
     duration_s = float(a.t[-1] - a.t[0])
     found_soft = softiron.EFFECT in selected.accepted
     determined = selected.design.reference.spec.n_soft
-    out = limits_.soft_iron_limits(selected.tests[softiron.EFFECT], found_soft, determined, final.rms_ut, simulated, duration_s)
+    out = limits_.soft_iron_limits(selected.tests[softiron.EFFECT], found_soft, determined, final.rms_ut,
+                                   simulated_rms_ut, duration_s)
     out += limits_.untested_channels(selected.tests, selected.candidates)
-    left_out = [selected.candidates[g].channel for g in selected.candidates if g not in selected.accepted]
-    floor_ut = selection.practical_floor_ut(noise_ut)
+    left = [selected.candidates[g].channel for g in selected.candidates if g not in selected.accepted]
+    floor_ut = selection.practical_floor_ut(a.glitches.noise_ut)
     _, _, chans_kept = a.kept
-    return out + limits_.wander_limit(wander, chans_kept, alpha, floor_ut, left_out, a.series.clock, located)
+    return out + limits_.wander_limit(wander, chans_kept, alpha, floor_ut, left, a.series.clock, located)
 
 
-def left_out(channels_left_out: tuple) -> tuple:
+def left_out(channels_left_out: tuple) -> tuple[Limit, ...]:
     """One limit per channel the screen left out (magcal.diagnose.hygiene), saying why."""
     return tuple(
-        {
-            "effect": channels.effect_name(c.channel),
-            "suspected": False,
-            "channel": c.channel,
-            "left_out": True,
-            "reason": c.kind or "it follows the board's orientation",
-            "orientation_share": float(c.orientation_share),
-            "summary": f"An offset following {c.channel} could not be tested: {c.why}, so an offset that "
+        Limit(
+            channels.effect_name(c.channel),
+            False,
+            f"An offset following {c.channel} could not be tested: {c.why}, so an offset that "
             "followed it would be a direction-dependent error, which hard and soft iron already model; "
             "left out of the candidates (name the channels with --channels to test it anyway).",
-        }
+            c.channel,
+            c.kind or "it follows the board's orientation",
+            {"orientation_share": float(c.orientation_share)},
+        )
         for c in channels_left_out
     )
 

@@ -205,7 +205,7 @@ def _seen_most(v) -> np.ndarray:
 
 def channels(diagnosis, v, plt, out) -> Figure:
     """The offset left in the residual against each channel (and time), in a grid."""
-    left = {x["channel"]: x["reason"] for x in diagnosis.limits if x.get("left_out")}
+    left = {x.channel: x.left_out_because for x in diagnosis.limits if x.left_out}
     names = [c for c in diagnosis.series.channels
              if c not in left and np.all(np.isfinite(diagnosis.series.channels[c]))] + [ch.TIME]
     cols = min(3, len(names))
