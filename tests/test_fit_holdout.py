@@ -59,7 +59,7 @@ def test_auto_reports_the_held_out_spread_it_chose_by():
 def test_the_direction_balance_is_judged_on_the_blocks_both_refits_reach():
     # a plain refit that does not converge on one block is no verdict for the balance: on the
     # other four the plain fit predicts a third better and the balance is dropped; within the
-    # margin it is kept
+    # margin, and better on some blocks and worse on others, it is kept
     from magcal.fit.holdout import _balance_kept
 
     def blocks(*spreads):
@@ -67,4 +67,20 @@ def test_the_direction_balance_is_judged_on_the_blocks_both_refits_reach():
 
     weighted = blocks(0.0012, 0.0012, 0.0012, 0.0012, 0.0012)
     assert not _balance_kept(blocks(0.0009, 0.0009, 0.0009, None, 0.0009), weighted)
-    assert _balance_kept(blocks(0.00118, 0.00118, 0.00118, None, 0.00118), weighted)
+    assert _balance_kept(blocks(0.00114, 0.00124, 0.00116, None, 0.00125), weighted)
+
+
+def test_the_balance_is_dropped_where_the_plain_fit_wins_every_block():
+    # a flight log's level stretches: the unweighted fit predicts each held-out block 1-3 %
+    # better, far inside the 25 % margin but beyond the blocks' own scatter (the ArduPilot and
+    # umich RM3100 logs, where the balance lost 3-15 % forward); the same mean gain that
+    # changes sign from block to block keeps the balance
+    from magcal.fit.holdout import _balance_kept
+
+    def blocks(*spreads):
+        return [None if s is None else {"all": (100, s), "seen": (100, s)} for s in spreads]
+
+    plain = blocks(0.0100, 0.0100, 0.0100, 0.0100, 0.0100)
+    assert not _balance_kept(plain, blocks(0.0102, 0.0101, 0.0103, 0.0102, 0.0101))
+    assert not _balance_kept(blocks(0.0100, 0.0100, None, 0.0100, 0.0100), blocks(0.0102, 0.0101, 0.02, 0.0103, 0.0102))
+    assert _balance_kept(plain, blocks(0.0106, 0.0097, 0.0104, 0.0098, 0.0103))

@@ -49,7 +49,8 @@
    much worse than the sphere on them; by BIC alone where the recording is too short for
    blocks. The same blocks, judged on all their samples, keep the direction balance of step 7
    for an ellipsoid unless the unweighted fit predicts them ``holdout.BALANCE_MARGIN`` times
-   better (judged on the blocks both refits reach). "ellipsoid" takes the fullest determinable
+   better, or better block by block beyond the blocks' scatter (judged on the blocks both
+   refits reach). "ellipsoid" takes the fullest determinable
    ellipsoid and falls back (full → diagonal → sphere).
 """
 
