@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from magcal.core.calibration import Calibration
-from magcal.fit.coverage import SampleSet, cell_index, coverage
+from magcal.fit.cell_buffer import CellBuffer, WhenFull
+from magcal.fit.coverage import cell_index, coverage
 from magcal.sim.physics import Current, Physics, Scenario, Temperature, demo_scenario
 
 
@@ -61,14 +62,14 @@ def test_equal_area_cells_cover_uniform_directions_evenly():
     assert coverage(np.array([[0, 0, 1.0]])) == 1 / 128
 
 
-def test_sample_set_is_bounded_and_balanced():
-    s = SampleSet(per_cell=4)
-    for _ in range(100):
-        s.offer([50.0, 0.0, 0.0])
+def test_the_sessions_sample_buffer_is_bounded_and_balanced():
+    s = CellBuffer(per_cell=4, when_full=WhenFull.REFUSE, centre_ut=np.zeros(3))
+    for i in range(100):
+        s.add(50.0, 0.0, 0.0, 0.02 * i)
     assert len(s) == 4
     u = np.random.default_rng(2).normal(size=(20000, 3))
-    for m in 50 * u / np.linalg.norm(u, axis=1, keepdims=True):
-        s.offer(m)
+    for i, (x, y, z) in enumerate((50 * u / np.linalg.norm(u, axis=1, keepdims=True)).tolist()):
+        s.add(x, y, z, 2.0 + 0.02 * i)
     assert len(s) == s.capacity and s.coverage() == 1.0
-    back = SampleSet.from_state(s.to_state())
+    back = CellBuffer.from_state(s.to_state())
     assert np.array_equal(back.field_ut, s.field_ut)

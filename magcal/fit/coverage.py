@@ -4,9 +4,9 @@ The sphere is cut into ``bands`` zones of equal height in z (equal area, by Arch
 theorem) and each zone into ``sectors`` equal longitude sectors, so every cell has the same area
 4π/(bands·sectors). Coverage is the share of cells holding at least one sample direction.
 
-``SampleSet`` keeps a bounded, well-spread subset of the stream for the maximum-likelihood fit:
-a sample is accepted only while its cell holds fewer than ``per_cell`` samples, so hovering in
-one pose cannot crowd out the rest and memory stays bounded (bands·sectors·per_cell samples).
+The cells are also the bins of the one sample buffer, ``cell_buffer.CellBuffer``, which keeps
+a bounded, well-spread subset of the stream (at most ``per_cell`` samples a cell) for the
+session's final fit and for the tracker.
 """
 
 from __future__ import annotations
@@ -70,76 +70,3 @@ def side_name(direction) -> str:
     order = np.argsort(-np.abs(u))
     parts = [("+" if u[i] >= 0 else "−") + "XYZ"[i] for i in order if abs(u[i]) >= 0.38]
     return "/".join(parts[:2]) or "+X"
-
-
-class SampleSet:
-    """A bounded, direction-balanced set of samples (µT) for the final fit."""
-
-    def __init__(self, per_cell: int = 8, bands: int = DEFAULT_BANDS, sectors: int = DEFAULT_SECTORS):
-        self.per_cell = per_cell
-        self.bands = bands
-        self.sectors = sectors
-        self.capacity = per_cell * bands * sectors
-        self._m = np.empty((self.capacity, 3))
-        self._aux: list[dict] = []
-        self._n = 0
-        self._counts = np.zeros(bands * sectors, dtype=np.int64)
-        self.centre_ut = np.zeros(3)
-
-    def __len__(self) -> int:
-        return self._n
-
-    @property
-    def field_ut(self) -> np.ndarray:
-        return self._m[: self._n]
-
-    @property
-    def aux(self) -> list[dict]:
-        return self._aux
-
-    def recentre(self, centre_ut) -> None:
-        """Re-bin the kept samples around a new centre estimate."""
-        self.centre_ut = np.asarray(centre_ut, dtype=np.float64).copy()
-        cells = cell_index(self.field_ut - self.centre_ut, self.bands, self.sectors)
-        self._counts = np.bincount(cells, minlength=self.bands * self.sectors)
-
-    def cell_counts(self) -> np.ndarray:
-        """Samples kept in each equal-area cell (band-major: ``band * sectors + sector``)."""
-        return self._counts.copy()
-
-    def offer(self, m_ut, aux: dict | None = None) -> bool:
-        """Keep the sample if its cell is not yet full; True when kept."""
-        m = np.asarray(m_ut, dtype=np.float64)
-        c = int(cell_index(m - self.centre_ut, self.bands, self.sectors)[0])
-        if self._counts[c] >= self.per_cell or self._n >= self.capacity:
-            return False
-        self._m[self._n] = m
-        self._aux.append(aux or {})
-        self._n += 1
-        self._counts[c] += 1
-        return True
-
-    def coverage(self) -> float:
-        return float(np.count_nonzero(self._counts)) / len(self._counts)
-
-    def to_state(self) -> dict:
-        return {
-            "per_cell": self.per_cell,
-            "bands": self.bands,
-            "sectors": self.sectors,
-            "centre_ut": [float(v) for v in self.centre_ut],
-            "field_ut": self.field_ut.tolist(),
-            "aux": self._aux,
-        }
-
-    @classmethod
-    def from_state(cls, d: dict) -> "SampleSet":
-        s = cls(int(d["per_cell"]), int(d["bands"]), int(d["sectors"]))
-        m = np.asarray(d["field_ut"], dtype=np.float64).reshape(-1, 3)
-        if len(m) > s.capacity:
-            raise ValueError("sample set state holds more samples than its capacity")
-        s._m[: len(m)] = m
-        s._n = len(m)
-        s._aux = list(d.get("aux", [{}] * len(m)))
-        s.recentre(d["centre_ut"])
-        return s

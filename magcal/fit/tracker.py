@@ -4,11 +4,11 @@ A sensor's calibration wanders (the offset follows temperature, current and agei
 soft iron can change), so a calibration fitted once goes stale. ``Tracker`` keeps a full
 ellipsoid up to date as samples arrive, with bounded memory and bounded time per sample:
 
-* **Memory: a coverage-balanced buffer.** The sphere of directions is cut into equal-area cells
-  (``coverage.cell_index``); each cell keeps its ``per_cell`` newest samples with their times.
-  A direction visited again replaces its own oldest samples; a direction not visited for a
-  long time keeps its last ones, so the shape stays pinned in directions the recent motion does
-  not reach. Memory is ``cells × per_cell`` samples, whatever the length of the stream.
+* **Memory: the coverage-balanced buffer** (``cell_buffer.CellBuffer``, ``WhenFull.THIN``): each
+  equal-area direction cell keeps ``per_cell`` samples with their times, spread over the time
+  it was visited. A direction visited again thins its own samples; a direction not visited for
+  a long time keeps its last ones, so the shape stays pinned in directions the recent motion
+  does not reach. Memory is ``cells × per_cell`` samples, whatever the length of the stream.
 * **Weights: each cell counts the same** (a share floor, as ``select.direction_weights``), so
   lingering in a few poses cannot bend the ellipsoid; and **older samples count less** at a
   rate estimated from the data: the radial residual of a sample of age a is modelled as
@@ -55,7 +55,8 @@ from .failure import FitFailure
 from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
 from .result import MODEL_NAMES
 from .sphere import sphere_start
-from .tracker_memory import CellBuffer, Wander, robust_scale, sample_weights
+from .cell_buffer import CellBuffer, WhenFull
+from .tracker_memory import Wander, robust_scale, sample_weights
 from .uncertainty import direction_jackknife_variance, gain_widening, shape_sigma
 
 LADDER = ("sphere", "diagonal", "full")
@@ -281,7 +282,7 @@ class Tracker:
 
     def __init__(self, config: TrackerConfig | None = None):
         self.config = c = config or TrackerConfig()
-        self.memory = CellBuffer(c.bands, c.sectors, c.per_cell, c.min_share)
+        self.memory = CellBuffer(c.bands, c.sectors, c.per_cell, when_full=WhenFull.THIN, min_share=c.min_share)
         self.wander = Wander()
         self.n = 0  # samples offered (the index of the next one)
         self.skipped = 0  # non-finite samples refused
@@ -304,7 +305,7 @@ class Tracker:
         self.solved = None  # (model, θ, JᵀWJ, s²) of the last estimate published (``tracker_check``)
 
     def coverage(self) -> float:
-        return self.memory.occupied() / len(self.memory.count)
+        return self.memory.coverage()
 
     # -- the stream ----------------------------------------------------------------------
     def add(self, m_ut, t_s: float) -> Estimate | Withdrawal | None:
@@ -317,10 +318,7 @@ class Tracker:
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(t)):
             self.skipped += 1
             return None
-        mem = self.memory
-        if mem.centre is None:
-            mem.centre = (x, y, z + 1e-9)
-        mem.add(x, y, z, t)
+        self.memory.add(x, y, z, t)  # (the first sample is the centre of directions until a solution)
         self._t_last = t
         s = self._sum
         s[0] += x
@@ -470,7 +468,7 @@ class Tracker:
             return self._withdraw(f"the field the samples give, {theta[3]:.3g} µT, is below the Earth's "
                                   f"{self.config.min_field_ut:.3g} µT")
         self.theta = theta
-        if np.linalg.norm(theta[:3] - np.array(self.memory.centre)) > 0.1 * theta[3]:
+        if np.linalg.norm(theta[:3] - self.memory.centre_ut) > 0.1 * theta[3]:
             self.memory.rebin(theta[:3])
         widen = direction_widening(J, e, w, A, s2)
         return self._publish(A, s2, q, len(m), gain_widening(theta, m, A, s2, widen) if self.kind == "sphere" else widen)

@@ -12,7 +12,8 @@ a gate refused) and ``failure_message`` (a sentence).
 The session takes samples and link events and keeps three things: the tracker
 (``fit.tracker``: the calibration in force so far, the live estimate shown and judged while
 collecting), the streaming sphere accumulator (every valid sample, O(1): its normal-matrix
-condition is the coverage gate), and a bounded direction-balanced ``SampleSet`` for the final
+condition is the coverage gate), and the bounded direction-balanced sample buffer
+(``fit.cell_buffer``, first come first kept: ``WhenFull.REFUSE``) for the final
 maximum-likelihood fit. Gates are data (``GateResult``), evaluated on the live estimate while
 collecting and on the final fit before anything is written.
 """
@@ -28,7 +29,7 @@ from ..core.calibration import Calibration
 from ..core.events import Event
 from ..core.sample import Sample
 from ..fit import SphereAccumulator, fit_calibration
-from ..fit.coverage import SampleSet
+from ..fit.cell_buffer import CellBuffer, WhenFull
 from ..fit.tracker import Tracker
 from . import failures
 from .failures import Failure
@@ -67,7 +68,7 @@ class Session:
         self.counters: Counter = Counter()
         self.accumulator = SphereAccumulator()
         self.tracker = Tracker()  # the live estimate: the calibration in force so far
-        self.kept = SampleSet()
+        self.kept = CellBuffer(when_full=WhenFull.REFUSE, centre_ut=np.zeros(3))
         self.estimate = None  # the accumulator's SphereFit | FitFailure | None (the coverage test)
         self.result = None  # the final FitResult once solved
         self.final_gates: list[GateResult] = []  # the gates as judged on the final fit
@@ -129,10 +130,7 @@ class Session:
         self.last_field_ut = m
         self.last_sample = item
         self.tracker.add(m, item.t_s)
-        aux = {"t_s": item.t_s}
-        if item.temp_c is not None:
-            aux["temp_c"] = item.temp_c
-        self.kept.offer(m, aux)
+        self.kept.add(float(m[0]), float(m[1]), float(m[2]), float(item.t_s))
         self._since_estimate += 1
         if self._since_estimate >= ESTIMATE_EVERY:
             self.update_estimate()
@@ -150,7 +148,7 @@ class Session:
         est = self.accumulator.solve()
         self.estimate = est
         if est and np.linalg.norm(est.offset_ut - self.kept.centre_ut) > RECENTRE_UT:
-            self.kept.recentre(est.offset_ut)
+            self.kept.rebin(est.offset_ut, force=True)
         return est
 
     # -- gates -----------------------------------------------------------------------------------
@@ -256,7 +254,7 @@ class Session:
             s = cls(gates, d["model"])
             s.counters = Counter({str(k): int(v) for k, v in d["counters"].items()})
             s.accumulator = SphereAccumulator.from_state(d["accumulator"])
-            s.kept = SampleSet.from_state(d["kept"])
+            s.kept = CellBuffer.from_state(d["kept"])
             if "tracker" in d:  # (states written before the tracker start a fresh one)
                 s.tracker = Tracker.from_state(d["tracker"])
         except (KeyError, TypeError, AttributeError) as exc:
