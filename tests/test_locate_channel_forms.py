@@ -175,10 +175,10 @@ SPHERE = Path(__file__).parent / "data" / "hmc5883l_sunsided_full_sphere_every3r
 
 def test_a_lagged_current_on_a_real_recording_gets_its_coefficient_and_lag_despite_its_wandering_residual():
     # the real residual is strongly autocorrelated (its block inflation ~50): fitted as if white,
-    # this case's coefficient came out 32 % off and its lag 40 % off; the prewhitened fit gets both
-    a = np.loadtxt(SPHERE, delimiter=",", skiprows=1)
+    # this case's coefficient came out 23 % off (and 20–38 % on 7 of 10 such seeds); prewhitened, 7 %
+    a = np.loadtxt(SPHERE, delimiter=",", skiprows=1)[::2]  # every 6th sample of the take
     t, m = a[:, 0], a[:, 1:4] * 100.0
-    rng = np.random.default_rng(36)
+    rng = np.random.default_rng(37)
     c = 8.0 * (np.sin(2 * np.pi * t / 9.0 + rng.uniform(0, 6)) > 0.2) + 0.2 * rng.standard_normal(len(t))
     beta = rng.standard_normal(3)
     beta *= 4 * _residual(m, t, {}).floor_ut / (8.0 * np.linalg.norm(beta))  # 4× the recording's floor at 8 A
