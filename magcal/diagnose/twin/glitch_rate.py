@@ -73,16 +73,25 @@ def glitch_process(model: SensorModel, series: Series, hit: np.ndarray) -> tuple
     recording shows no more spikes than glitch-free twins make, within three Poisson σ. A pulse
     train cannot glitch more reads than it has pulses: when even a glitch at every pulse falls
     short, every pulse glitches (the nearest the train comes)."""
+    rate, missed, _ = _process(model, series, hit)
+    return rate, missed
+
+
+def _process(model: SensorModel, series: Series, hit: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """``glitch_process`` and the ``radial_fractions`` of the spikes of its twins at that rate
+    (``along_the_field`` needs them: from the same counter, not a second one drawn alike)."""
     observed = float(np.count_nonzero(hit))
     count = _spike_counter(model, series)
-    null = count(0.0)[0]
-    if observed <= null + 3.0 * np.sqrt(max(null, 1.0)):
-        return 0.0, 0.0
+    _, _, fractions = null = count(0.0)
+    if observed <= null[0] + 3.0 * np.sqrt(max(null[0], 1.0)):
+        return 0.0, 0.0, fractions
     full = None if model.glitch_period_s is None else min(1.0 / (model.rate_hz * model.glitch_period_s), 0.5)
     rate = _rate_for(count, observed, len(hit), top=full)
     if rate is None:
-        return model.glitch_rate, 0.0  # the detector cannot place them: keep the rate it saw
-    return float(min(rate, 0.5)), count(rate)[1]
+        # the detector cannot place them: keep the rate it saw
+        return model.glitch_rate, 0.0, count(model.glitch_rate)[2]
+    _, missed, fractions = count(rate)
+    return float(min(rate, 0.5)), missed, fractions
 
 
 def along_the_field(model: SensorModel, series: Series, hit: np.ndarray, h: np.ndarray, missed: float,
@@ -107,9 +116,8 @@ def along_the_field(model: SensorModel, series: Series, hit: np.ndarray, h: np.n
 
     def solved(share: float) -> tuple[SensorModel, float, np.ndarray]:
         m = replace(model, glitch_radial_share=share, glitch_ut=sizes(share))
-        rate, lost = glitch_process(m, series, hit)
-        m = replace(m, glitch_rate=rate)
-        return m, lost, _spike_counter(m, series)(rate)[2]
+        rate, lost, fractions = _process(m, series, hit)
+        return replace(m, glitch_rate=rate), lost, fractions
 
     top = 1.0 - model.glitch_axis_share
     full, lost, every = solved(top)
