@@ -30,7 +30,6 @@ from .spikes import find_glitches, glitch_train
 FOLDS = 5
 BLOCKS = 40
 CV_GAIN = 0.01  # a term must cut the held-out residual energy by at least 1 %
-LEFT_MIN = 0.5  # a combination of terms is fitted when the refit leaves at least half its RMS
 
 
 def _heldout_gain(e: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
@@ -49,31 +48,6 @@ def _heldout_gain(e: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
         sse1 += float(r @ r)
     coef = np.linalg.lstsq(x, e, rcond=None)[0]
     return coef, (sse0 - sse1) / max(sse0, 1e-300)
-
-
-def _confirmed(e: np.ndarray, x: np.ndarray, project) -> tuple[np.ndarray, np.ndarray]:
-    """(coefficients, e less the terms) for the deterministic terms ``x`` (columns), fitted as
-    the comparison's refit leaves them (``project``: ``refit_projector``), when held-out blocks
-    confirm them (``_heldout_gain`` above CV_GAIN); else (zeros, e). The residual ``e`` is read
-    around the calibration handed in (fit's, weighted by direction), which differs from the
-    refit's plain least squares by a degree ≤ 2 function of the direction. On a partial sphere
-    a degree-3/4 term fitted to ``e`` directly took up part of that difference, and the twins,
-    refitted, then carried more pattern than the recording's refit leaves (hmc5883l tilt
-    sphere: harmonic_share 0.214 against twins' 0.237–0.392). Only combinations of terms the
-    refit leaves at least LEFT_MIN of (RMS against their own) are fitted: one it nearly
-    absorbs would be read from the little it leaves and drawn many times larger than the
-    recording holds it. The whole terms are then taken out of ``e``, as the twin adds them."""
-    scale = np.sqrt(np.mean(x * x, axis=0))
-    scale = np.where(scale > 0, scale, 1.0)
-    left = np.column_stack([project(c) for c in x.T]) / scale
-    _, sv, vt = np.linalg.svd(left / np.sqrt(max(len(e), 1)), full_matrices=False)
-    kept = vt[sv >= LEFT_MIN]
-    if len(kept):
-        c, gain = _heldout_gain(project(e), left @ kept.T)
-        if gain > CV_GAIN:
-            coef = kept.T @ c / scale
-            return coef, e - x @ coef
-    return np.zeros(x.shape[1]), e
 
 
 def _axis_noise(m: np.ndarray, white_var: float, u: np.ndarray, q: tuple) -> tuple:
@@ -144,9 +118,11 @@ def _learn(series: Series, calibration: Calibration, source: Mapping | None, fre
     e = r - calibration.field_ut
     e = e - e.mean()
     e = e if takes is None else takes.demean(e, t[keep])  # each placement's level is its calibration's
-    project = refit_projector(u, used, takes, t[keep], free)
-    # direction terms only where the motion determines a calibration (free): project is then set
-    nonlin, e = _confirmed(e, directions.basis(u), project) if free else (np.zeros(len(directions.NAMES)), e)
+    nonlin = np.zeros(len(directions.NAMES))
+    coef, gain = _heldout_gain(e, directions.basis(u)) if free else (nonlin, 0.0)
+    if gain > CV_GAIN:
+        nonlin = coef
+        e = e - directions.basis(u) @ coef
     temp_gain, temp_ref = 0.0, 25.0
     if TEMP in chans:
         temp_ref = float(np.median(chans[TEMP]))
@@ -159,7 +135,7 @@ def _learn(series: Series, calibration: Calibration, source: Mapping | None, fre
     # the noise, the quantum and the offset wander enter the raw reading, which the residual
     # sees through the soft iron: |W(m − b)| moves by (Wᵀu)·δ for a departure δ of m
     seen = u @ np.asarray(calibration.soft_iron)
-    comps, white = wander_mod.fit(e, seen, t[keep], project)
+    comps, white = wander_mod.fit(e, seen, t[keep], refit_projector(u, used, takes, t[keep], free))
     model = SensorModel(
         calibration=replace_calibration(calibration, field_ut=calibration.field_ut + float(np.mean(r - calibration.field_ut))),
         noise_ut=_axis_noise(m[keep], white, seen, q), quantum_ut=q, wander=comps,
