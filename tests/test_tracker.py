@@ -8,7 +8,7 @@ import pytest
 
 from magcal.fit import fit_calibration
 from magcal.fit.tracker import Estimate, Tracker, TrackerConfig, Withdrawal
-from magcal.fit.tracker_memory import Wander
+from magcal.fit.tracker_memory import WanderRate
 from magcal.sim.physics import Motion, Physics, Scenario, demo_scenario
 
 DRIFT = np.array([0.01, -0.006, 0.004])  # µT/s
@@ -111,11 +111,11 @@ def test_wander_likelihood_finds_a_random_walk_and_not_a_per_visit_error():
     delta = rng.uniform(0, 0.1, n)
     other = rng.random(n) < 0.5
     s2 = 0.04
-    walk = Wander()
+    walk = WanderRate()
     walk.add(rng.normal(0, np.sqrt(s2 * 2 + 0.002 * dt)), delta, other, dt)
     _, q = walk.solve()
     assert 0.001 < q < 0.004
-    visits = Wander()  # an error shared within a visit, not growing with time
+    visits = WanderRate()  # an error shared within a visit, not growing with time
     visits.add(rng.normal(0, np.sqrt(s2 * (2 + 3 * other))), delta, other, dt)
     assert visits.solve()[1] == 0.0
 

@@ -112,7 +112,7 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
     """Real recordings wander: the offset moves slowly in a way no logged channel explains.
     That is not a calibration term (it cannot be predicted for the next session), but it bounds
     what the calibration is good for and what slow effects this recording can identify, so it
-    is stated when the full model's block offsets (``wander``, statements.Wander) scatter beyond
+    is stated when the full model's block offsets (``wander``, statements.BlockWander) scatter beyond
     the noise (χ², at ``alpha``) by more than the practical floor."""
     rms, p, u = wander.rms_ut, wander.p_value, wander.directions
     if not (p < alpha and rms >= floor_ut):

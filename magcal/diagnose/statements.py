@@ -20,7 +20,7 @@ WANDER_BLOCKS = limits_.WANDER_BLOCKS
 
 
 @dataclass(frozen=True)
-class Wander:
+class BlockWander:
     """The offset's slow wander in a model's residual (channels.offset_wander)."""
 
     rms_ut: float  # beyond the noise
@@ -28,14 +28,14 @@ class Wander:
     directions: np.ndarray  # (n, 3) calibrated unit field directions
 
 
-def measure_wander(model: ModelFit, m: np.ndarray, chans: dict) -> Wander:
+def measure_wander(model: ModelFit, m: np.ndarray, chans: dict) -> BlockWander:
     """Offsets fitted in WANDER_BLOCKS time blocks of ``model``'s residual, their scatter
     beyond the within-block noise."""
     used = {c: chans[c] for c in model.spec.channels}
     h = model.calibration().correct(m, used)
     u = h / np.linalg.norm(h, axis=1, keepdims=True)
     rms, p = channels.offset_wander(model.residual(m, used), u, WANDER_BLOCKS)
-    return Wander(rms, p, u)
+    return BlockWander(rms, p, u)
 
 
 def accepting_test(g: str, selected):
@@ -175,7 +175,7 @@ def slow_wander(a, selected) -> dict:
     return longrun.wander_covariances(dsg.x, dsg.residual_ut, t_kept, dsg.offset_directions, groups, model_cols)
 
 
-def channel_floors(selected, wander: Wander, chans: dict, alpha: float, noise_ut: float) -> dict:
+def channel_floors(selected, wander: BlockWander, chans: dict, alpha: float, noise_ut: float) -> dict:
     """Per candidate channel not in the model: the size a term of it must reach to be reported
     (magcal.diagnose.floors), with the full calibration model in place."""
     alpha_each = alpha / max(selected.n_tests, 1)
@@ -198,7 +198,7 @@ def channel_floors(selected, wander: Wander, chans: dict, alpha: float, noise_ut
     return out
 
 
-def limits(a, selected, final: ModelFit, simulated_rms_ut: float, wander: Wander, *, alpha: float,
+def limits(a, selected, final: ModelFit, simulated_rms_ut: float, wander: BlockWander, *, alpha: float,
            located: tuple = ()) -> tuple[Limit, ...]:
     """What the recording ``a`` could not test: soft iron (``final``'s residual against the
     ``simulated_rms_ut`` it predicts for the noise says whether it is suspected), channels no

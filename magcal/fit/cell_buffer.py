@@ -10,7 +10,7 @@ full cell gives up to a newcomer (``WhenFull``):
   fit (``logic.session``) takes the first well-spread samples of a calibration dance.
 * ``THIN`` — the older of its two samples closest in time, so each cell keeps samples spread
   over the time it has been visited — the history of every direction, thinned, not only its
-  last pass. When the calibration wanders (ρ = q/s² > 0, from ``tracker_memory.Wander``) the
+  last pass. When the calibration wanders (ρ = q/s² > 0, from ``tracker_memory.WanderRate``) the
   times are read on the information clock −log(1 + ρ·age), on which a sample's weight falls
   evenly, so the kept samples thin out with age as fast as their weight does; samples from
   before a sudden change (an *epoch* ago, ``tracker.Tracker``) go before any other. The
@@ -21,7 +21,7 @@ give one cell more than ``per_cell`` samples: under ``THIN`` the cell keeps its 
 ``REFUSE`` nothing kept is given up — the surplus goes to slots other cells leave free, and the
 cell takes no newcomer until it is below ``per_cell`` again (the buffer as a whole takes none
 once every slot is used). Every sample also records its order of arrival and which visit to its
-cell it came in (a visit ends when a sample goes to another cell), which ``Wander`` uses
+cell it came in (a visit ends when a sample goes to another cell), which ``WanderRate`` uses
 (``pairs``).
 
 The state (``to_state``) holds the geometry, the policy and the samples; ``from_state`` also

@@ -56,7 +56,7 @@ from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
 from .result import MODEL_NAMES
 from .sphere import sphere_start
 from .cell_buffer import CellBuffer, WhenFull
-from .tracker_memory import Wander, robust_scale, sample_weights
+from .tracker_memory import WanderRate, robust_scale, sample_weights
 from .uncertainty import direction_jackknife_variance, gain_widening, shape_sigma
 
 LADDER = ("sphere", "diagonal", "full")
@@ -283,7 +283,7 @@ class Tracker:
     def __init__(self, config: TrackerConfig | None = None):
         self.config = c = config or TrackerConfig()
         self.memory = CellBuffer(c.bands, c.sectors, c.per_cell, when_full=WhenFull.THIN, min_share=c.min_share)
-        self.wander = Wander()
+        self.wander = WanderRate()
         self.n = 0  # samples offered (the index of the next one)
         self.skipped = 0  # non-finite samples refused
         self.changes = 0  # sudden changes seen
@@ -371,7 +371,7 @@ class Tracker:
     def _weights(self, idx, t, wc, e) -> tuple[np.ndarray, float, float]:
         """Cell balance × age × Huber from the residuals e under the calibration in force;
         returns (w with mean 1, s², q). The wander q is learnt first from the new samples
-        (``Wander``), then ``tracker_memory.sample_weights``."""
+        (``WanderRate``), then ``tracker_memory.sample_weights``."""
         scale = robust_scale(e)
         d, delta, other, dt = self.memory.pairs(idx, e, self._seq_at_refit, self.theta[:3])
         self._seq_at_refit = self.memory.seq_count
@@ -444,7 +444,7 @@ class Tracker:
             if shape_sigma(cov) > c.max_shape_sigma:
                 return
             self.theta, self.kind = theta, kind
-            self.wander = Wander()
+            self.wander = WanderRate()
 
     def _refit(self) -> Estimate | Withdrawal | None:
         if self.memory.valid.sum() < max(self.config.min_samples, 5):
@@ -478,7 +478,7 @@ class Tracker:
         """The memory no longer pins the model in force (a first solution that looked pinned
         on few samples): back to no calibration, said once."""
         had = self.estimate is not None
-        self.theta, self.kind, self.estimate, self.wander = None, None, None, Wander()
+        self.theta, self.kind, self.estimate, self.wander = None, None, None, WanderRate()
         return Withdrawal(sample=self.n - 1, t_s=self._t_last, reason=reason) if had else None
 
     def _publish(self, A, s2, q, n_buf, widen=None) -> Estimate:
@@ -520,7 +520,7 @@ class Tracker:
         try:
             trk = cls(TrackerConfig(**d["config"]))
             trk.memory.load_state(d["memory"])
-            trk.wander = Wander.from_state(d["wander"])
+            trk.wander = WanderRate.from_state(d["wander"])
             trk.n, trk.skipped, trk.n_used = int(d["n"]), int(d["skipped"]), int(d["n_used"])
             trk.changes, trk._jumps = int(d["changes"]), {int(e): float(j) for e, j in d["jumps"]}
             trk._suspect = bool(d["suspect"])

@@ -4,7 +4,7 @@ The samples themselves are kept by the one sample buffer, ``cell_buffer.CellBuff
 tracker's with ``WhenFull.THIN``: time-spread thinning on the information clock this module's
 wander rate sets).
 
-``Wander``: how fast the calibration wanders, from the data (see its docstring), comparing each
+``WanderRate``: how fast the calibration wanders, from the data (see its docstring), comparing each
 new sample with the nearest older one the buffer keeps in its own cell (``CellBuffer.pairs``).
 ``sample_weights``: cell balance × age × Huber, the weights of the tracker's solve.
 """
@@ -41,7 +41,7 @@ def sample_weights(e, age_s, wc, q: float, steps_ut2, huber_k: float) -> tuple[n
     return w / w.mean(), s2
 
 
-class Wander:
+class WanderRate:
     """q (µT²/s), the rate at which the calibration wanders, by maximum likelihood.
 
     Each new sample is compared with the nearest older sample kept in its own direction cell,
@@ -104,7 +104,7 @@ class Wander:
         return {"n": self.n, "sum_q": self.sum_q.tolist(), "sum_log": self.sum_log.tolist()}
 
     @classmethod
-    def from_state(cls, d: dict) -> "Wander":
+    def from_state(cls, d: dict) -> "WanderRate":
         w = cls()
         w.n = int(d["n"])
         w.sum_q = np.asarray(d["sum_q"], dtype=np.float64).reshape(w.sum_q.shape)
