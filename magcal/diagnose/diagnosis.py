@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 
@@ -11,6 +12,15 @@ from . import channels
 from .finding import Finding
 from .limits import Limit
 from .model import ModelFit
+
+
+class CalibrationSource(str, Enum):
+    """Where the calibration a diagnosis returns came from (ladder.choose_calibration); its
+    value is the JSON's ``final.from`` (with ``+located`` where the locate step changed it)."""
+
+    FIT = "fit"  # magcal fit --model auto's own
+    FIT_CHANNELS = "fit+channels"  # fit's shape and estimator with diagnosis's channel terms
+    DIAGNOSE = "diagnose"  # diagnosis's own model (fit found none)
 
 
 def _num(v: float) -> float | None:
@@ -66,8 +76,8 @@ class Diagnosis:
     floors: dict = field(default_factory=dict)  # channel → the size a term of it must reach to be reported
     fit_heldout_rms_ut: float = float("nan")  # magcal fit --model auto's model on the same held-out blocks
     diagnosis_model: ModelFit | None = field(default=None, repr=False)  # diagnosis's own least-squares model
-    calibration_from: str = "diagnose"  # "fit", "fit+channels" or "diagnose" (see ladder.choose_calibration),
-    #                                     "+located" where effects the locate step modelled changed it
+    calibration_from: CalibrationSource = CalibrationSource.DIAGNOSE  # see ladder.choose_calibration
+    calibration_located: bool = False  # effects the locate step modelled changed it
     located: object = field(default=None, repr=False)  # the locate step (magcal.diagnose.locate.step.LocateStep)
 
     @property
@@ -111,7 +121,7 @@ class Diagnosis:
                 "rms_ut": float(self.final.rms_ut),
                 "heldout_rms_ut": float(self.final_heldout_rms_ut),
                 "simulated_rms_ut": float(self.simulated_rms_ut),
-                "from": self.calibration_from,
+                "from": self.calibration_from.value + ("+located" if self.calibration_located else ""),
                 "fit_heldout_rms_ut": _num(self.fit_heldout_rms_ut),
             },
             "noise_ut": float(self.noise_ut),

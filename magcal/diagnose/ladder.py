@@ -38,7 +38,7 @@ from ..core.series import Series
 from . import channels, claims, collinear, design, glitches, hygiene, locate, longrun, null, selection, softiron, statements
 from .locate import faults
 from .locate import step as locate_step
-from .diagnosis import Diagnosis
+from .diagnosis import CalibrationSource, Diagnosis
 from .inference import contiguous_blocks, n_test_blocks
 from ..fit import fit_calibration, fit_models
 from .diagnosis import model_name
@@ -166,7 +166,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         fold_rms=chosen.fold_rms,
         fit_heldout_rms_ut=chosen.fit_heldout_rms_ut,
         diagnosis_model=final,
-        calibration_from=chosen.source if found.model is None else chosen.source + "+located",
+        calibration_from=chosen.source, calibration_located=found.model is not None,
         located=found,
         limits=statements.left_out(left_out) + tuple(r.limit() for r in refused)
         + tuple(Limit.from_dict(x) for x in locate.as_limits(found.found, found.verdicts))
@@ -498,8 +498,7 @@ class Chosen:
     """The calibration diagnosis returns, and how it did on the held-out blocks."""
 
     model: ModelFit
-    source: str  # "fit" (magcal fit --model auto's), "fit+channels" (its shape and estimator with
-    #              diagnosis's channel terms) or "diagnose" (fit found no model)
+    source: CalibrationSource
     heldout: HeldOut  # baseline, the calibration returned, fit's plain model when it was compared
     limits: tuple[Limit, ...]  # why magcal fit's calibration was returned instead of diagnosis's (never_worse), if it was
     fit_model: str = "auto"  # the shape magcal fit chose ("sphere", "ellipsoid", …; "auto" when it found none)
@@ -507,7 +506,7 @@ class Chosen:
 
     @property
     def heldout_rms_ut(self) -> float:
-        return self.heldout.rms_ut[2] if self.source == "fit" and self.limits else self.heldout.rms_ut[1]
+        return self.heldout.rms_ut[2] if self.source is CalibrationSource.FIT and self.limits else self.heldout.rms_ut[1]
 
     @property
     def fit_heldout_rms_ut(self) -> float:
@@ -515,7 +514,7 @@ class Chosen:
 
     @property
     def fold_rms(self) -> tuple:
-        col = 2 if self.source == "fit" and self.limits else 1
+        col = 2 if self.source is CalibrationSource.FIT and self.limits else 1
         return tuple((b[0], b[col]) for b in self.heldout.per_block)
 
 
@@ -528,20 +527,20 @@ def choose_calibration(a: Analysed, baseline: ModelFit, final: ModelFit, fold_sl
     result = results["auto"]
     whole = tuple((k, a.m, r) for k, r in results.items())
     if not result:
-        return Chosen(final, "diagnose", compare_heldout(a, [baseline, final, None], fold_slices), (), known=whole)
+        return Chosen(final, CalibrationSource.DIAGNOSE, compare_heldout(a, [baseline, final, None], fold_slices), (), known=whole)
     also = tuple({locate_step.PLAIN.get(result.model)} - {None})  # the model the locate step's judge refits
     plain = from_calibration(result.calibration, result.model, result.n_used, result.rms_ut, result.uncertainty)
     if not final.spec.channels:
         heldout = compare_heldout(a, [baseline, plain, None], fold_slices, procedure=1, also=also)
-        return Chosen(plain, "fit", heldout, (), result.model, whole + heldout.fits)
+        return Chosen(plain, CalibrationSource.FIT, heldout, (), result.model, whole + heldout.fits)
     geometry, shifted = _fit_geometry_around_channels(a, final, channel_cov, result.model)
     with_channels = geometry or final
     heldout = compare_heldout(a, [baseline, with_channels, plain], fold_slices, procedure=2, also=also)
     limit = never_worse(with_channels, plain, heldout)
     known = whole + (shifted,) + heldout.fits
     if limit:
-        return Chosen(plain, "fit", heldout, (limit,), result.model, known)
-    return Chosen(with_channels, "fit+channels", heldout, (), result.model, known)
+        return Chosen(plain, CalibrationSource.FIT, heldout, (limit,), result.model, known)
+    return Chosen(with_channels, CalibrationSource.FIT_CHANNELS, heldout, (), result.model, known)
 
 
 def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dict,

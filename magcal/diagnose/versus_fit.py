@@ -25,6 +25,7 @@ import numpy as np
 from ..core.calibration import Calibration
 from ..fit import fit_calibration
 from .channels import TIME
+from .diagnosis import CalibrationSource
 from .inference import contiguous_blocks
 from .model import fit_model
 
@@ -45,15 +46,16 @@ def _relative_error(cal: Calibration, m: np.ndarray, chans: dict) -> np.ndarray:
     return np.linalg.norm(h, axis=1) / cal.field_ut - 1.0
 
 
-def _like_diagnose(source: str, model, m, chans, train, keep, fit_f) -> Calibration | None:
-    """The calibration ``diagnose`` would return from the training samples alone."""
-    if source == "fit":
+def _like_diagnose(source: CalibrationSource | None, model, m, chans, train, keep, fit_f) -> Calibration | None:
+    """The calibration ``diagnose`` would return from the training samples alone (``source``
+    None: one the locate step changed, judged as fit's geometry with diagnosis's terms)."""
+    if source is CalibrationSource.FIT:
         return fit_f.calibration if fit_f else None
     kept = train & keep
     refit = fit_model(m[kept], {c: v[kept] for c, v in chans.items()}, model.spec, model.reference, start=model)
     if not refit:
         return None
-    if source == "diagnose":
+    if source is CalibrationSource.DIAGNOSE:
         return refit.calibration()
     with_terms = refit.calibration()
     shift = with_terms.channel_offset_ut({c: v[train] for c, v in chans.items()}, int(train.sum()))
@@ -83,7 +85,8 @@ def heldout_versus_fit(diagnosis, folds: int = 5) -> Versus | None:
         train[held] = False
         test = ~train & keep
         fit_f = fit_calibration(m[train], model="auto")
-        cal_d = _like_diagnose(diagnosis.calibration_from, model, m, chans, train, keep, fit_f)
+        source = None if diagnosis.calibration_located else diagnosis.calibration_from
+        cal_d = _like_diagnose(source, model, m, chans, train, keep, fit_f)
         if not fit_f or cal_d is None or not test.any():
             continue
         test_chans = {c: v[test] for c, v in chans.items()}
