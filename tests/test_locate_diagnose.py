@@ -60,8 +60,8 @@ def _verdict(loc, without, with_, kept=False):
 def test_a_located_effect_that_is_not_modelled_is_the_remainder_and_one_unseen_data_contradict_is_not_said():
     loc = Located("hard_iron_step", Kind.PHYSICS, "a hard-iron step of (1, 0, 0) µT at 3.0 s", {"time_s": [3.0]})
     (limit,) = as_limits((loc,), (_verdict(loc, 0.50, 0.49),))
-    assert limit["effect"] == "unexplained_structure" and limit["resembles"] == "hard_iron_step"
-    assert limit["where"] == {"time_s": [3.0]}
+    assert limit.effect == "unexplained_structure" and limit.details["resembles"] == "hard_iron_step"
+    assert limit.to_dict()["where"] == {"time_s": [3.0]}
     assert as_limits((loc,), (_verdict(loc, 0.50, 0.55),)) == ()
 
 

@@ -23,7 +23,7 @@ def test_a_located_effect_whose_heldout_gain_is_within_the_noise_and_wander_left
     small = Verdict(STEP, False, 0.50, 0.45, "not better beyond chance", wander_ut=0.10, noise_ut=0.12)
     large = Verdict(STEP, False, 0.50, 0.45, "not better beyond chance", wander_ut=0.15, noise_ut=0.18)
     (limit,) = as_limits((STEP,), (small,))
-    assert limit["effect"] == "unexplained_structure" and limit["resembles"] == "hard_iron_step"
+    assert limit.effect == "unexplained_structure" and limit.details["resembles"] == "hard_iron_step"
     assert as_limits((STEP,), (large,)) == ()
     assert large.evidence()["wander_without_ut"] == 0.15
 

@@ -169,7 +169,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         calibration_from=chosen.source, calibration_located=found.model is not None,
         located=found,
         limits=statements.left_out(left_out) + tuple(r.limit() for r in refused)
-        + tuple(Limit.from_dict(x) for x in locate.as_limits(found.found, found.verdicts))
+        + locate.as_limits(found.found, found.verdicts)
         + statements.limits(analysed, selected, final, simulated, wander, alpha=alpha,
                             located=tuple(x.effect for x in found.found))
         + chosen.limits,

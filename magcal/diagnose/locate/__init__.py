@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ..finding import Finding
+from ..limits import Limit
 from . import channel_forms, faults, lines, steps
 from .base import AXES, WHERE_KEYS, Effect, Kind, Located, Residual, runs, stretches
 
@@ -51,7 +52,7 @@ def _in_place_of(f: Finding, old: Finding | None) -> Finding:
     return replace(f, summary=f.summary + note, evidence={**f.evidence, "replaces": was})
 
 
-def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[dict, ...]:
+def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[Limit, ...]:
     """The honest remainder (``unexplained_structure``), with its ``where``: what was located
     but named by no physics, and what was located and resembles a named effect but did not
     improve unseen blocks when modelled — that is no finding, and is not named as one."""
@@ -70,9 +71,9 @@ def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[dict, .
     return tuple(out)
 
 
-def _remainder(x: Located, summary: str, extra: dict) -> dict:
-    return {"effect": REMAINDER, "suspected": True, "summary": summary, "where": x.to_dict()["where"],
-            "params": x.to_dict()["params"], **extra}
+def _remainder(x: Located, summary: str, extra: dict) -> Limit:
+    d = x.to_dict()
+    return Limit(REMAINDER, True, summary, details={"params": d["params"], **extra}, where=d["where"])
 
 
 def _finding(x: Located, extra: dict) -> Finding:
