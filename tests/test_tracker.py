@@ -97,11 +97,18 @@ def test_state_round_trip_continues_exactly():
     _, m, t = _run(demo_scenario(6), 5000)
     a = Tracker()
     a.add_many(m[:2500], t[:2500])
-    b = Tracker.from_state(json.loads(json.dumps(a.to_state())))
+    state = json.loads(json.dumps(a.to_state()))
+    b = Tracker.from_state(state)
     ea, eb = a.add_many(m[2500:], t[2500:]), b.add_many(m[2500:], t[2500:])
     assert [e.to_dict() for e in ea] == [e.to_dict() for e in eb]
     with pytest.raises(ValueError, match="not a tracker state"):
         Tracker.from_state({"kind": "something else"})
+    old = {"grow_every": "ladder_every", "last_growth": "last_ladder", "cells_at_growth": "cells_at_ladder"}
+    saved = {old.get(k, k): v for k, v in state.items()}  # as a tracker saved it before its model growth had its name
+    saved["config"] = {old.get(k, k): v for k, v in state["config"].items()}
+    assert "ladder_every" in saved["config"] and "last_ladder" in saved
+    c = Tracker.from_state(saved)
+    assert [e.to_dict() for e in c.add_many(m[2500:], t[2500:])] == [e.to_dict() for e in ea]
 
 
 def test_wander_likelihood_finds_a_random_walk_and_not_a_per_visit_error():

@@ -56,6 +56,11 @@ def check_state(d, kind: str, version: int, what: str) -> None:
         raise ValueError(f"{what} state version {d.get('version')!r} is not {version}")
 
 
+def renamed_keys(d: dict, names: dict) -> dict:
+    """``d`` (and the dicts in it) with each key saved under an older name in ``names`` given its new one."""
+    return {names.get(k, k): renamed_keys(v, names) if isinstance(v, dict) else v for k, v in d.items()}
+
+
 @dataclass(frozen=True)
 class SphereFit:
     """An algebraic sphere: centre ``offset_ut`` (3,), radius ``field_ut``.

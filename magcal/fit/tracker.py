@@ -21,7 +21,7 @@ ellipsoid up to date as samples arrive, with bounded memory and bounded time per
   more refits a second: the cost per second of stream is bounded whatever the rate), started
   from the previous solution, with Huber weights against spikes. The model grows sphere →
   diagonal → full ellipsoid when the buffer's coverage determines it (information condition,
-  the sphere's limit for every model, and shape σ), checked at most every ``ladder_every``
+  the sphere's limit for every model, and shape σ), checked at most every ``grow_every``
   samples; a calibration *reported* is judged by fit's own gates (``tracker_check``).
 * **A field the Earth could give.** A first solution is also refused when its field is below
   ``min_field_ut`` (the Earth's 15 µT, ``EARTH_FIELD_UT``). A board that has hardly turned yet
@@ -49,7 +49,7 @@ import numpy as np
 
 from ..core.calibration import EARTH_FIELD_UT, Calibration
 from . import geometric, tails
-from .accumulator import check_state
+from .accumulator import check_state, renamed_keys
 from .ellipsoid import algebraic_start
 from .failure import FitFailure
 from .pipeline import DEFAULT_MAX_CONDITION, DEFAULT_MAX_SHAPE_SIGMA
@@ -59,7 +59,8 @@ from .cell_buffer import CellBuffer, WhenFull
 from .tracker_memory import WanderRate, robust_scale, sample_weights
 from .uncertainty import direction_jackknife_variance, gain_widening, shape_sigma
 
-LADDER = ("sphere", "diagonal", "full")
+GROWTH = ("sphere", "diagonal", "full")  # the models, in the order the tracker grows through them
+_OLD_NAMES = {"ladder_every": "grow_every", "last_ladder": "last_growth", "cells_at_ladder": "cells_at_growth"}
 CHANGE_ALPHA = 1e-9  # a sudden change is declared at this false-alarm probability per refit
 CHANGE_MIN_PAIRS = 5
 CHANGE_MIN_EVIDENCE = 200  # pairs in the wander record before its model judges a change
@@ -80,7 +81,7 @@ class TrackerConfig:
     per_cell: int = 8
     refit_every: int = 20
     refit_min_s: float = 0.4
-    ladder_every: int = 200
+    grow_every: int = 200
     min_samples: int = 20
     min_share: float = 0.1
     max_condition: float = DEFAULT_MAX_CONDITION
@@ -88,7 +89,7 @@ class TrackerConfig:
     min_field_ut: float = EARTH_FIELD_UT[0]
 
     def __post_init__(self):
-        ints = ("bands", "sectors", "per_cell", "refit_every", "ladder_every", "min_samples")
+        ints = ("bands", "sectors", "per_cell", "refit_every", "grow_every", "min_samples")
         for name in ints:
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"tracker {name} must be ≥ 1, not {getattr(self, name)!r}")
@@ -295,8 +296,8 @@ class Tracker:
         self._since_refit = 0
         self._damping = 1e-6
         self._seq_at_refit = 0
-        self._last_ladder = -(10**18)
-        self._cells_at_ladder = 0
+        self._last_growth = -(10**18)
+        self._cells_at_growth = 0
         self._t_last = 0.0
         self._t_refit = -math.inf  # sample time of the last refit
         self._sum = [0.0, 0.0, 0.0]
@@ -423,13 +424,13 @@ class Tracker:
             steps[: e + 1] += j
         return steps[epochs] / s2
 
-    def _climb(self, m, w) -> None:
+    def _grow(self, m, w) -> None:
         """Try the fuller models, each from the current one and from the algebraic ellipsoid;
         kept if determinable (information condition) and its gains pinned (shape σ from its own
         residual), as ``pipeline`` judges them. A new model starts a new wander record."""
         c = self.config
-        self._last_ladder, self._cells_at_ladder = self.n, self.memory.occupied()
-        for kind in LADDER[LADDER.index(self.kind) + 1:]:
+        self._last_growth, self._cells_at_growth = self.n, self.memory.occupied()
+        for kind in GROWTH[GROWTH.index(self.kind) + 1:]:
             best = None
             for start in (_extend(self.theta, kind), algebraic_start(m, kind)):
                 if isinstance(start, FitFailure):
@@ -456,9 +457,9 @@ class Tracker:
         if condition(J.T @ (J * wc[:, None])) > self.config.max_condition:
             return self._withdraw()
         w, s2, q = self._weights(idx, t, wc, e)
-        if self.kind != "full" and (self.n - self._last_ladder >= self.config.ladder_every
-                                    or self.memory.occupied() > self._cells_at_ladder):
-            self._climb(m, w)
+        if self.kind != "full" and (self.n - self._last_growth >= self.config.grow_every
+                                    or self.memory.occupied() > self._cells_at_growth):
+            self._grow(m, w)
             e, J = geometric.residual_jacobian(self.theta, m, self.kind)
         theta, _, self._damping, A = _damped_step(m, self.kind, self.theta, w, e, J, self._damping)
         if theta is self.theta or condition(A) > self.config.max_condition:
@@ -508,7 +509,7 @@ class Tracker:
             "jumps": [[e, j] for e, j in self._jumps.items()], "suspect": self._suspect, "n_used": self.n_used, "sum": list(self._sum),
             "model": self.kind, "theta": None if self.theta is None else self.theta.tolist(),
             "since_refit": self._since_refit, "damping": self._damping, "seq_at_refit": self._seq_at_refit,
-            "last_ladder": self._last_ladder, "cells_at_ladder": self._cells_at_ladder, "t_last": self._t_last,
+            "last_growth": self._last_growth, "cells_at_growth": self._cells_at_growth, "t_last": self._t_last,
             "t_refit": self._t_refit if math.isfinite(self._t_refit) else None,
             "estimate": None if self.estimate is None else self.estimate.to_dict(),
             "low_field_ut": self.low_field_ut,
@@ -518,6 +519,7 @@ class Tracker:
     def from_state(cls, d: dict) -> "Tracker":
         check_state(d, _STATE_KIND, _STATE_VERSION, "tracker")
         try:
+            d = renamed_keys(d, _OLD_NAMES)  # a state saved before the growth had its name
             trk = cls(TrackerConfig(**d["config"]))
             trk.memory.load_state(d["memory"])
             trk.wander = WanderRate.from_state(d["wander"])
@@ -528,8 +530,8 @@ class Tracker:
             trk.kind = d["model"]
             trk.theta = None if d["theta"] is None else np.asarray(d["theta"], dtype=np.float64)
             trk._since_refit, trk._damping = int(d["since_refit"]), float(d["damping"])
-            trk._seq_at_refit, trk._last_ladder = int(d["seq_at_refit"]), int(d["last_ladder"])
-            trk._cells_at_ladder, trk._t_last = int(d["cells_at_ladder"]), float(d["t_last"])
+            trk._seq_at_refit, trk._last_growth = int(d["seq_at_refit"]), int(d["last_growth"])
+            trk._cells_at_growth, trk._t_last = int(d["cells_at_growth"]), float(d["t_last"])
             t_refit = d.get("t_refit")  # (absent from states saved before the refit spacing)
             trk._t_refit = -math.inf if t_refit is None else float(t_refit)
             trk.estimate = None if d["estimate"] is None else Estimate.from_dict(d["estimate"])
@@ -537,7 +539,7 @@ class Tracker:
             trk.low_field_ut = None if low is None else float(low)
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"tracker state is malformed: {exc}") from None
-        if trk.kind not in (None, *LADDER) or (trk.theta is not None and len(trk.theta) != geometric.n_params(trk.kind)):
+        if trk.kind not in (None, *GROWTH) or (trk.theta is not None and len(trk.theta) != geometric.n_params(trk.kind)):
             raise ValueError("tracker state is inconsistent (model and parameters disagree)")
         return trk
 
