@@ -254,7 +254,7 @@ def _cost(e: np.ndarray, loss: str, f: float) -> float:
 
 
 @dataclass(frozen=True)
-class Step:
+class DampedStep:
     """A damped step that lowered the cost: the new point, its cost, the damping that gave it,
     and whatever the evaluation returned beside the cost (a residual, a state to reuse)."""
 
@@ -265,7 +265,7 @@ class Step:
 
 
 def damped_step(evaluate, x, A, g, cost: float, lam: float, max_tries: int = 64,
-                lam_max: float = 1e16) -> Step | None:
+                lam_max: float = 1e16) -> DampedStep | None:
     """The one damped normal-equation step every iterative fit in magcal takes: solve
     (A + λ·diag A) δ = −g (Marquardt's scaling, solved Jacobi-equilibrated so a badly scaled A
     keeps its digits) and accept x + δ when ``evaluate`` (x → (cost, aux)) gives a finite cost
@@ -282,7 +282,7 @@ def damped_step(evaluate, x, A, g, cost: float, lam: float, max_tries: int = 64,
         if x_new is not None and np.all(np.isfinite(x_new)):
             cost_new, aux = evaluate(x_new)
             if np.isfinite(cost_new) and cost_new <= cost:
-                return Step(x_new, float(cost_new), lam, aux)
+                return DampedStep(x_new, float(cost_new), lam, aux)
         lam *= 10.0
         if lam > lam_max:
             return None
