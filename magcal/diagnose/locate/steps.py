@@ -74,8 +74,8 @@ STRUCTURE_WINDOW_S = 1.0
 
 
 @dataclass(frozen=True)
-class Step:
-    """One step found: its time, interval, change of the local offset (h frame) and its
+class HardIronStep:
+    """One hard-iron step found: its time, interval, change of the local offset (h frame) and its
     covariance, the level before it, and the statistic against its threshold."""
 
     tau_s: float
@@ -121,7 +121,7 @@ def _best(u, t, r, half, f2) -> tuple[float, float, float]:
     return float(stats[j]), float(taus[ok][j]), float(np.median(stats))
 
 
-def _refine(u, t, r, half, tau0, f2, threshold) -> Step:
+def _refine(u, t, r, half, tau0, f2, threshold) -> HardIronStep:
     """The best sample time near ``tau0`` (window fixed at tau0), its interval and the step."""
     w = scan.window(t, tau0, half)
     uw, tw, rw = u[w], t[w], r[w]
@@ -140,11 +140,11 @@ def _refine(u, t, r, half, tau0, f2, threshold) -> Step:
     dt = float(np.median(np.diff(tw))) if len(tw) > 1 else 0.0  # the time is known to a sample at best
     inside = np.concatenate([inside, [tau - dt, tau + dt]])
     stat = float(rss0[j] - f1.rss) / var
-    return Step(tau, (float(inside.min()), float(inside.max())), f1.coef[-3:], var * f1.xtx_inv[-3:, -3:], f1.coef[:3],
+    return HardIronStep(tau, (float(inside.min()), float(inside.max())), f1.coef[-3:], var * f1.xtx_inv[-3:, -3:], f1.coef[:3],
                 stat, threshold)
 
 
-def measure(u, t, r, q, f2, steps: list[Step]) -> list[Step]:
+def measure(u, t, r, q, f2, steps: list[HardIronStep]) -> list[HardIronStep]:
     """Each step's vector from the segments between the steps: a constant offset per segment
     (3 columns each) with the calibration's shape misfit (Q) shared — the jump alone fixes only
     the step's part along the direction at τ; the segments see every direction."""
@@ -159,15 +159,15 @@ def measure(u, t, r, q, f2, steps: list[Step]) -> list[Step]:
         d = f.coef[b : b + 3] - f.coef[a : a + 3]
         c = f.xtx_inv
         cov = var * (c[a : a + 3, a : a + 3] + c[b : b + 3, b : b + 3] - c[a : a + 3, b : b + 3] - c[b : b + 3, a : a + 3])
-        out.append(Step(s.tau_s, s.interval_s, d, cov, f.coef[a : a + 3], s.stat, s.threshold))
+        out.append(HardIronStep(s.tau_s, s.interval_s, d, cov, f.coef[a : a + 3], s.stat, s.threshold))
     return out
 
 
-def find_steps(u, t, r, half, f2) -> tuple[list[Step], np.ndarray]:
+def find_steps(u, t, r, half, f2) -> tuple[list[HardIronStep], np.ndarray]:
     """The steps found (time order) and the residual with them taken out."""
     span = float(t[-1] - t[0])
     threshold = float(chi2_isf(ALPHA / max(1.0, span / half), 3))
-    steps: list[Step] = []
+    steps: list[HardIronStep] = []
     r = r.copy()
     for i in range(MAX_STEPS):
         stat, tau, typical = _best(u, t, r, half, f2)
@@ -181,7 +181,7 @@ def find_steps(u, t, r, half, f2) -> tuple[list[Step], np.ndarray]:
     return sorted(steps, key=lambda s: s.tau_s), r
 
 
-def _step_located(s: Step, cal, floor_ut: float) -> Located:
+def _step_located(s: HardIronStep, cal, floor_ut: float) -> Located:
     w_inv = np.linalg.inv(cal.soft_iron)
     d = w_inv @ s.d_h
     cov = w_inv @ s.cov_h @ w_inv.T
@@ -438,7 +438,7 @@ def _merged(spans: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
 # -- the search -----------------------------------------------------------------------------
 
 
-def _shape_corrected(u, t, r, shape_cols: np.ndarray, half, steps: list[Step]) -> np.ndarray:
+def _shape_corrected(u, t, r, shape_cols: np.ndarray, half, steps: list[HardIronStep]) -> np.ndarray:
     """r with the calibration's shape misfit (``shape_cols``: Q, and Q after a soft-iron change)
     taken out, fitted with the wander and the steps found so far, so a local offset search
     does not chase it."""
@@ -447,18 +447,18 @@ def _shape_corrected(u, t, r, shape_cols: np.ndarray, half, steps: list[Step]) -
     return r - shape_cols @ coef[: shape_cols.shape[1]]
 
 
-def _all_steps(u, t, r, shape_cols, half, f2) -> tuple[list[Step], np.ndarray]:
+def _all_steps(u, t, r, shape_cols, half, f2) -> tuple[list[HardIronStep], np.ndarray]:
     steps, rest = find_steps(u, t, _shape_corrected(u, t, r, shape_cols, half, []), half, f2)
     if steps:
         steps, rest = find_steps(u, t, _shape_corrected(u, t, r, shape_cols, half, steps), half, f2)
     return steps, rest
 
 
-def _bursts(steps: list[Step], half: float, floor_ut: float) -> tuple[list[Step], list[Located]]:
+def _bursts(steps: list[HardIronStep], half: float, floor_ut: float) -> tuple[list[HardIronStep], list[Located]]:
     """Steps that come in a cluster (each within 2 windows of the next) and mostly undo each
     other (their sum under ``BURST_NET`` of the largest) are not a part put down: the data
     misbehave there for a while. Those are returned as the remainder, located in time."""
-    groups: list[list[Step]] = []
+    groups: list[list[HardIronStep]] = []
     for s in steps:
         if groups and s.tau_s - groups[-1][-1].tau_s <= 2 * half:
             groups[-1].append(s)
@@ -484,7 +484,7 @@ def _big(c: ShapeChange, field_ut: float, floor_ut: float) -> bool:
     return float(np.max(np.abs(c.e)) * field_ut) >= STEP_MIN_OVER_FLOOR * floor_ut
 
 
-def _soft_change(u, t, r, field_ut, floor_ut, half, steps: list[Step]) -> ShapeChange | None:
+def _soft_change(u, t, r, field_ut, floor_ut, half, steps: list[HardIronStep]) -> ShapeChange | None:
     """A soft-iron change, claimed where the shape changes beyond chance with the offset steps
     found allowed for (a step is not a change of shape). Placed by the scan without those
     steps where it agrees to a window (a change of shape seen through a local offset model can
