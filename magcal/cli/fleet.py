@@ -47,8 +47,9 @@ def add_arguments(p) -> None:
         "(default: every magnetometer)")
 
 
-class _Ticker:
-    """Progress with an ETA: redrawn on a terminal, a line every tenth of the run otherwise."""
+class _ResultCounter:
+    """Each analysed log counted as it arrives, with its failed rows and an ETA: redrawn on a
+    terminal, a line every tenth of the run otherwise (called once per result, not a clock)."""
 
     def __init__(self, total: int, quiet: bool):
         from .common import Progress
@@ -103,12 +104,12 @@ def run(args) -> int:
 
     results = store.ResultStore(args.results)
     p = job.plan(args.sources, results, args.mag, MAX_FIT_SAMPLES, on_hash=_hashing(args.quiet or args.json))
-    ticker = _Ticker(len(p.tasks), args.quiet)
+    counter = _ResultCounter(len(p.tasks), args.quiet)
     try:
-        job.execute(p, results, args.scheduler, args.workers, on_result=ticker)
+        job.execute(p, results, args.scheduler, args.workers, on_result=counter)
     finally:
-        ticker.progress.done()
-    counts = {"total": p.files, "analysed": ticker.done, "done_before": p.done_before, "duplicates": p.duplicates}
+        counter.progress.done()
+    counts = {"total": p.files, "analysed": counter.done, "done_before": p.done_before, "duplicates": p.duplicates}
     doc = job.conclude(results, counts, args.alpha)
     if args.json:
         print_json(document("fleet", doc))
