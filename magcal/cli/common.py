@@ -300,6 +300,9 @@ class Progress:
 
 
 class _Ticker:
+    """What ``Progress.working`` returns: a thread that redraws the label and the elapsed time
+    on a clock until the work ends, whatever the work reports."""
+
     SHOW_AFTER_S = 1.0  # work done within a second draws nothing: no display flashes past
 
     def __init__(self, progress: Progress, label: str):
