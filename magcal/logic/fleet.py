@@ -187,7 +187,7 @@ def _kind(q: Quantity, sp: Split) -> ChangeKind:
 
 
 @dataclass(frozen=True)
-class History:
+class CompassHistory:
     """One compass of one vehicle, its flights in order."""
 
     vehicle: str
@@ -208,7 +208,7 @@ def _order_key(f: Flight):
     return (f.time is None, f.time if f.time is not None else 0.0, f.file)
 
 
-def histories(rows: list[dict]) -> list[History]:
+def histories(rows: list[dict]) -> list[CompassHistory]:
     """Every (vehicle, compass) with its flights in time order (then file name). Rows without
     a compass (a file that could not be read) belong to no history."""
     groups: dict[tuple[str, str], list[dict]] = {}
@@ -218,11 +218,11 @@ def histories(rows: list[dict]) -> list[History]:
     out = []
     for (vehicle, compass), rs in sorted(groups.items()):
         rs = sorted(rs, key=lambda r: _order_key(Flight.from_row(r)))
-        out.append(History(vehicle, compass, tuple(Flight.from_row(r) for r in rs), tuple(rs)))
+        out.append(CompassHistory(vehicle, compass, tuple(Flight.from_row(r) for r in rs), tuple(rs)))
     return out
 
 
-def _changes_of(h: History, q: Quantity, alpha_each: float) -> list[Change]:
+def _changes_of(h: CompassHistory, q: Quantity, alpha_each: float) -> list[Change]:
     idx, x, s = h.series(q)
     out = []
     for k, sp, p in _segments(x, s, alpha_each):
@@ -239,7 +239,7 @@ def _t(v) -> tuple[float, float, float]:
     return tuple(float(a) for a in v)
 
 
-def _sibling_check(change: Change, q: Quantity, sib: History, alpha: float) -> SiblingCheck | None:
+def _sibling_check(change: Change, q: Quantity, sib: CompassHistory, alpha: float) -> SiblingCheck | None:
     """The sibling's same quantity split at the same flight (the same log file; no scan: the
     flight is given); None where the sibling has no such flight or nothing before it."""
     idx, x, s = sib.series(q)
@@ -254,7 +254,7 @@ def _sibling_check(change: Change, q: Quantity, sib: History, alpha: float) -> S
 
 @dataclass(frozen=True)
 class FleetReport:
-    histories: tuple[History, ...]
+    histories: tuple[CompassHistory, ...]
     changes: tuple[Change, ...]
     alpha: float
 
@@ -268,7 +268,7 @@ class FleetReport:
 def detect(rows: list[dict], alpha: float = ALPHA) -> FleetReport:
     """Every history of ``rows`` and every change found in it (see the module's docstring)."""
     hs = histories(rows)
-    by_vehicle: dict[str, list[History]] = {}
+    by_vehicle: dict[str, list[CompassHistory]] = {}
     for h in hs:
         by_vehicle.setdefault(h.vehicle, []).append(h)
     changes = []

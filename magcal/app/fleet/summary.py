@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from ...logic.fleet import FleetReport, History
+from ...logic.fleet import CompassHistory, FleetReport
 
 FLIGHT_KEYS = ("path", "flight_time_utc", "status", "model", "offset_ut", "sigma_offset_ut", "field_ut",
                "current_a_ut_per_unit", "sigma_current_a_ut_per_unit", "current_a_kept", "coverage", "rms_ut")
@@ -21,7 +21,7 @@ def _clean(v):
     return v
 
 
-def _compass(h: History, report: FleetReport) -> dict:
+def _compass(h: CompassHistory, report: FleetReport) -> dict:
     first = h.rows[0] if h.rows else {}
     return {"compass": h.compass, "device_id": first.get("device_id"), "external": first.get("external"),
             "flights": [{k: _clean(r.get(k)) for k in FLIGHT_KEYS} for r in h.rows],
