@@ -8,7 +8,7 @@ import pytest
 
 from magcal.core.errors import ConfigError
 from magcal.logic.gates import Gates
-from magcal.logic.keeper import Budget, Keeper, Reason
+from magcal.logic.keeper import Budget, DecisionReason, Keeper
 from magcal.sim.physics import demo_scenario
 
 
@@ -33,10 +33,10 @@ def test_a_steady_sensor_is_written_once():
     k, log = Keeper(Gates()), []
     dev = _stream(k, run.series.field_ut, run.series.t_s, log=log)
     writes = [d for _, d in log if d.write]
-    assert len(writes) == 1 and writes[0].reason is Reason.FIRST
+    assert len(writes) == 1 and writes[0].reason is DecisionReason.FIRST
     assert np.abs(dev.offset_ut - run.truth.offset_ut).max() < 0.3
-    later = [d.reason for _, d in log if d.reason is not Reason.GATE and not d.write]
-    assert later and set(later) <= {Reason.NOT_SIGNIFICANT, Reason.NO_CALIBRATION}
+    later = [d.reason for _, d in log if d.reason is not DecisionReason.GATE and not d.write]
+    assert later and set(later) <= {DecisionReason.NOT_SIGNIFICANT, DecisionReason.NO_CALIBRATION}
     assert k.writes == 1 and k.cycles == 1
 
 
@@ -51,7 +51,7 @@ def test_after_a_new_hard_iron_the_restarted_tracker_is_written_once_its_gates_p
     k.restart()  # what the daemon does when its drift monitor rings
     dev = _stream(k, b.field_ut, b.t_s, device=dev, log=log)
     later = [(i, d) for i, d in log[len(log) // 2:] if d.write]
-    assert first == 1 and later and later[0][1].reason is Reason.BETTER
+    assert first == 1 and later and later[0][1].reason is DecisionReason.BETTER
     assert later[0][0] < 3000  # within a minute of samples at 50 Hz
     assert np.abs(dev.offset_ut - [30.5, -38.2, 14.8]).max() < 0.5
     assert k.writes <= 1 + Budget().burst  # the burst, no more
@@ -67,7 +67,7 @@ def test_the_budget_holds_writes_back():
     k.restart()
     _stream(k, b.field_ut, b.t_s, device=dev, log=log)
     assert k.writes == 1
-    assert any(d.reason is Reason.BUDGET and "next write in" in d.message for _, d in log)
+    assert any(d.reason is DecisionReason.BUDGET and "next write in" in d.message for _, d in log)
 
 
 def test_never_past_a_gate():
@@ -75,7 +75,7 @@ def test_never_past_a_gate():
     k, log = Keeper(Gates(max_rms_ut=0.05)), []
     assert _stream(k, run.series.field_ut, run.series.t_s, log=log) is None
     assert k.writes == 0
-    assert log[-1][1].reason is Reason.GATE
+    assert log[-1][1].reason is DecisionReason.GATE
     assert any(g["gate"] == "max_rms" for g in log[-1][1].to_dict()["gates"])
 
 

@@ -58,7 +58,9 @@ class Budget:
         return EEPROM_RATED_CYCLES / (self.per_day * 365.25)
 
 
-class Reason(str, Enum):
+class DecisionReason(str, Enum):
+    """Why a keeper's ``Decision`` writes or holds (the value is the ``reason`` a journal and JSON carry)."""
+
     NO_CALIBRATION = "no_calibration"  # the tracker has none yet
     GATE = "gate"  # a gate fails
     NOT_SIGNIFICANT = "not_significant"  # not better than the device's by more than chance
@@ -70,7 +72,7 @@ class Reason(str, Enum):
 @dataclass(frozen=True)
 class Decision:
     write: bool
-    reason: Reason
+    reason: DecisionReason
     calibration: Calibration | None = None
     comparison: Comparison | None = None
     gates: tuple[GateResult, ...] = field(default_factory=tuple)
@@ -135,7 +137,7 @@ class Keeper:
         self._refill(now_s)
         est = self.tracker.estimate
         if est is None:
-            return Decision(False, Reason.NO_CALIBRATION, message="the tracker has no calibration yet")
+            return Decision(False, DecisionReason.NO_CALIBRATION, message="the tracker has no calibration yet")
         first = self._judge(est, device)
         return self._checked(device, first) if first.write else first
 
@@ -149,7 +151,7 @@ class Keeper:
             return self._held[1]
         rep = checked(self.tracker)
         out = self._judge(rep, device) if rep is not None else Decision(
-            False, Reason.GATE, first.calibration, first.comparison, first.gates,
+            False, DecisionReason.GATE, first.calibration, first.comparison, first.gates,
             "fit's gates refuse every model on the samples in memory")
         self._held = None if out.write else (n, out)
         return out
@@ -159,17 +161,17 @@ class Keeper:
         gates = tuple(self._gates(est))
         failing = [g for g in gates if not g.passed]
         if failing:
-            return Decision(False, Reason.GATE, est.calibration, gates=gates,
+            return Decision(False, DecisionReason.GATE, est.calibration, gates=gates,
                             message="; ".join(g.message for g in failing))
         cmp = None if device is None else compare(self.tracker, device, est)
         if cmp is not None and not cmp.z >= self.z_needed:
-            return Decision(False, Reason.NOT_SIGNIFICANT, est.calibration, cmp, gates,
+            return Decision(False, DecisionReason.NOT_SIGNIFICANT, est.calibration, cmp, gates,
                             f"gain z = {cmp.z:.2f} < {self.z_needed:.2f}")
         if self.tokens < 1.0:
             wait_s = (1.0 - self.tokens) * DAY_S / self.budget.per_day
-            return Decision(False, Reason.BUDGET, est.calibration, cmp, gates,
+            return Decision(False, DecisionReason.BUDGET, est.calibration, cmp, gates,
                             f"EEPROM budget spent for now ({self.budget.per_day:g}/day); next write in {wait_s:.0f} s")
-        reason = Reason.FIRST if device is None else Reason.BETTER
+        reason = DecisionReason.FIRST if device is None else DecisionReason.BETTER
         msg = "the device holds no calibration" if cmp is None else (
             f"RMS {cmp.rms_other_pct:.3f} % → {cmp.rms_ours_pct:.3f} %, z = {cmp.z:.1f}")
         return Decision(True, reason, est.calibration, cmp, gates, msg, est)

@@ -24,7 +24,7 @@ from ...fit.accumulator import SphereAccumulator
 from ...logic import failures
 from ...logic.failures import Failure
 from ...logic.gates import Clearance, Evidence, clear_for_write
-from ...logic.keeper import Budget, Keeper, Reason
+from ...logic.keeper import Budget, DecisionReason, Keeper
 from ..procedure import write_verified
 from .journal import Decision, Journal
 from .ledger import LedgeredDevice, WriteLedger
@@ -85,7 +85,7 @@ class TrackingDecider:
         now = self._wall()
         decision = self.keeper.decide(held, now)
         self.last_decision = decision.to_dict()
-        if decision.reason is Reason.BUDGET:
+        if decision.reason is DecisionReason.BUDGET:
             self._faults["write_budget_waits"] += 1
         if not decision.write:
             return None
