@@ -23,7 +23,7 @@ from .glitch_rate import along_the_field, glitch_process
 from .learning import CV_GAIN, TAKE_SEEDS, learn, placements
 from .names import Mismatch, direction_words, locate, mismatches
 from .noise import NOISE_LAG1_MAX, NOISE_LAG1_Z, REPEAT_STEPS, REPEAT_Z, noise_lag1, repeat_share
-from .residual import Residual, corrected, projector, radius, refit, with_time
+from .residual import RefitResidual, corrected, projector, radius, refit, with_time
 from .spikes import (GLITCH_Z, P0_AXIS, TRAIN_MIN, TRAIN_READS, TRAIN_WINDOW, TRAIN_Z, find_glitches,
                      glitch_train, radial_fractions, size_quantiles, spikes, turn_blur)
 from .stats import repeats
@@ -32,7 +32,7 @@ from .steps import ORDER, TwinReport, baseline_model, compare_steps, step_models
 __all__ = [
     "BAND", "CV_GAIN", "DRAWS", "EVENT_EDGE", "EVENT_MIN", "EVENT_Z", "GLITCH_Z", "MAX_EVENTS", "NOISE_LAG1_MAX",
     "NOISE_LAG1_Z", "ORDER", "ORIENTATION_WORDS", "P0_AXIS", "REPEAT_STEPS", "REPEAT_Z", "TAKE_SEEDS", "TRAIN_MIN",
-    "TRAIN_READS", "TRAIN_WINDOW", "TRAIN_Z", "Band", "Mismatch", "Residual", "StepComparison", "TwinReport",
+    "TRAIN_READS", "TRAIN_WINDOW", "TRAIN_Z", "Band", "Mismatch", "RefitResidual", "StepComparison", "TwinReport",
     "along_the_field", "baseline_model", "compare", "compare_steps", "corrected", "direction_words", "disturbances",
     "event_pairs", "find_glitches", "glitch_process", "glitch_train", "learn", "locate", "mismatches", "noise_lag1",
     "placements", "projector", "radial_fractions", "radius", "refit", "repeat_share", "repeats", "replayed",

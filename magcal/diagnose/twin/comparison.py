@@ -16,7 +16,7 @@ from ...sim.model import SensorModel
 from . import stats as ts
 from .draw import twin_directions, twin_draw
 from .names import locate, mismatches
-from .residual import Residual, refit, with_time
+from .residual import RefitResidual, refit, with_time
 from .stats import repeats
 
 
@@ -59,8 +59,8 @@ class StepComparison:
     mismatches: tuple
     draws: int
     located: dict = field(default_factory=dict, repr=False)  # real and twin-band pieces
-    real: Residual | None = field(default=None, repr=False)
-    twin: Residual | None = field(default=None, repr=False)  # one twin draw, for pictures
+    real: RefitResidual | None = field(default=None, repr=False)
+    twin: RefitResidual | None = field(default=None, repr=False)  # one twin draw, for pictures
 
     @property
     def inside(self) -> int:

@@ -12,7 +12,7 @@ import numpy as np
 
 from ...core.series import Series
 from ...sim.model import Draws, SensorModel
-from .residual import Residual, radius, refit, with_time
+from .residual import RefitResidual, radius, refit, with_time
 from .spikes import spikes
 from .stats import repeats
 
@@ -86,7 +86,7 @@ def twin_readings(model: SensorModel, u: np.ndarray, t: np.ndarray, chans: Mappi
     return model.distort(seen, chans, draws)
 
 
-def twin_draw(model: SensorModel, series: Series, seed: int, free: bool = True, u=None) -> Residual | None:
+def twin_draw(model: SensorModel, series: Series, seed: int, free: bool = True, u=None) -> RefitResidual | None:
     """One twin of ``series`` refitted: the recording's times, channels and directions
     (``twin_directions``, or ``u`` when given)."""
     chans = with_time(series)

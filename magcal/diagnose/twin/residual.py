@@ -19,8 +19,9 @@ from ..model import Spec, fit_model
 
 
 @dataclass(frozen=True)
-class Residual:
-    """One recording (real or twin) seen through a refitted calibration."""
+class RefitResidual:
+    """One recording (real or twin) seen through a calibration refitted to it (locate's
+    ``Residual`` is a recording seen through the calibration diagnose returned)."""
 
     e: np.ndarray
     u: np.ndarray
@@ -34,7 +35,7 @@ def _isotropic(w: np.ndarray) -> bool:
     return bool(np.max(np.abs(w / np.cbrt(np.linalg.det(w)) - np.eye(3))) < 1e-9)
 
 
-def refit(model: SensorModel, m, t, channels, free: bool = True) -> Residual | None:
+def refit(model: SensorModel, m, t, channels, free: bool = True) -> RefitResidual | None:
     """Refit ``model``'s kind of calibration (sphere or ellipsoid, with its channel terms) to
     the measurements and return their residual; None when the fit fails. ``free=False`` keeps
     the model's calibration (a recording whose motion cannot determine one, e.g. a still board)
@@ -45,7 +46,7 @@ def refit(model: SensorModel, m, t, channels, free: bool = True) -> Residual | N
         h = cal.correct(m, {c: channels[c] for c in cal.coef_ut_per_unit})
         norm = np.linalg.norm(h, axis=1)
         e = norm - norm.mean() if model.takes is None else model.takes.demean(norm, t)
-        return Residual(e=e, u=h / norm[:, None], m=m, t=t, channels=channels, gain=None)
+        return RefitResidual(e=e, u=h / norm[:, None], m=m, t=t, channels=channels, gain=None)
     soft = not _isotropic(cal.soft_iron)
     chans = tuple(cal.coef_ut_per_unit)
     used = {c: channels[c] for c in chans}
@@ -66,7 +67,7 @@ def refit(model: SensorModel, m, t, channels, free: bool = True) -> Residual | N
     e = norm - np.sqrt(np.mean(norm * norm)) if chans else np.asarray(f.residual_ut)
     if model.takes is not None:
         e = model.takes.demean(e, t)
-    return Residual(e=e, u=h / norm[:, None], m=m, t=t, channels=channels, gain=gain)
+    return RefitResidual(e=e, u=h / norm[:, None], m=m, t=t, channels=channels, gain=gain)
 
 
 def with_time(series: Series) -> dict:
