@@ -4,13 +4,13 @@ and a refusal that says which turn would fix it."""
 import numpy as np
 
 from magcal.fit import fit_calibration
-from magcal.fit.holdout import MARGIN, HeldOut
+from magcal.fit.holdout import MARGIN, HeldOutSpread
 
 from test_fit_pipeline import _flat_turns
 
 
 def _held(**spread):
-    return HeldOut(spread=spread, n_blocks=5, unseen_blocks=(), balanced={k: False for k in spread})
+    return HeldOutSpread(spread=spread, n_blocks=5, unseen_blocks=(), balanced={k: False for k in spread})
 
 
 def test_the_in_sample_choice_stands_unless_held_out_blocks_beat_it_clearly():

@@ -22,7 +22,7 @@ Two sets of samples are judged. The model is chosen on the samples of each block
 direction cell the other blocks also visit: a block whose directions the rest never saw
 judges extrapolation, which on a short recording is a handful of samples deciding against the
 model the rest determines well (such blocks, under ``SEEN_SHARE`` of their samples seen, are
-named in ``HeldOut.unseen_blocks`` so the reason can say so). The direction balance is judged
+named in ``HeldOutSpread.unseen_blocks`` so the reason can say so). The direction balance is judged
 on all of them, since the directions a recording holds least are what it is for: an
 ellipsoid is refitted with it and without, on the blocks both refits reach, and the balance is
 dropped only where the plain fit predicts them ``BALANCE_MARGIN`` times better, or better on
@@ -67,7 +67,7 @@ MAX_STEPS = 20
 
 
 @dataclass(frozen=True)
-class HeldOut:
+class HeldOutSpread:
     """Per model kind, its held-out spread (fraction, RMS over blocks; inf where a refit failed)
     and whether the direction balance gave it (``balanced``), the blocks judged (count) and
     those that judged extrapolation (0-based)."""
@@ -209,7 +209,7 @@ def _tests(m, judged, edges, offset_ut) -> tuple[dict, list]:
     return tests, unseen
 
 
-def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOut | None:
+def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOutSpread | None:
     """Held-out spreads of each candidate ({kind: (GeometricFit, kept mask)}) on ``m`` (the
     samples in time order), or None where the recording is too short to cut into blocks."""
     judged = np.logical_and.reduce([keep for _, keep in candidates.values()])
@@ -228,7 +228,7 @@ def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOut 
     scores = {k: _over(b, "seen", _common(kept)) for k, b in kept.items()}
     if not np.isfinite(min(scores.values())):
         return None
-    return HeldOut(scores, n_blocks, tuple(unseen), balanced)
+    return HeldOutSpread(scores, n_blocks, tuple(unseen), balanced)
 
 
 def _common(kept: dict) -> np.ndarray:

@@ -436,7 +436,7 @@ def _only(model: str, candidates: dict, notes: list) -> str:
     return chosen
 
 
-def _by_holdout(held: holdout.HeldOut, default: str, notes: list) -> str:
+def _by_holdout(held: holdout.HeldOutSpread, default: str, notes: list) -> str:
     """The model the held-out blocks choose over ``default`` (the lowest BIC), and why."""
     chosen = held.choose(default)
     others = ", ".join(f"{MODEL_NAMES[k]} {100 * v:.3g} %" for k, v in held.spread.items() if k != chosen)
