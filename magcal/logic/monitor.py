@@ -93,7 +93,7 @@ _D, _NUISANCE = [1, 2, 3], [0, 4]  # places of d and of (c₀, c₁) in θ
 
 
 @dataclass(frozen=True)
-class Verdict:
+class WindowVerdict:
     """One window's verdict: in which ``phase`` and, when testing, by which ``test``."""
 
     window: int
@@ -294,7 +294,7 @@ class Reference:
 
 
 class DriftMonitor:
-    """Feed valid samples (µT, sensor frame) with ``add``; it returns a Verdict per full window."""
+    """Feed valid samples (µT, sensor frame) with ``add``; it returns a WindowVerdict per full window."""
 
     def __init__(self, calibration: Calibration, window: int = 500, alpha: float = 0.001, baseline_windows: int = 8):
         if window < 4 * MIN_BATCHES:
@@ -315,7 +315,7 @@ class DriftMonitor:
         self.windows = 0
         self.alarms = 0
         self.first_alarm_window: int | None = None
-        self.last: Verdict | None = None
+        self.last: WindowVerdict | None = None
         self._ref = {HARD_IRON: Reference(3, self._forget), COMBINED: Reference(4, self._forget)}
         self._noise_sums = [0.0, 0, 0.0, 0]  # Σ rss, Σ dof, Σ batch-mean squares, Σ batches (baseline)
         self._base_done = 0
@@ -330,7 +330,7 @@ class DriftMonitor:
     def drifted(self) -> bool:
         return self.first_alarm_window is not None
 
-    def add(self, m_ut, temp_c=None) -> list[Verdict]:
+    def add(self, m_ut, temp_c=None) -> list[WindowVerdict]:
         """Samples (n, 3) µT (and their die temperatures, when the calibration uses them)."""
         m = np.atleast_2d(np.asarray(m_ut, dtype=np.float64))
         t = None if temp_c is None else np.broadcast_to(np.asarray(temp_c, dtype=np.float64), (len(m),))
@@ -347,7 +347,7 @@ class DriftMonitor:
                 out.append(self._process(self._buf, self._temp))
         return out
 
-    def _process(self, m: np.ndarray, temp: np.ndarray) -> Verdict:
+    def _process(self, m: np.ndarray, temp: np.ndarray) -> WindowVerdict:
         channels = None
         if "temp_c" in self.calibration.coef_ut_per_unit and np.all(np.isfinite(temp)):
             channels = {"temp_c": temp}
@@ -360,7 +360,7 @@ class DriftMonitor:
         self.last = v
         return v
 
-    def _learn(self, w: dict, n: int) -> Verdict:
+    def _learn(self, w: dict, n: int) -> WindowVerdict:
         """A baseline window: its noise sums, and its place in the references."""
         for i, key in enumerate(("rss", "dof", "bm_ss", "nb")):
             self._noise_sums[i] += w[key]
@@ -369,8 +369,8 @@ class DriftMonitor:
         self._join(w)
         if self._base_done == self.baseline_windows:
             self._spread()
-        return Verdict(self.windows, Phase.BASELINE, n, float("nan"), float("nan"), 0, float("nan"), False,
-                       w["rms_ut"], (0.0, 0.0, 0.0))
+        return WindowVerdict(self.windows, Phase.BASELINE, n, float("nan"), float("nan"), 0, float("nan"), False,
+                             w["rms_ut"], (0.0, 0.0, 0.0))
 
     # -- the test ----------------------------------------------------------------------------------
     def noise(self) -> tuple[float, float]:
@@ -406,7 +406,7 @@ class DriftMonitor:
         _, s = window_parts(w["a"], w["b"], HARD_IRON)
         return HARD_IRON if np.linalg.eigvalsh(s)[-1] > EIG_FLOOR * self.window else COMBINED
 
-    def _test(self, w: dict, n: int) -> Verdict:
+    def _test(self, w: dict, n: int) -> WindowVerdict:
         test = self._which(w)
         theta, info = window_parts(w["a"], w["b"], test)
         ref = self._ref[test]
@@ -414,8 +414,8 @@ class DriftMonitor:
         judged = [self._judge(theta - theta0, info, n, ref_inv, sp.scale()) for sp in ref.spreads]
         t2, k, seen, moments, p, threshold = max(judged, key=lambda j: j[4])
         if k == 0:
-            return Verdict(self.windows, Phase.TEST, n, 0.0, float("inf"), 0, 1.0, False, w["rms_ut"], (0.0, 0.0, 0.0),
-                           test)
+            return WindowVerdict(self.windows, Phase.TEST, n, 0.0, float("inf"), 0, 1.0, False, w["rms_ut"], (0.0, 0.0, 0.0),
+                                 test)
         drifted = p < self.alpha
         shift = self._w_inv @ (seen if test is HARD_IRON else seen[1:])  # e ≈ u·Wδ ⇒ δ = W⁻¹d
         if drifted:
@@ -428,8 +428,8 @@ class DriftMonitor:
         else:
             ref.spread(moments)
             self._join(w)
-        return Verdict(self.windows, Phase.TEST, n, t2, threshold, k, p, drifted,
-                       w["rms_ut"], tuple(float(s) for s in shift), test)
+        return WindowVerdict(self.windows, Phase.TEST, n, t2, threshold, k, p, drifted,
+                             w["rms_ut"], tuple(float(s) for s in shift), test)
 
     def _judge(self, delta, info, n, ref_inv, scale):
         """(T², k, the tested difference, its moments, p, threshold) under one spread."""
