@@ -384,3 +384,42 @@ def test_the_one_of_each_rules_find_a_planted_second_one():
     assert tail_implementations(ast.parse("from scipy import stats\n")) == {"scipy.stats"}
     assert tail_implementations(ast.parse("from scipy.stats import chi2\n")) == {"scipy.stats"}
     assert damped_solver_loops(tree) == {"lm"}
+
+
+# -- one name, one meaning: no class name defined twice -------------------------------------------
+
+
+def class_definitions(directory: str) -> dict[str, list[str]]:
+    """Each class name defined below ``directory`` (top-level and nested ``class`` statements)
+    → where (``path:line``, paths relative to ``directory``)."""
+    out: dict[str, list[str]] = {}
+    for dirpath, dirnames, files in os.walk(directory):
+        dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
+        for f in sorted(files):
+            if f.endswith(".py"):
+                path = os.path.join(dirpath, f)
+                for node in ast.walk(parsed(path)):
+                    if isinstance(node, ast.ClassDef):
+                        out.setdefault(node.name, []).append(f"{os.path.relpath(path, directory)}:{node.lineno}")
+    return out
+
+
+def test_no_class_name_is_defined_twice():
+    """A name a reader meets in two modules should mean one thing: two classes of one name are
+    either one concept built twice (keep one) or two concepts (name each for what it is)."""
+    twice = {k: v for k, v in class_definitions(ROOT).items() if len(v) > 1}
+    assert not twice, "class names defined more than once in magcal/: " + "; ".join(
+        f"{k} ({', '.join(v)})" for k, v in sorted(twice.items()))
+
+
+def test_a_class_name_defined_twice_is_found(tmp_path):
+    """The rule itself: a name defined in two modules (one of them nested in a function) is
+    found with both places; names defined once are not."""
+    (tmp_path / "fit").mkdir()
+    (tmp_path / "logic").mkdir()
+    (tmp_path / "fit" / "one.py").write_text("class Step:\n    pass\n\n\nclass Alone:\n    pass\n")
+    (tmp_path / "logic" / "two.py").write_text("def f():\n    class Step:\n        pass\n    return Step\n")
+    found = class_definitions(str(tmp_path))
+    assert {k: v for k, v in found.items() if len(v) > 1} == {
+        "Step": [os.path.join("fit", "one.py") + ":1", os.path.join("logic", "two.py") + ":2"]}
+    assert found["Alone"] == [os.path.join("fit", "one.py") + ":5"]
