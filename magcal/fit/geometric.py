@@ -35,6 +35,8 @@ import numpy as np
 
 from .failure import FitFailure
 
+# the model kinds, simplest first: the one order of models (the tracker grows through them in it;
+# a held-out tie goes to the earlier one, fit.holdout)
 KINDS = ("sphere", "diagonal", "full")
 N_SHAPE = {"sphere": 0, "diagonal": 2, "full": 5}
 

@@ -61,7 +61,6 @@ SEEN_SHARE = 0.5
 BALANCE_MARGIN = 1.25
 BALANCE_ALPHA = 0.05
 MARGIN = 0.05
-SIMPLER_FIRST = ("sphere", "diagonal", "full")
 STEP_SE = 1e-3  # a refit stops once a step moves it less than this many standard errors
 MAX_STEPS = 20
 
@@ -80,8 +79,8 @@ class HeldOutSpread:
     def choose(self, default: str, margin: float = MARGIN) -> str:
         """``default`` unless another kind predicts the held-out blocks better by more than
         ``margin`` (relative); then the best of those (a tie goes to the simpler model)."""
-        better = [k for k in SIMPLER_FIRST if k in self.spread and self.spread[k] * (1 + margin) < self.spread[default]]
-        return min(better, key=lambda k: (self.spread[k], SIMPLER_FIRST.index(k))) if better else default
+        better = [k for k in geometric.KINDS if k in self.spread and self.spread[k] * (1 + margin) < self.spread[default]]
+        return min(better, key=lambda k: (self.spread[k], geometric.KINDS.index(k))) if better else default
 
 
 def block_edges(n: int, n_blocks: int = N_BLOCKS) -> np.ndarray:

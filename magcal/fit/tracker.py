@@ -59,7 +59,6 @@ from .cell_buffer import CellBuffer, WhenFull
 from .tracker_memory import WanderRate, robust_scale, sample_weights
 from .uncertainty import direction_jackknife_variance, gain_widening, shape_sigma
 
-GROWTH = ("sphere", "diagonal", "full")  # the models, in the order the tracker grows through them
 _OLD_NAMES = {"ladder_every": "grow_every", "last_ladder": "last_growth", "cells_at_ladder": "cells_at_growth"}
 CHANGE_ALPHA = 1e-9  # a sudden change is declared at this false-alarm probability per refit
 CHANGE_MIN_PAIRS = 5
@@ -430,7 +429,7 @@ class Tracker:
         residual), as ``pipeline`` judges them. A new model starts a new wander record."""
         c = self.config
         self._last_growth, self._cells_at_growth = self.n, self.memory.occupied()
-        for kind in GROWTH[GROWTH.index(self.kind) + 1:]:
+        for kind in geometric.KINDS[geometric.KINDS.index(self.kind) + 1:]:
             best = None
             for start in (_extend(self.theta, kind), algebraic_start(m, kind)):
                 if isinstance(start, FitFailure):
@@ -539,7 +538,7 @@ class Tracker:
             trk.low_field_ut = None if low is None else float(low)
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"tracker state is malformed: {exc}") from None
-        if trk.kind not in (None, *GROWTH) or (trk.theta is not None and len(trk.theta) != geometric.n_params(trk.kind)):
+        if trk.kind not in (None, *geometric.KINDS) or (trk.theta is not None and len(trk.theta) != geometric.n_params(trk.kind)):
             raise ValueError("tracker state is inconsistent (model and parameters disagree)")
         return trk
 

@@ -35,7 +35,7 @@ from . import geometric
 from .failure import FitFailure
 from .pipeline import fit_models
 from .result import MODEL_NAMES
-from .tracker import GROWTH, Estimate, Tracker, condition, gauss_newton
+from .tracker import Estimate, Tracker, condition, gauss_newton
 from .uncertainty import SPHERE_GAIN_SIGMA, gain_doubt, soft_iron_sigma
 
 KIND_OF = {name: kind for kind, name in MODEL_NAMES.items()}
@@ -59,7 +59,7 @@ class Sigma:
 
 @dataclass(frozen=True)
 class FitView:
-    """What fit says on one set of samples: the models its gates accept (``GROWTH`` kinds,
+    """What fit says on one set of samples: the models its gates accept (``geometric.KINDS``,
     subset first), the one it chooses, and each reported model's 1σ."""
 
     accepted: tuple[str, ...]
@@ -68,7 +68,7 @@ class FitView:
 
     def sigma_of(self, kind: str) -> Sigma | None:
         """fit's σ for ``kind``, else for the nearest fuller model it reported (wider)."""
-        return next((self.sigma[k] for k in GROWTH[GROWTH.index(kind):] if k in self.sigma), None)
+        return next((self.sigma[k] for k in geometric.KINDS[geometric.KINDS.index(kind):] if k in self.sigma), None)
 
 
 def fit_view(m: np.ndarray) -> FitView | FitFailure:
@@ -83,7 +83,7 @@ def fit_view(m: np.ndarray) -> FitView | FitFailure:
             u = r.uncertainty
             sigma[KIND_OF[r.model]] = Sigma(np.asarray(u["offset_ut"], float), float(u["field_ut"]),
                                             np.asarray(u["soft_iron"], float))
-    return FitView(tuple(k for k in GROWTH if MODEL_NAMES[k] in auto.alternatives), KIND_OF[auto.model], sigma)
+    return FitView(tuple(k for k in geometric.KINDS if MODEL_NAMES[k] in auto.alternatives), KIND_OF[auto.model], sigma)
 
 
 def _own_sigma(tracker: Tracker, est: Estimate, kind: str) -> Sigma:
@@ -146,7 +146,7 @@ def checked(tracker: Tracker, recording: np.ndarray | None = None) -> Estimate |
     if any(isinstance(v, FitFailure) for v in views):
         return None
     kind = KIND_OF[est.model]
-    allowed = [k for k in GROWTH[: GROWTH.index(kind) + 1] if all(k in v.accepted for v in views)]
+    allowed = [k for k in geometric.KINDS[: geometric.KINDS.index(kind) + 1] if all(k in v.accepted for v in views)]
     for use in reversed(allowed):
         if use == kind:
             reported, own = est, _own_sigma(tracker, est, kind)
