@@ -2,7 +2,7 @@
 
 The tracker (``fit.tracker``) follows the calibration as the sensor wanders; the device holds
 the one written last. ``Keeper.decide`` says whether to write the tracker's now — a typed
-``Decision`` — and never says yes past a gate:
+``WriteDecision`` — and never says yes past a gate:
 
 1. the tracker has a calibration, and it passes the gates every written calibration passes
    (``gates.model_gates``: field range, offset size, residual, offset uncertainty) plus the
@@ -59,7 +59,7 @@ class Budget:
 
 
 class DecisionReason(str, Enum):
-    """Why a keeper's ``Decision`` writes or holds (the value is the ``reason`` a journal and JSON carry)."""
+    """Why a keeper's ``WriteDecision`` writes or holds (the value is the ``reason`` a journal and JSON carry)."""
 
     NO_CALIBRATION = "no_calibration"  # the tracker has none yet
     GATE = "gate"  # a gate fails
@@ -70,7 +70,7 @@ class DecisionReason(str, Enum):
 
 
 @dataclass(frozen=True)
-class Decision:
+class WriteDecision:
     write: bool
     reason: DecisionReason
     calibration: Calibration | None = None
@@ -103,7 +103,7 @@ class Keeper:
         self.cycles = 0  # EEPROM write cycles spent (writes, and restores after a failed write)
         self.writes = 0  # writes that were verified by read-back
         self.failed = 0  # writes that were not
-        self._held: tuple[int, Decision] | None = None  # (tracker.n, the decision) of a refused check
+        self._held: tuple[int, WriteDecision] | None = None  # (tracker.n, the decision) of a refused check
 
     def add(self, m_ut, t_s: float):
         """One sample for the tracker; returns its change of calibration, if any."""
@@ -132,16 +132,16 @@ class Keeper:
         c = est.calibration
         return out + model_gates(g, c.offset_ut, c.field_ut, est.noise_ut, est.offset_sigma_ut)
 
-    def decide(self, device: Calibration | None, now_s: float) -> Decision:
+    def decide(self, device: Calibration | None, now_s: float) -> WriteDecision:
         """Write the tracker's calibration over ``device``'s (None: the device holds none)?"""
         self._refill(now_s)
         est = self.tracker.estimate
         if est is None:
-            return Decision(False, DecisionReason.NO_CALIBRATION, message="the tracker has no calibration yet")
+            return WriteDecision(False, DecisionReason.NO_CALIBRATION, message="the tracker has no calibration yet")
         first = self._judge(est, device)
         return self._checked(device, first) if first.write else first
 
-    def _checked(self, device: Calibration | None, first: Decision) -> Decision:
+    def _checked(self, device: Calibration | None, first: WriteDecision) -> WriteDecision:
         """The last step before a write: the calibration as it may be reported
         (``tracker_check.checked``: a model fit's gates accept on the samples in memory, each σ
         at least fit's there) judged again. That costs a fit of memory (tens of ms), so it is
@@ -150,31 +150,31 @@ class Keeper:
         if self._held is not None and n - self._held[0] < RECHECK_SAMPLES:
             return self._held[1]
         rep = checked(self.tracker)
-        out = self._judge(rep, device) if rep is not None else Decision(
+        out = self._judge(rep, device) if rep is not None else WriteDecision(
             False, DecisionReason.GATE, first.calibration, first.comparison, first.gates,
             "fit's gates refuse every model on the samples in memory")
         self._held = None if out.write else (n, out)
         return out
 
-    def _judge(self, est, device: Calibration | None) -> Decision:
+    def _judge(self, est, device: Calibration | None) -> WriteDecision:
         """Gates, significance and budget for the estimate ``est``."""
         gates = tuple(self._gates(est))
         failing = [g for g in gates if not g.passed]
         if failing:
-            return Decision(False, DecisionReason.GATE, est.calibration, gates=gates,
-                            message="; ".join(g.message for g in failing))
+            return WriteDecision(False, DecisionReason.GATE, est.calibration, gates=gates,
+                                 message="; ".join(g.message for g in failing))
         cmp = None if device is None else compare(self.tracker, device, est)
         if cmp is not None and not cmp.z >= self.z_needed:
-            return Decision(False, DecisionReason.NOT_SIGNIFICANT, est.calibration, cmp, gates,
-                            f"gain z = {cmp.z:.2f} < {self.z_needed:.2f}")
+            return WriteDecision(False, DecisionReason.NOT_SIGNIFICANT, est.calibration, cmp, gates,
+                                 f"gain z = {cmp.z:.2f} < {self.z_needed:.2f}")
         if self.tokens < 1.0:
             wait_s = (1.0 - self.tokens) * DAY_S / self.budget.per_day
-            return Decision(False, DecisionReason.BUDGET, est.calibration, cmp, gates,
-                            f"EEPROM budget spent for now ({self.budget.per_day:g}/day); next write in {wait_s:.0f} s")
+            return WriteDecision(False, DecisionReason.BUDGET, est.calibration, cmp, gates,
+                                 f"EEPROM budget spent for now ({self.budget.per_day:g}/day); next write in {wait_s:.0f} s")
         reason = DecisionReason.FIRST if device is None else DecisionReason.BETTER
         msg = "the device holds no calibration" if cmp is None else (
             f"RMS {cmp.rms_other_pct:.3f} % → {cmp.rms_ours_pct:.3f} %, z = {cmp.z:.1f}")
-        return Decision(True, reason, est.calibration, cmp, gates, msg, est)
+        return WriteDecision(True, reason, est.calibration, cmp, gates, msg, est)
 
     def affords(self, now_s: float) -> bool:
         """Is a write within the budget now?"""
