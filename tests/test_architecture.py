@@ -389,9 +389,24 @@ def test_the_one_of_each_rules_find_a_planted_second_one():
 # -- one name, one meaning: no class name defined twice -------------------------------------------
 
 
+# the calls that make a class without a class statement (``Decision = Enum("Decision", …)``)
+CLASS_FACTORIES = {"Enum", "IntEnum", "StrEnum", "Flag", "IntFlag", "namedtuple", "NamedTuple", "TypedDict",
+                   "make_dataclass"}
+
+
+def _classes_made(node) -> list[str]:
+    """The class names ``node`` defines: a ``class`` statement's, or the names a class factory's
+    result is assigned to."""
+    if isinstance(node, ast.ClassDef):
+        return [node.name]
+    if isinstance(node, ast.Assign) and isinstance(node.value, ast.Call) and _name(node.value.func) in CLASS_FACTORIES:
+        return [t.id for t in node.targets if isinstance(t, ast.Name)]
+    return []
+
+
 def class_definitions(directory: str) -> dict[str, list[str]]:
-    """Each class name defined below ``directory`` (top-level and nested ``class`` statements)
-    → where (``path:line``, paths relative to ``directory``)."""
+    """Each class name defined below ``directory`` (top-level and nested ``class`` statements,
+    and classes made by ``CLASS_FACTORIES``) → where (``path:line``, relative to ``directory``)."""
     out: dict[str, list[str]] = {}
     for dirpath, dirnames, files in os.walk(directory):
         dirnames[:] = sorted(d for d in dirnames if d != "__pycache__")
@@ -399,8 +414,8 @@ def class_definitions(directory: str) -> dict[str, list[str]]:
             if f.endswith(".py"):
                 path = os.path.join(dirpath, f)
                 for node in ast.walk(parsed(path)):
-                    if isinstance(node, ast.ClassDef):
-                        out.setdefault(node.name, []).append(f"{os.path.relpath(path, directory)}:{node.lineno}")
+                    for name in _classes_made(node):
+                        out.setdefault(name, []).append(f"{os.path.relpath(path, directory)}:{node.lineno}")
     return out
 
 
@@ -413,13 +428,18 @@ def test_no_class_name_is_defined_twice():
 
 
 def test_a_class_name_defined_twice_is_found(tmp_path):
-    """The rule itself: a name defined in two modules (one of them nested in a function) is
-    found with both places; names defined once are not."""
+    """The rule itself: a name defined in two modules (one of them nested in a function), and
+    one made both by a class statement and by ``Enum(...)``, are found with both places; names
+    defined once are not."""
     (tmp_path / "fit").mkdir()
     (tmp_path / "logic").mkdir()
-    (tmp_path / "fit" / "one.py").write_text("class Step:\n    pass\n\n\nclass Alone:\n    pass\n")
-    (tmp_path / "logic" / "two.py").write_text("def f():\n    class Step:\n        pass\n    return Step\n")
+    (tmp_path / "fit" / "one.py").write_text("class Step:\n    pass\n\n\nclass Alone:\n    pass\n\n\n"
+                                             "class Decision:\n    pass\n")
+    (tmp_path / "logic" / "two.py").write_text("from enum import Enum\n\n\ndef f():\n    class Step:\n        pass\n"
+                                               "    return Step\n\n\nDecision = Enum('Decision', ['A'])\n"
+                                               "total = sum([1, 2])\n")
     found = class_definitions(str(tmp_path))
+    one, two = os.path.join("fit", "one.py"), os.path.join("logic", "two.py")
     assert {k: v for k, v in found.items() if len(v) > 1} == {
-        "Step": [os.path.join("fit", "one.py") + ":1", os.path.join("logic", "two.py") + ":2"]}
-    assert found["Alone"] == [os.path.join("fit", "one.py") + ":5"]
+        "Step": [f"{one}:1", f"{two}:5"], "Decision": [f"{one}:9", f"{two}:10"]}
+    assert found["Alone"] == [f"{one}:5"] and "total" not in found
