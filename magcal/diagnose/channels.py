@@ -13,6 +13,9 @@ applied (wrongly, if it is really drift) to future sessions. The same holds for 
 channel that only rises or falls during the recording (ambient temperature, humidity, a
 discharging battery): each is folded into the one time term and named there, instead of all
 of them being tested against one another, which leaves none testable.
+
+``TERM`` is the effect as a row of the design's table (magcal.diagnose.design.CATALOGUE): one
+tested group of three columns per candidate channel, named by ``effect_name``.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.polynomial import legendre
 
+from .catalogue import Accepted, CatalogueEffect, Columns, Linearised, Role
 from .finding import Finding
 
 TIME = "t_s"
@@ -185,6 +189,28 @@ def describe(
         evidence=ev,
         params={"channel": name, "coef_ut_per_unit": [float(v) for v in coef], "reference": cand.reference},
     )
+
+
+def columns(lin: Linearised) -> Columns:
+    """One group of three columns per candidate channel (in candidate order): the Jacobian's
+    offset-per-unit columns at the reference, where the channel coefficients the reference was
+    fitted with (``lin.coefs``) are taken back out of the residual to first order, so each
+    test is still of its term being zero (design.build)."""
+    jac = lin.jac_channels
+    return Columns(jac, tuple((c.effect, 3) for c in lin.candidates), jac @ lin.coefs)
+
+
+def finding(acc: Accepted) -> Finding:
+    """An accepted channel term as a finding: its refitted coefficient, with that coefficient's
+    interval added to the evidence (``acc.uncertainty``)."""
+    cand = acc.candidates[acc.group]
+    coef = acc.final.coef_ut_per_unit[cand.channel]
+    ev = dict(acc.evidence)
+    ev.update(acc.uncertainty(coef))
+    return describe(cand, coef, acc.chans[cand.channel], acc.t_s, ev, acc.chans.get(TEMP), acc.clock)
+
+
+TERM = CatalogueEffect("offset_versus_channel", Role.TESTED, columns, finding, MIN_UNIQUE)
 
 
 def _vec(v: np.ndarray) -> str:

@@ -13,7 +13,8 @@ the sphere. Over a band of directions, or any coverage that is not uniform, they
 degree-4 function restricted to a band shares a large part with degree-2 ones, and as a
 nuisance it soaks up soft iron. ``on_data`` therefore removes, by least squares over the
 recording's own directions, every part of them that degrees 0–2 (the columns of hard iron,
-radius and soft iron, as functions of the direction alone) can express.
+radius and soft iron, as functions of the direction alone) can express. ``TERM`` is that
+nuisance as a row of the design's table (magcal.diagnose.design.CATALOGUE).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from functools import lru_cache
 from itertools import combinations_with_replacement
 
 import numpy as np
+
+from .catalogue import CatalogueEffect, Columns, Linearised, Role
 
 
 def _monomials(u: np.ndarray, degree: int) -> np.ndarray:
@@ -72,3 +75,11 @@ def on_data(u: np.ndarray) -> np.ndarray:
     h = regressors(u)
     coef = np.linalg.lstsq(low, h, rcond=None)[0]
     return h - low @ coef
+
+
+def columns(lin: Linearised) -> Columns:
+    """The harmonics on the directions the design is linearised at (``on_data``), a nuisance of every test."""
+    return Columns(on_data(lin.directions))
+
+
+TERM = CatalogueEffect("direction_harmonics", Role.NUISANCE, columns)

@@ -3,12 +3,14 @@
 The candidate regressors are ∂|h|/∂s_p = uᵀE_p d for the five trace-free symmetric directions
 E_p (magcal.diagnose.model.SOFT_BASIS). From magnitudes alone the three causes cannot be told
 apart (docs/physics.md, "Identifiability"), so they are one effect with one symmetric matrix.
+``TERM`` is the effect as a row of the design's table (magcal.diagnose.design.CATALOGUE).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .catalogue import Accepted, CatalogueEffect, Columns, Linearised, Role
 from .finding import Finding
 from .model import SOFT_BASIS
 
@@ -116,3 +118,24 @@ def _axis(v: np.ndarray) -> str:
     if abs(v[big[0]]) > 0.95:
         return f"the sensor {names[big[0]]} axis"
     return "the direction (" + ", ".join(f"{x:+.2f}" for x in v) + ")"
+
+
+def columns(lin: Linearised) -> Columns:
+    """The soft-iron group: the Jacobian's soft-iron columns at the reference (at the model's own
+    point on the surface, design.linearise) along only the directions the data determine (the
+    reference's, ``determined_directions``); along the others (``rest``) they are fitted beside
+    every candidate but not tested. The reference's own soft iron is taken back out of the
+    residual to first order, so the test is linearised where the model fits (design.build)."""
+    jac, dirs = lin.jac_soft, lin.reference.spec.soft_matrix
+    rest = jac @ np.linalg.svd(dirs, full_matrices=True)[0][:, dirs.shape[1] :]
+    return Columns(jac @ dirs, ((EFFECT, dirs.shape[1]),), jac @ lin.reference.soft, rest, dirs)
+
+
+def finding(acc: Accepted) -> Finding:
+    """An accepted soft iron as a finding: the refitted matrix and its evidence."""
+    return describe(acc.final.soft_iron, acc.evidence)
+
+
+# a direction the other columns largely mimic is left out of the test (MIN_UNIQUE): along such a
+# direction the gain trades with offset and radius, and its second-order residue would pass for a signal
+TERM = CatalogueEffect(EFFECT, Role.TESTED, columns, finding, MIN_UNIQUE)

@@ -13,7 +13,9 @@ then tested and its coefficient estimated from the part of its variation that a 
 offset-versus-time curve cannot explain; a channel that only varies slowly (a temperature swing
 of about a cycle) shares most of its variation with the nuisance, which is the honest statement
 that it cannot be told apart from wander in one recording. Where the residual shows none, the
-nuisance is left out of the tests: it would only take such a channel's power.
+nuisance is left out of the tests: it would only take such a channel's power. ``TERM`` is that
+nuisance as the last row of the design's table (magcal.diagnose.design.CATALOGUE), of degree
+``NUISANCE_DEGREE``.
 """
 
 from __future__ import annotations
@@ -21,7 +23,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.polynomial import legendre
 
+from .catalogue import CatalogueEffect, Columns, Linearised, Role
+
 DEGREE = 4
+# the slow wander as a nuisance of the design: Legendre degrees 2..NUISANCE_DEGREE of the offset
+# versus time, in every held-out comparison, and in every test where the residual shows a wander
+# (ladder.wander_seen)
+NUISANCE_DEGREE = 2
 
 
 def regressors(t_s: np.ndarray, u: np.ndarray, degree: int = DEGREE) -> np.ndarray:
@@ -34,3 +42,11 @@ def regressors(t_s: np.ndarray, u: np.ndarray, degree: int = DEGREE) -> np.ndarr
     tau = (2.0 * (t - t[0]) / span - 1.0) if span > 0 else np.zeros(n)
     vand = legendre.legvander(tau, degree)[:, 2:]  # (n, degree−1)
     return (vand[:, :, None] * u[:, None, :]).reshape(n, -1)
+
+
+def columns(lin: Linearised) -> Columns:
+    """The wander nuisance of degree ``NUISANCE_DEGREE`` along the offset's own radial signature W·u."""
+    return Columns(regressors(lin.t_s, lin.offset_directions, NUISANCE_DEGREE))
+
+
+TERM = CatalogueEffect("slow_wander", Role.WANDER, columns)
