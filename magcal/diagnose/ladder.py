@@ -322,10 +322,10 @@ def tested_columns(dsg: design.Design, seen: bool, e_null: tuple | None) -> coll
     """What every test runs on: the design's columns, with the quadratic wander only where the
     residual shows a wander (``seen``: free, the quadratic wander takes most of a 1.3-cycle
     temperature swing on a band of directions even where the residual shows no wander at all,
-    see wander_seen), each group's coverage gate and the twin's draws ``e_null``."""
-    unique = {g: softiron.MIN_UNIQUE if g == softiron.EFFECT else channels.MIN_UNIQUE for g in dsg.groups}
-    return collinear.Tested(dsg.x if seen else dsg.x[:, : dsg.n_before_wander], dsg.residual_ut, dsg.groups, unique,
-                            e_null)
+    see wander_seen), each group's coverage gate (its effect's, design.Design.coverage_gates) and
+    the twin's draws ``e_null``."""
+    return collinear.Tested(dsg.x if seen else dsg.x[:, : dsg.n_before_wander], dsg.residual_ut, dsg.groups,
+                            dsg.coverage_gates, e_null)
 
 
 def wander_seen(dsg: design.Design, t: np.ndarray) -> bool:
