@@ -23,6 +23,7 @@ from magcal.recordings.state import StateFiles
 PATCH = """
 import os
 import magcal.app.daemon, magcal.cli.run  # what `magcal run` imports, imported once for every boot
+import magcal.app.daemon.daemon  # the daemon itself (scipy.stats …), which run imports on first use
 from magcal.devices import simboard
 real = simboard.SimEeprom.put
 def put(self, offset, payload):
@@ -42,6 +43,25 @@ def _lines(path) -> int:
 
 def _intents(state_dir) -> int:
     return read_history(state_dir / LEDGER_NAME, time.time()).cycles
+
+
+def _refusals(state_dir):
+    """How many times the daemon reached a write it wanted (gates passed, significantly better)
+    and found the budget spent, as its state file says (saved every ``state_every_s``); read
+    again only when the file changed."""
+    seen = {"mtime": None, "count": 0}
+
+    def count() -> int:
+        try:
+            mtime = StateFiles(state_dir).current.stat().st_mtime_ns
+        except FileNotFoundError:
+            return 0
+        if mtime != seen["mtime"]:
+            payload = StateFiles(state_dir).load()
+            seen["mtime"], seen["count"] = mtime, payload["status"]["faults"].get("write_budget_waits", 0)
+        return seen["count"]
+
+    return count
 
 
 def _start(launcher: Launcher, tmp_path, offset: str, count: int | None = None) -> int:
@@ -68,7 +88,8 @@ def _kill_when(launcher: Launcher, pid: int, grew, limit_s: float) -> None:
 def test_kill_9_around_writes_never_exceeds_the_budget(tmp_path):
     """Budget 1 a day, burst 1: six boots of ``magcal run``, each against a board whose hard
     iron moved (the tracker wants to write every time), killed at a random moment, right after
-    the ledger's intent, or right after the board's store. The board stores once in all.
+    the ledger's intent, or right after the board's store — or, where the budget is spent, right
+    after the write it wanted was refused. The board stores once in all.
 
     Each moment is one of the command's life: a boot no longer pays the interpreter's start-up
     and imports (the launcher paid them once, ``startup_s``), so every wait, counted from the
@@ -82,18 +103,22 @@ def test_kill_9_around_writes_never_exceeds_the_budget(tmp_path):
 
         for i, moment in enumerate(moments):
             before_board, before_intents = _lines(board), _intents(st)
+            refusals = _refusals(st)
+            before_refusals = refusals()
             pid = _start(launcher, tmp_path, f"{10 + 7 * i},-20,{5 * i}")
-            if moment == "store":
-                # the first boot is given all the time it needs to reach its store (on a loaded
-                # machine 3.5 s can pass before any write, and the boots after it would then test
-                # nothing): it must store once, and every later boot finds the budget spent
-                limit_s = 60.0 if i == 0 else after_startup(3.5)
-                _kill_when(launcher, pid, lambda: _lines(board) > before_board, limit_s)
-                assert i > 0 or _lines(board) == 1, "the first boot never reached its store"
-            elif moment == "intent":
-                _kill_when(launcher, pid, lambda: _intents(st) > before_intents, after_startup(3.5))
-            else:
+            if moment == "random":
                 _kill_when(launcher, pid, lambda: False, after_startup(0.8 + 0.4 * i))
+            else:
+                # killed right after the store (the intent); a boot that finds the budget spent
+                # never makes either, and is killed once it reached the write it wanted and the
+                # budget refused it. Every boot is given all the time it needs to get there (on a
+                # loaded machine seconds can pass first, and the boot would then test nothing):
+                # the first must store once, every later one finds the budget spent.
+                made = (lambda: _lines(board) > before_board) if moment == "store" else (
+                    lambda: _intents(st) > before_intents)
+                _kill_when(launcher, pid, lambda: made() or refusals() > before_refusals, 60.0)
+                assert made() or refusals() > before_refusals, f"boot {i} ({moment}) never reached a write"
+                assert i > 0 or _lines(board) == 1, "the first boot never reached its store"
             assert _lines(board) <= _intents(st)  # every store the board took was recorded first
             assert _lines(board) <= 1, f"boot {i} ({moment}): the board stored {_lines(board)} times"
         pid = _start(launcher, tmp_path, "40,-20,30", count=2500)  # a clean run: it resumes, then says what it counts
