@@ -11,7 +11,10 @@ import time
 
 import pytest
 
+import magcal.devices.simboard  # noqa: F401  (the sim:// backend, which open_device imports on first use)
 from magcal.app import config
+from magcal.app.daemon import Collaborators, Daemon
+from magcal.devices import open_device
 from magcal.logic.monitor import DriftMonitor
 from magcal.logic.session import Session
 from magcal.recordings.state import StateFiles
@@ -27,10 +30,8 @@ def _mtime(path) -> int:
 
 
 def _child(state_dir: str, seed: int) -> None:
-    # runs in a forked child: the imports are already done, so a start costs milliseconds
-    from magcal.app.daemon import Collaborators, Daemon
-    from magcal.devices import open_device
-
+    # runs in a forked child: the imports are already done (at the top of this module, the
+    # daemon's own too: ``magcal.app.daemon`` imports it on first use), so a start costs milliseconds
     port = f"sim://?pace=0&eeprom={state_dir}/eeprom.bin"  # one device; each boot moves through other directions
     settings = config.load(None, {
         "port": port,
