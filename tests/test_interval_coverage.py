@@ -79,3 +79,31 @@ def test_a_sigma_estimated_from_few_pieces_is_stated_for_students_t():
 
     # the direction jackknife has five degrees of freedom: t₅(97.5 %) = 2.571, not 1.96
     assert np.allclose(few_dof_factor(np.array([5.0, 39.0, np.inf])), [2.5706 / 1.96, 2.0227 / 1.96, 1.0], atol=1e-3)
+
+
+def _sweeping_turn_with_wandering_offset(seed: int):
+    """A hand turn whose directions sweep from the upper to the lower hemisphere over two minutes
+    (10 Hz) while the offset wanders (Ornstein–Uhlenbeck, 1 µT per axis, 20 s correlation time):
+    each half sees other directions and another stretch of the wander."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(1200) / 10.0
+    el = np.deg2rad(45.0 - 90.0 * t / t[-1] + 35.0 * np.sin(2 * np.pi * t / 11.0))
+    az = 2 * np.pi * t / 8.0 + rng.uniform(0, 2 * np.pi)
+    u = np.c_[np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]
+    a = np.exp(-0.1 / 20.0)
+    kicks = rng.normal(0.0, np.sqrt(1 - a * a), (len(t), 3))
+    wander = np.zeros_like(kicks)
+    wander[0] = rng.normal(0.0, 1.0, 3)
+    for i in range(1, len(t)):
+        wander[i] = a * wander[i - 1] + kicks[i]
+    return np.array([12.0, -8.0, 30.0]) + wander + 50.0 * u + rng.normal(0.0, 0.3, u.shape)
+
+
+def test_intervals_count_how_the_answer_depends_on_which_stretch_of_time_was_seen():
+    m = _sweeping_turn_with_wandering_offset(2)
+    half = len(m) // 2
+    a, b = fit_calibration(m[:half], model="auto"), fit_calibration(m[half:], model="auto")
+    # without the time blocks' jackknife the y offsets' change overshot its interval 1.45×
+    assert np.all(_covered(a.calibration.offset_ut, a.uncertainty["offset_ut"],
+                           b.calibration.offset_ut, b.uncertainty["offset_ut"]))
+    assert a.uncertainty["time_block_factor"] > 1.5 and a.to_dict()["uncertainty"]["time_block_factor"] > 1.5

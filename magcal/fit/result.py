@@ -20,8 +20,9 @@ class FitResult:
     offset_ut (3), field_ut and soft_iron (3×3): σ̂²(JᵀJ)⁻¹, or the block (batch-means) sandwich
     when correlated residuals make it larger, by ``autocorrelation_factor`` (√ of the ratio of
     the offset variances; 1 when the residuals look independent), and at least a jackknife over
-    six direction groups (``direction_factor``: how much wider that made the offset's σ, ≥ 1;
-    ``uncertainty.summarise``). ``crlb_offset_ut``: √diag of the
+    six direction groups (``direction_factor``: how much wider that made the offset's σ, ≥ 1)
+    and a delete-a-block jackknife over eight contiguous time blocks (``time_block_factor``,
+    likewise; ``uncertainty.summarise``). ``crlb_offset_ut``: √diag of the
     Cramér–Rao bound of the offset for this data's geometry (noise σ given, else σ̂).
     ``outliers``: indices into the input that were removed. ``reason``: why this model.
     ``residual_ut``: geometric residual of the samples used (in input order of ``used``).
@@ -59,6 +60,7 @@ class FitResult:
                 "soft_iron": [[float(v) for v in row] for row in np.asarray(u["soft_iron"])],
                 "autocorrelation_factor": float(u.get("autocorrelation_factor", 1.0)),
                 "direction_factor": float(u.get("direction_factor", 1.0)),
+                "time_block_factor": float(u.get("time_block_factor", 1.0)),
             },
             "crlb_offset_ut": [float(v) for v in self.crlb_offset_ut],
             "rms_ut": float(self.rms_ut),

@@ -43,6 +43,22 @@ of the jackknife (five degrees of freedom), the sandwich's 12–40 time blocks. 
 from a σ estimated with ν degrees of freedom is Student's t_ν wide, not the normal's 1.96 (2.57
 for the jackknife's five), so each σ is stated multiplied by t_ν(97.5 %)/1.96
 (``few_dof_factor``): ±1.96 σ is then the 95 % interval it claims to be.
+
+None of those asks how much the answer depends on *which stretch of time* the recording holds.
+The sandwich's short blocks see correlation shorter than a block, the faces see which directions
+were seen, but a recording is also a sequence: the offset wanders over minutes, the tilts that pin
+a flight's ellipsoid come in one stretch, a hand turn covers one face early and another late.
+Cut in two, such a recording gives halves further apart than any of those σ: on the open real
+recordings the misses were where the halves saw other shares of the six faces (a flight log's
+halves 62 % apart in their face shares, a 324-sample hand turn's 30 %, an RM3100 hand turn's
+21 % where the faces' jackknife had widened nothing). So each σ is also at least what a delete-a-block jackknife
+over ``TIME_BLOCKS`` contiguous time blocks says (linearised at the fit, as the faces' one is):
+the spread of the answers the fit would have given with each eighth of the recording missing.
+It carries wander, correlation longer than the sandwich's blocks and coverage that arrives in
+one stretch, all at once; where the rest of the recording hardly pins a parameter without one
+block, it says so by a wide σ. Its variance has K − 1 = 7 degrees of freedom, so it is stated
+with t₇'s 95 % point; the larger of it and the analytic σ above is kept per parameter
+(``time_block_factor``: the largest widening of the offset's σ; ≥ 1).
 """
 
 from __future__ import annotations
@@ -56,6 +72,9 @@ from .tails import chi2_isf, t_isf
 # recordings' own ellipsoids (bench/interval_coverage.py's set, sealed ones left out): median
 # |log gain| 0.021 (0.04 as this σ, were they normal), RMS 0.088 with the QMC5883L's 2.2 : 1
 SPHERE_GAIN_SIGMA = 0.05
+# contiguous time blocks of the delete-a-block jackknife (module docstring): long enough to
+# carry a stretch's own directions and wander, enough of them for a variance (7 degrees of freedom)
+TIME_BLOCKS = 8
 Z95 = 1.959963984540054  # the two-sided 95 % point of the normal distribution
 
 
@@ -248,6 +267,45 @@ def _widened_by_directions(cov: np.ndarray, fit: geometric.GeometricFit, weights
     return cov * np.outer(r, r), float(np.max(r[:3])), dof
 
 
+def time_block_covariance(jac: np.ndarray, residual_ut: np.ndarray, weights=None,
+                          n_blocks: int = TIME_BLOCKS) -> tuple[np.ndarray, int] | None:
+    """(the delete-a-block jackknife's covariance of θ over ``n_blocks`` contiguous blocks of the
+    time-ordered samples, the number of blocks it used); None where there are too few samples
+    for at least three blocks of as many samples as parameters.
+
+    Linearised at the fit: leaving block k out moves θ by (A − A_k)⁻¹ J_kᵀW_k e_k (A = JᵀWJ), and
+    the jackknife is (K − 1)/K Σ of the moves' outer products about their mean. Where the rest
+    does not pin θ without block k the move is the pseudo-inverse's, large: the answer rests on
+    that stretch."""
+    e = np.asarray(residual_ut, np.float64)
+    n, p = jac.shape
+    k = min(int(n_blocks), n // max(p, 1))
+    if k < 3:
+        return None
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    wj = w[:, None] * jac
+    edges = np.linspace(0, n, k + 1).round().astype(int)
+    a = jac.T @ wj
+    a_out = np.stack([a - jac[i:j].T @ wj[i:j] for i, j in zip(edges[:-1], edges[1:])])
+    g = np.stack([wj[i:j].T @ e[i:j] for i, j in zip(edges[:-1], edges[1:])])
+    moves = (np.linalg.pinv(a_out, rcond=1e-15, hermitian=True) @ g[..., None])[..., 0]
+    d = moves - moves.mean(axis=0)
+    return d.T @ d * (k - 1.0) / k, k
+
+
+def _widened_by_time_blocks(cov: np.ndarray, fit: geometric.GeometricFit, weights) -> tuple[np.ndarray, float]:
+    """(cov with each parameter's σ raised to the time-block jackknife's, stated for Student's t
+    with its K − 1 degrees of freedom, where that is larger — correlations kept; the largest
+    widening of the offset's σ)."""
+    jack = time_block_covariance(fit.jac, fit.residual_ut, weights)
+    if jack is None:
+        return cov, 1.0
+    t = float(few_dof_factor(np.array([jack[1] - 1.0]))[0])
+    var = np.clip(np.diag(cov), 1e-300, None)
+    r = np.sqrt(np.maximum(np.diag(jack[0]) * t * t / var, 1.0))
+    return cov * np.outer(r, r), float(np.max(r[:3]))
+
+
 def few_dof_factor(dof: np.ndarray) -> np.ndarray:
     """Per parameter, t_ν(97.5 %) / 1.96: how much wider a 95 % interval is when its σ was
     estimated from ν independent pieces (Student's t) than when σ is known; 1 for ν = inf."""
@@ -323,7 +381,7 @@ def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weight
     if factor > 1.0:
         dof = np.minimum(dof, block_count(len(fit.residual_ut)) - 1.0)
     t = few_dof_factor(dof)
-    cov = cov * np.outer(t, t)
+    cov, by_time = _widened_by_time_blocks(cov * np.outer(t, t), fit, weights)
     crlb = covariance(fit.jac, s_hat if noise_ut is None else float(noise_ut))
     soft = soft_iron_sigma(fit.theta, fit.kind, cov)
     doubt = 1.0
@@ -342,6 +400,7 @@ def summarise(fit: geometric.GeometricFit, noise_ut: float | None = None, weight
         "sigma_ut": s_hat,
         "autocorrelation_factor": max(factor, 1.0),
         "direction_factor": by_directions,
+        "time_block_factor": by_time,
     }
 
 
