@@ -7,11 +7,13 @@ here decides what is in the model.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from . import channels, design, floors, glitches, limits as limits_, longrun, selection, softiron
 from ..fit.tails import f_isf, t_isf
+from .catalogue import Accepted
 from .finding import Finding
 from .limits import Limit
 from .model import ModelFit
@@ -142,7 +144,8 @@ def _evidence(g: str, selected, alpha: float, floor_ut: float) -> dict:
 
 
 def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_ut: float) -> tuple:
-    """The findings: glitches (if any), then each accepted term with its evidence."""
+    """The findings: glitches (if any), then each accepted term with its evidence, described by
+    its effect (magcal.diagnose.catalogue: the design's table)."""
     out: list[Finding] = []
     if a.outlier.any():
         idx = a.glitches.index
@@ -151,17 +154,15 @@ def findings(a, selected, final: ModelFit, base: ModelFit, alpha: float, noise_u
     floor_ut = selection.practical_floor_ut(noise_ut)
     slow = slow_wander(a, selected)
     for g in selected.accepted:
-        ev = _evidence(g, selected, alpha, floor_ut)
-        if g == softiron.EFFECT:
-            out.append(softiron.describe(final.soft_iron, ev))
-            continue
-        cand = selected.candidates[g]
-        coef = final.coef_ut_per_unit[cand.channel]
-        _, _, chans_kept = a.kept
-        ev.update(interval(coef, estimating_test(g, selected), slow.get(g)))
-        out.append(channels.describe(cand, coef, a.chans[cand.channel], a.t, ev, a.chans.get(channels.TEMP),
-                                     a.series.clock))
+        told = Accepted(g, final, _evidence(g, selected, alpha, floor_ut), a.chans, a.t, a.series.clock,
+                        selected.candidates, partial(_interval_of, g, selected, slow))
+        out.append(selected.design.effects[g].describe(told))
     return tuple(out)
+
+
+def _interval_of(g: str, selected, slow: dict, coef: np.ndarray) -> dict:
+    """Term g's coefficient ``coef`` with its interval (``interval``) from the test that estimated it."""
+    return interval(coef, estimating_test(g, selected), slow.get(g))
 
 
 def slow_wander(a, selected) -> dict:
