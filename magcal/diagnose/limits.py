@@ -62,13 +62,14 @@ class Limit:
 
 
 def untested_channels(tests: dict, by_effect: dict) -> tuple[Limit, ...]:
-    """A channel term the recording could not test at all is named, with why: silence about a
-    column the user logged must not read as "it has no effect"."""
+    """A channel term (``by_effect``: the channel candidates by group) the recording could not
+    test at all is named, with why: silence about a column the user logged must not read as "it
+    has no effect"."""
     out = []
-    for g, r in tests.items():
-        if g == softiron.EFFECT or not (r.f == 0.0 and r.p >= 1.0):
+    for g, c in by_effect.items():
+        r = tests[g]
+        if not (r.f == 0.0 and r.p >= 1.0):
             continue
-        c = by_effect[g]
         what = "time" if c.channel == channels.TIME else c.channel
         if c.confounded:
             what += " (with " + ", ".join(n for n, _ in c.confounded) + ", which only rose or fell with it)"
