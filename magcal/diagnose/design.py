@@ -76,7 +76,7 @@ class Design:
     @cached_property
     def x_candidates(self) -> np.ndarray:
         """Every candidate fitted: the columns before the wander nuisance and soft iron along
-        the directions the tests leave out (``soft_rest``). What the residual is judged on
+        the directions the tests leave out (``rest``). What the residual is judged on
         when asking whether it wanders (the twin, ladder.wander_seen): soft iron left out of
         the tests is still in the residual, and on a band of directions swept with a period it
         is a periodic signal in time — on 40 simulated band soft irons with white noise the
