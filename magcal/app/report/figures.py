@@ -216,7 +216,7 @@ def channels(diagnosis, v, plt, out) -> Figure:
     for ax in list(axes.flat)[len(names):]:
         ax.set_visible(False)
     name = save(fig, out, "channels", plt)
-    hits = [x for x in verdicts if "FOUND" in x]
+    hits = [text for c, text in zip(names, verdicts) if c in found]  # a finding's channel, not the words drawn
     found_text = ("; ".join(hits) + f"; nothing in the other {len(names) - len(hits)}." if hits
                   else f"no channel of the {len(names)} ({', '.join(names)}) carries an offset of its own.")
     by_reason: dict = {}
