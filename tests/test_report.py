@@ -185,6 +185,26 @@ def test_a_recording_without_time_is_drawn_by_sample_number_not_in_minutes(tmp_p
     page = (tmp_path / "page" / "index.html").read_text()
     assert f"over {len(series)} samples (the recording has no time)" in page
     assert " min." not in page and " min<" not in page
+    assert "The sample index stands for time" in page and "t_s is time" not in page
+
+
+def test_the_time_panel_of_a_recording_without_time_is_titled_by_the_sample_index():
+    """Without a time column t_s is the sample index: the channel figure names that panel so, as
+    the terminal does ("no time column: sample index"), not after a time channel it never had."""
+    from dataclasses import replace
+
+    from magcal.app.report import _plt
+    from magcal.app.report.figures import _channel_panel
+    from magcal.app.report.views import views_of
+    from magcal.sim.physics import Physics, Scenario
+
+    s = Scenario(physics=Physics(hard_iron_ut=(12.0, -20.0, 5.0), noise_ut=0.3), seed=6).simulate(600, 20.0).series
+    d = diagnose(replace(s, t_s=np.arange(len(s), dtype=float), clock=False))
+    plt = _plt()
+    fig, ax = plt.subplots()
+    said = _channel_panel(ax, d, views_of(d), "t_s", {})
+    assert ax.get_title() == said == "sample index: nothing found"
+    plt.close(fig)
 
 
 def test_every_channel_panel_of_a_level_board_shows_its_samples():

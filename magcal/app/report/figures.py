@@ -152,6 +152,12 @@ def over_time(diagnosis, v, plt, out) -> Figure:
                   "residual against time")
 
 
+def _panel_name(c: str, v) -> str:
+    """What a panel calls its channel: time is the sample index when the recording has none
+    (its t_s counts samples), as the terminal says it ("no time column: sample index")."""
+    return "sample index" if c == ch.TIME and not v.clock else c
+
+
 def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
     """One channel's panel: the offset left along its term, without and with it. Its verdict."""
     x = v.chans[c]
@@ -187,10 +193,10 @@ def _channel_panel(ax, diagnosis, v, c: str, found: dict) -> str:
                   else f"{c} ({unit})" if unit != "unit" else c)
     ax.set_ylabel("offset along the term (µT)")
     verdict = f"FOUND: {found[c]}, {size:.3g} µT/{unit}" if c in found else "nothing found"
-    ax.set_title(wrap(f"{c}: {verdict}", 42), color=BAD if c in found else "black", fontsize=10)
+    ax.set_title(wrap(f"{_panel_name(c, v)}: {verdict}", 42), color=BAD if c in found else "black", fontsize=10)
     ax.locator_params(axis="x", nbins=5)
     ax.legend(fontsize=8, loc="upper left")
-    return f"{c}: {verdict}"
+    return f"{_panel_name(c, v)}: {verdict}"
 
 
 def _seen_most(v) -> np.ndarray:
@@ -218,7 +224,8 @@ def channels(diagnosis, v, plt, out) -> Figure:
     name = save(fig, out, "channels", plt)
     hits = [text for c, text in zip(names, verdicts) if c in found]  # a finding's channel, not the words drawn
     found_text = ("; ".join(hits) + f"; nothing in the other {len(names) - len(hits)}." if hits
-                  else f"no channel of the {len(names)} ({', '.join(names)}) carries an offset of its own.")
+                  else f"no channel of the {len(names)} ({', '.join(_panel_name(c, v) for c in names)}) "
+                  "carries an offset of its own.")
     by_reason: dict = {}
     for c, why in left.items():
         by_reason.setdefault(why, []).append(c)
@@ -226,7 +233,9 @@ def channels(diagnosis, v, plt, out) -> Figure:
     return Figure(name, "Offset against each logged channel",
                   "a brown line (the residual without the channel's term) with a slope: the offset "
                   "follows that channel (a temperature coefficient, a current); the navy line (with the "
-                  "final model) flat at 0 once the model includes it. t_s is time: a slope is a drift.",
+                  "final model) flat at 0 once the model includes it. " + (
+                      "t_s is time" if v.clock else "The sample index stands for time (the recording has none)")
+                  + ": a slope is a drift.",
                   found_text + not_tested, "offset against each channel")
 
 
