@@ -57,13 +57,14 @@ def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[Limit, 
     but named by no physics, and what was located and resembles a named effect but did not
     improve unseen blocks when modelled — that is no finding, and is not named as one."""
     judged = {id(v.located): v for v in verdicts}
-    out = []  # one the held-out blocks contradict (worse with it modelled), or whose held-out gain is within the noise
-    # and slow wander the recording keeps without it (the offset_wander limit states that), stays in the JSON's located only
+    out = []  # one the held-out blocks contradict (worse with it modelled), whose held-out gain is within the noise and
+    # slow wander the recording keeps without it (the offset_wander limit states that), or whose gain one or two blocks
+    # carry (judge.Verdict.spread: the median block's is within them), stays in the JSON's located only
     for x in found:
         v = judged.get(id(x))
         if x.kind is Kind.REMAINDER:
             out.append(_remainder(x, x.summary, {}))
-        elif x.kind is Kind.PHYSICS and not (v and (v.kept or v.contradicted or v.within_noise_and_wander)):
+        elif x.kind is Kind.PHYSICS and not (v and (v.kept or v.contradicted or v.within_noise_and_wander or not v.spread)):
             why = v.reason if v is not None else "no held-out verdict"
             out.append(_remainder(x, f"Structure located that resembles a {x.effect.replace('_', ' ')}, not claimed as "
                                      f"one because modelling it did not earn its place ({why}): {x.summary}",

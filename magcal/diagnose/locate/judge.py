@@ -16,6 +16,13 @@ own noise and slow offset wander together (``base.noise_and_wander_ut``, measure
 with the effect taken out and refitted, so what sizes it never holds the effect itself). That
 much is the noise, and the ``offset_wander`` limit's to state ("a calibration from this
 recording is good to about that much"); it is not also unexplained structure.
+
+Nor is a gain carried by one or two of the ``FOLDS`` held-out blocks (``Verdict.spread``): the
+remainder says the recording holds structure the located effect resembles, and a recording that
+holds it shows it on most unseen blocks — the median block's gain beats the noise and slow wander.
+A total carried by one block is what that block's own stretch did (a hand moving near iron, a
+turn no other stretch repeats): where the recording was held and how far its coverage reaches,
+not structure located in it.
 """
 
 from __future__ import annotations
@@ -44,6 +51,8 @@ class Verdict:
     reason: str
     wander_ut: float = float("nan")  # the slow wander left with it taken out (nan: not measured)
     noise_ut: float = float("nan")  # the noise of one reading, likewise
+    block_gain_sq: tuple[float, ...] = ()  # per held-out block, mean square without minus with (µT²; empty: not measured)
+
     @property
     def contradicted(self) -> bool:
         """Modelling it made unseen blocks worse: the recording itself speaks against it."""
@@ -61,8 +70,24 @@ class Verdict:
         allowed = np.hypot(self.noise_ut, self.wander_ut)
         return bool(not self.kept and np.isfinite(allowed) and self.gain_ut <= allowed)
 
+    @property
+    def median_block_gain_ut(self) -> float:
+        """What modelling it took off the median unseen block, as an RMS (µT; nan: not measured)."""
+        if not self.block_gain_sq:
+            return float("nan")
+        return float(np.sqrt(max(float(np.median(self.block_gain_sq)), 0.0)))
+
+    @property
+    def spread(self) -> bool:
+        """Its held-out gain is the recording's, not one or two blocks': the median block's gain
+        beats the noise and slow wander left without it (true where the blocks were not measured)."""
+        allowed = np.hypot(self.noise_ut, self.wander_ut)
+        g = self.median_block_gain_ut
+        return bool(not (np.isfinite(g) and np.isfinite(allowed)) or g > allowed)
+
     def evidence(self) -> dict:
-        wander = ({"heldout_gain_ut": self.gain_ut, "noise_without_ut": self.noise_ut, "wander_without_ut": self.wander_ut}
+        wander = ({"heldout_gain_ut": self.gain_ut, "noise_without_ut": self.noise_ut, "wander_without_ut": self.wander_ut,
+                   "median_block_gain_ut": self.median_block_gain_ut}
                   if np.isfinite(self.wander_ut) else {})
         return {
             "heldout_rms_without_ut": self.heldout_without_ut,
@@ -128,7 +153,7 @@ def judge(m_ut, t_s, channels, found, table: dict[str, Effect], model: str,
             continue
         kept, why, without = _against_simpler(m_ut, t_s, channels, loc, effect, model, base, after)
         left = without_it(cleaned, model) if not kept and after.mean() < without.mean() else (np.nan, np.nan)
-        verdicts.append(Verdict(loc, kept, _rms(without), _rms(after), why, left[1], left[0]))
+        verdicts.append(Verdict(loc, kept, _rms(without), _rms(after), why, left[1], left[0], tuple(map(float, without - after))))
         if kept:
             m_ut, base = cleaned, after
     return m_ut, tuple(verdicts)
