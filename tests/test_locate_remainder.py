@@ -119,3 +119,15 @@ def test_a_real_hand_held_stretch_one_heldout_block_carries_is_no_remainder():
     allowed = np.hypot(v["noise_without_ut"], v["wander_without_ut"])
     assert not v["modelled"] and v["heldout_gain_ut"] > allowed > v["median_block_gain_ut"]
     assert not [x for x in d["limits"] if x["effect"] == "unexplained_structure"]
+
+
+def test_offset_jumps_that_undo_each_other_are_sized_against_a_measured_floor_or_not_said():
+    """Two jumps 1 s apart that undo each other are the remainder where the recording's floor was
+    measured (30× it here); in a window no ellipsoid fits (the floor is nan) there is nothing to
+    size them against — its steps are not claimed either — so no "inf× the noise" is said."""
+    z = np.zeros(3)
+    pair = [steps.HardIronStep(10.0, (9.9, 10.1), np.array([3.0, 0, 0]), np.eye(3) * 0.01, z, 50.0, 20.0),
+            steps.HardIronStep(11.0, (10.9, 11.1), np.array([-2.9, 0, 0]), np.eye(3) * 0.01, z, 50.0, 20.0)]
+    kept, (rest,) = steps._bursts(pair, 3.0, 0.1)
+    assert kept == [] and rest.effect == "unexplained_structure" and rest.where["time_s"] == [[10.0, 11.0]]
+    assert steps._bursts(pair, 3.0, float("nan")) == ([], [])

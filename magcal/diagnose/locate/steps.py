@@ -457,7 +457,9 @@ def _all_steps(u, t, r, shape_cols, half, f2) -> tuple[list[HardIronStep], np.nd
 def _bursts(steps: list[HardIronStep], half: float, floor_ut: float) -> tuple[list[HardIronStep], list[Located]]:
     """Steps that come in a cluster (each within 2 windows of the next) and mostly undo each
     other (their sum under ``BURST_NET`` of the largest) are not a part put down: the data
-    misbehave there for a while. Those are returned as the remainder, located in time."""
+    misbehave there for a while. Those are returned as the remainder, located in time — where
+    the recording's floor was measured: a window no ellipsoid fits has no floor to size them
+    against (its steps, likewise, are not claimed), and a jump "inf× the noise" says nothing."""
     groups: list[list[HardIronStep]] = []
     for s in steps:
         if groups and s.tau_s - groups[-1][-1].tau_s <= 2 * half:
@@ -471,8 +473,10 @@ def _bursts(steps: list[HardIronStep], half: float, floor_ut: float) -> tuple[li
         if len(g) < 2 or net >= BURST_NET * big:
             keep += g
             continue
+        if not floor_ut > 0:
+            continue
         t0, t1 = g[0].tau_s, g[-1].tau_s
-        over = big / floor_ut if floor_ut > 0 else float("inf")
+        over = big / floor_ut
         summary = (f"unexplained structure remains: {over:.1f}× the noise, at {t0:.1f}–{t1:.1f} s "
                    f"(offset jumps that undo each other)")
         rest.append(Located(REST, Kind.REMAINDER, summary, {"time_s": [[t0, t1]]}, {"largest_jump_ut": big},
