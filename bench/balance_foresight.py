@@ -13,11 +13,16 @@ shows foretells the balance's forward effect:
               ellipsoid, judged on the part after the split (what model_choice.py measures);
 * blocks    — the same ratio on the training part's own five held-out time blocks, all their
               samples (what ``holdout`` keeps or drops the balance by);
+* chained   — the same ratio forward-chained over those blocks: each refitted on the blocks
+              before block k only and judged on block k (k = 2…5), the geometric mean of the
+              per-block ratios (blocks where either refit failed left out) — the training
+              part asked the bench's own question, "fit on the past, judge the future";
 * moved     — how far the balance moves the offset (µT), beside how far the unweighted fit of the
               training part lies from the unweighted fit of the whole recording.
 
-Printed: one row per cell, then the rank correlation of forward and blocks over the cells and
-how often the blocks name the forward winner (cells where forward is within ±1 % left out).
+Printed: one row per cell, then, for blocks and for chained, the rank correlation with forward
+over the cells and how often it names the forward winner (cells where forward is within ±1 %
+left out).
 """
 
 from __future__ import annotations
@@ -72,6 +77,26 @@ def _blocks_ratio(m, sphere, g, keep) -> float:
     return holdout._over(weighted, "all", both) / holdout._over(plain, "all", both)
 
 
+def _chained_ratio(m, g, keep) -> float:
+    """Balanced ÷ unweighted spread forward-chained over the training part's time blocks: both
+    refitted on the blocks before each block and judged on it (all its kept samples); the
+    geometric mean over the blocks both refits reach, nan where none does."""
+    edges = holdout.block_edges(len(m))
+    at_whole = geometric.residual_jacobian(g.theta, m, g.kind)
+    logs = []
+    for j in range(1, len(edges) - 1):
+        past, block = keep.copy(), keep.copy()
+        past[edges[j]:] = False
+        block[: edges[j]] = False
+        block[edges[j + 1]:] = False
+        if block.sum() < holdout.MIN_BLOCK:
+            continue
+        plain, weighted = (holdout._refit(m, past, g, bal, at_whole) for bal in (False, True))
+        if not isinstance(plain, FitFailure) and not isinstance(weighted, FitFailure):
+            logs.append(np.log(holdout.spread(m[block], weighted, g.kind) / holdout.spread(m[block], plain, g.kind)))
+    return float(np.exp(np.mean(logs))) if logs else float("nan")
+
+
 def _spread(test, g) -> float:
     h = np.linalg.norm((test - g.offset_ut) @ g.soft_iron.T, axis=1)
     return float(np.std(h) / np.mean(h))
@@ -84,7 +109,7 @@ def cell(whole_offset_ut, train, test) -> dict | None:
     m, sphere, (g, keep) = fits
     balanced = pipeline._balanced(m[keep], g, "directions", [])[0]
     return {"kind": g.kind, "forward": _spread(test, balanced) / _spread(test, g),
-            "blocks": _blocks_ratio(m, sphere, g, keep),
+            "blocks": _blocks_ratio(m, sphere, g, keep), "chained": _chained_ratio(m, g, keep),
             "moved_ut": float(np.linalg.norm(balanced.offset_ut - g.offset_ut)),
             "from_whole_ut": float(np.linalg.norm(g.offset_ut - whole_offset_ut))}
 
@@ -95,24 +120,24 @@ def _ranks(x: np.ndarray) -> np.ndarray:
     return r
 
 
-def summary(rows: list[dict]) -> str:
+def summary(rows: list[dict], verdict: str = "blocks") -> str:
     f = np.array([r["forward"] for r in rows])
-    b = np.array([r["blocks"] for r in rows])
+    b = np.array([r[verdict] for r in rows])
     ok = np.isfinite(f) & np.isfinite(b)
     rho = float(np.corrcoef(_ranks(f[ok]), _ranks(b[ok]))[0, 1]) if ok.sum() > 2 else float("nan")
     decided = ok & (np.abs(f - 1.0) > TIE)
     agree = int(np.sum(np.sign(f[decided] - 1.0) == np.sign(b[decided] - 1.0)))
     helps = int(np.sum(f[ok] < 1.0 - TIE))
     hurts = int(np.sum(f[ok] > 1.0 + TIE))
-    return (f"{int(ok.sum())} cells: rank correlation forward ~ blocks {rho:+.2f}; the blocks name the forward"
+    return (f"{int(ok.sum())} cells: rank correlation forward ~ {verdict} {rho:+.2f}; {verdict} names the forward"
             f" winner in {agree} of {int(decided.sum())} cells decided beyond ±{100 * TIE:.0f} %; the balance helps"
             f" forward in {helps}, hurts in {hurts}")
 
 
 def run(recs: dict, splits) -> list[dict]:
-    print("| recording | split | ellipsoid | forward bal/plain | blocks bal/plain | offset moved by balance µT |"
-          " unweighted from whole µT |")
-    print("|---|---|---|---|---|---|---|")
+    print("| recording | split | ellipsoid | forward bal/plain | blocks bal/plain | chained bal/plain |"
+          " offset moved by balance µT | unweighted from whole µT |")
+    print("|---|---|---|---|---|---|---|---|")
     rows = []
     for name, m in recs.items():
         whole = fit_calibration(m, model="ellipsoid", balance="none")
@@ -124,9 +149,9 @@ def run(recs: dict, splits) -> list[dict]:
             if c is None:
                 continue
             rows.append(c)
-            print(f"| {name} | {frac:.0%} | {c['kind']} | {c['forward']:.3f} | {c['blocks']:.3f} | "
+            print(f"| {name} | {frac:.0%} | {c['kind']} | {c['forward']:.3f} | {c['blocks']:.3f} | {c['chained']:.3f} | "
                   f"{c['moved_ut']:.2f} | {c['from_whole_ut']:.2f} |", flush=True)
-    print("\n" + summary(rows))
+    print("\n" + summary(rows) + "\n" + summary(rows, "chained"))
     return rows
 
 
