@@ -403,12 +403,12 @@ def refit(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelFit, lis
     with_soft = softiron.EFFECT in accepted and ref.spec.soft_iron
     spec = Spec(
         soft_iron=with_soft,
-        channels=tuple(cands[g].channel for g in accepted if g != softiron.EFFECT),
+        channels=tuple(cands[g].channel for g in accepted if g in cands),
         soft_dirs=ref.spec.soft_dirs if with_soft else None,
     )
-    reference = {cands[g].channel: cands[g].reference for g in accepted if g != softiron.EFFECT}
+    reference = {cands[g].channel: cands[g].reference for g in accepted if g in cands}
     m_kept, _, chans_kept = a.kept
-    coefs = {cands[g].channel: -statements.estimating_test(g, selected).beta for g in accepted if g != softiron.EFFECT}
+    coefs = {cands[g].channel: -statements.estimating_test(g, selected).beta for g in accepted if g in cands}
     final = fit_with_channel_terms(m_kept, chans_kept, spec, reference, coefs, start=ref)
     if isinstance(final, FitFailure):
         return ref, [softiron.EFFECT] if ref.spec.soft_iron else []

@@ -89,7 +89,7 @@ def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tupl
     """Real recordings wander slowly: a slow channel term must explain most of the block offsets
     (channels.wander_shares, channels.WANDER_RATIO). Returns the survivors that pass and, for
     each channel judged, (explained, unexplained) block-offset mean squares (µT²)."""
-    judged = [g for g in survivors if g != softiron.EFFECT]
+    judged = [g for g in survivors if g in design.candidates]
     if not judged:
         return survivors, {}
     # the residual with everything but the channel terms fitted out (soft iron and the direction
@@ -104,7 +104,7 @@ def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tupl
     colscale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
     xs = x / colscale
     beta = (pinv_sym(xs.T @ xs) @ (xs.T @ e)) / colscale
-    chan_cols = [design.groups[g] for g in design.groups if g != softiron.EFFECT]
+    chan_cols = [design.groups[g] for g in design.groups if g in design.candidates]
     chan_cols = np.concatenate(chan_cols) if chan_cols else np.zeros(0, int)
     other = np.setdiff1d(np.arange(x.shape[1]), chan_cols)
     e_w = e - x[:, other] @ beta[other]
@@ -116,7 +116,7 @@ def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tupl
         {g: -beta[design.groups[g]] for g in judged},
     )
     shares_of = {g: (shares[g], v_rem) for g in judged}
-    passed = [g for g in survivors if g == softiron.EFFECT or g in fast or shares[g] >= channels.WANDER_RATIO * v_rem]
+    passed = [g for g in survivors if g not in shares or g in fast or shares[g] >= channels.WANDER_RATIO * v_rem]
     return passed, shares_of
 
 

@@ -169,7 +169,7 @@ def slow_wander(a, selected) -> dict:
     """Per accepted channel term: its coefficient's covariance from the recording's own slow
     wander (magcal.diagnose.longrun), with every column of the design in place."""
     dsg = selected.design
-    groups = {g: dsg.groups[g] for g in selected.accepted if g != softiron.EFFECT}
+    groups = {g: dsg.groups[g] for g in selected.accepted if g in dsg.candidates}
     left_out = [dsg.groups[g] for g in dsg.candidates if g not in selected.accepted]
     model_cols = np.setdiff1d(np.arange(dsg.x.shape[1]), np.concatenate(left_out)) if left_out else np.arange(dsg.x.shape[1])
     _, t_kept, _ = a.kept
@@ -243,7 +243,7 @@ def tests_record(selected) -> dict:
     }
     candidates = {
         g: {"F": r.f, "p": r.p, "effect_rms_ut": r.effect_rms_ut, "twin_inflation": r.inflation,
-            "coef_ut_per_unit": -r.beta if g != softiron.EFFECT else None}
+            "coef_ut_per_unit": -r.beta if g in selected.candidates else None}
         for g, r in selected.tests.items()
     }
     return {"skipped_channels": selected.skipped, "twin_null": selected.null.to_dict(), "against_rich_wander": rich, "survivors": list(selected.survivors),
