@@ -88,6 +88,16 @@ def test_a_first_order_lag_on_a_clock_that_comes_in_bursts_is_found_in_seconds()
     assert abs(f.where["lag_s"] - 0.6) <= 0.3 * 0.6
 
 
+def test_a_clock_coarser_than_the_samples_is_searched_not_refused():
+    # a log's whole-second time column at 50 Hz: most intervals are 0, and the lag grid was built
+    # from a median interval of 0 (a ValueError from diagnose on a real flight log's preflight take)
+    m, t = _sim(3, n=1500)
+    t_whole = np.floor(t)
+    c = _temp(t)
+    found = cf.search(_residual(m, t_whole, {"temp_c": c}))
+    assert [f.effect for f in found if f.kind is Kind.PHYSICS] == []
+
+
 def test_a_gain_that_follows_temperature_is_told_from_an_offset():
     m, t = _sim(2)
     temp = _temp(t)

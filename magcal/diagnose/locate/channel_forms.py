@@ -54,7 +54,7 @@ from .. import hygiene
 from . import channel_scores as cs
 from . import channel_whiten as cw
 from .channel_report import describe
-from .channel_terms import ANGLE_UNITS, N_LAGS, Form, angle_scale, delayed, lag_grid, low_passed, term_ut
+from .channel_terms import ANGLE_UNITS, N_LAGS, Form, angle_scale, delayed, lag_grid, low_passed, sample_period_s, term_ut
 from ...fit import FitFailure, fit_calibration
 from .base import Effect, Kind, Located, Residual
 
@@ -280,8 +280,7 @@ def shifts_for(g: np.ndarray, max_lag: int) -> np.ndarray:
 
 def max_lag_rows(fr: cs.Frame, t_s: np.ndarray) -> int:
     """The longest lag tried, in searched samples."""
-    dt = float(np.median(np.diff(fr.t_s)))
-    return int(np.ceil(lag_grid(t_s)[-1] / dt))
+    return int(np.ceil(lag_grid(t_s)[-1] / sample_period_s(fr.t_s)))
 
 
 def null_maxima(fr: cs.Frame, fams: list[cs.Family], shifts: np.ndarray) -> np.ndarray:

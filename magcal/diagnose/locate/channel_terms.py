@@ -34,10 +34,19 @@ MIN_LAG_SAMPLES = 0.25  # the shortest, in sample periods
 EVEN_CLOCK = 0.01  # intervals within this share of their median are one clock
 
 
+def sample_period_s(t_s: np.ndarray) -> float:
+    """The typical interval between samples that differ in time (s): a clock that ticks more
+    coarsely than the samples arrive (a log's whole-second time column at 10 Hz) repeats most
+    times, and the median of every interval would be 0. 1 s where no two times differ."""
+    steps = np.diff(np.asarray(t_s, np.float64))
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if steps.size else 1.0
+
+
 def lag_grid(t_s: np.ndarray) -> np.ndarray:
     """Lags and time constants tried (s): a quarter of a sample period to a sixth of the span —
     a slowly sampled log (1.2 Hz) still shows a 0.4 s lag as a smaller first step at each switch."""
-    dt = float(np.median(np.diff(t_s)))
+    dt = sample_period_s(t_s)
     top = max(float(np.ptp(t_s)) * MAX_LAG_SHARE, 3 * dt)
     return np.geomspace(MIN_LAG_SAMPLES * dt, top, N_LAGS)
 
