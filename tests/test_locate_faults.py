@@ -146,3 +146,32 @@ def test_moving_data_with_a_swapped_stretch_is_not_called_a_still_cloud():
     acc.add_batch(m)
     out = acc.solve()
     assert out or "held still" not in out.message
+
+
+def _low_rate(seed, n, rate_hz, hard=HARD):
+    run = Scenario(physics=Physics(hard_iron_ut=hard, noise_ut=0.3), motion=Motion("sphere", period_s=60.0),
+                   seed=seed).simulate(n, rate_hz)
+    return run.series.t_s.copy(), run.series.field_ut.copy()
+
+
+def test_five_swapped_readings_of_a_slow_log_are_found_by_their_total_evidence_and_its_control_is_clean():
+    # 1 Hz: a 5 s swap is five readings, each far off the surface as read and on it swapped
+    t, m = _low_rate(seed=8, n=300, rate_hz=1.0)
+    assert screen(t, m).found == ()
+    m[150:155] = m[150:155][:, [1, 0, 2]]
+    x = _only(screen(t, m).found, "axis_swap")
+    assert x.params["reading"] == "x↔y" and x.where["time_s"] == [[t[150], t[154]]]
+    assert x.evidence["evidence_nats"] > x.evidence["threshold_nats"]
+
+
+def test_a_swap_the_radius_cannot_see_is_found_by_the_jumps_at_its_two_ends():
+    # x and y offsets equal: swapping x and y maps the sphere onto itself, so only the trajectory
+    # tells, jumping into the stretch and out of it and continuous read back swapped
+    t, m = _low_rate(seed=9, n=1500, rate_hz=25.0, hard=(20.0, 20.0, -5.0))
+    assert screen(t, m).found == ()
+    rows = _stretch(t, 30.0, 34.0)
+    m[rows] = m[rows][:, [1, 0, 2]]
+    x = _only(screen(t, m).found, "axis_swap")
+    assert x.params["reading"] == "x↔y" and x.evidence["view"] == "edges"
+    (a, b), = x.where["time_s"]
+    assert abs(a - 30.0) < 0.1 and abs(b - 34.0) < 0.1

@@ -22,8 +22,14 @@ time and the axis). Every threshold is judged against the recording itself:
 - ``axis_swap``: a stretch the surface fitted on the rest of the data misses as read
   (``SWAP_MISS`` × scatter) but fits (within ``SWAP_FIT`` × scatter) with two axes exchanged
   or one axis negated, for at least ``SWAP_MIN_SAMPLES`` samples with no sample in between
-  that fits as read. Where the offset is near zero a swap maps the sphere onto itself: then it
-  is invisible, and harmless to the calibration.
+  that fits as read. A stretch shorter than that (a slow log: a few readings) or one the radius
+  cannot see (the offsets of the exchanged axes equal, so the swap maps the surface onto itself)
+  is found by its total evidence (``swap_evidence``): the radial residual's log-likelihood gain
+  transformed over as read, judged against the recording's own scatter and the number of
+  stretches tried and passing the same contrast; or the jumps at both its ends, each beyond the
+  recording's typical step there and an ordinary step read back through the transform. Where
+  the offset is near zero and the board barely moves a swap is invisible, and harmless to the
+  calibration.
 
 The surface is ``magcal.fit.fit_calibration`` (robust start, Grubbs, ML; an ellipsoid where the
 coverage determines one), taken as the one with the least median radial residual over all
@@ -39,6 +45,7 @@ import numpy as np
 
 from ...core.calibration import Calibration
 from ...fit import fit_calibration
+from . import swap_evidence
 from .base import AXES, Effect, Kind, Located, Residual, runs
 
 RAIL_MIN_SHARE = 0.005  # share of distinct readings a rail must hold
@@ -101,9 +108,9 @@ def screen(t_s, m_ut, valid=None) -> Screen:
     return Screen(_without(keep, shape), tuple(found + shape))
 
 
-def _shape_faults(t, m, keep, r_all, sigma) -> list[Located]:
+def _shape_faults(t, m, keep, r_all, sigma, field_ut) -> list[Located]:
     stuck = _stuck(t, m, keep, r_all[0], sigma)
-    return stuck + _swaps(t, keep & _without(keep, stuck), r_all, sigma)
+    return stuck + _swaps(t, m, keep & _without(keep, stuck), r_all, sigma, field_ut)
 
 
 def _inputs(t_s, m_ut, valid):
@@ -236,7 +243,8 @@ def _rail_found(t, m, rows, a: int, side: float, ev: dict) -> Located:
 def _held_out(m: np.ndarray, keep: np.ndarray, fit_on: np.ndarray, leave_out: bool = True):
     """Each kept sample's radial residual (µT) against the surface the rest of the data
     describes, as read (row 0) and read through each of ``TRANSFORMS`` (rows 1…), nan where not
-    kept; and the robust scatter of the as-read residual. None where no surface fits.
+    kept; the robust scatter of the as-read residual; and the surface's field (µT). None where no
+    surface fits.
     ``leave_out`` False: the faults found are already out of ``fit_on``; one fit on it."""
     idx = np.flatnonzero(keep)
     cal = _least_median(m, idx, fit_on) if leave_out else _fit(m, fit_on)
@@ -247,7 +255,7 @@ def _held_out(m: np.ndarray, keep: np.ndarray, fit_on: np.ndarray, leave_out: bo
     for j, (_, perm, signs) in enumerate(TRANSFORMS):
         out[j + 1, idx] = _radial(cal, m[idx][:, perm] * np.asarray(signs, float))
     r = out[0, fit_on & keep]
-    return out, float(MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
+    return out, float(MAD_TO_SIGMA * np.median(np.abs(r - np.median(r)))), float(cal.field_ut)
 
 
 def _least_median(m: np.ndarray, idx: np.ndarray, fit_on: np.ndarray) -> Calibration | None:
@@ -332,9 +340,18 @@ def _stuck_found(t, m, rows, a: int, ev: dict) -> Located:
 
 
 # -- swapped or flipped axes ---------------------------------------------------------------------
-def _swaps(t, keep, r_all, sigma) -> list[Located]:
+def _swaps(t, m, keep, r_all, sigma, field_ut) -> list[Located]:
+    """Runs of samples each far off the surface as read and on it transformed; then stretches
+    the total evidence (magcal.diagnose.locate.swap_evidence) finds, where they add to these."""
     if not sigma > 0:
         return []
+    found = _favoured_swaps(t, keep, r_all, sigma)
+    taken = np.concatenate([x.rows for x in found] + [np.zeros(0, np.int64)])
+    more = [x for x in _evidence_swaps(t, m, keep, r_all, sigma, field_ut) if not np.intersect1d(x.rows, taken).size]
+    return found + _strongest_per_stretch(more)
+
+
+def _favoured_swaps(t, keep, r_all, sigma) -> list[Located]:
     idx = np.flatnonzero(keep)
     a0 = np.abs(r_all[0, idx])
     out = []
@@ -375,17 +392,25 @@ def _swap_holds(ev: dict) -> bool:
     return rms0 >= SWAP_RATIO * rmst and rms0 >= SWAP_OVER_LOCAL * ev["rms_around_ut"]
 
 
-def _swap_found(t, rows, name, perm, signs, a0, at, sigma, rms_around) -> Located:
+def _swap_found(t, rows, name, perm, signs, a0, at, sigma, rms_around, stretch=None) -> Located:
     span = [float(t[rows[0]]), float(t[rows[-1]])]
     rms0, rmst = float(np.sqrt(np.mean(a0 ** 2))), float(np.sqrt(np.mean(at ** 2)))
     summary = (f"{len(rows)} samples ({span[0]:.2f}–{span[1]:.2f} s) fit the surface of the rest of the recording"
                f" read as {name} ({rmst:.3g} µT RMS) but not as recorded ({rms0:.3g} µT RMS,"
                f" {rms0 / sigma:.1f}× the recording's scatter): axes swapped or flipped; set aside")
+    evidence = {"rms_as_read_ut": rms0, "rms_as_transformed_ut": rmst, "scatter_ut": sigma, "rms_around_ut": rms_around}
+    if stretch is not None:
+        evidence |= {"view": stretch.view, "evidence_nats": stretch.evidence, "threshold_nats": stretch.threshold}
+    if stretch is not None and stretch.view == "edges":
+        evidence |= {"jumps_ut": list(stretch.jumps), "typical_step_ut": stretch.typical_step}
+        summary = (f"the readings jump by {stretch.jumps[0]:.3g} and {stretch.jumps[1]:.3g} µT into and out of"
+                   f" {len(rows)} samples ({span[0]:.2f}–{span[1]:.2f} s), against a typical step of"
+                   f" {stretch.typical_step:.3g} µT there; read as {name} both ends are ordinary steps"
+                   f" ({stretch.evidence:.0f} nats of evidence): axes swapped or flipped; set aside")
     axes = [AXES[i] for i in range(3) if perm[i] != i or signs[i] < 0]
     return Located("axis_swap", Kind.FAULT, summary, {"time_s": [span], "axis": axes},
                    {"reading": name, "permutation": list(perm), "signs": list(signs), "n_samples": len(rows)},
-                   {"rms_as_read_ut": rms0, "rms_as_transformed_ut": rmst, "scatter_ut": sigma,
-                    "rms_around_ut": rms_around}, rows)
+                   evidence, rows)
 
 
 def _strongest_per_stretch(found: list[Located]) -> list[Located]:
@@ -396,6 +421,31 @@ def _strongest_per_stretch(found: list[Located]) -> list[Located]:
         if not np.intersect1d(x.rows, taken).size:
             out.append(x)
             taken = np.r_[taken, x.rows]
+    return out
+
+
+def _evidence_swaps(t, m, keep, r_all, sigma, field_ut) -> list[Located]:
+    """Stretches whose total evidence, radial or at their two ends, says they were transformed
+    (over the fresh readings: a repeated read is one conversion). A radial claim must also pass
+    the contrast of ``_swap_holds``: a surface that misses a stretch a little less when it is
+    transformed is misfit, not a swap."""
+    idx = np.flatnonzero(keep)
+    fresh = idx[_fresh(m[idx])]
+    if len(fresh) < 20:
+        return []
+    pos = np.searchsorted(idx, fresh)
+    a0 = np.abs(r_all[0, idx])
+    found = swap_evidence.radial(r_all[:, fresh], sigma, field_ut)
+    found += swap_evidence.edges(m[fresh], [(p, g) for _, p, g in TRANSFORMS], field_ut)
+    out = []
+    for st in found:
+        end = pos[st.last + 1] if st.last + 1 < len(pos) else len(idx)
+        run = np.arange(pos[st.first], end)
+        name, perm, signs = TRANSFORMS[st.transform]
+        x = _swap_found(t, idx[run], name, perm, signs, a0[run], np.abs(r_all[st.transform + 1, idx[run]]),
+                        sigma, _around(a0, run), st)
+        if st.view == "edges" or _swap_holds(x.evidence):
+            out.append(x)
     return out
 
 
