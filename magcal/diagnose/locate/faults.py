@@ -346,9 +346,17 @@ def _swaps(t, m, keep, r_all, sigma, field_ut) -> list[Located]:
     if not sigma > 0:
         return []
     found = _favoured_swaps(t, keep, r_all, sigma)
-    taken = np.concatenate([x.rows for x in found] + [np.zeros(0, np.int64)])
-    more = [x for x in _evidence_swaps(t, m, keep, r_all, sigma, field_ut) if not np.intersect1d(x.rows, taken).size]
-    return found + _strongest_per_stretch(more)
+    for x in _strongest_per_stretch(_evidence_swaps(t, m, keep, r_all, sigma, field_ut)):
+        hit = [y for y in found if np.intersect1d(x.rows, y.rows).size]
+        if all(_widens(x, y) for y in hit):  # none, or runs of the same reading it holds whole
+            found = [y for y in found if not any(y is h for h in hit)] + [x]
+    return found
+
+
+def _widens(x: Located, y: Located) -> bool:
+    """``x`` reads its stretch as ``y`` does and holds every sample of it: the run of samples
+    each far off the surface is the core of a swap whose ends the total evidence places."""
+    return x.params["reading"] == y.params["reading"] and np.isin(y.rows, x.rows).all()
 
 
 def _favoured_swaps(t, keep, r_all, sigma) -> list[Located]:
@@ -435,7 +443,7 @@ def _evidence_swaps(t, m, keep, r_all, sigma, field_ut) -> list[Located]:
         return []
     pos = np.searchsorted(idx, fresh)
     a0 = np.abs(r_all[0, idx])
-    found = swap_evidence.radial(r_all[:, fresh], sigma, field_ut)
+    found = swap_evidence.radial(r_all[:, fresh], sigma)
     found += swap_evidence.edges(m[fresh], [(p, g) for _, p, g in TRANSFORMS], field_ut)
     out = []
     for st in found:

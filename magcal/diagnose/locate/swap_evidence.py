@@ -8,8 +8,7 @@ the same conversion read again and says nothing new):
 - **radial**: the radial residual against the surface the rest of the data describes, as read and
   transformed, modelled as a first-order autoregression (a misfit that drifts slowly is not
   evidence: only what its innovations cannot explain is) whose innovations are Gaussian at the
-  scatter measured on the recording, mixed with outliers at the share seen there, spread over
-  ± the field. A stretch is claimed on it when the total beats ``log(transforms · n² / ALPHA)``
+  scatter measured on the recording, mixed with outliers at the share and reach seen there. A stretch is claimed on it when the total beats ``log(transforms · n² / ALPHA)``
   (every stretch of every transform tried).
 - **edges**: the trajectory. A transform is an isometry, so inside a transformed stretch the
   steps from sample to sample are the same as read; only its two ends differ. A swap makes the
@@ -75,23 +74,28 @@ def _best(start: np.ndarray, inner: np.ndarray, stop: np.ndarray) -> tuple[float
     return float(tot[last]), int(arg[last]), last
 
 
-def _ar1(r0: np.ndarray, sigma: float) -> tuple[float, float, float]:
-    """(lag-one coefficient, innovation scale, outlier share) of the as-read radial residual."""
+def _ar1(r0: np.ndarray, sigma: float) -> tuple[float, float, float, float]:
+    """(lag-one coefficient, innovation scale, outlier share, outlier spread) of the as-read
+    radial residual. Outliers are spread as far as the recording's own reach: uniform out to
+    twice their median size (a glitch of a few µT is no evidence that a reading belongs on a
+    surface it misses by less)."""
     c = np.clip(r0, -OUTLIER_K * sigma, OUTLIER_K * sigma)
     c = c - c.mean()
     rho = float(np.clip(np.dot(c[1:], c[:-1]) / max(np.dot(c, c), 1e-300), 0.0, 0.999))
     e = r0[1:] - rho * r0[:-1]
     scale = float(1.4826 * np.median(np.abs(e - np.median(e))))
     scale = scale if scale > 0 else sigma
-    return rho, scale, max(1.0 / len(r0), float(np.mean(np.abs(e) > OUTLIER_K * scale)))
+    out = np.abs(e[np.abs(e) > OUTLIER_K * scale])
+    spread = 2.0 * float(np.median(out)) if len(out) else 2.0 * OUTLIER_K * scale
+    return rho, scale, max(1.0 / len(r0), len(out) / len(e)), spread
 
 
-def radial(r: np.ndarray, sigma: float, field_ut: float) -> list[Stretch]:
+def radial(r: np.ndarray, sigma: float) -> list[Stretch]:
     """Stretches the radial residual ``r`` (row 0 as read, row j+1 through transform j; fresh
     readings in order) says were transformed."""
     r0, n = r[0], r.shape[1]
-    rho, scale, eps = _ar1(r0, sigma)
-    ll = lambda e: _mixture(e, scale, eps, 1, field_ut)  # noqa: E731
+    rho, scale, eps, spread = _ar1(r0, sigma)
+    ll = lambda e: _mixture(e, scale, eps, 1, spread)  # noqa: E731
     l0 = np.r_[ll(r0[:1]), ll(r0[1:] - rho * r0[:-1])]
     thr = float(np.log((r.shape[0] - 1) * n * n / ALPHA))
     out = []
