@@ -130,3 +130,20 @@ def test_mains_at_half_the_sample_clock_lands_on_nyquist_and_is_found():
     assert len(found) == 1 and found[0].where["axis"] == "y"
     assert abs(found[0].where["frequency_hz"] - 50.0) < 0.02 * 50.0
     assert found[0].params["mains_hz"] == 50.0 and found[0].params["mains_harmonic"] == 1
+
+
+def test_a_search_stopped_at_its_line_limit_says_more_may_remain():
+    t, m = _sim(21, n=3000)
+    freqs = (3.1, 5.3, 7.7, 11.9, 17.3)  # one more than the search takes
+    amps = (6.0, 5.5, 5.0, 4.5, 4.0)
+    five = m + sum(_line(t, (a, 0.5 * a, 0.0), f) for a, f in zip(amps, freqs))
+    found = _search(t, five)
+    assert len(found) == lines.MAX_LINES
+    left = found[-1].evidence["next_candidate_beyond_max_lines_hz"]
+    taken = [x.where["frequency_hz"] for x in found]
+    missing = [f for f in freqs if min(abs(f - g) for g in taken) > 0.02 * f]
+    assert len(missing) == 1 and abs(left - missing[0]) < 0.02 * missing[0]
+    assert "more lines may remain" in found[-1].summary
+    assert all(x.evidence["next_candidate_beyond_max_lines_hz"] is None for x in found[:-1])
+    three = m + sum(_line(t, (a, 0.5 * a, 0.0), f) for a, f in zip(amps[:3], freqs[:3]))
+    assert all("more lines may remain" not in x.summary for x in _search(t, three))

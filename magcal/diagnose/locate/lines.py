@@ -229,6 +229,7 @@ class _Scan:
     set_aside_hz: list = field(default_factory=list)  # explained by the direction: the motion's own
     passed_hz: list = field(default_factory=list)  # broad, or not holding on the true timestamps
     threshold: float = np.inf
+    beyond_cap_hz: float | None = None  # a candidate still above the threshold when MAX_LINES stopped the search
 
     def __post_init__(self):
         self.refresh()
@@ -246,11 +247,32 @@ class _Scan:
 def find_lines(res: Residual) -> tuple[list[Line], list[float], float]:
     """(the lines that pass, strongest first; the frequencies set aside as direction harmonics;
     the threshold) in the radial residual of ``res``."""
+    scan = _scanned(res)
+    return scan.lines, scan.set_aside_hz, scan.threshold
+
+
+def _scanned(res: Residual) -> _Scan:
+    """The search run to its end: no candidate left above the threshold, MAX_LINES found (then
+    the strongest candidate still above it is noted, so the report can say more may remain), or
+    MAX_SET_ASIDE candidates looked past."""
     scan = _Scan(res)
     while len(scan.lines) < MAX_LINES and len(scan.set_aside_hz) + len(scan.passed_hz) <= MAX_SET_ASIDE:
         if not _next(scan):
-            break
-    return scan.lines, scan.set_aside_hz, scan.threshold
+            return scan
+    if len(scan.lines) == MAX_LINES:
+        scan.beyond_cap_hz = _strongest_left_hz(scan)
+    return scan
+
+
+def _strongest_left_hz(scan: _Scan) -> float | None:
+    """The frequency of the strongest candidate above the threshold in what the found lines
+    leave (not yet judged: it may be a direction harmonic or broad), or None."""
+    sp = spectrum(scan.t_s, scan.r_ut, scan.u)
+    if sp is None:
+        return None
+    stat = _masked(sp, scan.set_aside_hz + scan.passed_hz)
+    i = int(np.argmax(stat))
+    return float(sp.freq_hz[i]) if stat[i] > sp.threshold else None
 
 
 def _next(scan: _Scan) -> bool:
@@ -376,8 +398,9 @@ def major_direction(coef_ut: np.ndarray) -> tuple[np.ndarray, float]:
     return d, float(s[1] / s[0]) if s[0] > 0 else 0.0
 
 
-def located(line: Line, res: Residual, threshold: float, set_aside_hz: list) -> Located:
-    """One line as the typed value the diagnosis reads."""
+def located(line: Line, res: Residual, threshold: float, set_aside_hz: list, beyond_cap_hz: float | None = None) -> Located:
+    """One line as the typed value the diagnosis reads; ``beyond_cap_hz``: the candidate left
+    above the threshold when the search stopped at MAX_LINES (said on the weakest line)."""
     t = res.t_s
     span = float(t[-1] - t[0])
     rate = 1.0 / sample_interval_s(t)
@@ -397,9 +420,13 @@ def located(line: Line, res: Residual, threshold: float, set_aside_hz: list) -> 
               "mains_hz": mains[0] if mains else None, "mains_harmonic": mains[1] if mains else None}
     evidence = {"statistic": line.stat, "threshold": threshold, "alpha": ALPHA, "dof": 6,
                 "local_level_ut": float(np.sqrt(line.level_ut2)), "amplitude_over_floor": size / res.floor_ut,
-                "set_aside_direction_harmonics_hz": [float(f) for f in set_aside_hz]}
-    return Located(NAME, Kind.PHYSICS, _summary(line, f_sd, amp, axes, size / res.floor_ut, mains, rate, set_aside_hz),
-                   where, params, evidence)
+                "set_aside_direction_harmonics_hz": [float(f) for f in set_aside_hz],
+                "next_candidate_beyond_max_lines_hz": beyond_cap_hz}
+    summary = _summary(line, f_sd, amp, axes, size / res.floor_ut, mains, rate, set_aside_hz)
+    if beyond_cap_hz is not None:
+        summary += (f"; the search stops at {MAX_LINES} lines and a candidate at {beyond_cap_hz:.3f} Hz still stands above "
+                    "the threshold: more lines may remain")
+    return Located(NAME, Kind.PHYSICS, summary, where, params, evidence)
 
 
 def _summary(line, f_sd, amp, axes, over_floor, mains, rate, set_aside_hz) -> str:
@@ -428,8 +455,10 @@ def search(res: Residual) -> tuple[Located, ...]:
         res = replace(res, t_s=res.t_s[ok], m_ut=res.m_ut[ok], channels={k: v[ok] for k, v in res.channels.items()})
     if np.any(np.diff(res.t_s) < 0) or res.t_s[-1] <= res.t_s[0]:
         return ()  # no frequency without a clock that advances
-    lines, aside, threshold = find_lines(res)
-    return tuple(located(x, res, threshold, aside) for x in lines)
+    scan = _scanned(res)
+    last = len(scan.lines) - 1
+    return tuple(located(x, res, scan.threshold, scan.set_aside_hz, scan.beyond_cap_hz if i == last else None)
+                 for i, x in enumerate(scan.lines))
 
 
 def remove(m_ut: np.ndarray, t_s: np.ndarray, channels, found: Located) -> np.ndarray:
