@@ -12,7 +12,7 @@ import pytest
 from magcal.app.load import load_series
 from magcal.diagnose.locate import steps
 from magcal.diagnose.locate import steps_scan as scan
-from magcal.diagnose.locate.base import Kind, Located, Residual
+from magcal.diagnose.locate.base import Kind, Residual
 from magcal.fit import fit_calibration
 from magcal.sim.physics import Motion, Physics, Scenario
 
@@ -152,18 +152,3 @@ def test_a_change_point_the_step_scan_finds_is_named_by_which_account_fits_it(ki
     found = _claims(_search(t, m))
     assert [f.effect for f in found] == [kind], [f.summary for f in found]
     assert abs(found[0].where["time_s"][0] - 44.0) <= 1.0
-
-
-def test_the_offset_change_a_soft_iron_change_is_judged_against_is_the_step_put_in():
-    """A soft-iron change is kept only where it beats the offset alone changing at its time. On a
-    tilt take (partial coverage) that simpler account is the step fitted with one shape for both
-    sides: the sides' own ellipsoids trade offset against shape and took 18 % off the step."""
-    run = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3), motion=Motion("tilt", max_tilt_deg=50.0),
-                   seed=4).simulate(4000, 50.0)
-    t, m = run.series.t_s, run.series.field_ut
-    d = 6 * _floor(m) * np.array([0.6, -0.64, 0.48])
-    m = m + np.outer(t >= 44.0, d)
-    change = Located(steps.SOFT, Kind.PHYSICS, "", {"time_s": [44.0]}, {"time_s": 44.0}, {})
-    shift = steps.remove_offset_change(m, t, {}, change) - m
-    assert np.allclose(shift[t >= 44.0], 0.0)
-    assert np.linalg.norm(shift[0] - d) < 0.1 * np.linalg.norm(d)

@@ -422,19 +422,15 @@ def remove_soft(m_ut, t_s, channels, located: Located) -> np.ndarray:
 
 def remove_offset_change(m_ut, t_s, channels, located: Located) -> np.ndarray:
     """The simpler account of a soft-iron change, the one its scan tested it against: only the
-    offset changes at τ, one shape both sides — ``measure``'s joint fit on one ellipsoid's radial
-    residual, not each side's own ellipsoid, whose offset trades with a shape fitted apart."""
-    m, t = np.asarray(m_ut, dtype=np.float64), np.asarray(t_s, float)
-    fit = fit_calibration(m, model="ellipsoid")
-    if not fit:
-        return m.copy()
-    cal = fit.calibration
-    norm = np.linalg.norm(cal.correct(m), axis=1)
-    u = cal.correct(m) / norm[:, None]
-    step = HardIronStep(float(located.params["time_s"]), (0.0, 0.0), np.zeros(3), np.zeros((3, 3)), np.zeros(3), 0.0, 0.0)
-    d_h = measure(u, t, norm - cal.field_ut, scan.quad(u, cal.field_ut), 1.0, [step])[0].d_h
+    offset changes at τ (each side's own fitted offset), the shape stays as it is. Unchanged
+    where either side cannot be fitted."""
+    m = np.asarray(m_ut, dtype=np.float64)
+    before = np.asarray(t_s, float) < float(located.params["time_s"])
+    fb = fit_calibration(m[before], model="ellipsoid")
+    fa = fit_calibration(m[~before], model="ellipsoid")
     out = m.copy()
-    out[t < step.tau_s] += np.linalg.solve(cal.soft_iron, d_h)
+    if fb and fa:
+        out[before] += fa.calibration.offset_ut - fb.calibration.offset_ut
     return out
 
 
