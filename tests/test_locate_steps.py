@@ -127,28 +127,3 @@ def test_bad_times_are_refused_with_a_clear_error():
     fit = fit_calibration(m, model="ellipsoid")
     with pytest.raises(ValueError, match="t_s"):
         steps.search(Residual(t[::-1].copy(), m, fit.calibration, 0.3, float(fit.rms_ut)))
-
-
-def _tilt_with_change(kind):
-    """A tilt recording (partial coverage) whose x gain or offset changes at 44 s, 6× its floor."""
-    run = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3), motion=Motion("tilt", max_tilt_deg=50.0),
-                   seed=9).simulate(4000, 50.0)
-    t, m = run.series.t_s, run.series.field_ut.copy()
-    after, size_ut = t >= 44.0, 6 * _floor(m)
-    b = fit_calibration(m, model="sphere").calibration.offset_ut
-    if kind == steps.SOFT:
-        m[after, 0] = b[0] + (1 + size_ut / 50.0) * (m[after, 0] - b[0])
-    else:
-        m[after] += size_ut * np.array([0.6, -0.64, 0.48])
-    return t, m
-
-
-@pytest.mark.parametrize("kind", [steps.SOFT, steps.STEP])
-def test_a_change_point_the_step_scan_finds_is_named_by_which_account_fits_it(kind):
-    """Seen locally, a gain change on a tilt take jumps like an offset step (the step scan finds
-    it at its time, and it used to be claimed as a hard-iron step); fitted with both accounts at
-    that time, the shape change is what the recording holds. A true step there stays a step."""
-    t, m = _tilt_with_change(kind)
-    found = _claims(_search(t, m))
-    assert [f.effect for f in found] == [kind], [f.summary for f in found]
-    assert abs(found[0].where["time_s"][0] - 44.0) <= 1.0

@@ -20,10 +20,7 @@
   direction's change to √2 × ``SHAPE_SIGMA_MAX``): at
   the τ the six-direction scan places, the statistic is χ²_k over those k directions.
   A shape that seems to change only along directions one side leaves free is that side's own
-  misfit, not evidence of a change, and nothing is said of it. Where that scan claims nothing, each
-  change point the step scan found is typed: both accounts fitted to the whole recording at its
-  time, the shape change named only where it beats the step beyond its extra terms (χ²_k at
-  ``ALPHA`` over the steps), then placed by its own fit over the step's window.
+  misfit, not evidence of a change, and nothing is said of it.
 - ``unexplained_structure``: a stretch whose residual RMS (after the wander and any found step)
   is ``STRUCTURE_OVER_TYPICAL`` times the recording's typical window and above its floor,
   explained by no step — returned as the honest remainder, with its size over the floor.
@@ -42,7 +39,7 @@ recording, which is what ``write`` puts on the device.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -294,54 +291,20 @@ def _tested_at(grid: _Grid, j: int, u, q, t, nb: int, f2: float) -> tuple:
     return rss, var, coef[:m], d @ coef[m:], var * d @ inv[m:, m:] @ d.T, d
 
 
-def _soft_grid(t: np.ndarray, half: float, around: float | None) -> np.ndarray:
-    """The soft-iron scan's candidate times: ``SOFT_GRID`` over the middle of the span, or, at a
-    change point already found (``around``), the same spacing (at least 3 times) over its local
-    window ±``half`` — each with ``6 × MIN_SIDE`` samples either side."""
-    span = float(t[-1] - t[0])
-    taus = t[0] + span * np.linspace(SOFT_EDGE, 1 - SOFT_EDGE, SOFT_GRID)
-    if around is not None:
-        n = max(3, int(np.ceil(2 * half / (taus[1] - taus[0]))) + 1)
-        taus = np.linspace(around - half, around + half, n)
-    return taus[[min(np.sum(t < x), np.sum(t >= x)) >= 6 * MIN_SIDE for x in taus]]
-
-
-def _soft_design(u, t, r, field_ut: float, step_times=()) -> tuple:
-    """(u, t, r thinned to ``SOFT_MAX_N``, the shape columns Q, the null's columns: the offset
-    wandering piecewise-linearly, Q, and the offset stepping at ``step_times``)."""
+def shape_change(u, t, r, field_ut: float, half: float, step_times=()) -> ShapeChange | None:
+    """The soft-iron change scan (module docstring), with the offset stepping at ``step_times``
+    too: τ placed by the change in all six shape directions, the change then tested only along
+    those both sides determine. None when the span is too short to scan or no shape direction
+    is determined on both sides of τ."""
     k = _thin(len(t))
     u, t, r = u[k], t[k], r[k]
     q = scan.quad(u, field_ut)
+    span = float(t[-1] - t[0])
     steps = [u * (t >= x)[:, None] for x in step_times]
-    return u, t, r, q, np.hstack([scan.wander_columns(u, t, float(t[-1] - t[0]) * SOFT_KNOT_SHARE), q] + steps)
-
-
-def shape_at(u, t, r, field_ut: float, half: float, tau_s: float, step_times=()) -> tuple[float, int, float]:
-    """(the χ²_k statistic, k, the largest shape change along the k tested directions × F, µT)
-    of the shape changing at ``tau_s`` on top of the offset stepping there — one time, given
-    (a change point found): both accounts fitted to the whole recording, the shape tested along
-    the directions both sides determine, with the recording's own inflation as ``shape_change``."""
-    u, t, r, q, base = _soft_design(u, t, r, field_ut, step_times)
-    grid = _shape_scan(base, u, q, t, r, np.array([tau_s]))
-    after = (t >= tau_s)[:, None]
-    e1 = r - np.hstack([base, u * after, q * after]) @ grid.coef_full[0]
-    f2 = scan.inflation(e1, q / field_ut, max(1, int(np.sum(t - t[0] < half))))
-    rss, var, _, e, _, d = _tested_at(grid, 0, u, q, t, base.shape[1], f2)
-    if d.shape[1] == 0:
-        return 0.0, 0, 0.0
-    return float((grid.rss0[0] - rss) / var), int(d.shape[1]), float(np.max(np.abs(e)) * field_ut)
-
-
-def shape_change(u, t, r, field_ut: float, half: float, step_times=(), around: float | None = None) -> ShapeChange | None:
-    """The soft-iron change scan (module docstring), with the offset stepping at ``step_times``
-    too: τ placed by the change in all six shape directions, the change then tested only along
-    those both sides determine, against the best offset step on the same candidate times
-    (Bonferroni over them at ``ALPHA``). ``around``: scan only the local window of a change point
-    already found there (``_soft_grid``). None when the span is too short to scan or no shape
-    direction is determined on both sides of τ."""
-    u, t, r, q, base = _soft_design(u, t, r, field_ut, step_times)
+    base = np.hstack([scan.wander_columns(u, t, span * SOFT_KNOT_SHARE), q] + steps)
     nb = base.shape[1]
-    taus = _soft_grid(t, half, around)
+    taus = t[0] + span * np.linspace(SOFT_EDGE, 1 - SOFT_EDGE, SOFT_GRID)
+    taus = taus[[min(np.sum(t < x), np.sum(t >= x)) >= 6 * MIN_SIDE for x in taus]]
     if len(taus) < 3:
         return None
     grid = _shape_scan(base, u, q, t, r, taus)
@@ -539,28 +502,6 @@ def _soft_change(u, t, r, field_ut, floor_ut, half, steps: list[HardIronStep]) -
     return with_steps
 
 
-def _typed_change(u, t, r, field_ut, floor_ut, half, steps: list[HardIronStep]) -> ShapeChange | None:
-    """A change point the step scan found, typed. The local step test sees a change of shape too
-    (the jump of r at τ, F·uᵀEu along the direction then), so at each step's time both accounts
-    are fitted to the whole recording — the offset stepping (3 terms), and the offset stepping
-    with the shape changing (3 + k, ``shape_at``) — and the shape change is the type only where
-    it beats the step beyond its k extra terms (χ²_k at ``ALPHA`` over the steps tested) and the
-    floor; else the simpler step stands. Its time is then placed by the shape change's own fit
-    over that step's window (``shape_change`` around it): a step seen through one direction
-    jumps where that direction's jump is largest, not necessarily where the shape changed."""
-    best, best_stat = None, 0.0
-    for s in steps:
-        others = [x.tau_s for x in steps if x is not s]
-        stat, k, size_ut = shape_at(u, t, r, field_ut, half, s.tau_s, others)
-        threshold = float(chi2_isf(ALPHA / len(steps), k)) if k else float("inf")
-        if stat < threshold or size_ut < STEP_MIN_OVER_FLOOR * floor_ut or stat / threshold <= best_stat:
-            continue
-        c = shape_change(u, t, r, field_ut, half, others, around=s.tau_s)
-        if c is not None:
-            best, best_stat = replace(c, stat=stat, threshold=threshold), stat / threshold
-    return best
-
-
 def search(res: Residual) -> tuple[Located, ...]:
     """Every step, soft-iron change and misbehaving stretch in one residual (module docstring)."""
     _check(res)
@@ -575,8 +516,6 @@ def search(res: Residual) -> tuple[Located, ...]:
     f2 = scan.inflation(r - x @ scan.lsq(x, r).coef, u, max(1, int(np.sum(t - t[0] < half))))
     steps, rest = _all_steps(u, t, r, q, half, f2)
     shape = _soft_change(u, t, r, cal.field_ut, floor, half, steps)
-    if shape is None and steps:
-        shape = _typed_change(u, t, r, cal.field_ut, floor, half, steps)
     found: list[Located] = []
     if shape is not None:
         found.append(_soft_located(shape, floor, cal.field_ut))
