@@ -408,8 +408,8 @@ def _swap_found(t, rows, name, perm, signs, a0, at, sigma, rms_around, stretch=N
                f" {rms0 / sigma:.1f}× the recording's scatter): axes swapped or flipped; set aside")
     evidence = {"rms_as_read_ut": rms0, "rms_as_transformed_ut": rmst, "scatter_ut": sigma, "rms_around_ut": rms_around}
     if stretch is not None:
-        evidence |= {"view": stretch.view, "evidence_nats": stretch.evidence, "threshold_nats": stretch.threshold}
-    if stretch is not None and stretch.view == "edges":
+        evidence |= {"view": stretch.view.value, "evidence_nats": stretch.evidence, "threshold_nats": stretch.threshold}
+    if stretch is not None and stretch.view is swap_evidence.View.EDGES:
         evidence |= {"jumps_ut": list(stretch.jumps), "typical_step_ut": stretch.typical_step}
         summary = (f"the readings jump by {stretch.jumps[0]:.3g} and {stretch.jumps[1]:.3g} µT into and out of"
                    f" {len(rows)} samples ({span[0]:.2f}–{span[1]:.2f} s), against a typical step of"
@@ -452,7 +452,7 @@ def _evidence_swaps(t, m, keep, r_all, sigma, field_ut) -> list[Located]:
         name, perm, signs = TRANSFORMS[st.transform]
         x = _swap_found(t, idx[run], name, perm, signs, a0[run], np.abs(r_all[st.transform + 1, idx[run]]),
                         sigma, _around(a0, run), st)
-        if st.view == "edges" or _swap_holds(x.evidence):
+        if st.view is swap_evidence.View.EDGES or _swap_holds(x.evidence):
             out.append(x)
     return out
 

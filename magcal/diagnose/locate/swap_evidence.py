@@ -26,9 +26,12 @@ glitch that happens to land on the transformed surface.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 from scipy import ndimage
+
+from ...fit.outliers import robust_sigma
 
 OUTLIER_K = 5.0  # an innovation or step beyond this × its scale counts towards the outlier share
 ALPHA = 0.01  # the chance, over every stretch tried, of claiming one on a recording without
@@ -39,10 +42,17 @@ MAX_STRETCHES = 8  # per transform and view
 TAKEN = -1e12  # the evidence written over a stretch already taken: no later one crosses it
 
 
+class View(Enum):
+    """Which evidence found a stretch."""
+
+    RADIAL = "radial"
+    EDGES = "edges"
+
+
 @dataclass(frozen=True)
 class Stretch:
     """Fresh readings ``first``…``last`` read through transform ``transform``; ``evidence`` and
-    ``threshold`` in nats; ``view`` "radial" or "edges"; ``jumps`` the two end steps as read and
+    ``threshold`` in nats; ``view`` which evidence found it; ``jumps`` the two end steps as read and
     ``typical_step`` the local step there (µT, edges view)."""
 
     first: int
@@ -50,7 +60,7 @@ class Stretch:
     transform: int
     evidence: float
     threshold: float
-    view: str
+    view: View
     jumps: tuple[float, float] = (float("nan"), float("nan"))
     typical_step: float = float("nan")
 
@@ -83,7 +93,7 @@ def _ar1(r0: np.ndarray, sigma: float) -> tuple[float, float, float, float]:
     c = c - c.mean()
     rho = float(np.clip(np.dot(c[1:], c[:-1]) / max(np.dot(c, c), 1e-300), 0.0, 0.999))
     e = r0[1:] - rho * r0[:-1]
-    scale = float(1.4826 * np.median(np.abs(e - np.median(e))))
+    scale = robust_sigma(e)
     scale = scale if scale > 0 else sigma
     out = np.abs(e[np.abs(e) > OUTLIER_K * scale])
     spread = 2.0 * float(np.median(out)) if len(out) else 2.0 * OUTLIER_K * scale
@@ -104,7 +114,7 @@ def radial(r: np.ndarray, sigma: float) -> list[Stretch]:
         start = np.r_[ll(rt[:1]), ll(rt[1:] - rho * r0[:-1])] - l0
         inner = np.r_[0.0, ll(rt[1:] - rho * rt[:-1]) - l0[1:]]
         stop = np.r_[ll(r0[1:] - rho * rt[:-1]) - l0[1:], 0.0]
-        out += [Stretch(a, b, j, e, thr, "radial") for e, a, b in _scan(start, inner, stop, thr)]
+        out += [Stretch(a, b, j, e, thr, View.RADIAL) for e, a, b in _scan(start, inner, stop, thr)]
     return out
 
 
@@ -141,7 +151,7 @@ def edges(m: np.ndarray, transforms, field_ut: float) -> list[Stretch]:
         enter = np.r_[-np.inf, ll(np.linalg.norm(mt[1:] - m[:-1], axis=1)) - l0]  # reading i the first transformed
         leave = np.r_[ll(np.linalg.norm(m[1:] - mt[:-1], axis=1)) - l0, -np.inf]  # reading i the last
         for a, b in _pairs(np.flatnonzero(enter >= thr), np.flatnonzero(leave >= thr)):
-            out.append(Stretch(a, b, j, float(enter[a] + leave[b]), 2.0 * thr, "edges",
+            out.append(Stretch(a, b, j, float(enter[a] + leave[b]), 2.0 * thr, View.EDGES,
                                (float(d[a - 1]), float(d[b])), float(np.median(s[[a - 1, b]]) * CHI3_MEDIAN)))
     return out
 
@@ -161,4 +171,4 @@ def _pairs(enter: np.ndarray, leave: np.ndarray) -> list[tuple[int, int]]:
     return out
 
 
-__all__ = ["ALPHA", "Stretch", "edges", "radial"]
+__all__ = ["ALPHA", "Stretch", "View", "edges", "radial"]
