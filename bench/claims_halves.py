@@ -66,8 +66,9 @@ def key(f: dict) -> tuple:
 
 
 def coef_cov(f: dict) -> tuple[np.ndarray, np.ndarray] | None:
-    """A channel term's coefficient and its stated covariance, or None."""
-    p = f.get("params", {})
+    """A channel term's coefficient and its stated covariance (a finding states them in its
+    evidence, beside the test that estimated them), or None."""
+    p = f.get("evidence", {})
     if "coef_cov_ut_per_unit" not in p:
         return None
     ci = np.asarray(p["coef_ci95_ut_per_unit"], float)
