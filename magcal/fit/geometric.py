@@ -29,7 +29,8 @@ cauchy) is minimised by the same steps on iteratively re-weighted residuals.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -45,8 +46,8 @@ def n_params(kind: str) -> int:
     return 4 + N_SHAPE[kind]
 
 
-def _basis(kind: str) -> list[np.ndarray]:
-    """dS/ds_k for each shape parameter."""
+def _basis_of(kind: str) -> tuple[np.ndarray, ...]:
+    """dS/ds_k for each shape parameter (read-only)."""
     out = []
     if kind in ("diagonal", "full"):
         for i in (0, 1):
@@ -59,7 +60,17 @@ def _basis(kind: str) -> list[np.ndarray]:
             e = np.zeros((3, 3))
             e[i, j] = e[j, i] = 1.0
             out.append(e)
-    return out
+    for e in out:
+        e.flags.writeable = False
+    return tuple(out)
+
+
+_BASES = {kind: _basis_of(kind) for kind in KINDS}
+
+
+def _basis(kind: str) -> tuple[np.ndarray, ...]:
+    """dS/ds_k for each shape parameter: constants, made once (read-only)."""
+    return _BASES[kind]
 
 
 def shape_matrix(kind: str, s) -> np.ndarray:
@@ -91,7 +102,7 @@ def expm_derivatives(kind: str, s, eig=None) -> tuple[np.ndarray, list[np.ndarra
 def unpack(theta, kind: str) -> tuple[np.ndarray, float, np.ndarray]:
     """θ → (offset b (3,), radius r, W (3×3) SPD with det 1)."""
     theta = np.asarray(theta, dtype=np.float64)
-    W, _ = expm_derivatives(kind, theta[4:])
+    W = expm_sym(shape_matrix(kind, theta[4:]))[0]  # expm_derivatives's W, without the derivatives
     return theta[:3].copy(), float(theta[3]), W
 
 
@@ -124,7 +135,9 @@ def _forward(theta: np.ndarray, mt: np.ndarray, kind: str) -> tuple:
     eig = expm_sym(shape_matrix(kind, theta[4:]))
     h = eig[0] @ d
     nh = _column_norm(h)
-    return d, h, nh, eig, _column_norm(eig[0] @ h) / np.where(nh > 0, nh, 1.0)
+    scale = _column_norm(eig[0] @ h)
+    scale /= np.where(nh > 0, nh, 1.0)
+    return d, h, nh, eig, scale
 
 
 def _residual_of(forward: tuple, r: float) -> np.ndarray:
@@ -148,7 +161,10 @@ def row_norm(v: np.ndarray) -> np.ndarray:
 def _column_norm(vt: np.ndarray) -> np.ndarray:
     """row_norm of vt.T for vt (3, n): the same sums, in the same order."""
     x, y, z = vt
-    return np.sqrt((x * x + y * y) + z * z)
+    out, square = x * x, y * y
+    out += square
+    out += np.multiply(z, z, out=square)
+    return np.sqrt(out, out=out)
 
 
 def residual(theta, m: np.ndarray, kind: str) -> np.ndarray:
@@ -175,42 +191,65 @@ def jacobian(theta, m: np.ndarray, kind: str, forward=None) -> np.ndarray:
     calibrated-space one: it is small per sample (g ~ σ) but not in the sum."""
     theta = np.asarray(theta, dtype=np.float64)
     d, h, nh, eig, scale = forward if forward is not None else _forward(theta, _columns(m), kind)
-    ut = h / np.where(nh > 0, nh, 1.0)
+    nz = np.where(nh > 0, nh, 1.0)
+    ut = h / nz
     jt = np.empty((n_params(kind), d.shape[1]))
     jt[3] = -1.0
     if kind == "sphere":  # W = I, s = 1: −Wu is −u exactly
         jt[:3] = -ut
         return jt.T
     W, dWs = expm_derivatives(kind, theta[4:], eig)
-    inv_nh = 1.0 / np.where(nh > 0, nh, 1.0)
+    # the products below are made in place where a temporary would hold the same numbers
+    inv_nh = np.divide(1.0, nz, out=nz)
     inv_s = 1.0 / scale
-    vs = (W @ ut) * inv_s
+    vs = W @ ut
+    vs *= inv_s
     a = W @ vs
-    qt = (a - ut * (ut[0] * a[0] + ut[1] * a[1] + ut[2] * a[2])) * inv_nh  # p/|h|
-    c = (nh - float(theta[3])) * (inv_s * inv_s)  # g/s²
-    jt[:3] = (W @ qt) * c - vs
-    jt[3] = -inv_s
+    dot = ut[0] * a[0]
+    dot += ut[1] * a[1]
+    dot += ut[2] * a[2]
+    qt = np.multiply(ut, dot, out=np.empty_like(ut))
+    np.subtract(a, qt, out=qt)
+    qt *= inv_nh  # p/|h|
+    c = nh - float(theta[3])
+    c *= inv_s * inv_s  # g/s²
+    wq = W @ qt
+    wq *= c
+    np.subtract(wq, vs, out=jt[:3])
+    np.negative(inv_s, out=jt[3])
     # Σ_ij (∂W/∂s_k)_ij X_ij with X = u dᵀ/s − g/s² (v uᵀ/s + p dᵀ/|h|) = α dᵀ + β uᵀ,
     # α = u/s − g/s² · p/|h| and β = −g/s² · v/s: the nine products α_i d_j + β_i u_j as rows
     # (same-shape products: a broadcast over a (3, 3, n) array costs ten times as much)
-    alpha = ut * inv_s - qt * c
-    beta = vs * -c
-    x = np.empty((9, d.shape[1]))
+    alpha = ut * inv_s
+    alpha -= np.multiply(qt, c, out=wq)
+    beta = np.multiply(vs, np.negative(c, out=c), out=vs)
+    x, product = np.empty((9, d.shape[1])), dot
     for i in range(3):
         for j in range(3):
             np.multiply(alpha[i], d[j], out=x[3 * i + j])
-            x[3 * i + j] += beta[i] * ut[j]
-    jt[4:] = np.array([w.ravel() for w in dWs]) @ x
+            x[3 * i + j] += np.multiply(beta[i], ut[j], out=product)
+    np.matmul(np.array([w.ravel() for w in dWs]), x, out=jt[4:])
     return jt.T
 
 
 @dataclass(frozen=True)
 class GeometricFit:
+    """A solved model: θ, its residual and, on first use, its Jacobian (``jac``), built from
+    ``at`` — θ as solved, the samples (a private copy) and ``_forward``'s values there, which
+    the residual came from. A fit whose Jacobian nobody reads (a robust start, a Grubbs round
+    before the last, a first reweighting pass) never builds it; where it is read it is the
+    same numbers."""
+
     kind: str
     theta: np.ndarray
     residual_ut: np.ndarray
-    jac: np.ndarray
     n_iter: int
+    at: tuple = field(default=(), repr=False, compare=False)  # (θ, the samples as columns (3, n), _forward's values)
+
+    @cached_property
+    def jac(self) -> np.ndarray:
+        theta, mt, fwd = self.at
+        return jacobian(theta, mt.T, self.kind, fwd)
 
     @property
     def offset_ut(self) -> np.ndarray:
@@ -367,9 +406,10 @@ def solve(
     theta[3] = scale * theta[3]
     if theta[3] < 0:  # |h| − r with r < 0 cannot be a minimum unless all |h| ≈ 0
         return FitFailure("degenerate", f"{kind} fit produced a negative radius")
-    fwd = _forward(theta, _columns(m), kind)
-    return GeometricFit(kind=kind, theta=theta, residual_ut=_residual_of(fwd, float(theta[3])),
-                        jac=jacobian(theta, m, kind, fwd), n_iter=nfev)
+    mt = _columns(m)
+    fwd = _forward(theta, mt, kind)
+    return GeometricFit(kind=kind, theta=theta, residual_ut=_residual_of(fwd, float(theta[3])), n_iter=nfev,
+                        at=(theta.copy(), mt, fwd))
 
 
 def _weighted(mt: np.ndarray, kind: str, sw: np.ndarray | None):

@@ -219,7 +219,7 @@ def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOutS
     tests, unseen = _tests(m, judged, edges, sphere.offset_ut)
     kept, balanced = {}, {}
     for k, (g, keep) in candidates.items():
-        at_whole = geometric.residual_jacobian(g.theta, m, g.kind)
+        at_whole = _at_whole(m, g, keep)
         plain = _score(m, g, keep, tests, edges, False, at_whole)
         weighted = plain if k == "sphere" else _score(m, g, keep, tests, edges, True, at_whole)
         balanced[k] = k != "sphere" and _balance_kept(plain, weighted)
@@ -228,6 +228,14 @@ def judge(m: np.ndarray, candidates: dict, n_blocks: int = N_BLOCKS) -> HeldOutS
     if not np.isfinite(min(scores.values())):
         return None
     return HeldOutSpread(scores, n_blocks, tuple(unseen), balanced)
+
+
+def _at_whole(m: np.ndarray, g: geometric.GeometricFit, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The residual and Jacobian of ``g`` at its θ on every sample of ``m``: its own, where it
+    was fitted on every one of them (the same numbers, already made), else made here."""
+    if keep.all():
+        return g.residual_ut, g.jac
+    return geometric.residual_jacobian(g.theta, m, g.kind)
 
 
 def _common(kept: dict) -> np.ndarray:

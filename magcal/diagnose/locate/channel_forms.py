@@ -152,14 +152,22 @@ def tried(channels: Mapping[str, np.ndarray], t_s: np.ndarray | None = None) -> 
 
 # -- the search ------------------------------------------------------------------------------
 def best(fr: cs.Frame, fams: list[cs.Family]) -> cs.Pick | None:
-    top = None
+    return best_each((fr,), fams)[0]
+
+
+def best_each(frames: tuple[cs.Frame, ...], fams: list[cs.Family]) -> list[cs.Pick | None]:
+    """``best`` on each of ``frames``, which differ only in their residual (``Frame.with_r``):
+    each family's design (``cs.design_of``) is made once for all of them."""
+    tops: list = [None] * len(frames)
     for fam in fams:
-        ess, _ = cs.scores(fr, fam)
-        z = cs.log10_p(fr.f_ratio(ess, cs.n_columns(fam)), cs.n_columns(fam))
-        j = int(np.argmax(z))
-        if top is None or z[j] > top.score:
-            top = cs.Pick(fam, j, float(z[j]), ess)
-    return top
+        design = cs.design_of(frames[0], fam)
+        for i, fr in enumerate(frames):
+            ess, _ = cs.scores(fr, fam, design)
+            z = cs.log10_p(fr.f_ratio(ess, cs.n_columns(fam)), cs.n_columns(fam))
+            j = int(np.argmax(z))
+            if tops[i] is None or z[j] > tops[i].score:
+                tops[i] = cs.Pick(fam, j, float(z[j]), ess)
+    return tops
 
 
 NESTED = {Form.SQUARE: Form.OFFSET_DELAY, Form.AXIS_GAIN: Form.GAIN}  # form → the simpler form inside it
@@ -283,10 +291,14 @@ def max_lag_rows(fr: cs.Frame, t_s: np.ndarray) -> int:
     return int(np.ceil(lag_grid(t_s)[-1] / sample_period_s(fr.t_s)))
 
 
-def null_maxima(fr: cs.Frame, fams: list[cs.Family], shifts: np.ndarray) -> np.ndarray:
-    """The largest score of the whole search with every channel circularly shifted by each shift,
-    against the same residual (its own autocorrelation and slow wander kept)."""
-    return np.array([best(fr, [f.rolled(int(k)) for f in fams]).score for k in shifts])
+def null_maxima(frames: tuple[cs.Frame, ...], fams: list[cs.Family], shifts: np.ndarray) -> list[np.ndarray]:
+    """For each of ``frames`` (differing only in their residual), the largest score of the whole
+    search with every channel circularly shifted by each shift, against the same residual (its
+    own autocorrelation and slow wander kept)."""
+    if any(f.q is not frames[0].q or f.bases is not frames[0].bases for f in frames):
+        raise ValueError("null_maxima's frames must differ only in their residual (Frame.with_r)")
+    picks = [best_each(frames, [f.rolled(int(k)) for f in fams]) for k in shifts]
+    return [np.array([p[i].score for p in picks]) for i in range(len(frames))]
 
 
 def whole(res: Residual) -> Residual:
@@ -334,7 +346,7 @@ def _search(res: Residual) -> tuple[Located, ...]:
         score = pick.score
         clean = fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
         shifts = shifts_for(pick.fam.series[:, pick.j, 0], max_lag_rows(fr, t))
-        null_raw, null_clean = null_maxima(fr, fams, shifts), null_maxima(clean, fams, shifts)
+        null_raw, null_clean = null_maxima((fr, clean), fams, shifts)
         threshold = min(cs.gumbel_threshold(null_raw, ALPHA), CLEAN_RATIO * cs.gumbel_threshold(null_clean, ALPHA))
         if score <= threshold:
             break

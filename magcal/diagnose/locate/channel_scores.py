@@ -108,26 +108,45 @@ def log10_p(ess_over_s2, k: int) -> np.ndarray:
     return tails.chi2_log10_sf(ess_over_s2, k)
 
 
-def scores(fr: Frame, fam: Family) -> tuple[np.ndarray, np.ndarray]:
-    """(explained sum of squares (m,), coefficients (m, p·s)) of every candidate of ``fam``."""
-    b = fr.bases[fam.basis]
+def scores(fr: Frame, fam: Family, design=None) -> tuple[np.ndarray, np.ndarray]:
+    """(explained sum of squares (m,), coefficients (m, p·s)) of every candidate of ``fam``;
+    ``design``: ``design_of(fr, fam)`` when already made (it does not depend on the residual, so
+    frames that differ only in it share one)."""
+    design = design_of(fr, fam) if design is None else design
     if fam.series.shape[2] == 1:
-        return _scores_single(b, fam.series[:, :, 0], fr.r, fr.q)
-    out = [_fit(columns(b, fam.series[:, j, :]), fr.r, fr.q)[:2] for j in range(fam.series.shape[1])]
+        return _scores_single(fr.bases[fam.basis], fam.series[:, :, 0], fr.r, design)
+    out = [_solved(xt, a, fr.r)[:2] for xt, a in design]
     return np.array([e for e, _ in out]), np.array([c for _, c in out])
 
 
-def _scores_single(b: np.ndarray, g: np.ndarray, r: np.ndarray, q: np.ndarray):
-    """Vectorised over the m series of g: columns b·g_j (p of them) for each j."""
+def design_of(fr: Frame, fam: Family):
+    """What scoring ``fam`` on ``fr`` takes from the columns and the nuisance alone, not from the
+    residual: for one series per candidate the normal matrices (m, p, p), else each candidate's
+    projected columns and normal matrix."""
+    b = fr.bases[fam.basis]
+    if fam.series.shape[2] == 1:
+        return _normal_single(b, fam.series[:, :, 0], fr.q)
+    return [_projected(columns(b, fam.series[:, j, :]), fr.q) for j in range(fam.series.shape[1])]
+
+
+def _normal_single(b: np.ndarray, g: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The normal matrices (ridge included) of the columns b·g_j with the nuisance q projected
+    out, vectorised over the m series of g."""
     n, p = b.shape
     m = g.shape[1]
     bb = (b[:, :, None] * b[:, None, :]).reshape(n, p * p)
     xtx = (bb.T @ g**2).T.reshape(m, p, p)
     qx = np.stack([(q * b[:, [a]]).T @ g for a in range(p)], axis=1)  # (nq, p, m)
     xtx = xtx - np.einsum("qam,qbm->mab", qx, qx)
-    xtr = ((b * r[:, None]).T @ g).T  # (m, p)
     ridge = RIDGE * (np.trace(xtx, axis1=1, axis2=2)[:, None, None] + 1e-300) * np.eye(p)
-    beta = np.linalg.solve(xtx + ridge, xtr[:, :, None])[:, :, 0]
+    return xtx + ridge
+
+
+def _scores_single(b: np.ndarray, g: np.ndarray, r: np.ndarray, normal: np.ndarray):
+    """Vectorised over the m series of g: columns b·g_j (p of them) for each j, whose normal
+    matrices ``_normal_single`` made."""
+    xtr = ((b * r[:, None]).T @ g).T  # (m, p)
+    beta = np.linalg.solve(normal, xtr[:, :, None])[:, :, 0]
     return np.sum(beta * xtr, axis=1), beta
 
 
@@ -136,12 +155,22 @@ def columns(b: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.concatenate([b * s[:, [k]] for k in range(s.shape[1])], axis=1)
 
 
-def _fit(x: np.ndarray, r: np.ndarray, q: np.ndarray):
+def _projected(x: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the columns with the nuisance q projected out, their normal matrix with the ridge)."""
     xt = x - q @ (q.T @ x)
     a = xt.T @ xt
-    a = a + RIDGE * (np.trace(a) + 1e-300) * np.eye(a.shape[0])
+    return xt, a + RIDGE * (np.trace(a) + 1e-300) * np.eye(a.shape[0])
+
+
+def _solved(xt: np.ndarray, a: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray]:
+    """(explained square, coefficients) of r on the projected columns ``xt`` (normal matrix ``a``)."""
     beta = np.linalg.solve(a, xt.T @ r)
-    return float(beta @ (xt.T @ r)), beta, xt, a
+    return float(beta @ (xt.T @ r)), beta
+
+
+def _fit(x: np.ndarray, r: np.ndarray, q: np.ndarray):
+    xt, a = _projected(x, q)
+    return (*_solved(xt, a, r), xt, a)
 
 
 def term(fr: Frame, fam: Family, j: int) -> np.ndarray:
