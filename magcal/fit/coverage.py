@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .geometric import row_norm
+
 DEFAULT_BANDS = 8
 DEFAULT_SECTORS = 16
 
@@ -20,7 +22,7 @@ DEFAULT_SECTORS = 16
 def cell_index(directions: np.ndarray, bands: int = DEFAULT_BANDS, sectors: int = DEFAULT_SECTORS) -> np.ndarray:
     """Equal-area cell of each unit (or any non-zero) vector, (n, 3) → (n,) ints."""
     d = np.atleast_2d(np.asarray(directions, dtype=np.float64))
-    norm = np.linalg.norm(d, axis=1)
+    norm = row_norm(d)  # np.linalg.norm's sums, in its order
     norm[norm == 0] = 1.0
     z = np.clip(d[:, 2] / norm, -1.0, 1.0)
     band = np.minimum(((z + 1.0) / 2.0 * bands).astype(np.int64), bands - 1)

@@ -74,8 +74,26 @@ def _basis(kind: str) -> tuple[np.ndarray, ...]:
 
 
 def shape_matrix(kind: str, s) -> np.ndarray:
+    """S = Σ_k s_k dS/ds_k. Each entry is written as that sum makes it (0 + the terms that are
+    not zero, in order: adding a zero term changes no value), without a pass over the basis."""
+    s = np.asarray(s, dtype=np.float64).reshape(-1)
+    if kind == "sphere":
+        return np.zeros((3, 3))
+    if len(s) != N_SHAPE[kind] or not np.all(np.isfinite(s)):  # a zero term times inf or nan is nan
+        return _summed_shape_matrix(kind, s)
+    a, b = float(s[0]), float(s[1])
     S = np.zeros((3, 3))
-    for sk, e in zip(np.asarray(s, dtype=np.float64).reshape(-1), _basis(kind)):
+    S[0, 0], S[1, 1], S[2, 2] = 0.0 + a, 0.0 + b, (0.0 + -a) + -b
+    if kind == "full":
+        S[0, 1] = S[1, 0] = 0.0 + float(s[2])
+        S[0, 2] = S[2, 0] = 0.0 + float(s[3])
+        S[1, 2] = S[2, 1] = 0.0 + float(s[4])
+    return S
+
+
+def _summed_shape_matrix(kind: str, s: np.ndarray) -> np.ndarray:
+    S = np.zeros((3, 3))
+    for sk, e in zip(s, _basis(kind)):
         S += sk * e
     return S
 

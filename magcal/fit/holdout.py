@@ -87,10 +87,10 @@ def block_edges(n: int, n_blocks: int = N_BLOCKS) -> np.ndarray:
     return np.linspace(0, n, n_blocks + 1).astype(np.int64)
 
 
-def spread(m: np.ndarray, theta: np.ndarray, kind: str) -> float:
-    """std/mean of |W(m − b)| over the samples."""
-    W = geometric.expm_sym(geometric.shape_matrix(kind, theta[4:]))[0]  # geometric.unpack's W
-    h = np.linalg.norm((m - theta[:3]) @ W.T, axis=1)
+def spread(m: np.ndarray, theta: np.ndarray, kind: str, W: np.ndarray | None = None) -> float:
+    """std/mean of |W(m − b)| over the samples; ``W``: geometric.unpack's, when already made."""
+    W = geometric.expm_sym(geometric.shape_matrix(kind, theta[4:]))[0] if W is None else W
+    h = geometric.row_norm((m - theta[:3]) @ W.T)  # np.linalg.norm's sums, in its order
     return float(np.std(h) / np.mean(h))
 
 
@@ -150,7 +150,8 @@ def _score(m, g, keep, tests: dict, edges, balanced: bool, at_whole: tuple) -> l
         if isinstance(theta, FitFailure):
             blocks.append(None)
             continue
-        blocks.append({name: (int(masks[j].sum()), spread(m[masks[j]], theta, g.kind))
+        W = geometric.expm_sym(geometric.shape_matrix(g.kind, theta[4:]))[0]  # one W for every set judged
+        blocks.append({name: (int(masks[j].sum()), spread(m[masks[j]], theta, g.kind, W))
                        for name, masks in tests.items() if masks[j].sum() >= MIN_BLOCK})
     return blocks
 
