@@ -232,13 +232,10 @@ def _result(m, idx, model: str, start, limits: _Limits, balance: str, noise_ut, 
         memo[key] = (*_balanced(m[keep], g, balance, said), said)
     g, weights, said = memo[key]
     notes.extend(said)
-    u = uncertainty.summarise(g, noise_ut, weights, 0.0 if model == "sphere" else uncertainty.SPHERE_GAIN_SIGMA)
     return FitResult(
         model=MODEL_NAMES[chosen],
         calibration=Calibration(offset_ut=g.offset_ut, field_ut=g.field_ut, soft_iron=g.soft_iron),
-        uncertainty={k: u[k] for k in ("offset_ut", "field_ut", "soft_iron", "autocorrelation_factor",
-                                       "direction_factor", "time_block_factor")},
-        crlb_offset_ut=u["crlb_offset_ut"],
+        summary=_Summary(g, noise_ut, weights, 0.0 if model == "sphere" else uncertainty.SPHERE_GAIN_SIGMA),
         rms_ut=g.rms_ut,
         n_used=int(keep.sum()),
         outliers=idx[~keep],
@@ -248,6 +245,22 @@ def _result(m, idx, model: str, start, limits: _Limits, balance: str, noise_ut, 
         residual_ut=g.residual_ut,
         alternatives={MODEL_NAMES[k]: f.rms_ut for k, (f, _) in candidates.items()},
     )
+
+
+@dataclass(frozen=True)
+class _Summary:
+    """A result's (uncertainty, CRLB of the offset): ``uncertainty.summarise`` of its fit, made
+    when the result's uncertainty is first read (``FitResult.summary``)."""
+
+    fit: geometric.GeometricFit
+    noise_ut: float | None
+    weights: np.ndarray | None
+    gain_sigma: float
+
+    def __call__(self) -> tuple[dict, np.ndarray]:
+        u = uncertainty.summarise(self.fit, self.noise_ut, self.weights, self.gain_sigma)
+        keys = ("offset_ut", "field_ut", "soft_iron", "autocorrelation_factor", "direction_factor", "time_block_factor")
+        return {k: u[k] for k in keys}, u["crlb_offset_ut"]
 
 
 def _robust_sphere(m, max_condition: float):

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Callable
 
 import numpy as np
 
@@ -26,12 +28,14 @@ class FitResult:
     Cramér–Rao bound of the offset for this data's geometry (noise σ given, else σ̂).
     ``outliers``: indices into the input that were removed. ``reason``: why this model.
     ``residual_ut``: geometric residual of the samples used (in input order of ``used``).
+    ``summary``: makes (``uncertainty``, ``crlb_offset_ut``) when first read — most of fit's
+    runs inside a diagnosis (held-out blocks, fault screening, the locate step's judge) read
+    only the calibration; where they are read they are the same numbers.
     """
 
     model: str
     calibration: Calibration
-    uncertainty: dict
-    crlb_offset_ut: np.ndarray
+    summary: Callable[[], tuple[dict, np.ndarray]] = field(repr=False, compare=False)
     rms_ut: float
     n_used: int
     outliers: np.ndarray
@@ -43,6 +47,18 @@ class FitResult:
 
     def __bool__(self) -> bool:
         return True
+
+    @cached_property
+    def _summarised(self) -> tuple[dict, np.ndarray]:
+        return self.summary()
+
+    @property
+    def uncertainty(self) -> dict:
+        return self._summarised[0]
+
+    @property
+    def crlb_offset_ut(self) -> np.ndarray:
+        return self._summarised[1]
 
     def to_dict(self) -> dict:
         cal = self.calibration
