@@ -79,7 +79,7 @@ def shape_matrix(kind: str, s) -> np.ndarray:
     s = np.asarray(s, dtype=np.float64).reshape(-1)
     if kind == "sphere":
         return np.zeros((3, 3))
-    if len(s) != N_SHAPE[kind] or not np.all(np.isfinite(s)):  # a zero term times inf or nan is nan
+    if len(s) != N_SHAPE[kind] or not np.isfinite(s).all():  # a zero term times inf or nan is nan
         return _summed_shape_matrix(kind, s)
     a, b = float(s[0]), float(s[1])
     S = np.zeros((3, 3))
@@ -309,7 +309,7 @@ def _rho(loss: str, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _cost(e: np.ndarray, loss: str, f: float) -> float:
-    return 0.5 * f * f * float(np.sum(_rho(loss, (e / f) ** 2)[0]))
+    return 0.5 * f * f * float(_rho(loss, (e / f) ** 2)[0].sum())
 
 
 @dataclass(frozen=True)
@@ -338,7 +338,7 @@ def damped_step(evaluate, x, A, g, cost: float, lam: float, max_tries: int = 64,
             x_new = x - np.linalg.solve(a + lam * eye, gs) / ds
         except np.linalg.LinAlgError:
             x_new = None
-        if x_new is not None and np.all(np.isfinite(x_new)):
+        if x_new is not None and np.isfinite(x_new).all():
             cost_new, aux = evaluate(x_new)
             if np.isfinite(cost_new) and cost_new <= cost:
                 return DampedStep(x_new, float(cost_new), lam, aux)
@@ -364,7 +364,7 @@ def levenberg_marquardt(fun, jac, x0, loss: str = "linear", f_scale: float = 1.0
     def evaluate(x_new):
         nfev[0] += 1
         e_new = fun(x_new)
-        return (_cost(e_new, loss, f_scale) if np.all(np.isfinite(e_new)) else np.inf), e_new
+        return (_cost(e_new, loss, f_scale) if np.isfinite(e_new).all() else np.inf), e_new
 
     for _ in range(max_iter):
         A, g = _normal_equations(jac(x), e, loss, f_scale)

@@ -123,7 +123,7 @@ def _gauss_newton(m: np.ndarray, g: geometric.GeometricFit, w, e: np.ndarray, ja
         except np.linalg.LinAlgError:
             return None
         theta = theta + step
-        if not np.all(np.isfinite(theta)) or theta[3] <= 0:
+        if not np.isfinite(theta).all() or theta[3] <= 0:
             return None
         if step @ a @ step <= STEP_SE**2 * cost / (len(m) - p):
             return theta
