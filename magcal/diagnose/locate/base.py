@@ -123,13 +123,17 @@ class Effect:
     that the calibration refitted on them is the one in force at the end of the recording (or
     at the channel's reference value). ``simpler``, where the search tested the effect against a
     simpler account of the same change (a soft-iron change against the offset alone changing at
-    its time), removes that account instead: held-out blocks must prefer the effect to it too."""
+    its time), removes that account instead: held-out blocks must prefer the effect to it too.
+    ``remove_trained(m_ut, t_s, channels, located, train)``, where the effect's parameters can be
+    refitted, is ``remove`` with them fitted on the ``train`` samples alone, so a held-out block
+    is scored by a change it did not help fit."""
 
     name: str
     kind: Kind
     search: Callable[[Residual], tuple[Located, ...]]
     remove: Callable[..., np.ndarray] | None = None
     simpler: Callable[..., np.ndarray] | None = None  # as ``remove``: the simpler account its search judged it against
+    remove_trained: Callable[..., np.ndarray] | None = None  # as ``remove``, its parameters fitted on a training mask
 
 
 def noise_and_wander_ut(r_ut: np.ndarray, u: np.ndarray) -> tuple[float, float]:

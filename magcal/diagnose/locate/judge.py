@@ -9,6 +9,11 @@ another, largest first, each on the samples with the ones already kept taken out
 search tested it against a simpler account of the same change (``Effect.simpler``: a soft-iron
 change against the offset alone changing at its time) must beat that on unseen blocks too, and
 is judged against it where it does not: a change of offset does not earn a change of shape.
+Where the effect's own parameters can be refitted (``Effect.remove_trained``: a change point's
+step vector, or each side's ellipsoid), the block scored helped fit it, and on a short window
+whose coverage pins neither side that alone makes a change look better on "unseen" data; so a
+kept effect is also scored with them fitted on each block's complement alone, and dropped where
+that leaves unseen blocks worse than without it.
 
 An effect not kept is still the honest remainder where it took something off unseen blocks —
 unless what it took (the held-out gain as an RMS per reading, µT) is no more than the recording's
@@ -152,6 +157,8 @@ def judge(m_ut, t_s, channels, found, table: dict[str, Effect], model: str,
             verdicts.append(Verdict(loc, False, _rms(base), np.nan, "the calibration could not be refitted with it"))
             continue
         kept, why, without = _against_simpler(m_ut, t_s, channels, loc, effect, model, base, after)
+        if kept and effect.remove_trained is not None:
+            kept, why, without, after = _trained(m_ut, t_s, channels, loc, effect, model, base, (why, after))
         left = without_it(cleaned, model) if not kept and after.mean() < without.mean() else (np.nan, np.nan)
         verdicts.append(Verdict(loc, kept, _rms(without), _rms(after), why, left[1], left[0], tuple(map(float, without - after))))
         if kept:
@@ -173,6 +180,39 @@ def _against_simpler(m_ut, t_s, channels, loc, effect: Effect, model: str, base,
     if beats:
         return True, why, base
     return False, f"{why}, but against {SIMPLER_WORDS}: {why_simpler}", simpler
+
+
+def heldout_sq_trained(m_ut, t_s, channels, loc, remove_trained, model: str, folds: int = FOLDS) -> np.ndarray | None:
+    """As ``heldout_sq`` on the samples with the effect removed, but with the effect's own
+    parameters refitted on each block's complement (``Effect.remove_trained``): the block is
+    scored by a change it did not help fit."""
+    out = []
+    for held in contiguous_blocks(len(m_ut), folds):
+        train = np.ones(len(m_ut), bool)
+        train[held] = False
+        cleaned = remove_trained(m_ut, t_s, channels, loc, train)
+        result = fit_calibration(cleaned[train], model=model)
+        if not result:
+            return None
+        cal = result.calibration
+        r = np.linalg.norm(cal.correct(cleaned[held]), axis=1) - cal.field_ut
+        out.append(float(np.mean(r**2)))
+    return np.asarray(out)
+
+
+def _trained(m_ut, t_s, channels, loc, effect: Effect, model: str, base, judged):
+    """(kept, why, the held-out figures without and with it): an effect kept so far is dropped
+    where, with its parameters fitted on the training blocks alone, unseen blocks are worse with
+    it than without (``Verdict.contradicted``, judged by those figures). Not "beyond chance"
+    again: a block whose complement holds too little of one side cannot learn the change and
+    gains nothing, so these figures are weaker evidence for it, though honest evidence against.
+    ``judged``: (why, per-block figures with it) so far."""
+    why, after = judged
+    trained = heldout_sq_trained(m_ut, t_s, channels, loc, effect.remove_trained, model)
+    if trained is None or trained.mean() < base.mean():
+        return True, why, base, after
+    words = f"held-out RMS {_rms(base):.3f} → {_rms(trained):.3f} µT"
+    return False, f"{why}, but with its own parameters fitted on the training blocks alone: {words} (worse)", base, trained
 
 
 def without_it(m_ut: np.ndarray, model: str) -> tuple[float, float]:
