@@ -6,7 +6,7 @@ Per sample i at time t_i, true unit field direction u_i (body frame) and channel
           + Σ_j c_j Y_j(u_i)                                         radial: field wander,
                                                                      disturbances, gain, nonlinearity
     c_i = W⁻¹ (r_i u_i) + b + Σ_c K_c (x_ci − ref_c)                 the calibration, inverted
-          + w(t_i) + diag(σ) z_i                                     wander, noise: the conversion
+          + w(t_i) + s_i diag(σ) z_i                                 wander, noise: the conversion
     m_i = c_j(i) + g_i                                               the read: repeats, glitches
                                                                      (random, or a pulse train)
     m_i → clipped at ±saturation_ut (then flagged), rounded to quantum_ut per axis
@@ -21,7 +21,9 @@ magnitude wrong for one read: W⁻¹u_i times the size, which moves |h| by exact
 random reads or, with ``glitch_period_s``, at the reads a nearly periodic train of pulses hits
 (a source that fires on its own clock: a radio burst, a LED, another device on the bus) — pulse
 j at φ + j·P + jitter·z_j, each kept with the probability that gives ``glitch_rate``;
-z_i standard normal. Repeated reads: a host that reads faster than the sensor converts (the
+z_i standard normal, s_i the read's noise level (1, or log-normal with E[s²] = 1 under a
+heavy-tailed noise law, ``magcal.sim.noise_law``, which also gives the wander its
+excursions). Repeated reads: a host that reads faster than the sensor converts (the
 data-ready flag not awaited) gets the last conversion again, bit for bit; a share
 ``repeat_share`` of reads does, in the steady pattern of two unequal rates (read i shows
 conversion ⌊i·(1 − share) + φ⌋, φ a random phase; j(i) the first read of that conversion). A
@@ -45,16 +47,18 @@ from ..core.calibration import Calibration
 from . import directions
 from . import wander as wander_mod
 from .disturbance import Disturbances
+from .noise_law import NoiseLaw
 from .takes import Takes
 from .wander import WanderComponent
 
-SCHEMA = "magcal.sensor-model/8"
+SCHEMA = "magcal.sensor-model/9"
 # /1: two glitch sizes (log-uniform), read the same; /2: no repeated reads (reads.repeat_share 0);
 # /3: glitches at random reads only (no glitches.period_s); /4: no glitches along the field
 # (glitches.radial_share 0); /5: white noise (no noise_lag1); /6: disturbances drawn log-uniform
-# in size and duration apart (no disturbances.events); /7: one take (no takes)
+# in size and duration apart (no disturbances.events); /7: one take (no takes); /8: Gaussian noise
+# (no noise_law)
 READS = ("magcal.sensor-model/1", "magcal.sensor-model/2", "magcal.sensor-model/3", "magcal.sensor-model/4",
-         "magcal.sensor-model/5", "magcal.sensor-model/6", "magcal.sensor-model/7", SCHEMA)
+         "magcal.sensor-model/5", "magcal.sensor-model/6", "magcal.sensor-model/7", "magcal.sensor-model/8", SCHEMA)
 TEMP = "temp_c"
 
 
@@ -76,6 +80,7 @@ class SensorModel:
     calibration: Calibration
     noise_ut: tuple = (0.4, 0.4, 0.4)
     noise_lag1: float = 0.0  # correlation of the noise between successive reads (|·| < 0.5; 0: white)
+    noise_law: NoiseLaw = NoiseLaw()  # the white noise's and the wander's tails (Gaussian by default)
     quantum_ut: tuple = (0.0, 0.0, 0.0)  # 0: a continuous reading
     wander: tuple = ()
     glitch_rate: float = 0.0  # probability per sample
@@ -98,6 +103,8 @@ class SensorModel:
         object.__setattr__(self, "noise_ut", _triple(self.noise_ut, "noise_ut", lo=0.0))
         object.__setattr__(self, "quantum_ut", _triple(self.quantum_ut, "quantum_ut", lo=0.0))
         object.__setattr__(self, "wander", tuple(self.wander))
+        if not isinstance(self.noise_law, NoiseLaw):
+            raise ValueError("noise_law must be a NoiseLaw")
         nl = tuple(float(v) for v in np.asarray(self.nonlinearity_ut, dtype=np.float64).reshape(-1))
         if len(nl) != len(directions.NAMES) or not np.all(np.isfinite(nl)):
             raise ValueError(f"nonlinearity_ut needs {len(directions.NAMES)} finite numbers")
@@ -158,19 +165,32 @@ class SensorModel:
         """Fresh random parts for a stream at times ``t_s``, a function of ``seed`` alone."""
         t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
         rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x51D])
-        noise = moving_average(rng.standard_normal((len(t), 3)), self.noise_lag1)
+        noise = moving_average(rng.standard_normal((len(t), 3)) * self.noise_levels(seed, np.arange(len(t)))[:, None],
+                               self.noise_lag1)
         if len(t) < 2 or np.all(t[1:] >= t[:-1]):  # already in time order (a recording's own times)
             path, field = wander_mod.draw_path(self.wander, rng, t)
         else:
             order = np.argsort(t, kind="stable")
             path, field = np.empty((len(t), 3)), np.empty(len(t))
             path[order], field[order] = wander_mod.draw_path(self.wander, rng, t[order])
+        path, field = self.noise_law.wander(self.wander, path, field)
         if self.disturbances is not None:
             field = field + self.disturbances.draw(seed, t)
         if self.takes is not None:
             field = field + self.takes.levels(seed, t)
         g, along = self.glitch_vectors(rng, t, seed)
         return Draws(noise, g, path, field, repeated_reads(len(t), self.repeat_share, seed), along)
+
+    def noise_levels(self, seed: int, k) -> np.ndarray:
+        """(n,) the noise level of reads numbered ``k`` under the model's noise law (ones for
+        Gaussian noise): a function of (seed, k) alone, so a board read at any sample agrees
+        with a stream, and the other random parts do not move."""
+        k = np.atleast_1d(np.asarray(k, dtype=np.int64))
+        if self.noise_law.level_sd == 0.0:
+            return np.ones(len(k))
+        key = (int(seed) & 0xFFFFFFFF) * 4 + _LEVEL
+        u1, u2 = np.maximum(hash_uniform(key, k), 1e-300), hash_uniform(key + 1, k)
+        return self.noise_law.levels(np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2))
 
     def glitch_vectors(self, rng: np.random.Generator, t_s, seed: int, rate: float | None = None,
                        read_s: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -206,7 +226,7 @@ class SensorModel:
     def without(self, effect: str) -> "SensorModel":
         """This model with one effect removed (``wander``, ``field_wander``, ``nonlinearity``, ``glitches``,
         ``disturbances``, ``soft_iron``, ``temperature_gain``, ``saturation``, ``repeats``, ``takes``,
-        ``quantum`` or a channel name)."""
+        ``quantum``, ``noise_law`` or a channel name)."""
         cal = self.calibration
         if effect in ("wander", "field_wander"):
             frame = wander_mod.OFFSET if effect == "wander" else wander_mod.FIELD
@@ -227,6 +247,8 @@ class SensorModel:
             return replace(self, takes=None)
         if effect == "quantum":
             return replace(self, quantum_ut=(0.0, 0.0, 0.0))
+        if effect == "noise_law":
+            return replace(self, noise_law=NoiseLaw())
         if effect == "soft_iron":
             w = cal.soft_iron
             iso = np.eye(3) * float(np.cbrt(np.linalg.det(w)))
@@ -238,7 +260,7 @@ class SensorModel:
         raise ValueError(f"the model has no effect {effect!r} to remove")
 
     def effects(self) -> tuple[str, ...]:
-        """The effects this model carries beyond hard iron, field and white noise."""
+        """The effects this model carries beyond hard iron, field and Gaussian white noise."""
         out = []
         w = self.calibration.soft_iron
         if np.max(np.abs(w / np.cbrt(np.linalg.det(w)) - np.eye(3))) > 1e-9:
@@ -254,6 +276,7 @@ class SensorModel:
         out += ["saturation"] if self.saturation_ut is not None else []
         out += ["repeats"] if self.repeat_share > 0 else []
         out += ["takes"] if self.takes is not None else []
+        out += [] if self.noise_law.gaussian else ["noise_law"]
         return tuple(out)
 
     # -- serialisation -------------------------------------------------------------------
@@ -263,6 +286,7 @@ class SensorModel:
         d.update({
             "noise_ut": list(self.noise_ut),
             "noise_lag1": float(self.noise_lag1),
+            "noise_law": self.noise_law.to_dict(),
             "quantum_ut": list(self.quantum_ut),
             "wander": [c.to_dict() for c in self.wander],
             "glitches": {"rate_per_sample": float(self.glitch_rate), "size_ut": list(self.glitch_ut),
@@ -295,6 +319,7 @@ class SensorModel:
                 calibration=Calibration.from_dict(d),
                 noise_ut=d.get("noise_ut", (0.0, 0.0, 0.0)),
                 noise_lag1=float(d.get("noise_lag1", 0.0)),
+                noise_law=NoiseLaw.from_dict(d.get("noise_law")),
                 quantum_ut=d.get("quantum_ut", (0.0, 0.0, 0.0)),
                 wander=tuple(WanderComponent.from_dict(c) for c in d.get("wander", ())),
                 glitch_rate=float(d.get("glitches", {}).get("rate_per_sample", 0.0)),
@@ -426,6 +451,7 @@ def hash_uniform(seed: int, idx) -> np.ndarray:
 
 
 _PULSE = 0x9F15E
+_LEVEL = 0x1E7E1
 
 
 def pulse_reads(t_s, rate: float, period_s: float, jitter_s: float, read_s: float, seed: int,

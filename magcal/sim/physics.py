@@ -244,9 +244,9 @@ class Scenario:
 
     # -- per-measurement randomness -------------------------------------------------------
     def _noise_glitch(self, k: np.ndarray, sensor: SensorModel):
-        """(noise, glitch vectors, glitches along the field) of reads ``k``; a model whose
-        glitches come from a pulse train gets a glitch for every read, which ``field_ut`` keeps
-        where the train hits."""
+        """(noise, each read at its level under the noise law; glitch vectors; glitches along the
+        field) of reads ``k``; a model whose glitches come from a pulse train gets a glitch for
+        every read, which ``field_ut`` keeps where the train hits."""
         k = np.asarray(k, dtype=np.int64)
         blocks = np.unique(k // _BLOCK)
         noise = np.empty((len(k), 3))
@@ -260,7 +260,7 @@ class Scenario:
             noise[sel] = nb[k[sel] % _BLOCK]
             glitch[sel] = gb[k[sel] % _BLOCK]
             along[sel] = ab[k[sel] % _BLOCK]
-        return noise, glitch, along
+        return noise * sensor.noise_levels(self.seed, k)[:, None], glitch, along
 
     # -- measurements ------------------------------------------------------------------------
     def channels(self, t_s) -> dict[str, np.ndarray]:
@@ -291,7 +291,7 @@ class Scenario:
                                                                sensor.noise_lag1), noise)
         h = self.earth_body_ut(t)
         u = h / np.linalg.norm(h, axis=1, keepdims=True)
-        offset, field = wander_mod.draw(sensor.wander, self.seed, t)
+        offset, field = sensor.noise_law.wander(sensor.wander, *wander_mod.draw(sensor.wander, self.seed, t))
         if sensor.disturbances is not None:
             field = field + sensor.disturbances.draw(self.seed, t)
         draws = Draws(noise=noise, glitch_ut=glitch, wander_ut=offset, field_wander_ut=field, glitch_along_ut=along)

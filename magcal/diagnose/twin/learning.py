@@ -1,5 +1,5 @@
-"""Learning a recording's SensorModel around a calibration (``learn``): per-axis noise, the
-quantum, glitches, direction nonlinearity and a temperature gain when held-out time blocks
+"""Learning a recording's SensorModel around a calibration (``learn``): per-axis noise and its
+law, the quantum, glitches, direction nonlinearity and a temperature gain when held-out time blocks
 confirm them, disturbances, saturation, repeated reads, takes, and the offset and field
 wander as a fitted spectrum (``magcal.sim.wander.fit``).
 """
@@ -22,7 +22,7 @@ from . import takes as takes_mod
 from .draw import twin_directions, twin_draw
 from .events import disturbances
 from .glitch_rate import along_the_field, glitch_process
-from .noise import less_noise, noise_lag1, repeat_share
+from .noise import less_noise, noise_lag1, noise_law, repeat_share
 from .residual import corrected, refit, refit_projector, with_time
 from .spikes import find_glitches, glitch_train
 
@@ -151,6 +151,7 @@ def _learn(series: Series, calibration: Calibration, source: Mapping | None, fre
                                            lambda share: find_glitches(m, r_all, seen_all, u_all, share)[1])
         model = replace(glitched, noise_ut=less_noise(model, s, missed))
     model = replace(model, noise_lag1=noise_lag1(model, s, free))
+    model = replace(model, noise_law=noise_law(model, s, free))
     # once more with the final glitches and noise: both set how many reads repeat by chance and
     # how many of the model's repeats a glitch breaks (learned before them, the twins of rm3100
     # estibone test0 repeated 0.213–0.218 of their reads against the recording's 0.236)

@@ -1,6 +1,7 @@
 """What the twins say of a recording's noise and repeated reads: the correlation of successive
-reads' noise (``noise_lag1``), the white noise less the glitches the detector missed, and the
-share of reads that repeat the conversion before (``repeat_share``).
+reads' noise (``noise_lag1``), the law its white noise and its wander follow (``noise_law``:
+how heavy their tails are), the white noise less the glitches the detector missed, and the share of reads that
+repeat the conversion before (``repeat_share``).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import numpy as np
 
 from ...core.series import Series
 from ...sim.model import SensorModel
+from ...sim.noise_law import NoiseLaw
 from . import stats as ts
 from .draw import twin_directions, twin_draw, twin_readings
 from .residual import refit, with_time
@@ -41,6 +43,65 @@ def noise_lag1(model: SensorModel, series: Series, free: bool = True, seeds=tupl
         return 0.0
     rho = gap * float(np.mean([np.var(x.e) for x in twins])) / max(_white_var(model, series, u), 1e-300)
     return float(rho) if abs(rho) <= NOISE_LAG1_MAX else 0.0  # beyond what the noise can carry: not the noise's
+
+
+NOISE_TAIL_Z = 1.5  # the recording's tail ratio must lie this many twin σ above the twins' mean
+LEVEL_SD_LEARN_MAX = 1.0  # nepers: the heaviest white noise learned (its own tail ratio 18 against 3.82)
+WANDER_H_LEARN_MAX = 0.45  # the heaviest wander learned (its own tail ratio 15 against 3.82)
+LAW_STEPS = 4  # at most this many secant steps per part of the law (each a set of twins)
+NOISE_LAW_SEEDS = tuple(range(121, 131))
+
+
+def noise_law(model: SensorModel, series: Series, free: bool = True, seeds=NOISE_LAW_SEEDS) -> NoiseLaw:
+    """The noise law (``magcal.sim.noise_law``) whose twins have the recording's tails: first
+    the white noise's, read in the first differences of the refitted residual (the slow wander
+    cancels there), then the wander's, read in the residual itself (``stats.tail_ratio`` of
+    each). Each part stays Gaussian unless the recording's tail ratio lies beyond
+    NOISE_TAIL_Z of the twins' spread above their mean; it is then found by secant steps on the
+    same seeds (the twins move smoothly with it). Every other effect (disturbances, glitches,
+    the quantum) is already in the twins, so the tails left are the noise's own. A gap even the
+    heaviest law learned cannot close is left to the effects that made it (that part
+    Gaussian); lighter tails than a Gaussian's are left too: both parts only add tails."""
+    real = refit(model, series.field_ut, series.t_s, with_time(series), free)
+    if real is None:
+        return NoiseLaw()
+    u = twin_directions(model, series)
+
+    def tails(law: NoiseLaw, of) -> np.ndarray:
+        twins = [twin_draw(replace(model, noise_law=law), series, seed, free, u) for seed in seeds]
+        return np.log([ts.tail_ratio(of(x.e)) for x in twins if x is not None])
+
+    white = _match(lambda v: tails(NoiseLaw(level_sd=v), np.diff), np.log(ts.tail_ratio(np.diff(real.e))),
+                   LEVEL_SD_LEARN_MAX, squared=True)
+    h = _match(lambda v: tails(NoiseLaw(level_sd=white, wander_h=v), np.asarray), np.log(ts.tail_ratio(real.e)),
+               WANDER_H_LEARN_MAX, squared=False)
+    return NoiseLaw(level_sd=white, wander_h=h)
+
+
+def _match(tails, target: float, top: float, squared: bool) -> float:
+    """The value in [0, top] at which ``tails(value)`` (the twins' log tail ratios) have the
+    mean ``target``: 0 unless ``target`` is beyond NOISE_TAIL_Z of the spread at 0 or when
+    ``top`` falls short of it; else regula falsi, in value² when ``squared`` (a level_sd: the
+    log tail ratio is nearly straight in it, a scale mixture's kurtosis being 3·exp(4·level_sd²))."""
+    at0 = tails(0.0)
+    if len(at0) < 2 or target <= float(np.mean(at0)) + NOISE_TAIL_Z * float(np.std(at0, ddof=1)):
+        return 0.0
+    tol, f_top = 0.25 * float(np.std(at0, ddof=1)), float(np.mean(tails(top)))
+    if f_top < target:
+        return 0.0  # beyond what this part of the noise can carry: not its own
+    p = 2.0 if squared else 1.0
+    (a, fa), (b, fb) = (0.0, float(np.mean(at0))), (top**p, f_top)
+    x = a
+    for _ in range(LAW_STEPS):
+        x = a + (target - fa) * (b - a) / max(fb - fa, 1e-12)
+        fx = float(np.mean(tails(x ** (1.0 / p))))
+        if abs(fx - target) <= tol:
+            break
+        if fx < target:
+            a, fa = x, fx
+        else:
+            b, fb = x, fx
+    return float(x ** (1.0 / p))
 
 
 def less_noise(model: SensorModel, series: Series, missed: float) -> tuple:

@@ -19,7 +19,7 @@ from .residual import refit, with_time
 
 
 ORDER = ("calibration", "quantum", "wander", "field_wander", "nonlinearity", "temperature_gain", "glitches",
-         "disturbances", "saturation", "repeats")
+         "disturbances", "saturation", "repeats", "noise_law")
 _LATER = {step: ORDER[i + 1:] for i, step in enumerate(ORDER)}  # what a step still leaves out
 
 
