@@ -14,13 +14,12 @@ from dataclasses import replace
 
 from ..finding import Finding
 from ..limits import Limit
-from . import change_trained, channel_forms, faults, lines, steps
+from . import channel_forms, faults, lines, steps
 from .base import AXES, WHERE_KEYS, Effect, Kind, Located, Residual, runs, stretches
 
 REMAINDER = "unexplained_structure"
 
-EFFECTS: tuple[Effect, ...] = (*faults.EFFECTS, *change_trained.with_trained(steps.EFFECTS), lines.EFFECT,
-                               *channel_forms.EFFECTS)
+EFFECTS: tuple[Effect, ...] = (*faults.EFFECTS, *steps.EFFECTS, lines.EFFECT, *channel_forms.EFFECTS)
 
 
 def as_findings(found: tuple[Located, ...], verdicts: tuple) -> tuple[Finding, ...]:

@@ -14,14 +14,11 @@ gains nothing from it.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from ...fit import fit_calibration
-from . import steps
 from . import steps_scan as scan
-from .base import Effect, Located
+from .base import Located
 
 MIN_SIDE_TRAINED = 10  # samples of each side the training blocks must hold to fit the change
 
@@ -66,8 +63,3 @@ def remove_soft_trained(m_ut, t_s, channels, located: Located, train: np.ndarray
     m[before] = ca.distort(cb.correct(m[before]) * (ca.field_ut / cb.field_ut))
     return m
 
-
-def with_trained(effects: tuple[Effect, ...]) -> tuple[Effect, ...]:
-    """``effects`` with each change point's ``remove_trained`` set (``Effect``)."""
-    trained = {steps.STEP: remove_step_trained, steps.SOFT: remove_soft_trained}
-    return tuple(replace(e, remove_trained=trained[e.name]) if e.name in trained else e for e in effects)

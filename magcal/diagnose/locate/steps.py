@@ -46,6 +46,7 @@ import numpy as np
 from ...fit import fit_calibration
 from ...fit.tails import chi2_isf
 from . import steps_scan as scan
+from .change_trained import remove_soft_trained, remove_step_trained
 from ..softiron import MAX_GAIN_SIGMA, MIN_UNIQUE
 from .base import Effect, Kind, Located, Residual, noise_and_wander_ut, runs
 
@@ -529,6 +530,6 @@ def search(res: Residual) -> tuple[Located, ...]:
 
 
 EFFECTS: tuple[Effect, ...] = (
-    Effect(STEP, Kind.PHYSICS, search, remove_step),
-    Effect(SOFT, Kind.PHYSICS, lambda res: (), remove_soft, remove_offset_change),
+    Effect(STEP, Kind.PHYSICS, search, remove_step, remove_trained=remove_step_trained),
+    Effect(SOFT, Kind.PHYSICS, lambda res: (), remove_soft, remove_offset_change, remove_soft_trained),
 )
