@@ -117,10 +117,18 @@ def fitted(m_ut: np.ndarray, model: str, known: tuple = ()):
 def heldout_sq(m_ut: np.ndarray, model: str, folds: int = FOLDS, known: tuple = ()) -> np.ndarray | None:
     """Per block, the mean square radial residual of the calibration refitted without that
     block; None where a block's complement cannot be fitted. ``known`` as ``fitted`` takes it."""
+    return _block_sq(lambda train: m_ut, len(m_ut), model, folds, known)
+
+
+def _block_sq(samples_for, n: int, model: str, folds: int, known: tuple = ()) -> np.ndarray | None:
+    """Per contiguous block of ``n`` samples, the mean square radial residual of that block
+    under the calibration refitted on the rest, the samples being ``samples_for(train)`` (the
+    training mask); None where a block's complement cannot be fitted."""
     out = []
-    for held in contiguous_blocks(len(m_ut), folds):
-        train = np.ones(len(m_ut), bool)
+    for held in contiguous_blocks(n, folds):
+        train = np.ones(n, bool)
         train[held] = False
+        m_ut = samples_for(train)
         result = fitted(m_ut[train], model, known)
         if not result:
             return None
@@ -186,18 +194,7 @@ def heldout_sq_trained(m_ut, t_s, channels, loc, remove_trained, model: str, fol
     """As ``heldout_sq`` on the samples with the effect removed, but with the effect's own
     parameters refitted on each block's complement (``Effect.remove_trained``): the block is
     scored by a change it did not help fit."""
-    out = []
-    for held in contiguous_blocks(len(m_ut), folds):
-        train = np.ones(len(m_ut), bool)
-        train[held] = False
-        cleaned = remove_trained(m_ut, t_s, channels, loc, train)
-        result = fit_calibration(cleaned[train], model=model)
-        if not result:
-            return None
-        cal = result.calibration
-        r = np.linalg.norm(cal.correct(cleaned[held]), axis=1) - cal.field_ut
-        out.append(float(np.mean(r**2)))
-    return np.asarray(out)
+    return _block_sq(lambda train: remove_trained(m_ut, t_s, channels, loc, train), len(m_ut), model, folds)
 
 
 def _trained(m_ut, t_s, channels, loc, effect: Effect, model: str, base, judged):
