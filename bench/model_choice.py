@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import tomllib
 import warnings
 
 import numpy as np
@@ -36,9 +37,12 @@ import real_recordings as rr  # noqa: E402
 from magcal.fit import fit_calibration  # noqa: E402
 
 SPLITS = (0.3, 0.5, 0.7)
-SEALED = ("betaflight_apex5_tpu_03", "umich_preflight_icm20948", "ardupilot_log171 compass 1",
-          "broad_myon_magnet_attached", "fusion_xio_sensor_data")
 TESTS_DATA = os.path.join(HERE, "..", "tests", "data")
+# the public recordings kept whole in tests/data: named, with their part and unit, only there
+with open(os.path.join(TESTS_DATA, "public_recordings.toml"), "rb") as _f:
+    PUBLIC = tuple(tomllib.load(_f)["recording"])
+SEALED = ("betaflight_apex5_tpu_03", "umich_preflight_icm20948", "ardupilot_log171 compass 1",
+          *(r["name"] for r in PUBLIC if r["sealed"]))
 UNGATED = float("inf")
 
 
@@ -81,15 +85,15 @@ def _tests_data() -> dict:
 
 def _public() -> dict:
     """name → (t_s, µT) of the public recordings kept whole in tests/data that are no copy of a
-    recording in MAGCAL_REAL_DATA (tests/data/PROVENANCE.md; both sealed)."""
+    recording in MAGCAL_REAL_DATA (``PUBLIC``, tests/data/public_recordings.toml; the sealed ones
+    among them are in ``SEALED``)."""
     out = {}
-    for name, file in (("broad_myon_magnet_attached", "broad_myon_magnet_attached_every5th.csv"),
-                       ("fusion_xio_sensor_data", "fusion_xio_sensor_data_mag.csv")):
+    for r in PUBLIC:
         try:
-            a = np.loadtxt(os.path.join(TESTS_DATA, file), delimiter=",", skiprows=1, ndmin=2)
+            a = np.loadtxt(os.path.join(TESTS_DATA, r["file"]), delimiter=",", skiprows=1, ndmin=2)
         except (OSError, ValueError):
             continue
-        out[name] = (a[:, 0], a[:, 1:4])
+        out[r["name"]] = (a[:, 0], a[:, 1:4] * np.asarray(r["ut_per_count"], float))
     return out
 
 
