@@ -217,13 +217,18 @@ def _vec(v: np.ndarray) -> str:
     return ", ".join(f"{x:+.2f}" for x in v)
 
 
+def usable_blocks(n: int, n_blocks: int) -> list[slice]:
+    """The contiguous time blocks a block offset is fitted in (those of at least 12 samples)."""
+    from .inference import contiguous_blocks
+
+    return [b for b in contiguous_blocks(n, n_blocks) if b.stop - b.start >= 12]
+
+
 def _block_offsets(e: np.ndarray, u: np.ndarray, series: dict[str, np.ndarray], n_blocks: int):
     """Offsets δ_b fitted per contiguous time block (e ≈ uᵀδ_b) to the residual and to each of
     ``series`` (radial predictions), with each block's Gram matrix, the samples used and the
     within-block noise variance; None when there are fewer than 4 usable blocks."""
-    from .inference import contiguous_blocks
-
-    blocks = [b for b in contiguous_blocks(len(e), n_blocks) if b.stop - b.start >= 12]
+    blocks = usable_blocks(len(e), n_blocks)
     n = sum(b.stop - b.start for b in blocks)
     if len(blocks) < 4:
         return None
@@ -242,13 +247,18 @@ def _block_offsets(e: np.ndarray, u: np.ndarray, series: dict[str, np.ndarray], 
     return np.array(grams), np.array(d_e), {c: np.array(v) for c, v in d_c.items()}, n, s2
 
 
-def _energy(grams: np.ndarray, d: np.ndarray, n: int) -> float:
-    """Mean square (per sample) of block offsets about their weighted mean, in the sample
-    domain: δᵀU_bᵀU_bδ summed over blocks, so a block whose directions pin an offset only
-    weakly counts only weakly."""
+def _departures(grams: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Each block's squared offset departure from the blocks' weighted mean, in the sample
+    domain (δᵀU_bᵀU_bδ, µT² summed over its samples): a block whose directions pin an offset
+    only weakly counts only weakly."""
     mean = np.linalg.solve(grams.sum(axis=0), np.einsum("bij,bj->i", grams, d))
     dc = d - mean
-    return float(np.einsum("bi,bij,bj->", dc, grams, dc)) / n
+    return np.einsum("bi,bij,bj->b", dc, grams, dc)
+
+
+def _energy(grams: np.ndarray, d: np.ndarray, n: int) -> float:
+    """Mean square (per sample) of block offsets about their weighted mean."""
+    return float(np.sum(_departures(grams, d))) / n
 
 
 def wander_shares(e: np.ndarray, u: np.ndarray, xs: dict[str, np.ndarray], coefs: dict[str, np.ndarray], n_blocks: int = 20):
@@ -349,13 +359,38 @@ def offset_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> tuple[flo
     """The offset's slow wander in a model's residual: (RMS beyond noise in µT, p-value of
     "no wander"). Under independent noise the block offsets' energy × n / σ² is χ² with
     3(B − 1) degrees of freedom (σ² from the scatter inside the blocks)."""
+    return wander_size(block_wander(e, u, n_blocks))
+
+
+def wander_size(w: "WanderBlocks | None") -> tuple[float, float]:
+    """(RMS beyond noise in µT, p-value of "no wander") of the block offsets ``w``."""
     from ..fit.tails import chi2_sf
 
+    if w is None:
+        return 0.0, 1.0
+    energy = float(np.sum(w.departure_ut2)) / w.n
+    df = 3 * (len(w.blocks) - 1)
+    v = max(energy - df * w.noise_ut2 / w.n, 0.0)
+    return float(np.sqrt(v)), float(chi2_sf(energy * w.n / max(w.noise_ut2, 1e-300), df))
+
+
+@dataclass(frozen=True)
+class WanderBlocks:
+    """The block offsets' departures behind ``offset_wander``: the blocks (sample slices), each
+    one's squared departure (µT² summed over its samples), the samples used and the
+    within-block noise variance (µT²)."""
+
+    blocks: tuple[slice, ...]
+    departure_ut2: np.ndarray
+    n: int
+    noise_ut2: float
+
+
+def block_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> WanderBlocks | None:
+    """Where in time the offset wander of residual ``e`` sits, block by block; None when there
+    are fewer than 4 usable blocks."""
     fitted = _block_offsets(e, u, {}, n_blocks)
     if fitted is None:
-        return 0.0, 1.0
+        return None
     grams, d_e, _, n, s2 = fitted
-    energy = _energy(grams, d_e, n)
-    df = 3 * (len(grams) - 1)
-    v = max(energy - df * s2 / n, 0.0)
-    return float(np.sqrt(v)), float(chi2_sf(energy * n / max(s2, 1e-300), df))
+    return WanderBlocks(tuple(usable_blocks(len(e), n_blocks)), _departures(grams, d_e), n, s2)

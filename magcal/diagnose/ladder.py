@@ -146,8 +146,8 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)
     step("describe")
-    wander = (statements.measure_wander(full_model(analysed, reference, final), m_kept, chans_kept) if found.model is None
-              else statements.measure_wander(found.model, found.cleaned_ut, chans_kept))  # with the located effects out
+    wander = statements.measure_wander(full_model(analysed, reference, final) if found.model is None else found.model,
+                                       m_kept if found.model is None else found.cleaned_ut, chans_kept, t_kept, alpha)
     floors = statements.channel_floors(selected, wander, chans_kept, alpha, noise_ut)
     return Diagnosis(
         n_samples=len(series),

@@ -141,8 +141,8 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
     p_text = "p < 1e-12" if p < 1e-12 else f"p = {p:.1g}"
     summary = (
         f"The offset wanders slowly by about {rms:.2f} µT RMS between {WANDER_BLOCKS} stretches of the recording, "
-        f"more than the noise allows ({p_text}); {_searched(chans, located)}: a calibration from this recording is good "
-        f"to about that much{tail}."
+        f"more than the noise allows ({p_text}){_concentrated(wander)}; {_searched(chans, located)}: a calibration from "
+        f"this recording is good to about that much{tail}."
     )
     details = {
         "rms_ut": rms,
@@ -151,7 +151,19 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
         "slow_term_floor_ut_per_unit": floors,
         "slow_term_floor_range_ut_per_unit": {c: list(r) for c, r in ranges.items() if r},
     }
-    return (Limit("offset_wander", True, summary, details=details),)
+    if wander.stretches_s:
+        details["concentrated_share"] = wander.stretch_share
+    where = {"time_s": [list(s) for s in wander.stretches_s]} if wander.stretches_s else None
+    return (Limit("offset_wander", True, summary, details=details, where=where),)
+
+
+def _concentrated(wander) -> str:
+    """Where in time the wander sits, when a few stretches carry it."""
+    if not wander.stretches_s:
+        return ""
+    at = [f"{a:.1f}–{b:.1f} s" for a, b in wander.stretches_s]
+    at = at[0] if len(at) == 1 else ", ".join(at[:-1]) + " and " + at[-1]
+    return f", most of it at {at} ({100 * wander.stretch_share:.0f} % of it there)"
 
 
 # the final model's residual this much above what it predicts for the measured noise is

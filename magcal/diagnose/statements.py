@@ -12,7 +12,7 @@ from functools import partial
 import numpy as np
 
 from . import channels, design, floors, glitches, limits as limits_, longrun, selection, softiron
-from ..fit.tails import f_isf, t_isf
+from ..fit.tails import chi2_sf, f_isf, t_isf
 from .catalogue import Accepted
 from .finding import Finding
 from .limits import Limit
@@ -28,16 +28,49 @@ class BlockWander:
     rms_ut: float  # beyond the noise
     p_value: float  # of "no wander"
     directions: np.ndarray  # (n, 3) calibrated unit field directions
+    stretches_s: tuple[tuple[float, float], ...] = ()  # where it concentrates ([start, end] in time)
+    stretch_share: float = 0.0  # of the blocks' squared departure, the share those stretches carry
 
 
-def measure_wander(model: ModelFit, m: np.ndarray, chans: dict) -> BlockWander:
+# the wander is said to sit somewhere when the fewest blocks that carry MOST_OF it (largest first)
+# are at most CONCENTRATED_BLOCKS of them (half of it in 3 of 20 stretches: a smooth wander spreads wider),
+# each beyond the noise at the diagnosis' α over all blocks
+MOST_OF = 0.5
+CONCENTRATED_BLOCKS = 0.15
+
+
+def measure_wander(model: ModelFit, m: np.ndarray, chans: dict, t_s: np.ndarray, alpha: float = 0.01) -> BlockWander:
     """Offsets fitted in WANDER_BLOCKS time blocks of ``model``'s residual, their scatter
-    beyond the within-block noise."""
+    beyond the within-block noise, and the stretches of time where it concentrates."""
     used = {c: chans[c] for c in model.spec.channels}
     h = model.calibration().correct(m, used)
     u = h / np.linalg.norm(h, axis=1, keepdims=True)
-    rms, p = channels.offset_wander(model.residual(m, used), u, WANDER_BLOCKS)
-    return BlockWander(rms, p, u)
+    e = model.residual(m, used)
+    blocks = channels.block_wander(e, u, WANDER_BLOCKS)
+    rms, p = channels.wander_size(blocks)
+    if blocks is None:
+        return BlockWander(rms, p, u)
+    return BlockWander(rms, p, u, *_concentration(blocks, np.asarray(t_s, float), alpha))
+
+
+def _concentration(w: channels.WanderBlocks, t: np.ndarray, alpha: float) -> tuple[tuple, float]:
+    """The stretches (runs of adjacent blocks) that carry most of the blocks' squared offset
+    departure when few blocks do, with the share they carry; nothing when it is spread."""
+    dep = w.departure_ut2
+    order = np.argsort(dep)[::-1]
+    k = int(np.searchsorted(np.cumsum(dep[order]), MOST_OF * float(np.sum(dep)))) + 1
+    hot = order[:k]
+    beyond = chi2_sf(dep[hot] / max(w.noise_ut2, 1e-300), 3) < alpha / len(dep)
+    if k > CONCENTRATED_BLOCKS * len(dep) or not np.all(beyond):
+        return (), 0.0
+    runs: list[list[int]] = []
+    for i in np.sort(hot):
+        if runs and runs[-1][-1] == i - 1:
+            runs[-1].append(int(i))
+        else:
+            runs.append([int(i)])
+    stretches = tuple((float(t[w.blocks[r[0]].start]), float(t[w.blocks[r[-1]].stop - 1])) for r in runs)
+    return stretches, float(np.sum(dep[hot]) / max(np.sum(dep), 1e-300))
 
 
 def accepting_test(g: str, selected):
