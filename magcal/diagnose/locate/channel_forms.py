@@ -34,6 +34,10 @@ candidate that is slow and fails the wander gate (``slow_enough``) sets its chan
 candidates aside and the search goes on: on a long recording a current low-passed over minutes
 can match the recording's own wander and hide the same current's short lag.
 
+A channel the calibration already carries (the catalogue found its no-lag term) is not asked
+again whether it matters: where nothing beats the null, its best lagged offset is still fitted
+and kept when a lag fits clearly better than none (``form_of_known``).
+
 Coefficients come with a 95 % interval from the block (HAC) covariance, widened over every lag
 within the 95 % profile of the best (the lag's own uncertainty); the lag gets that profile's range.
 A found lag's lag, coefficient, profile and interval come from the fit prewhitened by the
@@ -325,11 +329,25 @@ def search(res: Residual) -> tuple[Located, ...]:
     """Channel terms in the residual of ``res``'s calibration with its own channel terms put back
     (``whole``), each with its form, lag and coefficient interval; a term that is the
     calibration's own again (``own_term``) is not returned."""
-    found = _search(whole(res))
+    found = _search(whole(res), frozenset(res.calibration.coef_ut_per_unit or {}))
     return tuple(x for x in found if not own_term(x, res.calibration))
 
 
-def _search(res: Residual) -> tuple[Located, ...]:
+def form_of_known(fr: cs.Frame, fams: list[cs.Family], known: frozenset) -> cs.Pick | None:
+    """The best lagged offset (delay or first-order, a lag inside the grid: neither none nor the
+    longest tried, which is no stated lag) on a channel the calibration already carries, or None. That the channel moves the offset is the catalogue's finding,
+    already tested; what is left to ask is its form, which the lag's own profile answers
+    (``channel_report``: a lag is stated only where no lag fits clearly worse). The circular-shift
+    null asks the first question again and cannot answer it for a periodic channel (a current
+    switched every 9 s on a 56 s recording): every shift, delayed by a lag tried, lines up with
+    the effect again, and the null is learned from it."""
+    lags = [f for f in fams if f.channel in known and f.form in (Form.OFFSET_DELAY, Form.OFFSET_FIRST_ORDER)]
+    pick = best(fr, lags) if lags else None
+    inside = pick is not None and 0 < pick.fam.values[pick.j] < pick.fam.values[-1]
+    return pick if inside else None
+
+
+def _search(res: Residual, known: frozenset = frozenset()) -> tuple[Located, ...]:
     chans = candidates(res)
     if not chans or len(res) < 200:
         return ()
@@ -349,14 +367,17 @@ def _search(res: Residual) -> tuple[Located, ...]:
         null_raw, null_clean = null_maxima((fr, clean), fams, shifts)
         threshold = min(cs.gumbel_threshold(null_raw, ALPHA), CLEAN_RATIO * cs.gumbel_threshold(null_clean, ALPHA))
         if score <= threshold:
-            break
+            pick = form_of_known(fr, fams, known)
+            if pick is None:
+                break
         pick = refined(fr, simpler(fr, pick, fams), chans[pick.fam.channel], t)
         clean = fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
         if not slow_enough(fr, pick, clean):
             fams = without_slow(fams, pick.fam.channel)  # its fast forms may still be there
             continue
         null = null_raw
-        evidence = {"score": score, "threshold": threshold, "null_max": float(np.max(null)), "n_shifts": len(null)}
+        evidence = {"score": score, "threshold": threshold, "null_max": float(np.max(null)), "n_shifts": len(null),
+                    "form_of_catalogue_term": bool(score <= threshold)}
         located, fr = relinearized(res, fr, pick, fams, evidence)
         found.append(located)
         fams = [f for f in fams if f.channel != pick.fam.channel]
