@@ -175,3 +175,22 @@ def test_a_swap_the_radius_cannot_see_is_found_by_the_jumps_at_its_two_ends():
     assert x.params["reading"] == "x↔y" and x.evidence["view"] == "edges"
     (a, b), = x.where["time_s"]
     assert abs(a - 30.0) < 0.1 and abs(b - 34.0) < 0.1
+
+
+@pytest.mark.slow
+def test_a_strong_line_on_one_axis_is_a_line_not_an_axis_swap():
+    # a 3.8 µT line on x at a sixth of the sample rate steps x by several µT every reading while
+    # y and z step little: scored against one 3-D typical step, its ordinary steps looked like
+    # the jumps at the ends of a negated stretch (axis_swap at 9–42 s of this real excerpt)
+    from magcal.core.series import Series
+    from magcal.diagnose import diagnose
+
+    s = load_series(DATA / "hmc5883l_sunsided_full_sphere_every3rd.csv")
+    rate_hz = 1.0 / float(np.median(np.diff(s.t_s)))
+    m = s.field_ut.copy()
+    m[:, 0] += 3.8 * np.cos(2 * np.pi * rate_hz / 6.0 * s.t_s)
+    d = diagnose(Series(t_s=s.t_s, field_ut=m)).to_dict()
+    effects = [x["effect"] for x in d["findings"]]
+    assert "axis_swap" not in effects, effects
+    lines = [x for x in d["findings"] if x["effect"] == "narrowband_line"]
+    assert any(abs(x["where"]["frequency_hz"] - rate_hz / 6.0) < 0.02 * rate_hz / 6.0 for x in lines), effects

@@ -14,7 +14,8 @@ the same conversion read again and says nothing new):
   steps from sample to sample are the same as read; only its two ends differ. A swap makes the
   reading jump at each end, and read back through the transform those jumps are ordinary steps.
   Each step is modelled as Gaussian in 3-D at the local typical step (the running median of
-  ``STEP_WINDOW`` steps), mixed with jumps at the share seen on the recording, spread over a
+  ``STEP_WINDOW`` steps), widened on an axis whose own steps run larger there (a line on that
+  axis: a 50 Hz hum steps one axis by several µT every reading), mixed with jumps at the share seen on the recording, spread over a
   ball twice the field across. A stretch is claimed on it when each end alone beats
   ``log(transforms · n / ALPHA)``. This sees a swap the radius cannot (x and y offsets equal: the
   swap maps the surface onto itself).
@@ -37,6 +38,7 @@ OUTLIER_K = 5.0  # an innovation or step beyond this × its scale counts towards
 ALPHA = 0.01  # the chance, over every stretch tried, of claiming one on a recording without
 STEP_WINDOW = 21  # steps in the running median that sets the local typical step
 CHI3_MEDIAN = 1.5382  # median length of a standard Gaussian vector in 3-D
+HALF_NORMAL_MEDIAN = 0.6745  # median of |x| for a standard Gaussian x
 MIN_FRESH = 2
 MAX_STRETCHES = 8  # per transform and view
 TAKEN = -1e12  # the evidence written over a stretch already taken: no later one crosses it
@@ -65,12 +67,26 @@ class Stretch:
     typical_step: float = float("nan")
 
 
-def _mixture(x: np.ndarray, scale, eps: float, dim: int, spread: float) -> np.ndarray:
-    """log density of ``x`` (a length in ``dim`` dimensions): Gaussian at ``scale`` with
-    probability 1-eps, else uniform over a ``dim``-ball of radius ``spread``."""
-    gauss = np.log1p(-eps) - 0.5 * (x / scale) ** 2 - dim * np.log(scale * np.sqrt(2.0 * np.pi))
-    volume = 2.0 * spread if dim == 1 else 4.0 / 3.0 * np.pi * spread ** 3
-    return np.logaddexp(gauss, np.log(eps / volume))
+def _mixture(x: np.ndarray, scale, eps: float, spread: float) -> np.ndarray:
+    """log density of ``x`` (1-D): Gaussian at ``scale`` with probability 1-eps, else uniform
+    over [−``spread``, ``spread``]."""
+    gauss = np.log1p(-eps) - 0.5 * (x / scale) ** 2 - np.log(scale * np.sqrt(2.0 * np.pi))
+    return np.logaddexp(gauss, np.log(eps / (2.0 * spread)))
+
+
+def _axis_scales(steps: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(n−1, 3) scale of each axis's step: the 3-D typical ``s``, widened on an axis whose own
+    running median step is larger (a line on that axis, or the motion moving it fastest), so
+    that axis's ordinary steps are not taken for jumps; never narrowed below ``s``."""
+    own = ndimage.median_filter(np.abs(steps), size=(STEP_WINDOW, 1), mode="nearest") / HALF_NORMAL_MEDIAN
+    return np.maximum(own, s[:, None])
+
+
+def _mixture_3d(x: np.ndarray, scale: np.ndarray, eps: float, spread: float) -> np.ndarray:
+    """log density of steps ``x`` (n, 3): Gaussian with per-axis ``scale`` (n, 3) with probability
+    1-eps, else uniform over a ball of radius ``spread``."""
+    gauss = np.log1p(-eps) - np.sum(0.5 * (x / scale) ** 2 + np.log(scale * np.sqrt(2.0 * np.pi)), axis=1)
+    return np.logaddexp(gauss, np.log(eps / (4.0 / 3.0 * np.pi * spread ** 3)))
 
 
 def _best(start: np.ndarray, inner: np.ndarray, stop: np.ndarray) -> tuple[float, int, int]:
@@ -105,7 +121,7 @@ def radial(r: np.ndarray, sigma: float) -> list[Stretch]:
     readings in order) says were transformed."""
     r0, n = r[0], r.shape[1]
     rho, scale, eps, spread = _ar1(r0, sigma)
-    ll = lambda e: _mixture(e, scale, eps, 1, spread)  # noqa: E731
+    ll = lambda e: _mixture(e, scale, eps, spread)  # noqa: E731
     l0 = np.r_[ll(r0[:1]), ll(r0[1:] - rho * r0[:-1])]
     thr = float(np.log((r.shape[0] - 1) * n * n / ALPHA))
     out = []
@@ -138,18 +154,20 @@ def edges(m: np.ndarray, transforms, field_ut: float) -> list[Stretch]:
     n = len(m)
     if n < STEP_WINDOW:
         return []
-    d = np.linalg.norm(np.diff(m, axis=0), axis=1)
+    steps = np.diff(m, axis=0)
+    d = np.linalg.norm(steps, axis=1)
     s = ndimage.median_filter(d, size=STEP_WINDOW, mode="nearest") / CHI3_MEDIAN
     s = np.maximum(s, 1e-9 * max(field_ut, 1e-9))
-    eps = max(1.0 / n, float(np.mean(d > OUTLIER_K * s)))
-    ll = lambda x: _mixture(x, s, eps, 3, 2.0 * field_ut)  # noqa: E731
-    l0 = ll(d)
+    axis_s = _axis_scales(steps, s)
+    eps = max(1.0 / n, float(np.mean(np.any(np.abs(steps) > OUTLIER_K * axis_s, axis=1))))
+    ll = lambda x: _mixture_3d(x, axis_s, eps, 2.0 * field_ut)  # noqa: E731
+    l0 = ll(steps)
     thr = float(np.log(len(transforms) * n / ALPHA))
     out = []
     for j, (perm, signs) in enumerate(transforms):
         mt = m[:, perm] * np.asarray(signs, float)
-        enter = np.r_[-np.inf, ll(np.linalg.norm(mt[1:] - m[:-1], axis=1)) - l0]  # reading i the first transformed
-        leave = np.r_[ll(np.linalg.norm(m[1:] - mt[:-1], axis=1)) - l0, -np.inf]  # reading i the last
+        enter = np.r_[-np.inf, ll(mt[1:] - m[:-1]) - l0]  # reading i the first transformed
+        leave = np.r_[ll(m[1:] - mt[:-1]) - l0, -np.inf]  # reading i the last
         for a, b in _pairs(np.flatnonzero(enter >= thr), np.flatnonzero(leave >= thr)):
             out.append(Stretch(a, b, j, float(enter[a] + leave[b]), 2.0 * thr, View.EDGES,
                                (float(d[a - 1]), float(d[b])), float(np.median(s[[a - 1, b]]) * CHI3_MEDIAN)))
