@@ -39,7 +39,7 @@ MOST_OF = 0.5
 CONCENTRATED_BLOCKS = 0.15
 
 
-def measure_wander(model: ModelFit, m: np.ndarray, chans: dict, t_s: np.ndarray, alpha: float = 0.01) -> BlockWander:
+def measure_wander(model: ModelFit, m: np.ndarray, chans: dict, t_s: np.ndarray, alpha: float) -> BlockWander:
     """Offsets fitted in WANDER_BLOCKS time blocks of ``model``'s residual, their scatter
     beyond the within-block noise, and the stretches of time where it concentrates."""
     used = {c: chans[c] for c in model.spec.channels}

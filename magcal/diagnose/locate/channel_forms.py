@@ -335,8 +335,9 @@ def search(res: Residual) -> tuple[Located, ...]:
 
 def form_of_known(fr: cs.Frame, fams: list[cs.Family], known: frozenset) -> cs.Pick | None:
     """The best lagged offset (delay or first-order, a lag inside the grid: neither none nor the
-    longest tried, which is no stated lag) on a channel the calibration already carries, or None. That the channel moves the offset is the catalogue's finding,
-    already tested; what is left to ask is its form, which the lag's own profile answers
+    longest tried, which is no stated lag) on a channel the calibration already carries, or None.
+    That the channel moves the offset is the catalogue's finding, already tested; what is left to
+    ask is its form, which the lag's own profile answers
     (``channel_report``: a lag is stated only where no lag fits clearly worse). The circular-shift
     null asks the first question again and cannot answer it for a periodic channel (a current
     switched every 9 s on a 56 s recording): every shift, delayed by a lag tried, lines up with
