@@ -211,3 +211,20 @@ def test_a_cap_of_tilts_does_not_get_a_diagonal_ellipsoid_that_moves_the_offset(
     r = fit_calibration(sc.simulate(3000, 50.0).series.field_ut, model="auto")
     assert r.model != "ellipsoid_diagonal"
     assert np.linalg.norm(r.calibration.offset_ut - np.asarray(sc.physics.truth().offset_ut)) < 4.0
+
+
+@pytest.mark.parametrize("tilt_deg, seed", [(7.5, 5), (10.0, 6), (14.0, 7), (90.0, 8)])
+def test_the_ellipsoid_without_its_reasons_is_the_same_calibration(tilt_deg, seed):
+    # A caller that reads the calibration alone (the locate step's refits) may skip the diagonal
+    # ellipsoid where the full one stands without it; what it gets back must not change: the
+    # same model, calibration, samples used and residual, on coverage that refuses the full one
+    # (flat turns), passes it narrowly (a band) and plainly (every direction).
+    m, _, _ = _flat_turns(seed, tilt_deg)
+    full = fit_calibration(m, model="ellipsoid")
+    brief = fit_calibration(m, model="ellipsoid", reasons=False)
+    assert brief.model == full.model
+    for a, b in [(brief.calibration.offset_ut, full.calibration.offset_ut),
+                 (brief.calibration.soft_iron, full.calibration.soft_iron),
+                 (brief.calibration.field_ut, full.calibration.field_ut), (brief.used, full.used),
+                 (brief.residual_ut, full.residual_ut)]:
+        assert np.array_equal(a, b)

@@ -171,6 +171,7 @@ class _Limits:
     alpha: float
     max_ellipsoid_condition: float
     max_shape_sigma: float
+    diagonal_needed: bool = True  # False: the full ellipsoid alone is asked for, and not why (``_stands_alone``)
 
 
 def fit_calibration(
@@ -183,10 +184,12 @@ def fit_calibration(
     max_shape_sigma: float = DEFAULT_MAX_SHAPE_SIGMA,
     balance: str = "auto",
     max_ellipsoid_condition: float = DEFAULT_MAX_ELLIPSOID_CONDITION,
+    reasons: bool = True,
 ) -> FitResult | FitFailure:
-    """Fit a calibration to magnetometer samples (µT); see the module docstring."""
+    """Fit a calibration to magnetometer samples (µT); see the module docstring. ``reasons``:
+    False where the caller reads the calibration and not why it was chosen (``fit_models``)."""
     return fit_models(data, (model,), outliers, noise_ut, alpha, max_condition, max_shape_sigma, balance,
-                      max_ellipsoid_condition)[model]
+                      max_ellipsoid_condition, reasons)[model]
 
 
 def fit_models(
@@ -199,10 +202,14 @@ def fit_models(
     max_shape_sigma: float = DEFAULT_MAX_SHAPE_SIGMA,
     balance: str = "auto",
     max_ellipsoid_condition: float = DEFAULT_MAX_ELLIPSOID_CONDITION,
+    reasons: bool = True,
 ) -> dict:
     """{model: fit_calibration(data, model=model, …)} for each of ``models``, the same results,
     from one start and one fit of each candidate model (a caller that needs fit's "auto" and its
-    "ellipsoid" on the same samples pays for the candidates once)."""
+    "ellipsoid" on the same samples pays for the candidates once). ``reasons`` False: the caller
+    reads the fit and not why it was chosen — for "ellipsoid" alone, the diagonal one is then not
+    fitted where the full one stands without it (``_stands_alone``: the same fit is returned;
+    ``reason`` and ``alternatives`` leave out what was not fitted)."""
     for model in models:
         if model not in MODELS:
             raise ValueError(f"model must be one of {', '.join(MODELS)}, not {model!r}")
@@ -212,7 +219,8 @@ def fit_models(
     start = _robust_sphere(m, max_condition)
     if isinstance(start, FitFailure):
         return {model: start for model in models}
-    limits = _Limits(outliers, alpha, max(max_condition, max_ellipsoid_condition), max_shape_sigma)
+    limits = _Limits(outliers, alpha, max(max_condition, max_ellipsoid_condition), max_shape_sigma,
+                     reasons or set(models) != {"ellipsoid"})
     memo: dict = {}
     return {model: _result(m, idx, model, start, limits, balance, noise_ut, memo) for model in models}
 
@@ -351,6 +359,8 @@ def _ellipsoids(m, robust, sigma_r: float, limits: _Limits, notes: list) -> tupl
             notes.append(why)
             refused[kind] = Refusal.UNDETERMINED
             continue
+        if kind == "diagonal" and not limits.diagonal_needed and _stands_alone(fits.get("full"), limits.max_shape_sigma):
+            return {"full": fits["full"]}, conds
         f, keep = _fit_kind(m, kind, _start_of(m, kind, robust, notes), sigma_r, limits.outliers, limits.alpha)
         if isinstance(f, FitFailure):
             notes.append(f"{MODEL_NAMES[kind]} failed: {f.message}")
@@ -382,6 +392,23 @@ def _determined(fits: dict, refused: dict, limit: float, notes: list) -> dict:
             refused[kind], why = verdict
             notes.append(f"{MODEL_NAMES[kind]} rejected: {why} (limit {100 * limit:.2g} %)")
     return out
+
+
+def _stands_alone(full, limit: float) -> bool:
+    """Whether the full ellipsoid (``(fit, kept mask)`` or None) passes ``_determined``'s gate
+    whatever the diagonal one's fit holds, once the diagonal's coverage has passed ``_gate``:
+    the diagonal's fit enters that gate only through the shared noise, the smaller of the two
+    fits' — so through the two coverage checks, whose σ grows with the noise. Both pass at the
+    full fit's own noise with a margin no rounding crosses, and its own residuals pin its gains."""
+    if full is None:
+        return False
+    f = full[0]
+    noise_ut = uncertainty.residual_sigma(f.residual_ut, geometric.n_params("full"))
+    for kind in ("diagonal", "full"):
+        cov = uncertainty.covariance(f.jac[:, : geometric.n_params(kind)], noise_ut)
+        if not uncertainty.shape_sigma(cov) <= limit * (1.0 - 1e-9):
+            return False
+    return max(_shape_sigma(f)) <= limit
 
 
 def _shape_verdict(f: geometric.GeometricFit, jac: np.ndarray, noise_ut: float, limit: float):

@@ -36,7 +36,7 @@ def remove_step_trained(m_ut, t_s, channels, located: Located, train: np.ndarray
     shape for both sides, an offset for each (as ``steps.measure`` fits a step's vector)."""
     m = np.array(m_ut, dtype=np.float64, copy=True)
     before, enough = _sides(t_s, located, train)
-    fit = fit_calibration(m[train], model="ellipsoid") if enough else None
+    fit = fit_calibration(m[train], model="ellipsoid", reasons=False) if enough else None
     if not fit:
         return m
     cal = fit.calibration
@@ -55,8 +55,8 @@ def remove_soft_trained(m_ut, t_s, channels, located: Located, train: np.ndarray
     into the one fitted on ``train``'s samples after it (as ``steps.remove_soft``)."""
     m = np.array(m_ut, dtype=np.float64, copy=True)
     before, enough = _sides(t_s, located, train)
-    fb = fit_calibration(m[before & train], model="ellipsoid") if enough else None
-    fa = fit_calibration(m[~before & train], model="ellipsoid") if enough else None
+    fb = fit_calibration(m[before & train], model="ellipsoid", reasons=False) if enough else None
+    fa = fit_calibration(m[~before & train], model="ellipsoid", reasons=False) if enough else None
     if not fb or not fa:
         return m
     cb, ca = fb.calibration, fa.calibration

@@ -281,7 +281,7 @@ def _fit(m: np.ndarray, use: np.ndarray) -> Calibration | None:
     idx = np.flatnonzero(use)
     if len(idx) < 20:
         return None
-    res = fit_calibration(m[idx[:: max(1, len(idx) // FIT_MAX_N)]], model=FIT_MODEL, balance="none")
+    res = fit_calibration(m[idx[:: max(1, len(idx) // FIT_MAX_N)]], model=FIT_MODEL, balance="none", reasons=False)
     return res.calibration if res else None
 
 

@@ -111,7 +111,7 @@ def fitted(m_ut: np.ndarray, model: str, known: tuple = ()):
     for k_model, samples, result in known:
         if k_model == model and samples.shape == m_ut.shape and np.array_equal(samples, m_ut):
             return result
-    return fit_calibration(m_ut, model=model)
+    return fit_calibration(m_ut, model=model, reasons=False)
 
 
 def heldout_sq(m_ut: np.ndarray, model: str, folds: int = FOLDS, known: tuple = ()) -> np.ndarray | None:
@@ -215,7 +215,7 @@ def _trained(m_ut, t_s, channels, loc, effect: Effect, model: str, base, judged)
 def without_it(m_ut: np.ndarray, model: str) -> tuple[float, float]:
     """(noise, slow wander) of ``m_ut``'s radial residual around its own calibration
     (``base.noise_and_wander_ut``); nan where no calibration fits."""
-    result = fit_calibration(m_ut, model=model)
+    result = fit_calibration(m_ut, model=model, reasons=False)
     if not result:
         return float("nan"), float("nan")
     cal = result.calibration

@@ -129,7 +129,7 @@ def replacing(effect: Effect, cal, chans: dict) -> Effect:
 def _refit(cleaned: np.ndarray, final: ModelFit, model: str, replaced: tuple = ()) -> ModelFit | None:
     """The geometry refitted on the cleaned samples, with ``final``'s channel terms kept except
     those a kept located term ``replaced``."""
-    result = fit_calibration(cleaned, model=model)
+    result = fit_calibration(cleaned, model=model, reasons=False)
     if not result:
         return None
     kept = tuple(c for c in final.spec.channels if c not in replaced)

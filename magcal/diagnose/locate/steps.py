@@ -373,8 +373,8 @@ def remove_soft(m_ut, t_s, channels, located: Located) -> np.ndarray:
     force at the end of the recording. Unchanged where either side cannot be fitted."""
     m = np.asarray(m_ut, dtype=np.float64)
     before = np.asarray(t_s, float) < float(located.params["time_s"])
-    fb = fit_calibration(m[before], model="ellipsoid")
-    fa = fit_calibration(m[~before], model="ellipsoid")
+    fb = fit_calibration(m[before], model="ellipsoid", reasons=False)
+    fa = fit_calibration(m[~before], model="ellipsoid", reasons=False)
     if not fb or not fa:
         return m.copy()
     cb, ca = fb.calibration, fa.calibration
@@ -390,8 +390,8 @@ def remove_offset_change(m_ut, t_s, channels, located: Located) -> np.ndarray:
     where either side cannot be fitted."""
     m = np.asarray(m_ut, dtype=np.float64)
     before = np.asarray(t_s, float) < float(located.params["time_s"])
-    fb = fit_calibration(m[before], model="ellipsoid")
-    fa = fit_calibration(m[~before], model="ellipsoid")
+    fb = fit_calibration(m[before], model="ellipsoid", reasons=False)
+    fa = fit_calibration(m[~before], model="ellipsoid", reasons=False)
     out = m.copy()
     if fb and fa:
         out[before] += fa.calibration.offset_ut - fb.calibration.offset_ut
