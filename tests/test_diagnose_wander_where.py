@@ -42,3 +42,35 @@ def test_a_wander_spread_through_the_recording_is_placed_nowhere_in_particular()
     where, summary = _wander_where(d)
     assert where is None, summary
     assert "most of it at" not in summary
+
+
+def _jumps(d):
+    return [x for x in d.to_dict()["limits"] if x["effect"] == "unexplained_structure" and "jump_ut" in x]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [141, 143])
+def test_a_small_offset_step_the_step_search_does_not_prove_is_still_placed_in_time(seed):
+    # 0.6 µT put down at 40 % of the span: under the local step search's threshold, but the
+    # offset's wander is almost all that one change, and the remainder says when
+    run = _sim(seed)
+    t = run.series.t_s
+    at_s = float(t[0] + 0.4 * np.ptp(t))
+    d = diagnose(Series(t_s=t, field_ut=run.series.field_ut + np.outer(t >= at_s, [0.45, -0.3, 0.3])))
+    assert "hard_iron_step" not in d.effects
+    jumps = _jumps(d)
+    assert len(jumps) == 1, [x["effect"] for x in d.to_dict()["limits"]]
+    where, details = jumps[0]["where"], jumps[0]
+    assert abs(where["time_s"][0] - at_s) <= 0.05 * np.ptp(t), where
+    lo, hi = details["time_interval_s"]
+    assert lo <= at_s <= hi
+    assert 0.4 <= details["size_ut"] <= 0.8, details  # the step put in is 0.62 µT
+    assert f"at {where['time_s'][0]:.1f} s" in jumps[0]["summary"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [133, 134])
+def test_a_slow_wander_is_no_jump(seed):
+    d = diagnose(_wandering(_sim(seed), seed, amp_ut=0.8))
+    assert any(x["effect"] == "offset_wander" for x in d.to_dict()["limits"])
+    assert _jumps(d) == []

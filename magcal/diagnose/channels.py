@@ -378,12 +378,14 @@ def wander_size(w: "WanderBlocks | None") -> tuple[float, float]:
 class WanderBlocks:
     """The block offsets' departures behind ``offset_wander``: the blocks (sample slices), each
     one's squared departure (µT² summed over its samples), the samples used and the
-    within-block noise variance (µT²)."""
+    within-block noise variance (µT²), and the block offsets themselves with their Gram matrices."""
 
     blocks: tuple[slice, ...]
     departure_ut2: np.ndarray
     n: int
     noise_ut2: float
+    offsets_ut: np.ndarray  # (B, 3) each block's fitted offset
+    grams: np.ndarray  # (B, 3, 3) each block's Σ uuᵀ: how firmly its directions pin that offset
 
 
 def block_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> WanderBlocks | None:
@@ -393,4 +395,4 @@ def block_wander(e: np.ndarray, u: np.ndarray, n_blocks: int = 20) -> WanderBloc
     if fitted is None:
         return None
     grams, d_e, _, n, s2 = fitted
-    return WanderBlocks(tuple(usable_blocks(len(e), n_blocks)), _departures(grams, d_e), n, s2)
+    return WanderBlocks(tuple(usable_blocks(len(e), n_blocks)), _departures(grams, d_e), n, s2, d_e, grams)

@@ -42,7 +42,7 @@ from .diagnosis import CalibrationSource, Diagnosis
 from .inference import contiguous_blocks, n_test_blocks
 from ..fit import fit_calibration, fit_models
 from .diagnosis import model_name
-from .limits import Limit
+from .limits import Limit, jump_limit
 from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms, from_calibration
 
 ALPHA = 0.01
@@ -172,6 +172,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         + locate.as_limits(found.found, found.verdicts)
         + statements.limits(analysed, selected, final, simulated, wander, alpha=alpha,
                             located=tuple(x.effect for x in found.found))
+        + jump_limit(wander.jump, found.floor_ut, found.found)
         + chosen.limits,
         floors={c: f.to_dict() for c, f in floors.items()},
     )

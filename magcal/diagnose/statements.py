@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from . import channels, design, floors, glitches, limits as limits_, longrun, selection, softiron
+from . import channels, design, floors, glitches, limits as limits_, longrun, selection, softiron, wander_jump
 from ..fit.tails import chi2_sf, f_isf, t_isf
 from .catalogue import Accepted
 from .finding import Finding
@@ -30,6 +30,7 @@ class BlockWander:
     directions: np.ndarray  # (n, 3) calibrated unit field directions
     stretches_s: tuple[tuple[float, float], ...] = ()  # where it concentrates ([start, end] in time)
     stretch_share: float = 0.0  # of the blocks' squared departure, the share those stretches carry
+    jump: wander_jump.Jump | None = None  # most of it one change between two stretches of time
 
 
 # the wander is said to sit somewhere when the fewest blocks that carry MOST_OF it (largest first)
@@ -41,7 +42,8 @@ CONCENTRATED_BLOCKS = 0.15
 
 def measure_wander(model: ModelFit, m: np.ndarray, chans: dict, t_s: np.ndarray, alpha: float) -> BlockWander:
     """Offsets fitted in WANDER_BLOCKS time blocks of ``model``'s residual, their scatter
-    beyond the within-block noise, and the stretches of time where it concentrates."""
+    beyond the within-block noise, the stretches of time where it concentrates and the one
+    jump that carries most of it (magcal.diagnose.wander_jump)."""
     used = {c: chans[c] for c in model.spec.channels}
     h = model.calibration().correct(m, used)
     u = h / np.linalg.norm(h, axis=1, keepdims=True)
@@ -50,7 +52,11 @@ def measure_wander(model: ModelFit, m: np.ndarray, chans: dict, t_s: np.ndarray,
     rms, p = channels.wander_size(blocks)
     if blocks is None:
         return BlockWander(rms, p, u)
-    return BlockWander(rms, p, u, *_concentration(blocks, np.asarray(t_s, float), alpha))
+    t = np.asarray(t_s, float)
+    jump = wander_jump.find_jump(blocks, t, alpha)
+    if jump is not None:  # most of it one change: the blocks either side of it depart, which is no stretch of its own
+        return BlockWander(rms, p, u, jump=jump)
+    return BlockWander(rms, p, u, *_concentration(blocks, t, alpha))
 
 
 def _concentration(w: channels.WanderBlocks, t: np.ndarray, alpha: float) -> tuple[tuple, float]:

@@ -1,0 +1,93 @@
+"""One jump in the offset's wander: the block offsets change once, not slowly.
+
+The offset wander (channels.block_wander: an offset fitted in each of 20 time blocks) is
+usually spread through a recording — 1/f noise, the environment. When instead most of its
+departure is one change between two stretches of blocks, something moved the offset at a time
+(a part put down, a cable moved): that is structure located in time, even where the local step
+search (magcal.diagnose.locate.steps) does not clear its threshold, and it is said as the honest
+remainder with its time — not as a hard-iron step, which was not proven.
+
+A jump is said when both hold:
+- the best split of the blocks into a before and an after carries at least ``JUMP_SHARE`` of
+  their squared departure from the overall mean (a slow wander's best split carries less: on
+  104 real control windows the largest share was 0.80, and that one failed the next test);
+- the jump adds to a slow wander (Legendre degrees up to wander.NUISANCE_DEGREE over the
+  blocks' times) beyond chance: F(3, dof) at the diagnosis' α, Bonferroni over the splits
+  tried, each block weighted by how firmly its directions pin its offset (its Gram matrix) and
+  judged against the blocks' own scatter about that fit — the recording's roughness at the
+  blocks' scale, not the within-block noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.polynomial import legendre
+
+from ..fit.tails import f_sf
+from .channels import WanderBlocks, _departures
+from .wander import NUISANCE_DEGREE
+
+JUMP_SHARE = 0.8
+MIN_SIDE_BLOCKS = 2  # blocks on each side of a split
+
+
+@dataclass(frozen=True)
+class Jump:
+    """The offset's change between the blocks before and after ``time_s`` (h frame, µT)."""
+
+    time_s: float  # the boundary between the two stretches
+    interval_s: tuple[float, float]  # the block before and the block after it: the jump lies in there
+    jump_ut: np.ndarray
+    share: float  # of the blocks' squared departure the split carries
+    p_value: float  # of "no jump beyond a slow wander", over every split tried
+
+
+def find_jump(w: WanderBlocks, t_s: np.ndarray, alpha: float) -> Jump | None:
+    """The one jump that carries most of the wander ``w`` (module docstring), or None."""
+    g, d = w.grams, w.offsets_ut
+    splits = range(MIN_SIDE_BLOCKS, len(d) - MIN_SIDE_BLOCKS + 1)
+    total = float(np.sum(w.departure_ut2))
+    if len(splits) < 1 or total <= 0:
+        return None
+    shares = [1.0 - float(np.sum(_departures(g[:k], d[:k])) + np.sum(_departures(g[k:], d[k:]))) / total for k in splits]
+    k = splits[int(np.argmax(shares))]
+    share = max(shares)
+    if share < JUMP_SHARE:
+        return None
+    p = min(1.0, _beyond_slow(w, t_s, k) * len(splits))
+    if p >= alpha:
+        return None
+    t = np.asarray(t_s, float)
+    before, after = w.blocks[k - 1], w.blocks[k]
+    jump = _mean(g[k:], d[k:]) - _mean(g[:k], d[:k])
+    return Jump(float(t[after.start]), (float(t[before.start]), float(t[after.stop - 1])), jump, share, p)
+
+
+def _mean(g: np.ndarray, d: np.ndarray) -> np.ndarray:
+    return np.linalg.solve(g.sum(axis=0), np.einsum("bij,bj->i", g, d))
+
+
+def _beyond_slow(w: WanderBlocks, t_s: np.ndarray, k: int) -> float:
+    """p of an F test: a jump after block ``k`` added to a slow wander of the block offsets."""
+    t = np.asarray(t_s, float)
+    mid = np.array([0.5 * (t[b.start] + t[b.stop - 1]) for b in w.blocks])
+    span = float(mid[-1] - mid[0])
+    tau = 2.0 * (mid - mid[0]) / span - 1.0 if span > 0 else np.zeros(len(mid))
+    slow = legendre.legvander(tau, NUISANCE_DEGREE)  # (B, degree + 1)
+    roots = [np.linalg.cholesky(x + 1e-12 * np.trace(x) * np.eye(3)).T for x in w.grams]
+    y = np.concatenate([r @ o for r, o in zip(roots, w.offsets_ut)])
+    base = np.vstack([r @ np.kron(v[None, :], np.eye(3)) for r, v in zip(roots, slow)])
+    step = np.vstack([r * float(i >= k) for i, r in enumerate(roots)])
+    rss0, rss1 = _rss(base, y), _rss(np.hstack([base, step]), y)
+    dof = len(y) - base.shape[1] - 3
+    if dof < 1 or rss1 <= 0:
+        return 1.0
+    return float(f_sf((rss0 - rss1) / 3.0 / (rss1 / dof), 3, dof))
+
+
+def _rss(x: np.ndarray, y: np.ndarray) -> float:
+    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+    e = y - x @ coef
+    return float(e @ e)
