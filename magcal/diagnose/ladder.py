@@ -553,7 +553,7 @@ def _fit_geometry_around_channels(a: Analysed, final: ModelFit, channel_cov: dic
     (model, samples, result) (locate.judge.fitted)."""
     shift = final.calibration().channel_offset_ut(a.chans, len(a.m))
     model, samples = {"sphere": "sphere", "ellipsoid": "ellipsoid"}.get(chosen, "auto"), a.m - shift
-    result = fit_calibration(samples, model=model)
+    result = fit_calibration(samples, model=model, reasons=False)
     if not result:
         return None, (model, samples, result)
     covs = {c: channel_cov.get(c) for c in final.spec.channels}

@@ -397,7 +397,7 @@ def relinearized(res: Residual, fr: cs.Frame, pick: cs.Pick, fams: list[cs.Famil
     first = describe(res, fr, pick, c, evidence)
     cal = res.calibration
     model = "sphere" if np.allclose(cal.soft_iron, np.eye(3)) else "ellipsoid"
-    fit = fit_calibration(remove(res.m_ut, res.t_s, res.channels, first), model=model, outliers=False)
+    fit = fit_calibration(remove(res.m_ut, res.t_s, res.channels, first), model=model, outliers=False, reasons=False)
     if isinstance(fit, FitFailure):
         return first, fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
     cal2 = fit.calibration

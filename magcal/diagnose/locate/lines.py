@@ -234,9 +234,18 @@ class _Scan:
     def __post_init__(self):
         self.refresh()
 
-    def refresh(self):
+    def refresh(self, seen: tuple = ()):
+        """Read the residual anew; ``seen``: its spectrum, where already made (one entry)."""
         self.t_s, self.r_ut, self.u = self.res.t_s, self.res.r_ut, self.res.u
         self.basis = None
+        self.seen = seen
+
+    def spectrum(self) -> Spectrum | None:
+        """``spectrum`` of what the lines found so far leave: made once for each residual (a
+        candidate set aside or passed over leaves it as it was, and the next looks at the same)."""
+        if not self.seen:
+            self.seen = (spectrum(self.t_s, self.r_ut, self.u),)
+        return self.seen[0]
 
     def direction_basis(self) -> np.ndarray:
         if self.basis is None:
@@ -267,7 +276,7 @@ def _scanned(res: Residual) -> _Scan:
 def _strongest_left_hz(scan: _Scan) -> float | None:
     """The frequency of the strongest candidate above the threshold in what the found lines
     leave (not yet judged: it may be a direction harmonic or broad), or None."""
-    sp = spectrum(scan.t_s, scan.r_ut, scan.u)
+    sp = scan.spectrum()
     if sp is None:
         return None
     stat = _masked(sp, scan.set_aside_hz + scan.passed_hz)
@@ -277,7 +286,7 @@ def _strongest_left_hz(scan: _Scan) -> float | None:
 
 def _next(scan: _Scan) -> bool:
     """Find, refine and judge the strongest remaining candidate; False when none passes."""
-    sp = spectrum(scan.t_s, scan.r_ut, scan.u)
+    sp = scan.spectrum()
     if sp is None:
         return False
     scan.threshold = sp.threshold
@@ -317,12 +326,13 @@ def _take_out(scan: _Scan, line: Line) -> None:
     """Keep the line when it is narrow, and take it out of the raw samples (so that its second
     order in |h|, at twice its frequency, goes with it)."""
     rest = replace(scan.res, m_ut=scan.res.m_ut - wave_ut(scan.t_s, line, scan.res.calibration.soft_iron))
-    if broad(spectrum(scan.t_s, rest.r_ut, rest.u), line):
+    after = spectrum(scan.t_s, rest.r_ut, rest.u)
+    if broad(after, line):
         scan.passed_hz.append(line.frequency_hz)
         return
     scan.lines.append(line)
     scan.res = rest
-    scan.refresh()
+    scan.refresh(seen=(after,))
 
 
 def wave_ut(t_s: np.ndarray, line: Line, soft_iron: np.ndarray) -> np.ndarray:
