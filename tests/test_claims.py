@@ -5,11 +5,14 @@ otherwise it is a limit with its reason and the calibration is returned without 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from magcal.core.series import Series
 from magcal.diagnose import diagnose
 from magcal.diagnose.locate.steps_scan import inflation
 from magcal.sim.physics import Motion, Physics, Scenario
+
+from test_diagnose import _sim
 
 HARD = (21.0, -33.0, 8.0)
 
@@ -49,6 +52,22 @@ def test_a_drift_only_in_the_first_half_is_not_claimed_as_a_drift():
     assert "time_drift" not in d.effects
     (limit,) = _claims_limits(d)
     assert "halves" in limit["summary"] or "half" in limit["summary"]
+
+
+@pytest.mark.slow
+def test_a_small_step_is_not_claimed_as_a_drift():
+    # 0.6 µT put down at 40 % of the span: a straight line through it passes the halves, but
+    # without it the offset's wander is one jump — the drift is a limit saying so, and the jump
+    # is the remainder with its time
+    run = _sim(142)
+    t = run.series.t_s
+    at_s = float(t[0] + 0.4 * np.ptp(t))
+    d = diagnose(Series(t_s=t, field_ut=run.series.field_ut + np.outer(t >= at_s, [0.45, -0.3, 0.3])))
+    assert "time_drift" not in d.effects
+    (limit,) = _claims_limits(d)
+    assert limit["effect"] == "time_drift" and "one jump" in limit["summary"]
+    (rest,) = [x for x in d.to_dict()["limits"] if x["effect"] == "unexplained_structure"]
+    assert abs(rest["where"]["time_s"][0] - at_s) <= 0.05 * np.ptp(t)
 
 
 def test_the_correlation_inflation_is_one_on_white_noise_and_large_on_a_slow_wander():

@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from ..fit.tails import chi2_sf
 
-from . import channels, softiron
+from . import channels, softiron, wander_jump
 from .limits import Limit
 from .locate.steps_scan import inflation
 from .model import FitFailure, ModelFit, fit_model
@@ -81,6 +81,26 @@ def halves_disagree(m, t, chans, final: ModelFit, group: str, channel: str | Non
             return (f"{what} ({share:.0%} of its size apart; χ² {chi2:.1f} on {len(d)} degrees of freedom, p = {p:.1g}, "
                     "with each half's own correlation in time counted)")
     return None
+
+
+def one_jump(m, t, chans, final: ModelFit) -> str | None:
+    """The reason a drift in time has the wrong shape — without it, most of the offset's wander
+    is one jump (magcal.diagnose.wander_jump, at ``HALVES_LEVEL``), which a straight line only
+    approximates — or None."""
+    spec = replace(final.spec, channels=tuple(c for c in final.spec.channels if c != channels.TIME))
+    used = {c: chans[c] for c in spec.channels}
+    f = fit_model(m, used, spec, final.reference, start=final)
+    if isinstance(f, FitFailure):
+        return None
+    h = f.calibration().correct(m, used)
+    u = h / np.linalg.norm(h, axis=1, keepdims=True)
+    blocks = channels.block_wander(f.residual(m, used), u, BLOCKS)
+    jump = None if blocks is None else wander_jump.find_jump(blocks, np.asarray(t, float), HALVES_LEVEL)
+    if jump is None:
+        return None
+    a, b = jump.interval_s
+    return (f"without it, {jump.share:.0%} of the offset's wander is one jump of {np.linalg.norm(jump.jump_ut):.2f} µT "
+            f"somewhere in {a:.1f}–{b:.1f} s (p = {jump.p_value:.1g} beyond a slow wander), not a steady drift")
 
 
 def _chi2_p(d: np.ndarray, s: np.ndarray) -> tuple[float, float]:
@@ -164,6 +184,8 @@ def screen(m, t, chans, final: ModelFit, accepted: list, candidates: dict) -> tu
         why = implausible(final, g, channel, t)
         if why is None and channel in HALVES_CHECKED:
             why = halves_disagree(m, t, chans, final, g, channel)
+        if why is None and channel == channels.TIME:
+            why = one_jump(m, t, chans, final)
         (refused.append(Refused(g, why)) if why else kept.append(g))
     return kept, tuple(refused)
 
