@@ -127,3 +127,28 @@ def test_bad_times_are_refused_with_a_clear_error():
     fit = fit_calibration(m, model="ellipsoid")
     with pytest.raises(ValueError, match="t_s"):
         steps.search(Residual(t[::-1].copy(), m, fit.calibration, 0.3, float(fit.rms_ut)))
+
+
+def _tilt(seed):
+    run = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3), motion=Motion("tilt", max_tilt_deg=50.0),
+                   seed=seed).simulate(4000, 50.0)
+    return run.series.t_s, run.series.field_ut
+
+
+def test_on_a_tilt_take_a_gain_change_is_named_a_soft_iron_change_and_a_step_a_step():
+    # Under a tilt motion the direction is nearly a function of time, so a one-axis gain change
+    # seen through the local offset model is a step there too; told at its time, the change of
+    # shape adds beyond the step far more than the step adds beyond the change of shape.
+    t, m = _tilt(8)
+    size_ut = 4 * _floor(m)
+    b = fit_calibration(m, model="sphere").calibration.offset_ut
+    after = t >= 44.0
+    soft = m.copy()
+    soft[after, 0] = b[0] + (1 + size_ut / 50.0) * (m[after, 0] - b[0])
+    found = _claims(_search(t, soft))
+    assert [f.effect for f in found] == [steps.SOFT], [f.summary for f in found]
+    assert abs(found[0].where["time_s"][0] - 44.0) <= 1.0 and found[0].where["axis"] == "x"
+    d = np.array([0.6, -0.7, 0.4])
+    found = _claims(_search(t, m + np.outer(after, 10 * _floor(m) * d / np.linalg.norm(d))))
+    assert [f.effect for f in found] == [steps.STEP], [f.summary for f in found]
+    assert abs(found[0].where["time_s"][0] - 44.0) <= 1.0

@@ -40,11 +40,12 @@ recording, which is what ``write`` puts on the device.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
 from ...fit import fit_calibration
-from ...fit.tails import chi2_isf
+from ...fit.tails import chi2_isf, chi2_sf
 from . import steps_scan as scan
 from .change_trained import remove_soft_trained, remove_step_trained
 from ..softiron import MAX_GAIN_SIGMA, MIN_UNIQUE
@@ -66,6 +67,7 @@ STEP_MIN_OVER_FLOOR = 1.0  # a step or shape change smaller than the floor is no
 SOFT_GRID = 40  # soft-iron candidate times over the middle of the span
 SOFT_EDGE = 0.1  # … leaving this share of the span at each end
 SOFT_KNOT_SHARE = 0.25  # the offset may wander piecewise-linearly with knots this share of the span apart
+STEP_OR_SHAPE_ALPHA = 0.05  # level of the two nested tests that tell a found step from a change of shape at its time
 SOFT_MAX_N = 3000  # samples the soft-iron scan uses (evenly thinned)
 SHAPE_SIGMA_MAX = MAX_GAIN_SIGMA  # 1σ of a shape direction (relative gain) a side's coverage must reach
 BURST_NET = 0.5
@@ -292,17 +294,23 @@ def _tested_at(grid: _Grid, j: int, u, q, t, nb: int, f2: float) -> tuple:
     return rss, var, coef[:m], d @ coef[m:], var * d @ inv[m:, m:] @ d.T, d
 
 
+def _soft_base(u, t, r, field_ut: float, step_times) -> tuple:
+    """The soft-iron scans' samples (thinned) and the columns all their fits hold (the offset's
+    piecewise-linear wander, the calibration's shape misfit Q, the steps)."""
+    k = _thin(len(t))
+    u, t, r = u[k], t[k], r[k]
+    q = scan.quad(u, field_ut)
+    steps = [u * (t >= x)[:, None] for x in step_times]
+    return u, t, r, q, np.hstack([scan.wander_columns(u, t, float(t[-1] - t[0]) * SOFT_KNOT_SHARE), q] + steps)
+
+
 def shape_change(u, t, r, field_ut: float, half: float, step_times=()) -> ShapeChange | None:
     """The soft-iron change scan (module docstring), with the offset stepping at ``step_times``
     too: τ placed by the change in all six shape directions, the change then tested only along
     those both sides determine. None when the span is too short to scan or no shape direction
     is determined on both sides of τ."""
-    k = _thin(len(t))
-    u, t, r = u[k], t[k], r[k]
-    q = scan.quad(u, field_ut)
+    u, t, r, q, base = _soft_base(u, t, r, field_ut, step_times)
     span = float(t[-1] - t[0])
-    steps = [u * (t >= x)[:, None] for x in step_times]
-    base = np.hstack([scan.wander_columns(u, t, span * SOFT_KNOT_SHARE), q] + steps)
     nb = base.shape[1]
     taus = t[0] + span * np.linspace(SOFT_EDGE, 1 - SOFT_EDGE, SOFT_GRID)
     taus = taus[[min(np.sum(t < x), np.sum(t >= x)) >= 6 * MIN_SIDE for x in taus]]
@@ -330,6 +338,49 @@ def shape_change(u, t, r, field_ut: float, half: float, step_times=()) -> ShapeC
     explained, allowed = _net(base, u, q, t, r, tau, coef, e)
     return ShapeChange(tau, (float(inside.min()), float(inside.max())), e, np.sqrt(np.clip(np.diag(cov), 0.0, None)),
                        float((null - rss) / var_j), threshold, d, typical, explained, allowed)
+
+
+class Told(Enum):
+    """What the two nested tests at a change's time (``told_at``) say the change is."""
+    STEP = "the offset stepped: a change of shape there adds nothing beyond the step"
+    SHAPE = "the shape changed: an offset step there adds nothing beyond the change of shape"
+    MOSTLY_STEP = "each adds beyond the other, the step's addition the less likely by chance"
+    MOSTLY_SHAPE = "each adds beyond the other, the shape's addition the less likely by chance"
+    EITHER = "neither adds beyond the other: the data cannot tell which"
+
+
+def told_at(u, t, r, field_ut: float, half: float, step: HardIronStep, step_times=()) -> tuple[Told, ShapeChange | None]:
+    """A found step told by two nested tests at its time τ at ``STEP_OR_SHAPE_ALPHA`` (the offset
+    wandering and stepping at the other ``step_times``): does the shape change, along the
+    directions both sides determine, add to an offset step at τ beyond chance (χ²_k), and does
+    the step add to the shape change (χ²₃)? A gain change seen through a local offset model looks
+    like a step (and a step, under a motion that ties direction to time, like a gain change). Where
+    no shape direction is determined on both sides (or a side is short) it is told a step; where
+    each adds, the addition less likely by chance says which it mostly is. With the shape adding,
+    the change of shape at τ."""
+    u, t, r, q, base = _soft_base(u, t, r, field_ut, step_times)
+    tau = step.tau_s
+    if min(np.sum(t < tau), np.sum(t >= tau)) < 6 * MIN_SIDE:
+        return Told.STEP, None
+    grid = _shape_scan(base, u, q, t, r, np.array([tau]))
+    after = (t >= tau)[:, None]
+    e1 = r - np.hstack([base, u * after, q * after]) @ grid.coef_full[0]
+    f2 = scan.inflation(e1, q / field_ut, max(1, int(np.sum(t - t[0] < half))))
+    rss, var, coef, e, cov, d = _tested_at(grid, 0, u, q, t, base.shape[1], f2)
+    if d.shape[1] == 0:
+        return Told.STEP, None
+    over_step = float(grid.rss0[0] - rss) / var
+    step_over_shape = float(scan.lsq(np.hstack([base, (q * after) @ d]), r).rss - rss) / var
+    threshold = float(chi2_isf(STEP_OR_SHAPE_ALPHA, d.shape[1]))
+    shape_adds, step_adds = over_step >= threshold, step_over_shape >= chi2_isf(STEP_OR_SHAPE_ALPHA, 3)
+    if not shape_adds:
+        return (Told.STEP if step_adds else Told.EITHER), None
+    told = Told.SHAPE
+    if step_adds:
+        told = Told.MOSTLY_SHAPE if chi2_sf(over_step, d.shape[1]) < chi2_sf(step_over_shape, 3) else Told.MOSTLY_STEP
+    explained, allowed = _net(base, u, q, t, r, tau, coef, e)
+    return told, ShapeChange(tau, step.interval_s, e, np.sqrt(np.clip(np.diag(cov), 0.0, None)), over_step, threshold, d,
+                                   0.0, explained, allowed)
 
 
 def _net(base, u, q, t, r, tau: float, coef: np.ndarray, e: np.ndarray) -> tuple[float, float]:
@@ -503,6 +554,19 @@ def _soft_change(u, t, r, field_ut, floor_ut, half, steps: list[HardIronStep]) -
     return with_steps
 
 
+def _told(u, t, r, field_ut, floor_ut, half, steps: list[HardIronStep], shape: ShapeChange | None) -> ShapeChange | None:
+    """The soft-iron change once every found step is told (``told_at``): the scan's change is
+    dropped where the found step within a window of it is told a step; where the scan found none,
+    the strongest found step told (mostly) a change of shape is that change."""
+    told = [(s, *told_at(u, t, r, field_ut, half, s, [o.tau_s for o in steps if o is not s]))
+            for s in sorted(steps, key=lambda s: -s.stat)]
+    if shape is not None:
+        near = [k for s, k, _ in told if abs(s.tau_s - shape.tau_s) <= half]
+        return None if near and near[0] is Told.STEP else shape
+    shaped = (Told.SHAPE, Told.MOSTLY_SHAPE)
+    return next((c for _, k, c in told if k in shaped and _big(c, field_ut, floor_ut)), None)
+
+
 def search(res: Residual) -> tuple[Located, ...]:
     """Every step, soft-iron change and misbehaving stretch in one residual (module docstring)."""
     _check(res)
@@ -517,6 +581,7 @@ def search(res: Residual) -> tuple[Located, ...]:
     f2 = scan.inflation(r - x @ scan.lsq(x, r).coef, u, max(1, int(np.sum(t - t[0] < half))))
     steps, rest = _all_steps(u, t, r, q, half, f2)
     shape = _soft_change(u, t, r, cal.field_ut, floor, half, steps)
+    shape = _told(u, t, r, cal.field_ut, floor, half, steps, shape) if steps else shape
     found: list[Located] = []
     if shape is not None:
         found.append(_soft_located(shape, floor, cal.field_ut))
