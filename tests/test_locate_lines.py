@@ -147,3 +147,40 @@ def test_a_search_stopped_at_its_line_limit_says_more_may_remain():
     assert all(x.evidence["next_candidate_beyond_max_lines_hz"] is None for x in found[:-1])
     three = m + sum(_line(t, (a, 0.5 * a, 0.0), f) for a, f in zip(amps[:3], freqs[:3]))
     assert all("more lines may remain" not in x.summary for x in _search(t, three))
+
+
+def _lagged_square_current(t, period_s=9.0, tau_s=0.6, seed=0):
+    """A current switched on and off every ``period_s`` (logged, with a little noise) and what it
+    reaches the sensor as: the same through a first-order lag of ``tau_s``."""
+    cur = 8.0 * (np.sin(2 * np.pi * t / period_s + 0.4) > 0.2) + 0.2 * np.random.default_rng(seed).standard_normal(len(t))
+    lagged = np.zeros_like(cur)
+    for i in range(1, len(t)):
+        a = np.exp(-(t[i] - t[i - 1]) / tau_s)
+        lagged[i] = a * lagged[i - 1] + (1 - a) * cur[i]
+    return cur, lagged
+
+
+def test_a_logged_currents_harmonics_are_the_currents_structure_not_free_lines():
+    # a square-wave current through a lag puts lines at 1/9 Hz and its harmonics into the residual of
+    # a calibration without it; the logged current carries the same lines: they are said as its
+    t, m = _sim(6, rate_hz=25.0, n=3000)
+    cur, lagged = _lagged_square_current(t)
+    dirty = m + np.outer(lagged, (0.25, -0.1, 0.2))
+    res = Residual(t, dirty, fit_calibration(dirty).calibration, 0.4, floor_of(dirty), {"current_a": cur})
+    found = lines.search(res)
+    assert found and not [x for x in found if x.effect == "narrowband_line"]
+    (said,) = found
+    assert said.kind is Kind.REMAINDER and said.where["channel"] == "current_a"
+    harmonics = np.asarray(said.where["frequency_hz"]) * 9.0
+    assert np.allclose(harmonics, np.round(harmonics), atol=0.05) and 1 in np.round(harmonics)
+
+
+def test_a_line_beside_a_logged_current_is_still_found_as_a_line():
+    # the current's own lines are its; a hum at a frequency the current does not carry is a line
+    t, m = _sim(6, rate_hz=25.0, n=3000)
+    cur, lagged = _lagged_square_current(t)
+    floor = floor_of(m)
+    dirty = m + np.outer(lagged, (0.25, -0.1, 0.2)) + _line(t, (0.0, 3 * floor, 0.0), 7.28)
+    res = Residual(t, dirty, fit_calibration(dirty).calibration, 0.4, floor_of(dirty), {"current_a": cur})
+    free = [x for x in lines.search(res) if x.effect == "narrowband_line"]
+    assert len(free) == 1 and abs(free[0].where["frequency_hz"] - 7.28) < 0.02 * 7.28 and free[0].where["axis"] == "y"

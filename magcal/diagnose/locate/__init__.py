@@ -15,9 +15,7 @@ from dataclasses import replace
 from ..finding import Finding
 from ..limits import Limit
 from . import channel_forms, faults, lines, steps
-from .base import AXES, WHERE_KEYS, Effect, Kind, Located, Residual, runs, stretches
-
-REMAINDER = "unexplained_structure"
+from .base import AXES, REST, WHERE_KEYS, Effect, Kind, Located, Residual, runs, stretches
 
 EFFECTS: tuple[Effect, ...] = (*faults.EFFECTS, *steps.EFFECTS, lines.EFFECT, *channel_forms.EFFECTS)
 
@@ -57,13 +55,15 @@ def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[Limit, 
     but named by no physics, and what was located and resembles a named effect but did not
     improve unseen blocks when modelled — that is no finding, and is not named as one."""
     judged = {id(v.located): v for v in verdicts}
+    modelled = {v.located.params.get("channel") for v in verdicts if v.kept} - {None}
     out = []  # one the held-out blocks contradict (worse with it modelled), whose held-out gain is within the noise and
     # slow wander the recording keeps without it (the offset_wander limit states that), or whose gain one or two blocks
     # carry (judge.Verdict.spread: the median block's is within them), stays in the JSON's located only
     for x in found:
         v = judged.get(id(x))
         if x.kind is Kind.REMAINDER:
-            out.append(_remainder(x, x.summary, {}))
+            if x.where.get("channel") not in modelled:  # a kept term on the channel accounts for its structure
+                out.append(_remainder(x, x.summary, {}))
         elif x.kind is Kind.PHYSICS and not (v and (v.kept or v.contradicted or v.within_noise_and_wander or not v.spread)):
             why = v.reason if v is not None else "no held-out verdict"
             out.append(_remainder(x, f"Structure located that resembles a {x.effect.replace('_', ' ')}, not claimed as "
@@ -74,7 +74,7 @@ def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[Limit, 
 
 def _remainder(x: Located, summary: str, extra: dict) -> Limit:
     d = x.to_dict()
-    return Limit(REMAINDER, True, summary, details={"params": d["params"], **extra}, where=d["where"])
+    return Limit(REST, True, summary, details={"params": d["params"], **extra}, where=d["where"])
 
 
 def _finding(x: Located, extra: dict) -> Finding:

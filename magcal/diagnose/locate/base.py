@@ -28,6 +28,7 @@ from ..limits import WANDER_BLOCKS
 # the keys a ``where`` object may carry (issue: every finding and limit says where)
 WHERE_KEYS = ("time_s", "channel", "lag_s", "frequency_hz", "axis", "direction")
 AXES = ("x", "y", "z")
+REST = "unexplained_structure"  # the effect name of structure located but named by no physics
 
 
 class Kind(Enum):

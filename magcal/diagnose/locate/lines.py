@@ -16,6 +16,19 @@ timestamps; a candidate that degree-``DIRECTION_DEGREE`` polynomials of the dire
 the direction times a slow offset, explain (the motion itself periodic: a calibration-shape
 misfit or a wandering hard iron, not interference) is set aside and said so; a line that passes is taken out and the search repeats until none passes.
 
+A logged channel (a current, a throttle, a temperature) that switches or swings periodically puts
+its own spectrum — its fundamental, harmonics and their aliases — into the residual wherever the
+calibration does not carry its effect in full (no term on it, or a no-lag term for a lagged one).
+Such a candidate is the channel's, not a free line, when both hold: the channel's own periodogram
+(``spectrum`` of the channel alone, one column) carries a line within ``CHANNEL_NEAR`` independent
+bins of it at the same threshold, and one fixed direction at one phase explains the candidate
+within chance of the free six columns (χ²₂ at ``ALPHA``) — a channel reaching the sensor through
+any lag or time constant moves the field along one direction, with a phase the lag sets. It is set
+aside (``ChannelLine``) and said as the channel's structure (``unexplained_structure`` with the
+channel in its ``where``), never claimed as a ``narrowband_line``; the channel search
+(``channel_forms``) is what fits the channel's form, and where a term it found is kept that
+structure is the term's and is not said again (``as_limits``).
+
 ``remove`` subtracts each fitted sinusoid from the raw samples. The line has zero mean and does
 not depend on orientation, so the calibration refitted on the cleaned samples is the sensor's
 own, the same at every time of the recording, with the interference absent.
@@ -26,24 +39,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import fft as sfft
-from scipy import ndimage
+from scipy import optimize
 
 from ...fit import tails
-from .base import AXES, Effect, Kind, Located, Residual
+from ..channels import TIME, usable
+from .base import AXES, REST, Effect, Kind, Located, Residual
+from .line_spectrum import ALPHA, GAP, HALF_WINDOW, PAD, Spectrum, sample_interval_s, spectrum
 
 NAME = "narrowband_line"
-ALPHA = 0.002  # chance of any false line over all frequencies scanned, per search
 MAX_LINES = 4
 MAX_SET_ASIDE = 6  # direction-harmonic candidates looked past before the search stops
-PAD = 4  # frequency grid oversampling
-HALF_WINDOW = 40  # independent bins each side that set the local level
-GAP = 3  # independent bins each side of the candidate left out of its local level
-GRID_TRIALS = 2.0  # the maximum over the oversampled grid, counted as this many tries per independent bin
-LEVEL_EFFICIENCY = 0.6  # a median of χ² values is worth this share of their number in degrees of freedom
-MIN_CYCLES = 8.0  # lowest frequency scanned: this many cycles over the recording
-TOP_NYQUIST = 1.0  # highest frequency scanned, as a share of the Nyquist frequency (mains at half the clock lands on it)
-MAX_PHASE_RAD = 0.3  # gridding error allowed at the highest frequency scanned
 DIRECTION_DEGREE = 4
 WANDER_DEGREE = 3
 BROAD_SHARE = 0.05  # excess left around a removed line, as a share of its statistic, that makes it broad
@@ -52,26 +57,9 @@ MAINS_HZ = (50.0, 60.0)
 MAINS_HARMONICS = 3
 CLOCK_SHARE = 2e-4  # how far the median interval may be off the sampling clock
 MIN_SAMPLES = 64
-
-
-@dataclass(frozen=True)
-class Spectrum:
-    """The whitened line statistic on a frequency grid, and its local level."""
-
-    freq_hz: np.ndarray
-    stat: np.ndarray  # explained square of the six columns / local σ², per frequency
-    level: np.ndarray  # local σ² (µT²) of the radial residual near each frequency
-    dof: int
-    n_independent: float
-
-    @property
-    def threshold(self) -> float:
-        """The statistic a line must exceed: ALPHA over every frequency scanned. On white noise
-        the statistic is χ²(dof) over a level known to ``LEVEL_DOF`` degrees of freedom, so
-        stat/dof is F(dof, LEVEL_DOF); the oversampled grid's maximum counts GRID_TRIALS tries
-        per independent bin."""
-        trials = max(self.n_independent, 1.0) * GRID_TRIALS
-        return float(self.dof * tails.f_isf(ALPHA / trials, self.dof, LEVEL_EFFICIENCY * self.dof * 2 * (HALF_WINDOW - GAP)))
+CHANNEL_NEAR = 1.0  # independent bins either side of a candidate where a channel's own line is looked for
+MAX_CHANNEL_LINES = 12  # candidates set aside as a logged channel's before the search stops
+N_PHASES = 48  # phases of the coarse scan for the one-direction fit of a channel's line
 
 
 @dataclass(frozen=True)
@@ -85,76 +73,6 @@ class Line:
     level_ut2: float
     explained_ut: np.ndarray  # the line's part of the radial residual, per sample
     t_ref_s: float  # the time of phase zero
-
-
-# -- the grid -----------------------------------------------------------------------------
-
-
-def sample_interval_s(t_s: np.ndarray) -> float:
-    """The median interval between samples (s); where the clock repeats its stamps (median
-    interval 0), the mean one. ValueError when time runs backwards or does not advance."""
-    dt = np.diff(t_s)
-    if len(dt) == 0 or not np.all(np.isfinite(t_s)):
-        raise ValueError("t_s must hold finite times of at least two samples")
-    if np.any(dt < 0) or t_s[-1] <= t_s[0]:
-        raise ValueError("t_s must be in time order and advance over the recording")
-    d = float(np.median(dt))
-    return d if d > 0 else float(t_s[-1] - t_s[0]) / len(dt)
-
-
-def grid_of(t_s: np.ndarray, dt_s: float, f_max_hz: float) -> tuple[np.ndarray, float]:
-    """(grid cell of each sample, cell width): the coarsest of dt, dt/2 … dt/8 whose rounding
-    of the timestamps costs at most MAX_PHASE_RAD at ``f_max_hz``."""
-    rel = t_s - t_s[0]
-    for q in (1, 2, 4, 8):
-        step = dt_s / q
-        idx = np.round(rel / step).astype(np.int64)
-        if 2 * np.pi * f_max_hz * np.max(np.abs(rel - idx * step)) <= MAX_PHASE_RAD:
-            break
-    return idx, step
-
-
-def spectrum(t_s: np.ndarray, r_ut: np.ndarray, u: np.ndarray) -> Spectrum | None:
-    """The line statistic over every scanned frequency; None when the span holds too few cycles."""
-    dt = sample_interval_s(t_s)
-    span = float(t_s[-1] - t_s[0])
-    f_lo, f_hi = MIN_CYCLES / span, TOP_NYQUIST * 0.5 / dt
-    if f_lo >= f_hi:
-        return None
-    idx, step = grid_of(t_s, dt, f_hi)
-    size = sfft.next_fast_len(int(PAD * (idx[-1] + 1)))
-    x = np.zeros((3, size))
-    for k in range(3):
-        np.add.at(x[k], idx, r_ut * u[:, k])
-    z = sfft.rfft(x, axis=1)
-    freq = np.arange(z.shape[1]) / (size * step)
-    band = (freq >= 1.0 / span) & (freq <= f_hi)  # the level below f_lo is read, not scanned
-    minv, rank = _direction_inverse(u)
-    ess = 2.0 / len(t_s) * np.real(np.einsum("kf,kj,jf->f", np.conj(z[:, band]), minv, z[:, band]))
-    dof = 2 * rank
-    level = local_level(ess, dof)
-    keep = freq[band] >= f_lo
-    return Spectrum(freq[band][keep], ess[keep] / level[keep], level[keep], dof, keep.sum() / (size * step / span))
-
-
-def _direction_inverse(u: np.ndarray) -> tuple[np.ndarray, int]:
-    """The pseudo-inverse of the mean direction outer product and its rank."""
-    m = u.T @ u / len(u)
-    w, v = np.linalg.eigh(m)
-    ok = w > 1e-3 * w.max()
-    return (v[:, ok] / w[ok]) @ v[:, ok].T, int(ok.sum())
-
-
-def local_level(ess: np.ndarray, dof: int) -> np.ndarray:
-    """σ² near each frequency: the running median of the explained square over HALF_WINDOW
-    independent bins each side (GAP bins each side of the centre left out), as σ²."""
-    coarse = ess[::PAD]
-    foot = np.ones(2 * HALF_WINDOW + 1, bool)
-    foot[HALF_WINDOW - GAP : HALF_WINDOW + GAP + 1] = False
-    med = ndimage.median_filter(coarse, footprint=foot, mode="mirror")
-    med = np.maximum(med, np.finfo(float).tiny)
-    fine = np.exp(np.interp(np.arange(len(ess)) / PAD, np.arange(len(coarse)), np.log(med)))
-    return fine / tails.chi2_isf(0.5, dof)
 
 
 # -- one line -----------------------------------------------------------------------------
@@ -216,6 +134,75 @@ def beyond_direction(t_s, r_ut, u, basis: np.ndarray, line: Line) -> float:
     return explained(x, r)[0] / line.level_ut2
 
 
+# -- a logged channel's own lines ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ChannelLine:
+    """A candidate set aside as a logged channel's: the channel's own line statistic near its
+    frequency, and what the free line explains beyond one direction at one phase (over the local
+    level; χ²₂ when the channel accounts for it)."""
+
+    frequency_hz: float
+    channel: str
+    channel_stat: float
+    misfit: float
+    amplitude_ut: float
+
+
+def channel_spectra(res: Residual) -> dict[str, Spectrum]:
+    """Each usable logged channel's own line statistic (its mean taken out, one column), on the
+    same clock and frequencies as the residual's search."""
+    one = np.zeros((len(res), 3))
+    one[:, 0] = 1.0
+    out = {}
+    for name, c in res.channels.items():
+        c = np.asarray(c, np.float64)
+        if name == TIME or c.shape != (len(res),) or not usable(c):
+            continue
+        sp = spectrum(res.t_s, c - c.mean(), one)
+        if sp is not None:
+            out[name] = sp
+    return out
+
+
+def carried(sp: Spectrum, f_hz: float) -> float:
+    """The channel's strongest line statistic within CHANNEL_NEAR independent bins of ``f_hz``
+    where it passes the channel spectrum's own threshold (0 where none does)."""
+    df = sp.freq_hz[1] - sp.freq_hz[0] if len(sp.freq_hz) > 1 else np.inf
+    near = np.abs(sp.freq_hz - f_hz) <= CHANNEL_NEAR * PAD * df
+    top = float(sp.stat[near].max()) if near.any() else 0.0
+    return top if top > sp.threshold else 0.0
+
+
+def one_direction_misfit(t_s, r_ut, u, line: Line) -> float:
+    """What the free line's six columns explain beyond the best single direction at a single
+    phase (columns u_k cos(2πf(t − t₀) − φ)), over the line's local level."""
+    ph = 2 * np.pi * line.frequency_hz * (t_s - t_s[0])
+
+    def lost(phi: float) -> float:
+        return -explained(u * np.cos(ph - phi)[:, None], r_ut)[0]
+
+    grid = np.linspace(0.0, np.pi, N_PHASES, endpoint=False)
+    at = grid[int(np.argmin([lost(p) for p in grid]))]
+    step = np.pi / N_PHASES
+    best = optimize.minimize_scalar(lost, bounds=(at - step, at + step), method="bounded", options={"xatol": 1e-6})
+    return max(line.stat - min(-best.fun, -lost(at)) / line.level_ut2, 0.0)
+
+
+def channel_of(scan: "_Scan", line: Line) -> ChannelLine | None:
+    """The logged channel whose own line the candidate is (the strongest such channel), or None."""
+    owners = [(carried(sp, line.frequency_hz), name) for name, sp in scan.channel_spectra.items()]
+    owners = sorted((x for x in owners if x[0] > 0), reverse=True)
+    if not owners:
+        return None
+    misfit = one_direction_misfit(scan.t_s, scan.r_ut, scan.u, line)
+    if misfit > tails.chi2_isf(ALPHA, 2):
+        return None
+    size = float(np.linalg.norm(line.coef))
+    return ChannelLine(line.frequency_hz, owners[0][1], owners[0][0], misfit, size)
+
+
 # -- the search ---------------------------------------------------------------------------
 
 
@@ -230,9 +217,14 @@ class _Scan:
     passed_hz: list = field(default_factory=list)  # broad, or not holding on the true timestamps
     threshold: float = np.inf
     beyond_cap_hz: float | None = None  # a candidate still above the threshold when MAX_LINES stopped the search
+    channel_lines: list = field(default_factory=list)  # ChannelLine: a logged channel's own, not free lines
 
     def __post_init__(self):
+        self.channel_spectra = channel_spectra(self.res)
         self.refresh()
+
+    def looked_past_hz(self) -> list:
+        return self.set_aside_hz + self.passed_hz
 
     def refresh(self, seen: tuple = ()):
         """Read the residual anew; ``seen``: its spectrum, where already made (one entry)."""
@@ -265,7 +257,8 @@ def _scanned(res: Residual) -> _Scan:
     the strongest candidate still above it is noted, so the report can say more may remain), or
     MAX_SET_ASIDE candidates looked past."""
     scan = _Scan(res)
-    while len(scan.lines) < MAX_LINES and len(scan.set_aside_hz) + len(scan.passed_hz) <= MAX_SET_ASIDE:
+    while (len(scan.lines) < MAX_LINES and len(scan.set_aside_hz) + len(scan.passed_hz) <= MAX_SET_ASIDE
+           and len(scan.channel_lines) < MAX_CHANNEL_LINES):
         if not _next(scan):
             return scan
     if len(scan.lines) == MAX_LINES:
@@ -279,7 +272,7 @@ def _strongest_left_hz(scan: _Scan) -> float | None:
     sp = scan.spectrum()
     if sp is None:
         return None
-    stat = _masked(sp, scan.set_aside_hz + scan.passed_hz)
+    stat = _masked(sp, scan.looked_past_hz())
     i = int(np.argmax(stat))
     return float(sp.freq_hz[i]) if stat[i] > sp.threshold else None
 
@@ -290,7 +283,7 @@ def _next(scan: _Scan) -> bool:
     if sp is None:
         return False
     scan.threshold = sp.threshold
-    stat = _masked(sp, scan.set_aside_hz + scan.passed_hz)
+    stat = _masked(sp, scan.looked_past_hz())
     i = int(np.argmax(stat))
     if stat[i] <= sp.threshold:
         return False
@@ -299,6 +292,9 @@ def _next(scan: _Scan) -> bool:
         scan.passed_hz.append(line.frequency_hz)  # the grid's peak does not hold on the true timestamps
     elif beyond_direction(scan.t_s, scan.r_ut, scan.u, scan.direction_basis(), line) <= sp.threshold:
         scan.set_aside_hz.append(line.frequency_hz)
+    elif (owner := channel_of(scan, line)) is not None:
+        scan.channel_lines.append(owner)
+        _subtract(scan, _without(scan, line))  # its sidelobes and second order go with it, as a free line's do
     else:
         _take_out(scan, line)
     return True
@@ -325,14 +321,22 @@ def _plainest(scan: _Scan, sp: Spectrum, stat: np.ndarray, i: int) -> Line:
 def _take_out(scan: _Scan, line: Line) -> None:
     """Keep the line when it is narrow, and take it out of the raw samples (so that its second
     order in |h|, at twice its frequency, goes with it)."""
-    rest = replace(scan.res, m_ut=scan.res.m_ut - wave_ut(scan.t_s, line, scan.res.calibration.soft_iron))
+    rest = _without(scan, line)
     after = spectrum(scan.t_s, rest.r_ut, rest.u)
     if broad(after, line):
         scan.passed_hz.append(line.frequency_hz)
         return
     scan.lines.append(line)
+    _subtract(scan, rest, (after,))
+
+
+def _without(scan: _Scan, line: Line) -> Residual:
+    return replace(scan.res, m_ut=scan.res.m_ut - wave_ut(scan.t_s, line, scan.res.calibration.soft_iron))
+
+
+def _subtract(scan: _Scan, rest: Residual, seen: tuple = ()) -> None:
     scan.res = rest
-    scan.refresh(seen=(after,))
+    scan.refresh(seen)
 
 
 def wave_ut(t_s: np.ndarray, line: Line, soft_iron: np.ndarray) -> np.ndarray:
@@ -467,8 +471,28 @@ def search(res: Residual) -> tuple[Located, ...]:
         return ()  # no frequency without a clock that advances
     scan = _scanned(res)
     last = len(scan.lines) - 1
-    return tuple(located(x, res, scan.threshold, scan.set_aside_hz, scan.beyond_cap_hz if i == last else None)
+    free = tuple(located(x, res, scan.threshold, scan.set_aside_hz, scan.beyond_cap_hz if i == last else None)
                  for i, x in enumerate(scan.lines))
+    return free + channel_structure(scan.channel_lines, res.floor_ut)
+
+
+def channel_structure(set_aside: list, floor_ut: float) -> tuple[Located, ...]:
+    """The candidates set aside as a logged channel's, one remainder per channel: where the
+    channel's effect is left in the residual, said as the channel's and not as free lines."""
+    out = []
+    for name in dict.fromkeys(c.channel for c in set_aside):
+        mine = sorted((c for c in set_aside if c.channel == name), key=lambda c: c.frequency_hz)
+        freqs = [c.frequency_hz for c in mine]
+        top = max(c.amplitude_ut for c in mine)
+        summary = (f"structure that follows {name}: lines at " + ", ".join(f"{f:.3f}" for f in freqs) + " Hz (up to "
+                   f"{top:.2f} µT, {top / floor_ut:.1f}× the recording's floor) sit where {name}'s own spectrum carries "
+                   f"lines, and one direction at one phase — {name} reaching the sensor through a lag — accounts for "
+                   f"each: {name}'s effect left in the calibrated residual, not claimed as interference lines")
+        params = {"channel": name, "frequency_hz": freqs, "amplitude_ut": [c.amplitude_ut for c in mine]}
+        evidence = {"channel_line_statistic": [c.channel_stat for c in mine], "one_direction_misfit": [c.misfit for c in mine],
+                    "misfit_threshold": tails.chi2_isf(ALPHA, 2), "alpha": ALPHA, "size_over_floor": top / floor_ut}
+        out.append(Located(REST, Kind.REMAINDER, summary, {"channel": name, "frequency_hz": freqs}, params, evidence))
+    return tuple(out)
 
 
 def remove(m_ut: np.ndarray, t_s: np.ndarray, channels, found: Located) -> np.ndarray:

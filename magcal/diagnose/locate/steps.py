@@ -49,11 +49,10 @@ from ...fit.tails import chi2_isf, chi2_sf
 from . import steps_scan as scan
 from .change_trained import remove_soft_trained, remove_step_trained
 from ..softiron import MAX_GAIN_SIGMA, MIN_UNIQUE
-from .base import Effect, Kind, Located, Residual, noise_and_wander_ut, runs
+from .base import REST, Effect, Kind, Located, Residual, noise_and_wander_ut, runs
 
 STEP = "hard_iron_step"
 SOFT = "soft_iron_change"
-REST = "unexplained_structure"
 ALPHA = 0.01  # family-wise false-claim rate over every time scanned
 MAX_STEPS = 3
 MAX_CANDIDATES = 300  # candidate times per scan (every half/10 on short recordings); refined to the sample
