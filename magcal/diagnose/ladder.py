@@ -42,7 +42,8 @@ from .diagnosis import CalibrationSource, Diagnosis
 from .inference import contiguous_blocks, n_test_blocks
 from ..fit import fit_calibration, fit_models
 from .diagnosis import model_name
-from .limits import Limit, jump_limit
+from .limits import Limit
+from .wander_jump import jump_limit
 from .model import FitFailure, ModelFit, Spec, fit_model, fit_with_channel_terms, from_calibration
 
 ALPHA = 0.01

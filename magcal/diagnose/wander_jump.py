@@ -27,6 +27,8 @@ from numpy.polynomial import legendre
 
 from ..fit.tails import f_sf
 from .channels import WanderBlocks, _departures
+from .limits import Limit
+from .locate.base import REST
 from .wander import NUISANCE_DEGREE
 
 JUMP_SHARE = 0.8
@@ -91,3 +93,27 @@ def _rss(x: np.ndarray, y: np.ndarray) -> float:
     coef, *_ = np.linalg.lstsq(x, y, rcond=None)
     e = y - x @ coef
     return float(e @ e)
+
+
+def jump_limit(jump, floor_ut: float, located: tuple = ()) -> tuple[Limit, ...]:
+    """The wander's one jump (``find_jump``), located in time but proven as no
+    hard-iron step: the honest remainder, sized against the recording's own floor ``floor_ut``.
+    Not said where something ``located`` (magcal.diagnose.locate) already sits in its interval."""
+    if jump is None or any(_within(x.where.get("time_s", ()), jump.interval_s) for x in located):
+        return ()
+    size = float(np.linalg.norm(jump.jump_ut))
+    over = size / floor_ut if floor_ut > 0 else float("inf")
+    a, b = jump.interval_s
+    p_text = "p < 1e-12" if jump.p_value < 1e-12 else f"p = {jump.p_value:.1g}"
+    summary = (f"unexplained structure remains: {over:.1f}× the noise, at {jump.time_s:.1f} s — most of the offset's "
+               f"wander ({100 * jump.share:.0f} % of it) is one jump of {size:.2f} µT somewhere in {a:.1f}–{b:.1f} s, "
+               f"not a slow wander ({p_text}); the step search proved no hard-iron step there, so none is claimed")
+    details = {"jump_ut": [float(v) for v in jump.jump_ut], "size_ut": size, "size_over_floor": over,
+               "share": jump.share, "p_value": jump.p_value, "time_interval_s": [a, b]}
+    return (Limit(REST, True, summary, details=details, where={"time_s": [jump.time_s]}),)
+
+
+def _within(times, interval: tuple[float, float]) -> bool:
+    """Any instant or stretch of ``times`` touches ``interval``."""
+    a, b = interval
+    return any(lo <= b and hi >= a for lo, hi in (np.resize(np.asarray(x, float), 2) for x in times))
