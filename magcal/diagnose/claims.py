@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from ..fit.tails import chi2_sf
 
-from . import channels, softiron, wander_jump
+from . import channels, softiron, statements
 from .limits import Limit
 from .locate.steps_scan import inflation
 from .model import FitFailure, ModelFit, fit_model
@@ -85,17 +85,11 @@ def halves_disagree(m, t, chans, final: ModelFit, group: str, channel: str | Non
 
 def one_jump(m, t, chans, final: ModelFit) -> str | None:
     """The reason a drift in time has the wrong shape — without it, most of the offset's wander
-    is one jump (magcal.diagnose.wander_jump, at ``HALVES_LEVEL``), which a straight line only
+    is one jump (statements.measure_wander, at ``HALVES_LEVEL``), which a straight line only
     approximates — or None."""
     spec = replace(final.spec, channels=tuple(c for c in final.spec.channels if c != channels.TIME))
-    used = {c: chans[c] for c in spec.channels}
-    f = fit_model(m, used, spec, final.reference, start=final)
-    if isinstance(f, FitFailure):
-        return None
-    h = f.calibration().correct(m, used)
-    u = h / np.linalg.norm(h, axis=1, keepdims=True)
-    blocks = channels.block_wander(f.residual(m, used), u, BLOCKS)
-    jump = None if blocks is None else wander_jump.find_jump(blocks, np.asarray(t, float), HALVES_LEVEL)
+    f = fit_model(m, {c: chans[c] for c in spec.channels}, spec, final.reference, start=final)
+    jump = None if isinstance(f, FitFailure) else statements.measure_wander(f, m, chans, t, HALVES_LEVEL).jump
     if jump is None:
         return None
     a, b = jump.interval_s
