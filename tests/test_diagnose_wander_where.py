@@ -66,6 +66,8 @@ def test_a_small_offset_step_the_step_search_does_not_prove_is_still_placed_in_t
     assert lo <= at_s <= hi
     assert 0.4 <= details["size_ut"] <= 0.8, details  # the step put in is 0.62 µT
     assert f"at {where['time_s'][0]:.1f} s" in jumps[0]["summary"]
+    _, wander_summary = _wander_where(d)  # the wander's own statement tells the same story
+    assert f"one jump at about {where['time_s'][0]:.1f} s" in wander_summary
 
 
 @pytest.mark.slow

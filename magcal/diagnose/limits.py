@@ -158,7 +158,9 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
 
 
 def _concentrated(wander) -> str:
-    """Where in time the wander sits, when a few stretches carry it."""
+    """Where in time the wander sits, when a few stretches or one jump carry it."""
+    if wander.jump is not None:
+        return f", most of it ({100 * wander.jump.share:.0f} %) one jump at about {wander.jump.time_s:.1f} s"
     if not wander.stretches_s:
         return ""
     at = [f"{a:.1f}–{b:.1f} s" for a, b in wander.stretches_s]
