@@ -228,3 +228,27 @@ def test_every_channel_panel_of_a_level_board_shows_its_samples():
         _channel_panel(ax, d, v, c, {})
         assert len(ax.lines[0].get_xdata()) > len(d.series) / 2, c
         plt.close(fig)
+
+
+@pytest.mark.slow
+def test_the_time_figure_marks_the_time_the_diagnosis_located_a_jump_at():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from magcal.app.report.figures import _mark_located
+    from magcal.app.report.views import views_of
+    from magcal.core.series import Series
+    from test_diagnose import _sim
+
+    run = _sim(141)
+    t = run.series.t_s + 1000.0  # a logger's clock does not start at zero; the axis does
+    d = diagnose(Series(t_s=t, field_ut=run.series.field_ut + np.outer(t >= t[0] + 40.0, [0.45, -0.3, 0.3])))
+    said = [x.where["time_s"][0] for x in d.limits if x.effect == "unexplained_structure" and x.where]
+    assert said and abs(said[0] - 1040.0) <= 5.0, said
+    fig, ax = plt.subplots()
+    _mark_located(ax, d, views_of(d))
+    drawn = [float(line.get_xdata()[0]) for line in ax.lines]
+    plt.close(fig)
+    assert drawn == [said[0] - 1000.0]

@@ -136,6 +136,7 @@ def over_time(diagnosis, v, plt, out) -> Figure:
                 label=f"{int(bad.sum())} glitch(es) set aside (clipped to the frame)")
     for a, _ in diagnosis.folds[1:]:
         ax.axvline(v.t[min(a, len(v.t) - 1)], color="0.75", lw=0.8, ls=":", zorder=0)
+    _mark_located(ax, diagnosis, v)
     ax.set_ylim(-lim, lim)
     ax.set_xlim(v.t[0], v.t[-1])
     ax.set_xlabel(f"{v.t_axis}; dotted lines: the held-out blocks")
@@ -150,6 +151,19 @@ def over_time(diagnosis, v, plt, out) -> Figure:
                   f"the running mean swings over {swing_b:.2f} µT before and {swing_a:.2f} µT after, over "
                   + (f"{v.t[-1]:.1f} {v.t_unit}." if v.clock else f"{len(v.t)} samples (the recording has no time)."),
                   "residual against time")
+
+
+def _mark_located(ax, diagnosis, v) -> None:
+    """Every finding's and limit's ``where.time_s`` on the time axis: an instant (a change point,
+    a jump) as a dashed line, a stretch as a shaded band — where the terminal and the JSON say."""
+    t0 = float(diagnosis.series.t_s[0]) if len(v.t) else 0.0  # v.t is time since the first sample, like the axis
+    label = "located in time (a finding or a limit)"
+    for item in (*diagnosis.findings, *diagnosis.limits):
+        for x in (item.where or {}).get("time_s", ()):
+            a, b = (np.resize(np.asarray(x, float), 2) - t0) / v.t_scale_s
+            (ax.axvline(a, color=BAD, lw=1.2, ls="--", label=label) if a == b else
+             ax.axvspan(a, b, color=BAD, alpha=0.12, lw=0, label=label))
+            label = None
 
 
 def _panel_name(c: str, v) -> str:
