@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from ..fit.tails import chi2_sf
 
-from . import channels, softiron, statements
+from . import channels, softiron, statements, timewords
 from .limits import Limit
 from .locate.steps_scan import inflation
 from .model import FitFailure, ModelFit, fit_model
@@ -94,7 +94,7 @@ def one_jump(m, t, chans, final: ModelFit) -> str | None:
         return None
     a, b = jump.interval_s
     return (f"without it, {jump.share:.0%} of the offset's wander is one jump of {np.linalg.norm(jump.jump_ut):.2f} µT "
-            f"somewhere in {a:.1f}–{b:.1f} s (p = {jump.p_value:.1g} beyond a slow wander), not a steady drift")
+            f"somewhere in {timewords.stretch(a, b)} (p = {jump.p_value:.1g} beyond a slow wander), not a steady drift")
 
 
 def _chi2_p(d: np.ndarray, s: np.ndarray) -> tuple[float, float]:
@@ -151,7 +151,7 @@ def implausible(final: ModelFit, group: str, channel: str | None, t: np.ndarray)
     if channel == channels.TIME:
         drift = float(np.linalg.norm(final.coef_ut_per_unit[channel]) * (t[-1] - t[0]))
         if drift > MAX_DRIFT_SHARE * field:
-            return (f"it would move the offset by {drift:.1f} µT over {t[-1] - t[0]:.0f} s, more than "
+            return (f"it would move the offset by {drift:.1f} µT over {timewords.duration(t[-1] - t[0], '.0f')}, more than "
                     f"{MAX_DRIFT_SHARE:.0%} of the {field:.1f} µT field — a field that varies with position, or a motion "
                     "the model cannot separate from a drift, is likelier")
     if group == softiron.EFFECT:

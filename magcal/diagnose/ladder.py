@@ -35,7 +35,7 @@ import numpy as np
 
 from ..core.errors import DataInsufficient
 from ..core.series import Series
-from . import channels, claims, collinear, design, glitches, hygiene, locate, longrun, null, selection, softiron, statements
+from . import channels, claims, collinear, design, glitches, hygiene, locate, longrun, null, selection, softiron, statements, timewords
 from .locate import faults
 from .locate import step as locate_step
 from .diagnosis import CalibrationSource, Diagnosis
@@ -113,6 +113,7 @@ STEPS = ("set_aside_glitches", "fit_baseline", "select_terms", "refit", "compare
          "compare_with_simulation", "describe")
 
 
+@timewords.in_recording_time
 def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: bool = True, on_step=None,
              twin_null: bool = True) -> Diagnosis:
     """Model discovery on one recording (see the module docstring for the ladder).

@@ -11,7 +11,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from . import channels, softiron
+from . import channels, softiron, timewords
 
 
 @dataclass(frozen=True)
@@ -160,10 +160,10 @@ def wander_limit(wander, chans: dict, alpha: float, floor_ut: float, untested: l
 def _concentrated(wander) -> str:
     """Where in time the wander sits, when a few stretches or one jump carry it."""
     if wander.jump is not None:
-        return f", most of it ({100 * wander.jump.share:.0f} %) one jump at about {wander.jump.time_s:.1f} s"
+        return f", most of it ({100 * wander.jump.share:.0f} %) one jump at about {timewords.instant(wander.jump.time_s)}"
     if not wander.stretches_s:
         return ""
-    at = [f"{a:.1f}–{b:.1f} s" for a, b in wander.stretches_s]
+    at = [timewords.stretch(a, b) for a, b in wander.stretches_s]
     at = at[0] if len(at) == 1 else ", ".join(at[:-1]) + " and " + at[-1]
     return f", most of it at {at} ({100 * wander.stretch_share:.0f} % of it there)"
 
@@ -186,7 +186,7 @@ def _soft_iron_reasons(k: int, determined: int, accepted: bool, untested: bool, 
         reasons.append(text + "; turn the board through all orientations, visiting each more than once")
     if untested and k > 0:
         reasons.append(
-            f"the {duration_s:.0f} s of motion hold too few independent stretches to test it against slow "
+            f"the {timewords.duration(duration_s, '.0f')} of motion hold too few independent stretches to test it against slow "
             "wander; record longer (a few minutes), turning through all orientations more than once"
         )
     return reasons

@@ -27,6 +27,7 @@ from numpy.polynomial import legendre
 
 from ..fit.tails import f_sf
 from .channels import WanderBlocks, _departures
+from . import timewords
 from .limits import Limit
 from .locate.base import REST
 from .wander import NUISANCE_DEGREE
@@ -105,8 +106,8 @@ def jump_limit(jump, floor_ut: float, located: tuple = ()) -> tuple[Limit, ...]:
     over = size / floor_ut if floor_ut > 0 else float("inf")
     a, b = jump.interval_s
     p_text = "p < 1e-12" if jump.p_value < 1e-12 else f"p = {jump.p_value:.1g}"
-    summary = (f"unexplained structure remains: {over:.1f}× the noise, at {jump.time_s:.1f} s — most of the offset's "
-               f"wander ({100 * jump.share:.0f} % of it) is one jump of {size:.2f} µT somewhere in {a:.1f}–{b:.1f} s, "
+    summary = (f"unexplained structure remains: {over:.1f}× the noise, at {timewords.instant(jump.time_s)} — most of the offset's "
+               f"wander ({100 * jump.share:.0f} % of it) is one jump of {size:.2f} µT somewhere in {timewords.stretch(a, b)}, "
                f"not a slow wander ({p_text}); the step search proved no hard-iron step there, so none is claimed")
     details = {"jump_ut": [float(v) for v in jump.jump_ut], "size_ut": size, "size_over_floor": over,
                "share": jump.share, "p_value": jump.p_value, "time_interval_s": [a, b]}

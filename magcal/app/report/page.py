@@ -169,7 +169,8 @@ def page(diagnosis, title: str, sections: list[Section]) -> str:
     s = diagnosis.series
     span = float(s.t_s[-1] - s.t_s[0]) if len(s) else 0.0
     src = f" Read as: {esc(s.source)}." if s.source else ""
-    return page_html(title, f"{diagnosis.n_samples} samples over {span:.1f} s; white noise "
+    over = f" over {span:.1f} s" if s.clock else " (no time column: timed by sample index)"
+    return page_html(title, f"{diagnosis.n_samples} samples{over}; white noise "
                             f"{diagnosis.noise_ut:.3f} µT per axis.{src}", sections)
 
 

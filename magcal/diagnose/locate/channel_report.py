@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import channels as catalogue
+from .. import timewords
 from . import channel_scores as cs
 from .base import Kind, Located, Residual
 from .channel_terms import ANGLE_UNITS, Form, lag_grid, term_ut
@@ -125,9 +126,9 @@ def _lagged(res, pick, iv, p, c, ev) -> Located:
     if resolved:
         where["lag_s"] = lag
         lo, hi = p["lag_interval_s"]
-        how = f"through {kind} of {lag:.3g} s ({lo:.3g}–{hi:.3g} s)"
+        how = f"through {kind} of {timewords.duration(lag, '.3g')} ({timewords.duration_range(lo, hi, '.3g')})"
     elif at_edge:
-        how = f"through a lag of {lag:.3g} s or longer (the longest tried, so not stated as a lag)"
+        how = f"through a lag of {timewords.duration(lag, '.3g')} or longer (the longest tried, so not stated as a lag)"
     else:
         how = "with no lag"
     mlo, mhi = p["coef_magnitude_interval"]

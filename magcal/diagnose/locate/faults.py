@@ -45,6 +45,7 @@ import numpy as np
 
 from ...core.calibration import Calibration
 from ...fit import fit_calibration
+from .. import timewords
 from . import swap_evidence
 from .base import AXES, Effect, Kind, Located, Residual, runs
 
@@ -171,7 +172,7 @@ def _timestamps(t: np.ndarray, keep: np.ndarray) -> list[Located]:
         if len(rows):
             where = _where(t, rows, gap=1)
             step = np.median(np.diff(tk)[np.diff(tk) > 0]) if np.any(np.diff(tk) > 0) else float("nan")
-            summary = (f"{len(rows)} samples {what} ({len(where['time_s'])} places, first at {t[rows[0]]:.3f} s);"
+            summary = (f"{len(rows)} samples {what} ({len(where['time_s'])} places, first at {timewords.instant(t[rows[0]], '.3f')});"
                        " set aside")
             out.append(Located(name, Kind.FAULT, summary, where, {"n_samples": len(rows)},
                                {"median_step_s": float(step)}, rows))
@@ -330,8 +331,8 @@ def _stuck_evidence(mk, rk, run, a, q, sigma):
 def _stuck_found(t, m, rows, a: int, ev: dict) -> Located:
     value = float(m[rows[0], a])
     span = float(t[rows[-1]] - t[rows[0]])
-    summary = (f"the {AXES[a]} axis stuck at {value:.4g} µT for {span:.2f} s ({len(rows)} samples,"
-               f" {t[rows[0]]:.2f}–{t[rows[-1]]:.2f} s) while the other axes moved {ev['others_moved_ut']:.3g} µT;"
+    summary = (f"the {AXES[a]} axis stuck at {value:.4g} µT for {timewords.duration(span, '.2f')} ({len(rows)} samples,"
+               f" {timewords.stretch(t[rows[0]], t[rows[-1]], '.2f')}) while the other axes moved {ev['others_moved_ut']:.3g} µT;"
                f" the fitted surface misses those samples by {ev['rms_residual_ut']:.3g} µT RMS,"
                f" {ev['over_scatter']:.1f}× the recording's scatter; set aside")
     where = {"time_s": [[float(t[rows[0]]), float(t[rows[-1]])]], "axis": AXES[a]}
@@ -403,7 +404,7 @@ def _swap_holds(ev: dict) -> bool:
 def _swap_found(t, rows, name, perm, signs, a0, at, sigma, rms_around, stretch=None) -> Located:
     span = [float(t[rows[0]]), float(t[rows[-1]])]
     rms0, rmst = float(np.sqrt(np.mean(a0 ** 2))), float(np.sqrt(np.mean(at ** 2)))
-    summary = (f"{len(rows)} samples ({span[0]:.2f}–{span[1]:.2f} s) fit the surface of the rest of the recording"
+    summary = (f"{len(rows)} samples ({timewords.stretch(*span, '.2f')}) fit the surface of the rest of the recording"
                f" read as {name} ({rmst:.3g} µT RMS) but not as recorded ({rms0:.3g} µT RMS,"
                f" {rms0 / sigma:.1f}× the recording's scatter): axes swapped or flipped; set aside")
     evidence = {"rms_as_read_ut": rms0, "rms_as_transformed_ut": rmst, "scatter_ut": sigma, "rms_around_ut": rms_around}
@@ -412,7 +413,7 @@ def _swap_found(t, rows, name, perm, signs, a0, at, sigma, rms_around, stretch=N
     if stretch is not None and stretch.view is swap_evidence.View.EDGES:
         evidence |= {"jumps_ut": list(stretch.jumps), "typical_step_ut": stretch.typical_step}
         summary = (f"the readings jump by {stretch.jumps[0]:.3g} and {stretch.jumps[1]:.3g} µT into and out of"
-                   f" {len(rows)} samples ({span[0]:.2f}–{span[1]:.2f} s), against a typical step of"
+                   f" {len(rows)} samples ({timewords.stretch(*span, '.2f')}), against a typical step of"
                    f" {stretch.typical_step:.3g} µT there; read as {name} both ends are ordinary steps"
                    f" ({stretch.evidence:.0f} nats of evidence): axes swapped or flipped; set aside")
     axes = [AXES[i] for i in range(3) if perm[i] != i or signs[i] < 0]

@@ -42,6 +42,7 @@ import numpy as np
 from scipy import optimize
 
 from ...fit import tails
+from .. import timewords
 from ..channels import TIME, usable
 from .base import AXES, REST, Effect, Kind, Located, Residual
 from .line_spectrum import ALPHA, GAP, HALF_WINDOW, PAD, Spectrum, sample_interval_s, spectrum
@@ -424,7 +425,7 @@ def located(line: Line, res: Residual, threshold: float, set_aside_hz: list, bey
     axes = loaded_axes(amp, amp_sd)
     direction, ellipticity = major_direction(coef)
     f_sd = np.sqrt(12.0 / max(line.stat, 1e-12)) / (2 * np.pi * span)
-    mains = mains_alias(line.frequency_hz, rate)
+    mains = mains_alias(line.frequency_hz, rate) if timewords.clocked() else None  # no mains without seconds
     size = float(np.linalg.norm(amp))
     where = {"frequency_hz": line.frequency_hz, "axis": axes[0] if len(axes) == 1 else axes,
              "direction": direction.tolist()}
@@ -438,7 +439,7 @@ def located(line: Line, res: Residual, threshold: float, set_aside_hz: list, bey
                 "next_candidate_beyond_max_lines_hz": beyond_cap_hz}
     summary = _summary(line, f_sd, amp, axes, size / res.floor_ut, mains, rate, set_aside_hz)
     if beyond_cap_hz is not None:
-        summary += (f"; the search stops at {MAX_LINES} lines and a candidate at {beyond_cap_hz:.3f} Hz still stands above "
+        summary += (f"; the search stops at {MAX_LINES} lines and a candidate at {timewords.frequency(beyond_cap_hz)} still stands above "
                     "the threshold: more lines may remain")
     return Located(NAME, Kind.PHYSICS, summary, where, params, evidence)
 
@@ -446,14 +447,14 @@ def located(line: Line, res: Residual, threshold: float, set_aside_hz: list, bey
 def _summary(line, f_sd, amp, axes, over_floor, mains, rate, set_aside_hz) -> str:
     on = f"the {axes[0]} axis" if len(axes) == 1 else "the " + "/".join(axes) + " axes"
     amps = ", ".join(f"{a:.2f}" for a in amp)
-    s = (f"a narrowband line at {line.frequency_hz:.3f} Hz (±{f_sd:.3f} Hz) on {on}, amplitude ({amps}) µT, "
+    s = (f"a narrowband line at {timewords.frequency(line.frequency_hz)} (±{timewords.frequency(f_sd)}) on {on}, amplitude ({amps}) µT, "
          f"{over_floor:.1f}× the recording's floor and {line.stat / 6:.0f}× the local spectral level")
     if mains:
         which = f"{mains[0]:.0f} Hz mains" if mains[1] == 1 else f"harmonic {mains[1]} of {mains[0]:.0f} Hz mains"
         s += f"; consistent with {which} aliased by the {rate:.1f} Hz sample clock (a hint, not a fact)"
     if set_aside_hz:
         s += ("; set aside as explained by the motion itself (shape misfit or offset wander at its own frequencies, not interference): "
-              + ", ".join(f"{f:.3f}" for f in set_aside_hz) + " Hz")
+              + timewords.frequencies(set_aside_hz))
     return s
 
 
@@ -484,7 +485,7 @@ def channel_structure(set_aside: list, floor_ut: float) -> tuple[Located, ...]:
         mine = sorted((c for c in set_aside if c.channel == name), key=lambda c: c.frequency_hz)
         freqs = [c.frequency_hz for c in mine]
         top = max(c.amplitude_ut for c in mine)
-        summary = (f"structure that follows {name}: lines at " + ", ".join(f"{f:.3f}" for f in freqs) + " Hz (up to "
+        summary = (f"structure that follows {name}: lines at " + timewords.frequencies(freqs) + " (up to "
                    f"{top:.2f} µT, {top / floor_ut:.1f}× the recording's floor) sit where {name}'s own spectrum carries "
                    f"lines, and one direction at one phase — {name} reaching the sensor through a lag — accounts for "
                    f"each: {name}'s effect left in the calibrated residual, not claimed as interference lines")

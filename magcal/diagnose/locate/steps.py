@@ -49,6 +49,7 @@ from ...fit.tails import chi2_isf, chi2_sf
 from . import steps_scan as scan
 from .change_trained import remove_soft_trained, remove_step_trained
 from ..softiron import MAX_GAIN_SIGMA, MIN_UNIQUE
+from ..timewords import duration, instant, stretch
 from .base import REST, Effect, Kind, Located, Residual, noise_and_wander_ut, runs
 
 STEP = "hard_iron_step"
@@ -192,7 +193,7 @@ def _step_located(s: HardIronStep, cal, floor_ut: float) -> Located:
     size = float(np.linalg.norm(d))
     half = max(s.tau_s - s.interval_s[0], s.interval_s[1] - s.tau_s)
     over = size / floor_ut if floor_ut > 0 else float("inf")
-    summary = (f"a hard-iron step of ({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f}) µT at {s.tau_s:.1f} s (±{half:.2f} s), "
+    summary = (f"a hard-iron step of ({d[0]:.2f}, {d[1]:.2f}, {d[2]:.2f}) µT at {instant(s.tau_s)} (±{duration(half, '.2f')}), "
                f"{over:.1f}× the recording's floor")
     return Located(STEP, Kind.PHYSICS, summary, {"time_s": [s.tau_s], "direction": (d / size).tolist()},
                    {"step_ut": d, "step_sigma_ut": sigma, "offset_before_ut": before, "offset_after_ut": before + d,
@@ -410,7 +411,7 @@ def _soft_located(c: ShapeChange, floor_ut: float, field_ut: float) -> Located:
               "gain_change_sigma": c.sigma[:3], "shape_change": c.e, "shape_change_sigma": c.sigma,
               "tested_directions": c.directions.T}
     g = ", ".join(f"{100 * x:+.1f} %" for x in gains)
-    summary = f"the soft iron changed at {c.tau_s:.1f} s (±{half:.1f} s): gains x, y, z by {g}"
+    summary = f"the soft iron changed at {instant(c.tau_s)} (±{duration(half)}): gains x, y, z by {g}"
     if c.tested < 6:
         summary += (f" (tested in the {c.tested} of 6 shape directions the coverage on both sides determines; "
                     "a change in the others cannot be told)")
@@ -469,7 +470,7 @@ def structure(u, t, r, half, floor_ut: float) -> list[Located]:
         level = float(np.sqrt(np.mean(e[inside] ** 2)))
         t0, t1 = float(t[inside][0]), float(t[inside][-1])
         over = level / floor_ut
-        summary = f"unexplained structure remains: {over:.1f}× the noise, at {t0:.1f}–{t1:.1f} s"
+        summary = f"unexplained structure remains: {over:.1f}× the noise, at {stretch(t0, t1)}"
         out.append(Located(REST, Kind.REMAINDER, summary, {"time_s": [[t0, t1]]}, {"rms_ut": level},
                            {"size_over_floor": over, "typical_rms_ut": typical, "size_ut": level}))
     return out
@@ -528,7 +529,7 @@ def _bursts(steps: list[HardIronStep], half: float, floor_ut: float) -> tuple[li
             continue
         t0, t1 = g[0].tau_s, g[-1].tau_s
         over = big / floor_ut
-        summary = (f"unexplained structure remains: {over:.1f}× the noise, at {t0:.1f}–{t1:.1f} s "
+        summary = (f"unexplained structure remains: {over:.1f}× the noise, at {stretch(t0, t1)} "
                    f"(offset jumps that undo each other)")
         rest.append(Located(REST, Kind.REMAINDER, summary, {"time_s": [[t0, t1]]}, {"largest_jump_ut": big},
                             {"size_over_floor": over, "size_ut": big}))

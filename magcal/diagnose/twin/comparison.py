@@ -13,6 +13,7 @@ import numpy as np
 
 from ...core.series import Series
 from ...sim.model import SensorModel
+from .. import timewords
 from . import stats as ts
 from .draw import twin_directions, twin_draw
 from .names import locate, mismatches
@@ -78,6 +79,7 @@ def _num(x):
     return x if np.isfinite(x) else None
 
 
+@timewords.in_recording_time
 def compare(model: SensorModel, series: Series, draws: int = DRAWS, seed: int = 0, step: str = "final",
             free: bool = True) -> StepComparison:
     """The parametric bootstrap of ``model`` against ``series`` (valid samples). A statistic

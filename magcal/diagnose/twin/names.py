@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import timewords
 from . import stats as ts
 
 
@@ -100,7 +101,7 @@ def _where(name: str, located: dict) -> str:
         return f"; directions {direction_words(located['cells_outside'][:6])}"
     if name in _TIME and located.get("windows_s"):
         w = located["windows_s"][:4]
-        return "; time " + ", ".join(f"{a:.0f}–{b:.0f} s" for a, b in w)
+        return "; time " + ", ".join(timewords.stretch(a, b, ".0f") for a, b in w)
     return ""
 
 
@@ -113,7 +114,7 @@ def mismatches(bands, located: dict) -> tuple:
         if b.name.startswith("xcorr:"):
             ch = b.name.split(":", 1)[1]
             lag = located.get("lags", {}).get(ch, 0.0)
-            words = (f"the residual follows {ch} (|r| = {b.real:.2f} at lag {lag:+.2f} s): an offset "
+            words = (f"the residual follows {ch} (|r| = {b.real:.2f} at lag {timewords.duration(lag, '+.2f')}): an offset "
                      f"coupled to it" if b.side == "high" else f"the residual follows {ch} less than modelled")
             out.append(Mismatch(b.name, b.side, ch, words))
             continue

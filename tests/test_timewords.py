@@ -1,0 +1,43 @@
+"""A recording without a clock is said in samples (magcal.diagnose.timewords): its t_s is the
+sample index, so a diagnosis that says "at 1500.0 s" names a unit the recording never had."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from magcal.core.series import Series
+from magcal.diagnose import diagnose, timewords
+from magcal.sim.physics import Motion, Physics, Scenario
+
+SECONDS = re.compile(r"\d s\b|\bHz\b")
+
+
+def test_a_table_without_time_has_its_step_said_at_a_sample_not_a_second():
+    sc = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3),
+                  motion=Motion("sphere", period_s=20.0), seed=5)
+    m = sc.simulate(5000, 50.0).series.field_ut
+    n = len(m)
+    m = m + np.outer(np.arange(n) >= 2000, [3.0, -2.0, 2.0])  # a screwdriver put down at 40 %
+    d = diagnose(Series(t_s=np.arange(n, dtype=float), field_ut=m, clock=False)).to_dict()
+    (step,) = [x for x in d["findings"] if x["effect"] == "hard_iron_step"]
+    assert abs(step["where"]["time_s"][0] - 2000) <= 30
+    assert re.search(r"at sample (19|20)\d\d \(±\d+ samples\)", step["summary"])
+    said = [x["summary"] for x in d["findings"] + d["limits"]]
+    assert not [s for s in said if SECONDS.search(s)]
+
+
+def test_outside_a_diagnosis_and_with_a_clock_times_are_seconds():
+    assert timewords.instant(40.0) == "40.0 s"
+    assert timewords.stretch(10.0, 20.5) == "10.0–20.5 s"
+
+    @timewords.in_recording_time
+    def said(series):
+        return timewords.instant(12.0), timewords.frequency(0.05), timewords.duration(-3.0, "+.2f")
+
+    t = np.arange(10, dtype=float)
+    assert said(Series(t_s=t, field_ut=np.zeros((10, 3)), clock=False)) == (
+        "sample 12", "0.0500 cycles per sample", "-3 samples")
+    assert said(series=Series(t_s=t, field_ut=np.zeros((10, 3)))) == ("12.0 s", "0.050 Hz", "-3.00 s")
+    assert timewords.clocked()
