@@ -23,6 +23,9 @@ RECORDINGS = {
     "hmc5883l_sunsided_full_sphere_every3rd.csv": None,
     "qmc5883l_tomisuarez_every5th_counts.csv": None,
     "phone_simorxb_sensorlogger_uncal.csv": None,
+    "lis3mdl_srp_elevator_test_counts.csv": TableFormat(columns=("mx_counts", "my_counts", "mz_counts"),
+                                                        unit=str(100.0 / 6842.0)),
+    "phone_eth_sensorlogger_walk_uncal_every8th.csv": None,
 }
 
 
