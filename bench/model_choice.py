@@ -143,6 +143,9 @@ def run(recs: dict, splits) -> list[float]:
                   f"{c['ellipsoid']:.3f} | {c['ratio']:.3f} |", flush=True)
     r = np.array(ratios)
     ok = r[np.isfinite(r)]
+    if not len(ok):  # e.g. a take still until its last tenth: every training part refused
+        print(f"\n{len(r)} cells: none scored, auto refused in {len(r)}")
+        return ratios
     print(f"\n{len(r)} cells: worst ratio {ok.max():.3f}, geometric mean {np.exp(np.mean(np.log(ok))):.3f}, "
           f"above 1.02 in {int(np.sum(ok > 1.02))}, auto refused in {int(np.sum(~np.isfinite(r)))}")
     return ratios

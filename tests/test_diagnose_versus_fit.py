@@ -53,11 +53,21 @@ def test_diagnose_is_never_worse_than_fit_on_held_out_blocks(diagnosed):
     assert v.diagnose_rms_ut <= v.fit_rms_ut * (1 + 1e-6), f"{name}: {v}"
 
 
+# the takes whose motion covers too few directions (20–27 %, `magcal fit`) to determine soft iron
+PARTIAL = {"lis3mdl_srp_elevator_test_counts.csv", "phone_eth_sensorlogger_walk_uncal_every8th.csv"}
+
+
 def test_soft_iron_is_kept_on_every_real_excerpt(diagnosed):
     # every one of these sensors has a visibly non-spherical response: the final model must
-    # carry soft iron, whichever of diagnosis or fit it came from
-    _, d = diagnosed
-    assert d.final.spec.soft_iron
+    # carry soft iron, whichever of diagnosis or fit it came from — except on a take whose motion
+    # cannot determine it, where it must not be claimed and a limit must say why
+    name, d = diagnosed
+    if name not in PARTIAL:
+        assert d.final.spec.soft_iron
+        return
+    soft = [x for x in d.to_dict()["limits"] if x["effect"] == "soft_iron"]
+    assert not d.final.spec.soft_iron and len(soft) == 1
+    assert soft[0]["suspected"] and soft[0]["identifiable_directions"] < soft[0]["of_directions"]
 
 
 def test_the_counts_columns_of_the_same_magnetometer_are_left_out_with_the_reason():
