@@ -27,7 +27,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import real_recordings  # noqa: E402
 
 from magcal.diagnose.locate import steps  # noqa: E402
-from magcal.diagnose.locate.base import Kind, Residual  # noqa: E402
+from magcal.diagnose.locate.base import REST, Kind, Residual  # noqa: E402
 from magcal.fit import fit_calibration  # noqa: E402
 from magcal.sim.physics import Motion, Physics, Scenario  # noqa: E402
 
@@ -70,7 +70,7 @@ def inject(kind, t, m, rng, size):
 
 def judge(found, kind, tau, span):
     tol = max(1.0, 0.05 * span)
-    named = [f for f in found if f.effect in (kind, steps.REST)]
+    named = [f for f in found if f.effect in (kind, REST)]
     hit = any(f.effect == kind and abs(f.where["time_s"][0] - tau) <= tol for f in found)
     false = any(f.kind is Kind.PHYSICS and not (f.effect == kind and abs(f.where["time_s"][0] - tau) <= tol)
                 for f in found)

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from magcal.diagnose.locate import Kind, Located, as_limits, judge, steps
-from magcal.diagnose.locate.base import Residual
+from magcal.diagnose.locate import Kind, Located, as_limits, judge, steps, steps_rest
+from magcal.diagnose.locate.base import REST, Residual
 from magcal.diagnose.locate.judge import Verdict
 from magcal.fit import fit_calibration
 from magcal.sim.physics import Motion, Physics, Scenario
@@ -48,7 +48,7 @@ def test_a_shape_change_only_one_side_can_see_is_neither_claimed_nor_the_remaind
     m[after, 2] = centre[2] + 1.10 * (m[after, 2] - centre[2])
     fit = fit_calibration(m, model="ellipsoid")
     found = steps.search(Residual(t, m, fit.calibration, 0.3, float(fit.rms_ut)))
-    assert [f.effect for f in found if f.effect in (steps.SOFT, steps.REST)] == [], [f.summary for f in found]
+    assert [f.effect for f in found if f.effect in (steps.SOFT, REST)] == [], [f.summary for f in found]
     assert as_limits(found) == ()
 
 
@@ -128,6 +128,6 @@ def test_offset_jumps_that_undo_each_other_are_sized_against_a_measured_floor_or
     z = np.zeros(3)
     pair = [steps.HardIronStep(10.0, (9.9, 10.1), np.array([3.0, 0, 0]), np.eye(3) * 0.01, z, 50.0, 20.0),
             steps.HardIronStep(11.0, (10.9, 11.1), np.array([-2.9, 0, 0]), np.eye(3) * 0.01, z, 50.0, 20.0)]
-    kept, (rest,) = steps._bursts(pair, 3.0, 0.1)
+    kept, (rest,) = steps_rest.bursts(pair, 3.0, 0.1)
     assert kept == [] and rest.effect == "unexplained_structure" and rest.where["time_s"] == [[10.0, 11.0]]
-    assert steps._bursts(pair, 3.0, float("nan")) == ([], [])
+    assert steps_rest.bursts(pair, 3.0, float("nan")) == ([], [])

@@ -12,7 +12,7 @@ import pytest
 from magcal.app.load import load_series
 from magcal.diagnose.locate import steps
 from magcal.diagnose.locate import steps_scan as scan
-from magcal.diagnose.locate.base import Kind, Residual
+from magcal.diagnose.locate.base import REST, Kind, Residual
 from magcal.fit import fit_calibration
 from magcal.sim.physics import Motion, Physics, Scenario
 
@@ -116,7 +116,7 @@ def test_a_misbehaving_stretch_is_the_remainder_located_in_time():
     burst[sel] += np.random.default_rng(1).standard_normal((sel.sum(), 3)) * 5 * _floor(m)
     found = _search(t, burst)
     assert _claims(found) == []
-    rest = [f for f in found if f.effect == steps.REST]
+    rest = [f for f in found if f.effect == REST]
     assert len(rest) == 1 and rest[0].kind is Kind.REMAINDER
     t0, t1 = rest[0].where["time_s"][0]
     assert abs(t0 - 30) <= 1.0 and abs(t1 - 34) <= 1.0 and "× the noise" in rest[0].summary

@@ -14,16 +14,24 @@ from magcal.sim.physics import Motion, Physics, Scenario
 SECONDS = re.compile(r"\d s\b|\bHz\b")
 
 
-def test_a_table_without_time_has_its_step_said_at_a_sample_not_a_second():
+def test_a_table_without_time_has_its_step_found_as_with_a_clock_and_said_at_a_sample():
+    # the same 60 s at 50 Hz, once with its times and once as a bare table of x, y, z: the step
+    # search's windows in seconds must not shrink to a few samples when the clock is missing
     sc = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3),
                   motion=Motion("sphere", period_s=20.0), seed=5)
-    m = sc.simulate(5000, 50.0).series.field_ut
-    n = len(m)
-    m = m + np.outer(np.arange(n) >= 2000, [3.0, -2.0, 2.0])  # a screwdriver put down at 40 %
-    d = diagnose(Series(t_s=np.arange(n, dtype=float), field_ut=m, clock=False)).to_dict()
-    (step,) = [x for x in d["findings"] if x["effect"] == "hard_iron_step"]
-    assert abs(step["where"]["time_s"][0] - 2000) <= 30
-    assert re.search(r"at sample (19|20)\d\d \(±\d+ samples\)", step["summary"])
+    run = sc.simulate(3000, 50.0).series
+    n = len(run.t_s)
+    m = run.field_ut + np.outer(np.arange(n) >= 1500, [3.0, -2.0, 2.0])  # a screwdriver put down half way
+    steps = []
+    for t, clock in ((run.t_s, True), (np.arange(n, dtype=float), False)):
+        d = diagnose(Series(t_s=t, field_ut=m, clock=clock)).to_dict()
+        (step,) = [x for x in d["findings"] if x["effect"] == "hard_iron_step"]
+        steps.append(step)
+    timed, bare = steps
+    assert abs(bare["where"]["time_s"][0] - 1500) <= 10
+    assert np.allclose(bare["params"]["step_ut"], timed["params"]["step_ut"], atol=0.1)
+    assert re.search(r"at sample 1[45]\d\d \(±\d+ samples\)", bare["summary"])
+    assert re.search(r"at [23]\d\.\d s \(±", timed["summary"])
     said = [x["summary"] for x in d["findings"] + d["limits"]]
     assert not [s for s in said if SECONDS.search(s)]
 

@@ -143,7 +143,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
     m_kept, t_kept, chans_kept = analysed.kept
     step("locate")
     found = locate_step.locate_and_model(m_kept, t_kept, analysed.logged_kept, chosen.model, chosen.fit_model,
-                                         noise_ut, locate.EFFECTS, chosen.known)
+                                         noise_ut, locate.EFFECTS, chosen.known, series.clock)
     found = replace(found, found=analysed.screened + found.found)
     step("compare_with_simulation")
     simulated = compare_with_simulation(final, m_kept, chans_kept, noise_ut)

@@ -56,6 +56,7 @@ class Residual:
     noise_ut: float
     floor_ut: float
     channels: Mapping[str, np.ndarray] = field(default_factory=dict)
+    clock: bool = True  # False: t_s is the sample index (Series.clock), and seconds mean nothing
 
     # computed once and read-only: every locator reads them
     @cached_property

@@ -314,7 +314,7 @@ def whole(res: Residual) -> Residual:
         return res
     shift = cal.channel_offset_ut(res.channels, len(res)).mean(axis=0)
     bare = replace(cal, offset_ut=cal.offset_ut + shift, coef_ut_per_unit={}, reference={})
-    return Residual(res.t_s, res.m_ut, bare, res.noise_ut, res.floor_ut, res.channels)
+    return replace(res, calibration=bare)
 
 
 def own_term(x: Located, cal) -> bool:
@@ -401,7 +401,7 @@ def relinearized(res: Residual, fr: cs.Frame, pick: cs.Pick, fams: list[cs.Famil
     if isinstance(fit, FitFailure):
         return first, fr.with_r(fr.r - cs.term(fr, pick.fam, pick.j))
     cal2 = fit.calibration
-    res2 = Residual(res.t_s, res.m_ut, cal2, res.noise_ut, res.floor_ut, res.channels)
+    res2 = replace(res, calibration=cal2)
     fr2 = cs.frame(res2.r_ut, res2.u, np.asarray(cal2.soft_iron), cal2.field_ut, fr.rows, np.asarray(res.t_s, np.float64))
     same = [f for f in fams if f.channel == pick.fam.channel]
     again = best(fr2, same)

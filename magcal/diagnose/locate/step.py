@@ -82,15 +82,16 @@ def search(res: Residual, effects: tuple[Effect, ...]) -> tuple[Located, ...]:
 
 
 def locate_and_model(m_ut, t_s, chans: dict, final: ModelFit, fit_model_name: str, noise_ut: float,
-                     effects: tuple[Effect, ...], known: tuple = ()) -> LocateStep:
+                     effects: tuple[Effect, ...], known: tuple = (), clock: bool = True) -> LocateStep:
     """See the module docstring. ``m_ut``/``t_s``/``chans`` the analysed samples that are not
     glitches (time order; ``chans`` the logged channels), ``final`` the model the diagnosis
     returns and ``fit_model_name`` the shape magcal fit chose for it; ``known``: fit's runs the
-    diagnosis already made, as ``judge.fitted`` takes them."""
+    diagnosis already made, as ``judge.fitted`` takes them; ``clock`` false where t_s is the
+    sample index (``Series.clock``)."""
     cal = final.calibration()
     shift = cal.channel_offset_ut(chans, len(m_ut))
     floor = floor_of(m_ut - shift, known)
-    res = Residual(t_s, m_ut, cal, noise_ut, floor, chans)
+    res = Residual(t_s, m_ut, cal, noise_ut, floor, chans, clock)
     found = search(res, effects)
     if not any(f.kind is Kind.PHYSICS for f in found):
         return LocateStep(found, (), None, floor)

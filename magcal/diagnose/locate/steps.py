@@ -22,8 +22,8 @@
   A shape that seems to change only along directions one side leaves free is that side's own
   misfit, not evidence of a change, and nothing is said of it.
 - ``unexplained_structure``: a stretch whose residual RMS (after the wander and any found step)
-  is ``STRUCTURE_OVER_TYPICAL`` times the recording's typical window and above its floor,
-  explained by no step — returned as the honest remainder, with its size over the floor.
+  stands far above the recording's typical window and its floor, explained by no step, and
+  steps that undo each other — the honest remainder (magcal.diagnose.locate.steps_rest).
 
 Limits (measured with bench/locate_steps.py): the local test sees a step through the jump of
 r at τ, which is u(τ)·(Wδ) — a step across the direction the board points at that moment shows
@@ -46,11 +46,12 @@ import numpy as np
 
 from ...fit import fit_calibration
 from ...fit.tails import chi2_isf, chi2_sf
+from . import steps_rest as rest_of
 from . import steps_scan as scan
 from .change_trained import remove_soft_trained, remove_step_trained
 from ..softiron import MAX_GAIN_SIGMA, MIN_UNIQUE
-from ..timewords import duration, instant, stretch
-from .base import REST, Effect, Kind, Located, Residual, noise_and_wander_ut, runs
+from ..timewords import duration, instant
+from .base import Effect, Kind, Located, Residual, noise_and_wander_ut
 
 STEP = "hard_iron_step"
 SOFT = "soft_iron_change"
@@ -70,10 +71,6 @@ SOFT_KNOT_SHARE = 0.25  # the offset may wander piecewise-linearly with knots th
 STEP_OR_SHAPE_ALPHA = 0.05  # level of the two nested tests that tell a found step from a change of shape at its time
 SOFT_MAX_N = 3000  # samples the soft-iron scan uses (evenly thinned)
 SHAPE_SIGMA_MAX = MAX_GAIN_SIGMA  # 1σ of a shape direction (relative gain) a side's coverage must reach
-BURST_NET = 0.5
-STRUCTURE_OVER_TYPICAL = 3.0
-STRUCTURE_OVER_FLOOR = 2.0
-STRUCTURE_WINDOW_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -90,11 +87,13 @@ class HardIronStep:
     threshold: float
 
 
-def half_window_s(t_s: np.ndarray) -> float:
-    """The local window's half-width for this recording's span."""
+def half_window_s(t_s: np.ndarray, clock: bool = True) -> float:
+    """The local window's half-width for this recording's span; without a clock (t_s the sample
+    index) bounds in seconds mean nothing, and the share of the span alone sets it."""
     span = float(t_s[-1] - t_s[0])
     dt = float(np.median(np.diff(t_s)))
-    return float(max(np.clip(span * HALF_SHARE, *HALF_RANGE_S), 4 * MIN_SIDE * dt))
+    share = np.clip(span * HALF_SHARE, *HALF_RANGE_S) if clock else span * HALF_SHARE
+    return float(max(share, 4 * MIN_SIDE * dt))
 
 
 def _check(res: Residual) -> None:
@@ -449,44 +448,6 @@ def remove_offset_change(m_ut, t_s, channels, located: Located) -> np.ndarray:
     return out
 
 
-# -- the remainder --------------------------------------------------------------------------
-
-
-def structure(u, t, r, half, floor_ut: float) -> list[Located]:
-    """Stretches whose RMS residual (after the wander) stands far above the recording's typical
-    window and its floor, explained by no step."""
-    x = scan.wander_columns(u, t, half)
-    e = r - x @ scan.lsq(x, r).coef
-    edges = np.arange(t[0], t[-1] + STRUCTURE_WINDOW_S, STRUCTURE_WINDOW_S)
-    cell = np.clip(np.searchsorted(edges, t, "right") - 1, 0, len(edges) - 1)
-    n = np.bincount(cell, minlength=len(edges))
-    ms = np.bincount(cell, e * e, minlength=len(edges)) / np.maximum(n, 1)
-    rms = np.sqrt(ms)
-    typical = float(np.median(rms[n >= 5])) if np.any(n >= 5) else 0.0
-    bad = (n >= 5) & (rms > STRUCTURE_OVER_TYPICAL * typical) & (rms > STRUCTURE_OVER_FLOOR * floor_ut)
-    out = []
-    for a, b in _merged(runs(bad), int(np.ceil(half / STRUCTURE_WINDOW_S))):
-        inside = (cell >= a) & (cell < b) & bad[cell]
-        level = float(np.sqrt(np.mean(e[inside] ** 2)))
-        t0, t1 = float(t[inside][0]), float(t[inside][-1])
-        over = level / floor_ut
-        summary = f"unexplained structure remains: {over:.1f}× the noise, at {stretch(t0, t1)}"
-        out.append(Located(REST, Kind.REMAINDER, summary, {"time_s": [[t0, t1]]}, {"rms_ut": level},
-                           {"size_over_floor": over, "typical_rms_ut": typical, "size_ut": level}))
-    return out
-
-
-def _merged(spans: list[tuple[int, int]], gap: int) -> list[tuple[int, int]]:
-    """Runs closer than ``gap`` windows joined: one misbehaving stretch, not a list of its pieces."""
-    out: list[tuple[int, int]] = []
-    for a, b in spans:
-        if out and a - out[-1][1] <= gap:
-            out[-1] = (out[-1][0], b)
-        else:
-            out.append((a, b))
-    return out
-
-
 # -- the search -----------------------------------------------------------------------------
 
 
@@ -504,36 +465,6 @@ def _all_steps(u, t, r, shape_cols, half, f2) -> tuple[list[HardIronStep], np.nd
     if steps:
         steps, rest = find_steps(u, t, _shape_corrected(u, t, r, shape_cols, half, steps), half, f2)
     return steps, rest
-
-
-def _bursts(steps: list[HardIronStep], half: float, floor_ut: float) -> tuple[list[HardIronStep], list[Located]]:
-    """Steps that come in a cluster (each within 2 windows of the next) and mostly undo each
-    other (their sum under ``BURST_NET`` of the largest) are not a part put down: the data
-    misbehave there for a while. Those are returned as the remainder, located in time — where
-    the recording's floor was measured: a window no ellipsoid fits has no floor to size them
-    against (its steps, likewise, are not claimed), and a jump "inf× the noise" says nothing."""
-    groups: list[list[HardIronStep]] = []
-    for s in steps:
-        if groups and s.tau_s - groups[-1][-1].tau_s <= 2 * half:
-            groups[-1].append(s)
-        else:
-            groups.append([s])
-    keep, rest = [], []
-    for g in groups:
-        net = np.linalg.norm(sum(s.d_h for s in g))
-        big = max(np.linalg.norm(s.d_h) for s in g)
-        if len(g) < 2 or net >= BURST_NET * big:
-            keep += g
-            continue
-        if not floor_ut > 0:
-            continue
-        t0, t1 = g[0].tau_s, g[-1].tau_s
-        over = big / floor_ut
-        summary = (f"unexplained structure remains: {over:.1f}× the noise, at {stretch(t0, t1)} "
-                   f"(offset jumps that undo each other)")
-        rest.append(Located(REST, Kind.REMAINDER, summary, {"time_s": [[t0, t1]]}, {"largest_jump_ut": big},
-                            {"size_over_floor": over, "size_ut": big}))
-    return keep, rest
 
 
 def _big(c: ShapeChange, field_ut: float, floor_ut: float) -> bool:
@@ -574,7 +505,7 @@ def search(res: Residual) -> tuple[Located, ...]:
     u, r = res.u, res.r_ut
     if float(t[-1] - t[0]) < 4 * HALF_RANGE_S[0]:
         return ()
-    half = half_window_s(t)
+    half = half_window_s(t, res.clock)
     cal, floor = res.calibration, float(res.floor_ut)
     q = scan.quad(u, cal.field_ut)
     x = np.hstack([scan.wander_columns(u, t, half), q])
@@ -588,10 +519,10 @@ def search(res: Residual) -> tuple[Located, ...]:
         steps, rest = _all_steps(u, t, r, np.hstack([q, q * (t >= shape.tau_s)[:, None]]), half, f2)
         steps = [s for s in steps if abs(s.tau_s - shape.tau_s) > half]
     steps = measure(u, t, r, q, f2, steps) if steps else steps
-    steps, bursts = _bursts(steps, half, floor)
+    steps, bursts = rest_of.bursts(steps, half, floor)
     steps = [s for s in steps if np.linalg.norm(np.linalg.solve(cal.soft_iron, s.d_h)) >= STEP_MIN_OVER_FLOOR * floor]
     found += [_step_located(s, cal, floor) for s in steps] + bursts
-    return tuple(found) + tuple(structure(u, t, rest, half, floor))
+    return tuple(found) + tuple(rest_of.structure(u, t, rest, half, floor, rest_of.structure_window(half, res.clock)))
 
 
 EFFECTS: tuple[Effect, ...] = (
