@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 
@@ -68,6 +69,18 @@ def test_soft_iron_is_kept_on_every_real_excerpt(diagnosed):
     soft = [x for x in d.to_dict()["limits"] if x["effect"] == "soft_iron"]
     assert not d.final.spec.soft_iron and len(soft) == 1
     assert soft[0]["suspected"] and soft[0]["identifiable_directions"] < soft[0]["of_directions"]
+
+
+def test_the_wander_names_beside_it_only_what_the_diagnosis_states(diagnosed):
+    # a step the held-out blocks set aside (part of the wander itself) is in the JSON's located
+    # only: the offset wander's statement must not point the user at something said nowhere
+    name, d = diagnosed
+    out = d.to_dict()
+    stated = {x["effect"] for x in out["findings"] + out["limits"]}
+    stated |= {x.get("resembles") for x in out["limits"]}
+    for w in (x for x in out["limits"] if x["effect"] == "offset_wander"):
+        named = re.search(r"beside what was located \(([^)]*)\)", w["summary"])
+        assert named is None or set(named.group(1).split(", ")) <= stated, f"{name}: {w['summary']}"
 
 
 def test_the_counts_columns_of_the_same_magnetometer_are_left_out_with_the_reason():

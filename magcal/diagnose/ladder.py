@@ -173,7 +173,7 @@ def diagnose(series: Series, alpha: float = ALPHA, folds: int = FOLDS, screen: b
         limits=statements.left_out(left_out) + tuple(r.limit() for r in refused)
         + locate.as_limits(found.found, found.verdicts)
         + statements.limits(analysed, selected, final, simulated, wander, alpha=alpha,
-                            located=tuple(x.effect for x in found.found))
+                            located=locate.said(found.found, found.verdicts))
         + jump_limit(wander.jump, found.floor_ut, found.found)
         + chosen.limits,
         floors={c: f.to_dict() for c, f in floors.items()},

@@ -72,6 +72,15 @@ def as_limits(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[Limit, 
     return tuple(out)
 
 
+def said(found: tuple[Located, ...], verdicts: tuple = ()) -> tuple[str, ...]:
+    """The effects of what was located that the diagnosis states, as a finding or as the
+    remainder (what it resembles). A located effect the held-out blocks set aside — worse with
+    it, or within the noise and slow wander — is stated nowhere but the JSON's ``located``: it is
+    part of the offset's wander, not something beside it."""
+    return (tuple(f.effect for f in as_findings(found, verdicts))
+            + tuple(x.details.get("resembles", x.effect) for x in as_limits(found, verdicts)))
+
+
 def _remainder(x: Located, summary: str, extra: dict) -> Limit:
     d = x.to_dict()
     return Limit(REST, True, summary, details={"params": d["params"], **extra}, where=d["where"])
