@@ -52,8 +52,10 @@ Cut in two, such a recording gives halves further apart than any of those σ: on
 recordings the misses were where the halves saw other shares of the six faces (a flight log's
 halves 62 % apart in their face shares, a 324-sample hand turn's 30 %, an RM3100 hand turn's
 21 % where the faces' jackknife had widened nothing). So each σ is also at least what a delete-a-block jackknife
-over ``TIME_BLOCKS`` contiguous time blocks says (linearised at the fit, as the faces' one is):
-the spread of the answers the fit would have given with each eighth of the recording missing.
+over ``TIME_BLOCKS`` contiguous time blocks says: the spread of the answers the fit gives,
+made again, with each eighth of the recording missing (refitted, not linearised as the faces'
+jackknife is: on a cap of directions one eighth moved a sphere's centre ten times a
+Gauss–Newton step's estimate, and the linearised σ left the halves' change uncovered).
 It carries wander, correlation longer than the sandwich's blocks and coverage that arrives in
 one stretch, all at once; where the rest of the recording hardly pins a parameter without one
 block, it says so by a wide σ. Its variance has K − 1 = 7 degrees of freedom, so it is stated
@@ -66,6 +68,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import geometric
+from .failure import FitFailure
 from .tails import chi2_isf, t_isf
 
 # 1σ of a sensor's log axis gain about the mean of its three (trace-free); the open real
@@ -267,17 +270,21 @@ def _widened_by_directions(cov: np.ndarray, fit: geometric.GeometricFit, weights
     return cov * np.outer(r, r), float(np.max(r[:3])), dof
 
 
-def time_block_covariance(jac: np.ndarray, residual_ut: np.ndarray, weights=None,
+def time_block_covariance(fit: geometric.GeometricFit, weights=None,
                           n_blocks: int = TIME_BLOCKS) -> tuple[np.ndarray, int] | None:
     """(the delete-a-block jackknife's covariance of θ over ``n_blocks`` contiguous blocks of the
     time-ordered samples, the number of blocks it used); None where there are too few samples
     for at least three blocks of as many samples as parameters.
 
-    Linearised at the fit: leaving block k out moves θ by (A − A_k)⁻¹ J_kᵀW_k e_k (A = JᵀWJ), and
-    the jackknife is (K − 1)/K Σ of the moves' outer products about their mean. Where the rest
-    does not pin θ without block k the move is the pseudo-inverse's, large: the answer rests on
-    that stretch."""
-    e = np.asarray(residual_ut, np.float64)
+    Each block's move is the refit's: the fit made again from θ without the block, θ₋ₖ − θ. A
+    move linearised at the fit, (A − A_k)⁻¹ J_kᵀW_k e_k (A = JᵀWJ), is one Gauss–Newton step and
+    holds where the objective is quadratic over the move; on a cap of directions the centre trades
+    with the radius far from quadratically, and there the step fell short many times (a phone's
+    half, leaving out one eighth, moved its z offset 37 µT; the step said 4). Where a refit does
+    not converge the linearised move stands in — the pseudo-inverse's, large where the rest does
+    not pin θ without the block: the answer rests on that stretch."""
+    e = np.asarray(fit.residual_ut, np.float64)
+    jac = fit.jac
     n, p = jac.shape
     k = min(int(n_blocks), n // max(p, 1))
     if k < 3:
@@ -289,6 +296,12 @@ def time_block_covariance(jac: np.ndarray, residual_ut: np.ndarray, weights=None
     a_out = np.stack([a - jac[i:j].T @ wj[i:j] for i, j in zip(edges[:-1], edges[1:])])
     g = np.stack([wj[i:j].T @ e[i:j] for i, j in zip(edges[:-1], edges[1:])])
     moves = (np.linalg.pinv(a_out, rcond=1e-15, hermitian=True) @ g[..., None])[..., 0]
+    samples = fit.at[1].T
+    for b, (i, j) in enumerate(zip(edges[:-1], edges[1:])):
+        keep = np.r_[0:i, j:n]
+        refit = geometric.solve(samples[keep], fit.kind, fit.theta, weights=None if weights is None else w[keep])
+        if not isinstance(refit, FitFailure):
+            moves[b] = refit.theta - fit.theta
     d = moves - moves.mean(axis=0)
     return d.T @ d * (k - 1.0) / k, k
 
@@ -297,7 +310,7 @@ def _widened_by_time_blocks(cov: np.ndarray, fit: geometric.GeometricFit, weight
     """(cov with each parameter's σ raised to the time-block jackknife's, stated for Student's t
     with its K − 1 degrees of freedom, where that is larger — correlations kept; the largest
     widening of the offset's σ)."""
-    jack = time_block_covariance(fit.jac, fit.residual_ut, weights)
+    jack = time_block_covariance(fit, weights)
     if jack is None:
         return cov, 1.0
     t = float(few_dof_factor(np.array([jack[1] - 1.0]))[0])
