@@ -125,7 +125,8 @@ def cell(train, test) -> dict:
            "model": auto.model if auto else f"refused ({auto.reason})",
            "sphere": spread_pct(test, sph.calibration) if sph else float("nan"),
            "ellipsoid": spread_pct(test, ell.calibration) if ell and ell.model == "ellipsoid" else float("nan")}
-    out["best"] = float(np.nanmin([out["sphere"], out["ellipsoid"]]))
+    plain = [v for v in (out["sphere"], out["ellipsoid"]) if np.isfinite(v)]
+    out["best"] = min(plain) if plain else float("nan")  # neither plain fit possible: nothing to compare
     out["ratio"] = out["auto"] / out["best"]
     return out
 
