@@ -9,7 +9,7 @@ import pytest
 from magcal.diagnose import statements
 from magcal.diagnose.claims import Refused
 from magcal.diagnose.hygiene import LeftOut
-from magcal.diagnose.ladder import HeldOut, never_worse
+from magcal.diagnose.heldout import HeldOut, never_worse
 from magcal.diagnose.limits import Limit
 from magcal.diagnose.model import ModelFit, Spec
 

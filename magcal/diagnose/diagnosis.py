@@ -15,7 +15,7 @@ from .model import ModelFit
 
 
 class CalibrationSource(str, Enum):
-    """Where the calibration a diagnosis returns came from (ladder.choose_calibration); its
+    """Where the calibration a diagnosis returns came from (heldout.choose_calibration); its
     value is the JSON's ``final.from`` (with ``+located`` where the locate step changed it)."""
 
     FIT = "fit"  # magcal fit --model auto's own
@@ -76,7 +76,7 @@ class Diagnosis:
     floors: dict = field(default_factory=dict)  # channel → the size a term of it must reach to be reported
     fit_heldout_rms_ut: float = float("nan")  # magcal fit --model auto's model on the same held-out blocks
     diagnosis_model: ModelFit | None = field(default=None, repr=False)  # diagnosis's own least-squares model
-    calibration_from: CalibrationSource = CalibrationSource.DIAGNOSE  # see ladder.choose_calibration
+    calibration_from: CalibrationSource = CalibrationSource.DIAGNOSE  # see heldout.choose_calibration
     calibration_located: bool = False  # effects the locate step modelled changed it
     located: object = field(default=None, repr=False)  # the locate step (magcal.diagnose.locate.step.LocateStep)
 

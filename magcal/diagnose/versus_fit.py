@@ -6,7 +6,7 @@ both procedures are refitted on the other blocks and judged on it:
 * ``fit``: ``fit_calibration(model="auto")`` on the training samples, as the command runs it
   (its own outlier removal, model choice by BIC and direction balance);
 * ``diagnose``: the calibration refitted on the training samples the way ``diagnose`` made it
-  for the whole recording (magcal.diagnose.ladder.choose_calibration): fit's own when that is
+  for the whole recording (magcal.diagnose.heldout.choose_calibration): fit's own when that is
   what it returned (then both sides are the same); fit's, on the samples with the channel terms
   taken out, plus those terms (least squares) when it added channel terms; its own model shape
   by least squares when fit found none.
