@@ -101,6 +101,16 @@ class Design:
         return {g: c for g, c in self.groups.items() if g in self.candidates and self.candidates[g].channel != channels.TIME}
 
 
+def misfit_left(dsg: Design) -> np.ndarray:
+    """(n,) the residual's part along the soft-iron directions the tests leave out (``rest``),
+    fitted beside every candidate: fixed by the recording's geometry, in every test's residual
+    and in none of the twin's draws, which are learned with it fitted."""
+    if not dsg.rest.shape[1]:
+        return np.zeros(len(dsg.residual_ut))
+    gamma = np.linalg.lstsq(dsg.x_candidates, dsg.residual_ut, rcond=None)[0]
+    return dsg.rest @ gamma[dsg.x_candidates.shape[1] - dsg.rest.shape[1]:]
+
+
 def column_basis(x: np.ndarray) -> np.ndarray:
     """An orthonormal basis (n, rank) of x's column space (columns scaled to unit norm first; a
     column dependent on the others to 1e-10 adds nothing)."""
@@ -130,8 +140,8 @@ def build(m: np.ndarray, t: np.ndarray, chans: dict, ref: ModelFit, candidates: 
     directions, so that on a band or any non-uniform coverage they cannot soak up soft iron.
 
     The channel terms are linearised where the reference was fitted: at ``at_channels``
-    (channel → µT per unit, the offsets fitted jointly with the reference,
-    ladder.with_channel_offsets; 0 for a channel not in it), and taken back out to first order
+    (channel → µT per unit, the offsets fitted beside the reference's hard iron and a full soft
+    iron, ladder.with_channel_offsets; 0 for a channel not in it), and taken back out to first order
     as soft iron is, so every test is still of the term being zero. Linearised at zero, an
     offset δ that a channel switches on leaves its second-order part in the residual,
     (|δ|² − (u·δ)²)/2R while it is on: a quadratic form of the direction, soft iron's own

@@ -242,7 +242,7 @@ def fit_reference(a: Analysed, base: ModelFit) -> tuple[ModelFit, dict]:
     the data determine (softiron.determined_directions), fitted on the kept samples with the
     logged channels' offsets taken out (``without_channel_offsets``); the sphere when the
     motion determines none or the ellipsoid cannot be fitted. With it, the logged channels'
-    offset coefficients (µT per unit) fitted jointly with it (``with_channel_offsets``): the
+    offset coefficients (µT per unit) fitted beside a full soft iron (``with_channel_offsets``): the
     point, with the reference, where the candidate design is linearised (design.build)."""
     m_kept, sphere = without_channel_offsets(a, base)
     dirs = softiron.determined_directions(m_kept, sphere.offset_ut, sphere.rms_ut)
@@ -256,24 +256,24 @@ def fit_reference(a: Analysed, base: ModelFit) -> tuple[ModelFit, dict]:
 
 
 def with_channel_offsets(a: Analysed, ref: ModelFit, sphere: ModelFit) -> tuple[ModelFit, dict]:
-    """The reference and the logged channels' offsets fitted together on the kept samples,
-    from the reference with no channel term: (the geometry, channel → µT per unit). The
-    sphere's own estimates of those offsets carry whatever a sphere leaves of the soft iron
-    that follows the motion (a real HMC5883L's 2.4 µT sphere misfit made a 0.15 µT/A current
-    1.2 µT/A there), good enough to keep the soft-iron fit out of the offset–gain valley but
-    not as the point to linearise at. The reference as it is, with no offsets, when there are
-    no logged channels or the joint fit fails."""
+    """The reference, and the logged channels' offsets fitted on the kept samples beside hard
+    iron, radius and soft iron along all five directions, from the reference: (the reference,
+    channel → µT per unit). The sphere's own estimates of those offsets carry whatever a sphere
+    leaves of the soft iron that follows the motion (a real HMC5883L's 2.4 µT sphere misfit
+    made a 0.15 µT/A current 1.2 µT/A there); fitted beside the reference's soft iron alone
+    (the directions the data determine), they still take up the soft iron along the others: on
+    a twin of the tomisuarez noisy take (two directions determined, gains 0.68–1.50) it leaves
+    1.1 µT of misfit with no noise at all, and that fit handed a null channel and a current,
+    neither in the draw, (−2.9, 0.0, −2.7) and (2.9, −0.4, 0.7) µT per unit. The reference as
+    it is, with no offsets, when there are no logged channels or the joint fit fails."""
     if not sphere.spec.channels:
         return ref, {}
     m_kept, _, chans = a.kept
-    spec = replace(ref.spec, channels=sphere.spec.channels)
+    spec = replace(ref.spec, channels=sphere.spec.channels, soft_dirs=None)
     joint = fit_model(m_kept, chans, spec, sphere.reference, start=ref)
     if isinstance(joint, FitFailure):
         return ref, {}
-    k = 4 + spec.n_soft
-    cov = None if joint.cov is None else joint.cov[:k, :k]
-    geometry = ModelFit(ref.spec, joint.params[:k].copy(), {}, joint.rms_ut, joint.n, joint.iterations, cov)
-    return geometry, joint.coef_ut_per_unit
+    return ref, joint.coef_ut_per_unit
 
 
 def without_channel_offsets(a: Analysed, base: ModelFit) -> tuple[np.ndarray, ModelFit]:
@@ -351,7 +351,11 @@ def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
     """The recording's twin, learned from the residual with every candidate fitted
     (design.Design.x_candidates: every column of the design but the wander, and soft iron along
     the directions the tests leave out), around the full candidate model, and its draws with no
-    candidate term (magcal.diagnose.null)."""
+    candidate term (magcal.diagnose.null), each with the residual's part along those left-out
+    directions added (design.misfit_left): fixed by the recording's geometry, it is in every
+    test's residual, so a channel that lines up with it does so in the draws alike (added to the
+    draws, not to their wander-free copies; nothing is added where the motion determines all
+    five directions)."""
     m_kept, t_kept, chans_kept = a.kept
     q = dsg.basis_of_candidates
 
@@ -367,7 +371,8 @@ def draw_null(a: Analysed, dsg: design.Design) -> null.NullDraws:
         model = null.learn(residual, project, m_kept, t_kept, dsg.directions, design.full_candidate_calibration(dsg))
     except (ValueError, np.linalg.LinAlgError) as exc:
         return null.none(len(m_kept), f"no twin could be learned ({exc})")
-    return null.draws(model, dsg.directions, t_kept, chans_kept)
+    drawn = null.draws(model, dsg.directions, t_kept, chans_kept)
+    return replace(drawn, e=drawn.e + design.misfit_left(dsg)[:, None])
 
 
 def select_terms(a: Analysed, ref: ModelFit, alpha: float, noise_ut: float, folds: int, twin_null: bool = True,
