@@ -10,7 +10,7 @@ import pytest
 
 from magcal.diagnose.locate import Kind, Residual
 from magcal.diagnose.locate import channel_forms as cf
-from magcal.diagnose.locate.channel_terms import low_passed
+from magcal.diagnose.locate.channel_terms import delayed, low_passed
 from magcal.fit import fit_calibration
 from magcal.sim.physics import Motion, Physics, Scenario
 
@@ -73,6 +73,18 @@ def test_current_through_a_first_order_lag_is_found_with_its_lag_and_coefficient
     lo, hi = f.params["coef_magnitude_interval"]
     assert lo <= np.linalg.norm(beta) <= hi
     assert "first-order lag of" in f.summary and "µT/A" in f.summary
+
+
+def test_a_current_delayed_by_the_logs_own_clock_is_said_as_a_delay_not_as_a_first_order_lag():
+    # a first-order lag is what a current through the sensor's surroundings does; a pure delay must
+    # fit clearly better to be said, and a true one does
+    m, t = _sim(2)
+    c = _current(t, 2)
+    beta = np.array([-0.35, 0.25, 0.3])  # µT/A
+    f = _only(cf.search(_residual(m + np.outer(delayed(c, t, 0.5), beta), t, {"current_a": c})), "lagged_channel")
+    assert f.params["lag_kind"] == "delay"
+    assert abs(f.where["lag_s"] - 0.5) <= 0.3 * 0.5
+    assert np.linalg.norm(np.asarray(f.params["coef_ut_per_unit"]) - beta) <= 0.2 * np.linalg.norm(beta)
 
 
 def test_a_first_order_lag_on_a_clock_that_comes_in_bursts_is_found_in_seconds():

@@ -42,7 +42,8 @@ Coefficients come with a 95 % interval from the block (HAC) covariance, widened 
 within the 95 % profile of the best (the lag's own uncertainty); the lag gets that profile's range.
 A found lag's lag, coefficient, profile and interval come from the fit prewhitened by the
 residual's own autoregression (``channel_whiten``): a real residual's slow structure, fitted as
-if white, pulled the coefficient's direction 20–45 % off on some real recordings.
+if white, pulled the coefficient's direction 20–45 % off on some real recordings. Its form too:
+the first-order lag unless a pure delay fits it clearly better (``lag_form``).
 """
 
 from __future__ import annotations
@@ -217,8 +218,8 @@ def material(fr: cs.Frame, pick: cs.Pick) -> bool:
 
 
 def refined(fr: cs.Frame, pick: cs.Pick, c: np.ndarray, t_s: np.ndarray) -> cs.Pick:
-    """A lag pick's lag and ESS from the prewhitened fit (``channel_whiten``): the best lag of
-    the coarse grid, then a continuous search between its neighbours, and a fine family about it
+    """A lag pick's form (``lag_form``), lag and ESS from the prewhitened fit (``channel_whiten``):
+    the best lag of the coarse grid, then a continuous search between its neighbours, and a fine family about it
     (± two coarse steps, the optimum in it, no lag first) — unless the pick is at an edge of the
     coarse grid (no lag, or beyond the longest tried)."""
     v, j = pick.fam.values, pick.j
@@ -226,16 +227,39 @@ def refined(fr: cs.Frame, pick: cs.Pick, c: np.ndarray, t_s: np.ndarray) -> cs.P
         return pick
     wf = cw.whiten(fr, fr.r - cs.term(fr, pick.fam, j))
     x = c - c.mean()
-    make = delayed if pick.fam.form is Form.OFFSET_DELAY else low_passed
-    inner = np.flatnonzero(v > 0)[:-1]  # the coarse grid without its edges
-    lag = cw.best_lag(wf, v[inner], pick.fam.series[:, inner, 0], lambda lag: make(x, t_s, lag)[fr.rows])
+    form, lag = lag_form(wf, fr, v[np.flatnonzero(v > 0)[:-1]], x, t_s)  # the coarse grid without its edges
+    make = delayed if form is Form.OFFSET_DELAY else low_passed
     step = float(v[-1] / v[-2]) ** 2
     lags = np.concatenate([[0.0], np.unique(np.append(np.geomspace(lag / step, lag * step, N_FINE), lag))])
     series = np.column_stack([x] + [make(x, t_s, lag) for lag in lags[1:]])[fr.rows]
     ess = np.array([wf.ess(series[:, k]) for k in range(len(lags))])
     k = int(np.argmax(ess))
-    fam = cs.Family(pick.fam.form, pick.fam.channel, "offset", series[:, :, None], lags)
+    fam = cs.Family(form, pick.fam.channel, "offset", series[:, :, None], lags)
     return cs.Pick(fam, k, float(cs.log10_p(ess[k] / max(wf.s2_after(ess[k]), 1e-300), 3)), ess, wf)
+
+
+DELAY_LOG10_P = NESTED_LOG10_P  # a pure delay is stated over the first-order lag only at 0.1 %
+
+
+def lag_form(wf: cw.Whitened, fr: cs.Frame, lags: np.ndarray, x: np.ndarray, t_s: np.ndarray) -> tuple[Form, float]:
+    """(form, lag) of a lagged offset from the whitened fit: the delay and the first-order lag,
+    each at its own best lag (``cw.best_lag`` over ``lags``), and the first-order lag unless the
+    delay explains more by χ²₁ at ``DELAY_LOG10_P``. A current through an inductance or a heat
+    path lags as a first-order filter; a pure delay is a log's own clock, so it must be shown.
+    The ordinary fit cannot tell them apart on a real residual (the two differed by 0.9–2.1
+    times the inflated variance on true delays and by 1.1–1.2 on a true first-order lag taken
+    as a delay: bench/locate_eval.py, bench/locate_channel_forms.py); whitened, true forms are
+    20–630 apart, and the short fxos8700 take's first-order lag 3–4, within this level."""
+    ess_lag = {}
+    for form, make in ((Form.OFFSET_DELAY, delayed), (Form.OFFSET_FIRST_ORDER, low_passed)):
+        coarse = np.column_stack([make(x, t_s, v) for v in lags])[fr.rows]
+        lag = cw.best_lag(wf, lags, coarse, lambda v, make=make: make(x, t_s, v)[fr.rows])
+        ess_lag[form] = (wf.ess(make(x, t_s, lag)[fr.rows]), lag)
+    (e_delay, lag_delay), (e_first, lag_first) = ess_lag[Form.OFFSET_DELAY], ess_lag[Form.OFFSET_FIRST_ORDER]
+    extra = (e_delay - e_first) / max(wf.s2_after(max(e_delay, e_first)), 1e-300)
+    if extra > 0 and cs.log10_p(extra, 1) >= DELAY_LOG10_P:
+        return Form.OFFSET_DELAY, lag_delay
+    return Form.OFFSET_FIRST_ORDER, lag_first
 
 
 def slow_share(g: np.ndarray) -> float:
