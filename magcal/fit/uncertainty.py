@@ -293,14 +293,14 @@ def time_block_covariance(fit: geometric.GeometricFit, weights=None,
     wj = w[:, None] * jac
     edges = np.linspace(0, n, k + 1).round().astype(int)
     a = jac.T @ wj
-    a_out = np.stack([a - jac[i:j].T @ wj[i:j] for i, j in zip(edges[:-1], edges[1:])])
-    g = np.stack([wj[i:j].T @ e[i:j] for i, j in zip(edges[:-1], edges[1:])])
-    moves = (np.linalg.pinv(a_out, rcond=1e-15, hermitian=True) @ g[..., None])[..., 0]
     samples = fit.at[1].T
+    moves = np.empty((k, p))
     for b, (i, j) in enumerate(zip(edges[:-1], edges[1:])):
         keep = np.r_[0:i, j:n]
         refit = geometric.solve(samples[keep], fit.kind, fit.theta, weights=None if weights is None else w[keep])
-        if not isinstance(refit, FitFailure):
+        if isinstance(refit, FitFailure):  # the linearised move stands in
+            moves[b] = np.linalg.pinv(a - jac[i:j].T @ wj[i:j], rcond=1e-15, hermitian=True) @ (wj[i:j].T @ e[i:j])
+        else:
             moves[b] = refit.theta - fit.theta
     d = moves - moves.mean(axis=0)
     return d.T @ d * (k - 1.0) / k, k
