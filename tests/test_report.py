@@ -252,3 +252,19 @@ def test_the_time_figure_marks_the_time_the_diagnosis_located_a_jump_at():
     drawn = [float(line.get_xdata()[0]) for line in ax.lines]
     plt.close(fig)
     assert drawn == [said[0] - 1000.0]
+
+
+def test_the_page_draws_the_field_the_json_states(tmp_path):
+    """The page's fitted field (the magnitude figure's line, the point cloud's sphere and its
+    caption) is the JSON calibration's, not the model's own scale of it (trace W = 3 against the
+    JSON's det W = 1: 30.84 against 30.865 µT on this take)."""
+    import json
+
+    p = run_magcal("diagnose", Path(__file__).parent / "data" / "lsm9ds1_ckexplorer_every4th.csv",
+                   "--json", "--report", tmp_path / "page")
+    assert p.returncode == 0, p.stderr
+    field = json.loads(p.stdout)["calibration"]["field_ut"]
+    page = (tmp_path / "page" / "index.html").read_text()
+    cloud = json.loads(re.search(r'<script type="application/json" id="cloud-data">(.*?)</script>', page).group(1))
+    assert cloud["field_ut"] == round(field, 3)
+    assert f"from the sphere of {field:.2f} µT" in page and f"radius {field:.2f} µT" in page

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import numpy as np
 
+from ..core.calibration import Calibration
 from ..core.series import Series
 from . import channels
 from .finding import Finding
@@ -34,22 +35,28 @@ def model_name(fit: ModelFit) -> str:
     return "+".join(parts)
 
 
-def calibration_dict(fit: ModelFit) -> dict:
-    """The ``calibration`` object of the JSON: what ``magcal write`` puts on a device. In fit's
-    convention (``magcal.fit``: det W = 1, the radius with it), so that the calibration diagnosis
-    takes from fit has fit's numbers; the model's own scale (trace W = 3) only rescales the
-    calibrated field, and both W and the radius by the same factor."""
+def reported_calibration(fit: ModelFit) -> Calibration:
+    """``fit``'s calibration in fit's convention (``magcal.fit``: det W = 1, the radius with it):
+    the one the JSON holds and ``magcal write`` puts on a device, so that the calibration
+    diagnosis takes from fit has fit's numbers; the model's own scale (trace W = 3) only rescales
+    the calibrated field, and both W and the radius by the same factor."""
     cal = fit.calibration()
     det = float(np.linalg.det(np.asarray(cal.soft_iron, np.float64)))
     scale = det ** (-1.0 / 3.0) if np.isfinite(det) and det > 0 else 1.0
+    return replace(cal, field_ut=cal.field_ut * scale, soft_iron=np.asarray(cal.soft_iron) * scale)
+
+
+def calibration_dict(fit: ModelFit) -> dict:
+    """The ``calibration`` object of the JSON (``reported_calibration``)."""
+    cal = reported_calibration(fit)
     reference = {channels.TEMP: float(cal.reference.get(channels.TEMP, 0.0)), channels.CURRENT: 0.0}
     reference.update({k: float(v) for k, v in cal.reference.items()})
     if channels.TEMP not in cal.reference:
         reference.pop(channels.TEMP)
     out = {
         "offset_ut": [float(v) for v in cal.offset_ut],
-        "field_ut": float(cal.field_ut * scale),
-        "soft_iron": [[float(v * scale) for v in row] for row in cal.soft_iron],
+        "field_ut": float(cal.field_ut),
+        "soft_iron": [[float(v) for v in row] for row in cal.soft_iron],
         "reference": reference,
     }
     if cal.coef_ut_per_unit:

@@ -102,7 +102,7 @@ def cloud_data(diagnosis, v) -> dict:
     sel = sel[thin(len(sel), MAX_CLOUD)]
     raw = diagnosis.series.field_ut[sel]
     return {
-        "field_ut": round(float(diagnosis.final.field_ut), 3),
+        "field_ut": round(float(v.field_ut), 3),
         "limit_ut": round(symmetric_limit(v.after[v.good], q=99), 3),
         "raw": np.round(raw, 2).tolist(),
         "cal": np.round(v.h[sel], 2).tolist(),
@@ -118,7 +118,7 @@ def cloud_html(diagnosis, v) -> str:
     g = v.good
     found = (f"the raw shell is centred at ({b[0]:.1f}, {b[1]:.1f}, {b[2]:.1f}) µT, {float(np.linalg.norm(b)):.1f} µT "
              f"from the origin; the calibrated samples lie {float(np.sqrt(np.mean(v.after[g] ** 2))):.3f} µT RMS "
-             f"from the sphere of {diagnosis.final.field_ut:.2f} µT.")
+             f"from the sphere of {v.field_ut:.2f} µT.")
     return (
         f'<p class="how">{n} samples of each set, spread over the recording. Drag to turn, use the '
         'wheel to zoom. <label><input type="checkbox" data-cloud="raw" checked> as recorded (grey)</label> '
@@ -126,7 +126,7 @@ def cloud_html(diagnosis, v) -> str:
         '<canvas id="cloud-canvas" width="900" height="620" aria-label="3-D point cloud of the samples"></canvas>'
         f'<p class="caption"><b>Look for:</b> the grey points on a shell off the origin (the hard iron) '
         f'and squashed (soft iron); the calibrated ones on the wire sphere of radius '
-        f'{html.escape(f"{diagnosis.final.field_ut:.2f}")} µT around the origin, red and blue mixed '
+        f'{html.escape(f"{v.field_ut:.2f}")} µT around the origin, red and blue mixed '
         f'evenly. A red or blue cap is a direction the model does not fit.<br><b>Found:</b> '
         f'{html.escape(found)}</p>'
         f'<script type="application/json" id="cloud-data">{data}</script>'

@@ -73,7 +73,7 @@ def magnitude(diagnosis, v, plt, out) -> Figure:
     wide.set_ylabel("samples")
     wide.set_title("As recorded vs calibrated")
     wide.legend(fontsize=9)
-    r = diagnosis.final.field_ut
+    r = v.field_ut
     half = max(5 * float(np.std(v.final_norm[g])), 3 * float(np.std(v.sphere_norm[g])), 0.5)
     rng = (r - half, r + half)
     near.hist(v.sphere_norm[g], bins=60, range=rng, color=BEFORE, alpha=0.75, label="sphere (hard iron only)")

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...diagnose import channels as ch
+from ...diagnose.diagnosis import reported_calibration
 
 MAX_POINTS = 20000
 
@@ -41,7 +42,8 @@ class Views:
     after: np.ndarray  # of the final model (µT)
     raw_norm: np.ndarray  # |m| as recorded (µT)
     sphere_norm: np.ndarray  # |m − b| with the sphere's offset b
-    final_norm: np.ndarray  # |calibrated| with the final model
+    final_norm: np.ndarray  # |calibrated| with the final model, as the JSON's calibration corrects
+    field_ut: float  # the calibration's field, as the JSON states it (µT)
     u: np.ndarray  # direction of the calibrated field (unit vectors, sensor frame)
     h: np.ndarray  # the calibrated field (µT)
     chans: dict  # channels, time (t_s) among them, as the final model takes them
@@ -56,7 +58,8 @@ def views_of(diagnosis) -> Views:
     before = diagnosis.baseline.residual(s.field_ut, {})
     m = diagnosis.modelled_field_ut()  # with the effects the locate step modelled removed
     after = diagnosis.final.residual(m, chans)
-    h = diagnosis.final.calibration().correct(m, {c: chans[c] for c in diagnosis.final.spec.channels})
+    cal = reported_calibration(diagnosis.final)  # the calibration the table and the JSON state
+    h = cal.correct(m, {c: chans[c] for c in diagnosis.final.spec.channels})
     norm = np.linalg.norm(h, axis=1)
     span = float(s.t_s[-1] - s.t_s[0]) if len(s) else 0.0
     unit, scale = time_unit(span, s.clock)
@@ -71,6 +74,7 @@ def views_of(diagnosis) -> Views:
         raw_norm=np.linalg.norm(s.field_ut, axis=1),
         sphere_norm=np.linalg.norm(s.field_ut - diagnosis.baseline.offset_ut, axis=1),
         final_norm=norm,
+        field_ut=cal.field_ut,
         u=h / np.where(norm > 0, norm, 1.0)[:, None],
         h=h,
         chans=chans,
