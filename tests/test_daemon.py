@@ -333,7 +333,9 @@ def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
     cap = tmp_path / "run.cap"
     _record_capture(cap)
     clean = [(s.seq, s.raw) for s in read_to_end(open_device(f"replay://{cap}")) if s.valid]
-    url = (f"replay://{cap}?fault=unplug@3+0.4&fault=stall@5+0.5&fault=garbage@7=500"
+    # the stall is measured on the wall clock while the daemon works through the samples before
+    # it: 1 s against stall_s = 0.3 leaves a loaded machine room (0.5 s was once missed in CI)
+    url = (f"replay://{cap}?fault=unplug@3+0.4&fault=stall@5+1.0&fault=garbage@7=500"
            f"&fault=reset@8&fault=unplug@10+0.4")
     got = []
     d = Daemon(make_settings(url), state_dir=tmp_path / "state",
