@@ -54,6 +54,30 @@ def test_a_drift_only_in_the_first_half_is_not_claimed_as_a_drift():
     assert "halves" in limit["summary"] or "half" in limit["summary"]
 
 
+def test_a_temperature_that_only_follows_what_a_refused_drift_leaves_is_not_credited():
+    # the offset moves over the first half and then holds (no temperature in it); the logged
+    # temperature is partly the bend a straight line leaves of that path. Beside the drift it
+    # explains most of what is left and passes the wander gate; the drift's halves disagree and it
+    # is refused — the temperature is then judged against the whole move as wander, and is no finding
+    s = _run(seed=3, n=4000)
+    tau = (s.t_s - s.t_s[0]) / np.ptp(s.t_s)
+    rng = np.random.default_rng(3)
+    v = rng.standard_normal(3)
+    shape = np.minimum(tau, 0.5) * 2
+    bent = shape - np.polyval(np.polyfit(tau, shape, 1), tau)
+    other = np.sin(2 * np.pi * 1.3 * tau + rng.uniform(0, 6.28))
+    x = 0.6 * bent / np.std(bent) + 0.4 * other / np.std(other)
+    temp_c = 25 + 7.5 * x / np.max(np.abs(x))
+    m = s.field_ut + np.outer(shape, 3.0 * v / np.linalg.norm(v))
+    d = diagnose(Series(t_s=s.t_s, field_ut=m, channels={"temp_c": temp_c}))
+    assert not [f for f in d.to_dict()["findings"] if (f.get("where") or {}).get("channel") == "temp_c"]
+    assert "temperature_drift" not in d.effects
+    (limit,) = _claims_limits(d)
+    assert limit["effect"] == "time_drift" and "halves" in limit["summary"]
+    (wander,) = [x for x in d.to_dict()["limits"] if x["effect"] == "offset_wander"]
+    assert "temp_c" in wander["slow_term_floor_ut_per_unit"]
+
+
 @pytest.mark.slow
 def test_a_small_step_is_not_claimed_as_a_drift():
     # 0.6 µT put down at 40 % of the span: a straight line through it passes the halves, but

@@ -430,7 +430,10 @@ def refit_claims(a: Analysed, ref: ModelFit, selected: Selected) -> tuple[ModelF
     kept, refused = claims.screen(m_kept, t_kept, chans_kept, final, accepted, selected.candidates)
     if not refused:
         return final, selected, ()
-    final, accepted = refit(a, ref, claims.without(selected, kept))
+    gone = tuple(r.group for r in refused)
+    regated, shares = selection.wander_gate(selected.design, chans_kept, kept, selected.fast, left_out=gone)
+    selected = replace(selected, wander={**selected.wander, **shares})
+    final, accepted = refit(a, ref, claims.without(selected, regated))
     return final, replace(selected, accepted=accepted), refused
 
 

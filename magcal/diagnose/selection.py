@@ -85,11 +85,14 @@ def above_floor(tests: dict, verdict: Significant, floor_ut: float, soft_size: t
     return out
 
 
-def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tuple[list, dict]:
+def wander_gate(design: Design, chans: dict, survivors: list, fast: set, left_out: tuple = ()) -> tuple[list, dict]:
     """Real recordings wander slowly: a slow channel term must explain most of the block offsets
     (channels.wander_shares, channels.WANDER_RATIO). Returns the survivors that pass and, for
-    each channel judged, (explained, unexplained) block-offset mean squares (µT²)."""
-    judged = [g for g in survivors if g in design.candidates]
+    each channel judged, (explained, unexplained) block-offset mean squares (µT²).
+    ``left_out``: channel terms refused after the gate (magcal.diagnose.claims) — their columns
+    are not fitted, so what they explained counts as the wander the others must beat (a drift
+    whose halves disagree is wander, not a partner that took the wander off a temperature)."""
+    judged = [g for g in survivors if g in design.candidates and g not in left_out]
     if not judged:
         return survivors, {}
     # the residual with everything but the channel terms fitted out (soft iron and the direction
@@ -101,10 +104,13 @@ def wander_gate(design: Design, chans: dict, survivors: list, fast: set) -> tupl
     # against the channel: true temperatures in simulations without any wander failed the gate.
     x = design.x[:, : design.n_before_wander]
     e = design.residual_ut
-    colscale = np.sqrt(np.maximum((x * x).sum(axis=0), 1e-300))
-    xs = x / colscale
-    beta = (pinv_sym(xs.T @ xs) @ (xs.T @ e)) / colscale
-    chan_cols = [design.groups[g] for g in design.groups if g in design.candidates]
+    out = [design.groups[g] for g in left_out if g in design.groups]
+    fitted = np.setdiff1d(np.arange(x.shape[1]), np.concatenate(out) if out else np.zeros(0, int))
+    colscale = np.sqrt(np.maximum((x[:, fitted] ** 2).sum(axis=0), 1e-300))
+    xs = x[:, fitted] / colscale
+    beta = np.zeros(x.shape[1])
+    beta[fitted] = (pinv_sym(xs.T @ xs) @ (xs.T @ e)) / colscale
+    chan_cols = [design.groups[g] for g in design.groups if g in design.candidates and g not in left_out]
     chan_cols = np.concatenate(chan_cols) if chan_cols else np.zeros(0, int)
     other = np.setdiff1d(np.arange(x.shape[1]), chan_cols)
     e_w = e - x[:, other] @ beta[other]
