@@ -1,6 +1,7 @@
 """``diagnose``'s false alarms on twins of real recordings, beside the white-noise simulator.
 
-    python3 bench/diagnose_twin_null.py [--draws N] [--first-seed S] [--max-samples M] [--only NAME]
+    python3 bench/diagnose_twin_null.py [--draws N] [--first-seed S] [--max-samples M] [--only NAME,NAME]
+                                           [--without-f-alone]
 
 For every real recording with motion (bench/twin_recordings.py: at least 1000 samples; the still
 takes are left out, they determine no calibration): its sensor twin is learned around fit's
@@ -65,9 +66,13 @@ def false_alarms(model, u, t, seed: int, twin_null: bool = True) -> list:
 
 
 def recordings(only: str | None, max_samples: int):
-    """(name, model, u, t) for every recording with motion that fit can calibrate."""
-    for name in tr.RECORDINGS:
-        if (only and only not in name) or "still" in name:
+    """(k, name, model, u, t) for every recording with motion that fit can calibrate; ``only``:
+    comma-separated parts of names, the others skipped. k is the recording's place among those
+    with motion, so a recording's draws (seed + 1000·k) are the same with or without ``only``."""
+    wanted = [w.strip() for w in only.split(",")] if only else []
+    moving = [name for name in tr.RECORDINGS if "still" not in name]
+    for k, name in enumerate(moving):
+        if wanted and not any(w in name for w in wanted):
             continue
         series, fixed = tr.load(name)
         if fixed is not None:
@@ -78,7 +83,7 @@ def recordings(only: str | None, max_samples: int):
         if not r:
             continue
         model = bare(twin.learn(s, r.calibration))
-        yield name, model, model.directions_of(s.field_ut), s.t_s
+        yield k, name, model, model.directions_of(s.field_ut), s.t_s
 
 
 def main(argv=None) -> int:
@@ -86,7 +91,9 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=8, help="twin draws per recording (default 8)")
     ap.add_argument("--first-seed", type=int, default=None, help="default: fresh from the OS")
     ap.add_argument("--max-samples", type=int, default=8000)
-    ap.add_argument("--only", default=None)
+    ap.add_argument("--only", default=None, help="comma-separated parts of recording names (each keeps its full-run seeds)")
+    ap.add_argument("--without-f-alone", action="store_true",
+                    help="skip the F-alone column (it uses no twin: what the twin learns cannot change it)")
     args = ap.parse_args(argv)
     warnings.filterwarnings("ignore")
     seed0 = args.first_seed if args.first_seed is not None else int.from_bytes(os.urandom(4), "little")
@@ -94,19 +101,24 @@ def main(argv=None) -> int:
           "(family-wise, per recording)")
     print(f"{'recording':<44}{'n':>6}{'wander µT (parts)':>28}{'twin FA':>10}{'F alone':>10}{'white FA':>10}{'CPU s':>7}")
     totals = {"twin": [0, 0], "F alone": [0, 0], "white": [0, 0]}
-    for k, (name, model, u, t) in enumerate(recordings(args.only, args.max_samples)):
+    for k, name, model, u, t in recordings(args.only, args.max_samples):
         c0 = time.process_time()
         line = {}
         for label, mdl, own in (("twin", model, True), ("F alone", model, False), ("white", white_twin(model), True)):
+            if label == "F alone" and args.without_f_alone:
+                line[label] = "-"
+                continue
             hits = [bool(false_alarms(mdl, u, t, seed0 + 1000 * k + j, own)) for j in range(args.draws)]
             totals[label][0] += sum(hits)
             totals[label][1] += len(hits)
             line[label] = f"{sum(hits)}/{len(hits)}"
         wander = f"{np.sqrt(sum(c.variance for c in model.wander)):.2f} ({len(model.wander)} parts)" if model.wander else "none"
-        per = (time.process_time() - c0) / (3 * args.draws)
+        per = (time.process_time() - c0) / ((2 if args.without_f_alone else 3) * args.draws)
         print(f"{name[:43]:<44}{len(t):>6}{wander[:27]:>28}{line['twin']:>10}{line['F alone']:>10}{line['white']:>10}{per:>7.2f}",
               flush=True)
     for label, (fa, n) in totals.items():
+        if not n:
+            continue
         rate = fa / n if n else float("nan")
         print(f"all {label:>7}: {fa}/{n} draws with a false alarm ({100 * rate:.1f} %; stated alpha {100 * ALPHA:.0f} %)")
     return 0

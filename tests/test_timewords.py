@@ -49,3 +49,26 @@ def test_outside_a_diagnosis_and_with_a_clock_times_are_seconds():
         "sample 12", "0.0500 cycles per sample", "-3 samples")
     assert said(series=Series(t_s=t, field_ut=np.zeros((10, 3)))) == ("12.0 s", "0.050 Hz", "-3.00 s")
     assert timewords.clocked()
+
+
+def test_the_twins_slow_share_on_a_table_without_time_smooths_over_as_many_samples_as_with_one():
+    # the twin's statistics smooth over 1 s and look for a channel within ±2 s: on a bare table
+    # read as seconds that was 1 and 2 samples — no smoothing at all (slow_share exactly 1 on the
+    # recording and on every twin) and a channel lagging by 30 samples never seen
+    from magcal.diagnose.twin import stats as ts
+
+    n = 3000
+    rng = np.random.default_rng(4)
+    e = rng.standard_normal(n)
+    u = rng.standard_normal((n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    x = np.roll(e, 30) + 0.3 * rng.standard_normal(n)
+    shares, corrs = [], []
+    for t, clock in ((np.arange(n) / 50.0, True), (np.arange(n, dtype=float), False)):
+        stats, _ = timewords.in_recording_time(
+            lambda series: ts.battery(e, u, u * 50.0, series.t_s, {"aux": x}, gain=0.0))(Series(t_s=t, field_ut=u * 50.0, clock=clock))
+        shares.append(stats["slow_share"])
+        corrs.append(stats["xcorr:aux"])
+    timed, bare = shares
+    assert timed < 0.1 and 0.5 * timed < bare < 2.0 * timed
+    assert min(corrs) > 0.9

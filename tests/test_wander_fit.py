@@ -104,3 +104,30 @@ def test_a_residual_without_power_has_no_wander_and_no_noise():
     Whittle fit's empty solve, so `diagnose --twin` stopped with a traceback."""
     t = np.arange(200) * 0.02
     assert wander.fit(np.zeros(200), _directions(200), t) == ((), 0.0)
+
+
+def test_a_wander_slower_than_the_fit_can_see_is_continued_flat_below_it():
+    """A flat field wander from 0.0025 to 0.2 Hz on 200 s, the residual seen after a level and
+    a straight line in time are fitted out (a time drift among the candidates): the lowest bands
+    are nearly all taken by the line and cannot be fitted. Dropped, the twin would never draw a
+    trend, and every such trend would pass for a drift; with ``flat_below`` they are drawn at
+    the lowest fitted band's density, here the wander's own."""
+    t = np.arange(2000) / 10.0
+    density = 0.5**2 / (0.2 - 0.0025)
+    truth = (WanderComponent(0.5, band_hz=(0.0025, 0.2), frame=FIELD),)
+    e = _field_series(truth, t, 0.05, seed=8)
+    x = np.column_stack([np.ones_like(t), t - t.mean()])
+
+    def project(v):
+        return v - x @ np.linalg.lstsq(x, v, rcond=None)[0]
+
+    u = _directions(len(t))
+    seen, _ = wander.fit(project(e), u, t, project, frames=(FIELD,))
+    continued, _ = wander.fit(project(e), u, t, project, frames=(FIELD,), flat_below=True)
+    lowest = min(c.band_hz[0] for c in seen)
+    assert lowest > 0.004  # the line takes the lowest band
+    below = [c for c in continued if c.band_hz[1] <= lowest * (1 + 1e-9)]
+    assert below and min(c.band_hz[0] for c in below) == pytest.approx(0.0025, rel=0.01)
+    for c in below:
+        assert 0.3 < c.variance / (c.band_hz[1] - c.band_hz[0]) / density < 3.0
+    assert set(seen) <= set(continued)

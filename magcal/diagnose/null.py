@@ -90,7 +90,7 @@ def learn(residual_ut: np.ndarray, project, m: np.ndarray, t: np.ndarray, u: np.
 
     # one seed of simulated moments per candidate: a binned periodogram over many frequencies
     # is already an average, and the test only needs the wander's spectrum roughly
-    components, white = wander.fit(residual_ut, u, t, project, seeds=FIT_SEEDS)
+    components, white = wander.fit(residual_ut, u, t, project, seeds=FIT_SEEDS, flat_below=True)
     q = quantum(m)
     white -= float(np.mean(u**2 @ (np.square(q) / 12.0)))  # what the quantum adds to the white part
     sigma = float(np.sqrt(max(white, 1e-12)))

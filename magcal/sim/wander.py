@@ -389,7 +389,7 @@ def candidates(dt_s: float, duration_s: float, frames=(OFFSET, FIELD)) -> list[W
 
 
 def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 12, 13),
-        frames=(OFFSET, FIELD)) -> tuple[tuple[WanderComponent, ...], float]:
+        frames=(OFFSET, FIELD), flat_below: bool = False) -> tuple[tuple[WanderComponent, ...], float]:
     """Fit the wander components and the white radial variance to a radial residual.
 
     ``project`` maps a raw radial series to what is left of it after the calibration model
@@ -400,7 +400,11 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     ``u`` (n, 3): how an offset departure shows in the residual — the field direction, or
     Wᵀu when the offset enters the raw reading ahead of a soft-iron matrix W. Returns
     (components, white_var_ut2). Offset components are isotropic: the radial residual sees
-    only u·w, so the split between axes is not observable."""
+    only u·w, so the split between axes is not observable.
+
+    A band the projection absorbs beyond MIN_LEFT is not identifiable and gets no component;
+    ``flat_below``: the lowest such bands of a frame (below every band it could fit) get the
+    spectral density of its lowest fitted component instead (``continued_below``)."""
     n = len(e)
     project = project or (lambda x: x - x.mean())
     dt = sample_interval(t_s)
@@ -439,7 +443,26 @@ def fit(e: np.ndarray, u: np.ndarray, t_s: np.ndarray, project=None, seeds=(11, 
     white, var = _white_floor(design[ok], target[ok], counts[ok], bins[:-1][ok] >= n // 8)
     keep = _local_share(var, white, cands, dt) > MIN_SHARE
     comps = tuple(WanderComponent(np.sqrt(v), band_hz=c.band_hz, frame=c.frame) for v, c, k in zip(var, cands, keep) if k)
+    if flat_below:
+        comps += continued_below(comps, [c for c in every[1:] if c not in cands])
     return comps, white
+
+
+def continued_below(comps: tuple, hidden: list) -> tuple[WanderComponent, ...]:
+    """Components for the bands ``hidden`` (candidates the projection absorbs, so the residual
+    cannot show their power) that lie below every fitted band of their frame: the spectrum
+    continued flat at its lowest fitted band's density. A wander's spectrum does not fall
+    toward the lowest frequencies (a random walk, 1/f noise, an OU process are all flat or
+    rising there), so this is the least the residual's own spectrum implies; dropped, a wander
+    longer than the recording — a slow trend the refit takes up as a time drift or a slow
+    channel — would never be drawn."""
+    out = []
+    for frame in {c.frame for c in comps}:
+        lowest = min((c for c in comps if c.frame == frame), key=lambda c: c.band_hz[0])
+        density = lowest.variance / (lowest.band_hz[1] - lowest.band_hz[0])
+        out += [WanderComponent(np.sqrt(density * (c.band_hz[1] - c.band_hz[0])), band_hz=c.band_hz, frame=frame)
+                for c in hidden if c.frame == frame and c.band_hz[1] <= lowest.band_hz[0] * (1 + 1e-9)]
+    return tuple(sorted(out, key=lambda c: (c.frame, c.band_hz)))
 
 
 def _bands_of(cands) -> tuple[np.ndarray, list, np.ndarray]:

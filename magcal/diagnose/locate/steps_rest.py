@@ -28,9 +28,16 @@ STRUCTURE_WINDOW_S = 1.0
 SHORTEST_HALF_S = 3.0  # the step search's shortest half window with a clock (steps.HALF_RANGE_S[0])
 
 
+def window(seconds: float, half: float, clock: bool) -> float:
+    """A window of ``seconds`` in the units of t: itself with a clock; without one (t the sample
+    index) the ratio it has to the step search's shortest half window, kept to ``half`` (the
+    recording's own half window in samples, steps.half_window_s), and at least one sample."""
+    return seconds if clock else max(half * seconds / SHORTEST_HALF_S, 1.0)
+
+
 def structure_window(half: float, clock: bool) -> float:
     """The window a stretch's RMS is measured in (in the units of t: s, or samples without a clock)."""
-    return STRUCTURE_WINDOW_S if clock else max(half * STRUCTURE_WINDOW_S / SHORTEST_HALF_S, 1.0)
+    return window(STRUCTURE_WINDOW_S, half, clock)
 
 
 def structure(u, t, r, half, floor_ut: float, window: float = STRUCTURE_WINDOW_S) -> list[Located]:

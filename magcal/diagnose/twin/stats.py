@@ -20,6 +20,10 @@ mismatch sits.
 | glitch_rate | share of isolated jumps in the 3-vector trajectory | glitches |
 | repeat_share | share of reads equal to the one before on every axis (only where the recording has any) | repeated reads |
 | xcorr:<channel> | largest |correlation| of e with the channel (±2 s) | channel coupling |
+
+The 1 s smoothing and the ±2 s lags are seconds; on a recording without a clock (its t the
+sample index) they keep the ratio the step search's windows keep (locate.steps_rest.window), not
+1 and 2 samples.
 """
 
 from __future__ import annotations
@@ -28,6 +32,9 @@ import numpy as np
 from scipy import signal
 
 from ...sim import directions
+from .. import timewords
+from ..locate.steps import half_window_s
+from ..locate.steps_rest import window
 
 N_BLOCKS = 20
 N_CELLS = 20
@@ -81,10 +88,11 @@ def moving_average(x: np.ndarray, width: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo)
 
 
-def slow_share(e: np.ndarray, dt: float) -> float:
+def slow_share(e: np.ndarray, dt: float, smooth: float = SMOOTH_S) -> float:
+    """The variance share left in a moving average over ``smooth`` (in the units of t)."""
     x = e - e.mean()
     v = float(np.var(x))
-    return float(np.var(moving_average(x, int(round(SMOOTH_S / dt))))) / v if v > 0 else 0.0
+    return float(np.var(moving_average(x, int(round(smooth / dt))))) / v if v > 0 else 0.0
 
 
 def block_offsets(e: np.ndarray, u: np.ndarray, n_blocks: int = N_BLOCKS) -> np.ndarray:
@@ -165,8 +173,8 @@ def jumps(m: np.ndarray) -> np.ndarray:
     return hit
 
 
-def xcorr_max(e: np.ndarray, x: np.ndarray, dt: float) -> tuple[float, float]:
-    """(largest |corr(e, x shifted)|, its lag in s) over ±XCORR_LAG_S."""
+def xcorr_max(e: np.ndarray, x: np.ndarray, dt: float, max_lag: float = XCORR_LAG_S) -> tuple[float, float]:
+    """(largest |corr(e, x shifted)|, its lag in the units of t) over ±``max_lag``."""
     a, b = e - e.mean(), x - x.mean()
     den = np.sqrt(float(a @ a) * float(b @ b))
     if den <= 0:
@@ -174,7 +182,7 @@ def xcorr_max(e: np.ndarray, x: np.ndarray, dt: float) -> tuple[float, float]:
     n = len(a)
     size = 1 << int(np.ceil(np.log2(2 * n)))
     cc = np.fft.irfft(np.fft.rfft(a, size) * np.conj(np.fft.rfft(b, size)), size)
-    k = min(int(XCORR_LAG_S / dt), n - 1)
+    k = min(int(max_lag / dt), n - 1)
     lags = np.concatenate([np.arange(0, k + 1), np.arange(-k, 0)])
     vals = cc[lags] / den
     j = int(np.argmax(np.abs(vals)))
@@ -206,11 +214,13 @@ def battery(e, u, m, t, channels, gain: float | None = None, with_repeats: bool 
     ``with_repeats``: also the share of repeated reads — asked only where the recording has
     any (a host polling faster than its sensor converts); elsewhere it would be 0 against 0."""
     dt = dt_of(t)
+    clock = timewords.clocked()
+    half = half_window_s(t, clock) if len(t) > 1 else 1.0
     stats = {
         "rms_ut": float(np.sqrt(np.mean(e * e))),
         "tail_ratio": tail_ratio(e),
         "lag1": lag1(e),
-        "slow_share": slow_share(e, dt),
+        "slow_share": slow_share(e, dt, window(SMOOTH_S, half, clock)),
         "block_wander_ut": block_wander(e, u),
         "psd_slope": psd_slope(e, dt),
         "harmonic_share": harmonic_share(e, u),
@@ -224,6 +234,6 @@ def battery(e, u, m, t, channels, gain: float | None = None, with_repeats: bool 
         stats["repeat_share"] = float(np.mean(repeats(m)))
     lags = {}
     for name, x in channels.items():
-        stats["xcorr:" + name], lags[name] = xcorr_max(e, x, dt)
+        stats["xcorr:" + name], lags[name] = xcorr_max(e, x, dt, window(XCORR_LAG_S, half, clock))
     blocks = np.array([float(np.mean(b)) for b in np.array_split(e - e.mean(), N_BLOCKS) if len(b)])
     return stats, {"blocks": blocks, "cells": cells, "lags": lags}
