@@ -72,3 +72,23 @@ def test_the_twins_slow_share_on_a_table_without_time_smooths_over_as_many_sampl
     timed, bare = shares
     assert timed < 0.1 and 0.5 * timed < bare < 2.0 * timed
     assert min(corrs) > 0.9
+
+
+def test_the_twins_spectral_slope_on_a_table_without_time_is_read_in_the_same_band_as_with_one():
+    # psd_slope reads the residual's spectrum at 0.02–1 Hz; on a bare table that band read as
+    # cycles per sample was the white floor above the wander, whatever the wander did
+    from magcal.diagnose.twin import stats as ts
+
+    n = 6000
+    rng = np.random.default_rng(5)
+    walk = np.cumsum(rng.standard_normal(n)) * 0.05  # a random walk: slope −2 at low frequencies
+    e = walk - walk.mean() + 0.5 * rng.standard_normal(n)  # white above ~0.3 Hz at 50 Hz
+    u = rng.standard_normal((n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    slopes = []
+    for t, clock in ((np.arange(n) / 50.0, True), (np.arange(n, dtype=float), False)):
+        stats, _ = timewords.in_recording_time(
+            lambda series: ts.battery(e, u, u * 50.0, series.t_s, {}, gain=0.0))(Series(t_s=t, field_ut=u * 50.0, clock=clock))
+        slopes.append(stats["psd_slope"])
+    timed, bare = slopes
+    assert timed < -1.0 and abs(bare - timed) < 0.5

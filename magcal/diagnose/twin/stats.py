@@ -21,9 +21,9 @@ mismatch sits.
 | repeat_share | share of reads equal to the one before on every axis (only where the recording has any) | repeated reads |
 | xcorr:<channel> | largest |correlation| of e with the channel (±2 s) | channel coupling |
 
-The 1 s smoothing and the ±2 s lags are seconds; on a recording without a clock (its t the
-sample index) they keep the ratio the step search's windows keep (locate.steps_rest.window), not
-1 and 2 samples.
+The 1 s smoothing, the ±2 s lags and psd_slope's 0.02–1 Hz band are seconds and hertz; on a
+recording without a clock (its t the sample index) they keep the ratio the step search's windows
+keep (locate.steps_rest.window), not 1 and 2 samples and 0.02–1 cycles per sample.
 """
 
 from __future__ import annotations
@@ -116,7 +116,10 @@ def block_wander(e: np.ndarray, u: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d * d)))
 
 
-def psd_slope(e: np.ndarray, dt: float, band=(0.02, 1.0)) -> float:
+PSD_BAND_HZ = (0.02, 1.0)
+
+
+def psd_slope(e: np.ndarray, dt: float, band=PSD_BAND_HZ) -> float:
     fs = 1.0 / dt
     duration = len(e) * dt
     lo = max(band[0], 4.0 / duration)
@@ -222,7 +225,7 @@ def battery(e, u, m, t, channels, gain: float | None = None, with_repeats: bool 
         "lag1": lag1(e),
         "slow_share": slow_share(e, dt, window(SMOOTH_S, half, clock)),
         "block_wander_ut": block_wander(e, u),
-        "psd_slope": psd_slope(e, dt),
+        "psd_slope": psd_slope(e, dt, tuple(f / window(1.0, half, clock) for f in PSD_BAND_HZ)),
         "harmonic_share": harmonic_share(e, u),
         "direction_bias_ut": 0.0,
         "glitch_rate": float(np.mean(jumps(m))),
