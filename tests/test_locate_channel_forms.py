@@ -255,3 +255,24 @@ def test_a_periodic_current_the_calibration_carries_gets_its_lag_where_its_own_n
     assert np.linalg.norm(np.asarray(f.params["coef_ut_per_unit"]) - beta) <= 0.2 * np.linalg.norm(beta)
     # the same current with no lag is the calibration's own term: nothing is added beside it
     assert [x.effect for x in cf.search(carried(m + np.outer(c, beta)))] == []
+
+
+def test_a_straight_temperature_term_beside_a_wander_is_not_named_a_curve():
+    # the offset follows the temperature in a straight line (0.05 µT/°C, 1.5 cycles of ±7.5 °C)
+    # on a sensor whose offset also wanders (0.15 µT, 8 s): the square of a slow channel is one
+    # more slow curve, and this wander is followed by it better than by the square shifted in time
+    # only by chance — no square law may be claimed
+    from magcal.core.series import Series
+    from magcal.diagnose import diagnose
+    from magcal.sim.wander import WanderComponent
+
+    seed = 7
+    rng = np.random.default_rng(seed)
+    phys = Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.2, wander=(WanderComponent(sigma_ut=0.15, tau_s=8.0),))
+    run = Scenario(physics=phys, motion=Motion("sphere", period_s=20.0), seed=seed).simulate(3000, 50.0)
+    t, m = run.series.t_s, run.series.field_ut
+    temp_c = 22.5 + 7.5 * np.sin(2 * np.pi * 1.5 * (t - t[0]) / np.ptp(t) + rng.uniform(0, 6.28))
+    k = rng.standard_normal(3)
+    k *= 0.05 / np.linalg.norm(k)
+    d = diagnose(Series(t_s=t, field_ut=m + np.outer(temp_c - temp_c.mean(), k), channels={"temp_c": temp_c}))
+    assert "channel_square" not in d.effects

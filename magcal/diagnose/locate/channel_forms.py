@@ -199,7 +199,8 @@ def simpler(fr: cs.Frame, pick: cs.Pick, fams: list[cs.Family]) -> cs.Pick:
     small = same[small_form]
     ess, _ = cs.scores(fr, small)
     extra = (pick.ess[pick.j] - ess[0]) / s2
-    if cs.log10_p(extra, cs.n_columns(pick.fam) - cs.n_columns(small)) >= NESTED_LOG10_P and material(fr, pick):
+    if (cs.log10_p(extra, cs.n_columns(pick.fam) - cs.n_columns(small)) >= NESTED_LOG10_P and material(fr, pick)
+            and curve_beats_shifts(fr, pick)):
         return pick
     return cs.Pick(small, 0, float(cs.log10_p(fr.f_ratio(ess[0], cs.n_columns(small)), cs.n_columns(small))), ess)
 
@@ -215,6 +216,19 @@ def material(fr: cs.Frame, pick: cs.Pick) -> bool:
     lin = np.linalg.norm(beta[0, :3]) * np.max(np.abs(s[:, 0]))
     curve = np.linalg.norm(beta[0, 3:]) * np.ptp(s[:, 1])
     return bool(curve >= MIN_CURVE * lin)
+
+
+def curve_beats_shifts(fr: cs.Frame, pick: cs.Pick) -> bool:
+    """Whether a square term explains more than its own straight line beside the channel's
+    square circularly shifted (shifts_for: each nearly uncorrelated with it): the square of a slow
+    channel is another slow curve, and a wander it happens to follow is no square law."""
+    if pick.fam.form is not Form.SQUARE:
+        return True
+    s = pick.fam.series[:, pick.j, :]
+    shifts = shifts_for(s[:, 1], 0)
+    series = np.stack([np.column_stack([s[:, 0], np.roll(s[:, 1], int(k))]) for k in shifts], axis=1)
+    ess, _ = cs.scores(fr, cs.Family(pick.fam.form, pick.fam.channel, pick.fam.basis, series, np.zeros(len(shifts))))
+    return bool(pick.ess[pick.j] > np.max(ess))
 
 
 def refined(fr: cs.Frame, pick: cs.Pick, c: np.ndarray, t_s: np.ndarray) -> cs.Pick:
