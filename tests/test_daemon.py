@@ -330,34 +330,19 @@ def _record_capture(path, seconds=12.0, seed=13):
     w.close()
 
 
-def _replayed_on(clock):
-    """``open_device`` for a fault-injected replay whose link, faults and reads all keep time by
-    ``clock`` (a ``FakeClock``): a stall or an unplug lasts its stated time however long the
-    daemon takes over the samples before it, on an idle machine and a loaded one alike."""
-    from magcal.devices.replay import BytesTransport, FaultyReplay, recorded_device
-    from magcal.recordings.capture import CaptureReader
-
-    def opened(url, **options):
-        port = parse_port(url)
-        inner = BytesTransport(CaptureReader(port.target), clock=clock, sleep=clock.sleep)
-        dev = recorded_device(url, FaultyReplay(inner, port.faults, clock=clock), **options)
-        dev.clock = clock
-        return dev
-
-    return opened
-
-
 def test_replay_faults_keep_every_recorded_sample_once(tmp_path):
     cap = tmp_path / "run.cap"
     _record_capture(cap)
     clean = [(s.seq, s.raw) for s in read_to_end(open_device(f"replay://{cap}")) if s.valid]
+    # the link, its faults, the device and the daemon keep one fake clock: a stall lasts its
+    # stated time however long the daemon takes over the samples before it
     url = (f"replay://{cap}?fault=unplug@3+0.4&fault=stall@5+0.5&fault=garbage@7=500"
            f"&fault=reset@8&fault=unplug@10+0.4")
     got = []
     clock = FakeClock()
     d = Daemon(make_settings(url), state_dir=tmp_path / "state",
-               collaborators=Collaborators(open_device=_replayed_on(clock), clock=clock, sleep=clock.sleep,
-                                           on_sample=lambda e, s: got.append((s.seq, s.raw))))
+               collaborators=Collaborators(device_options={"clock": clock, "sleep": clock.sleep}, clock=clock,
+                                           sleep=clock.sleep, on_sample=lambda e, s: got.append((s.seq, s.raw))))
     assert d.run() == 0
     assert d.stopped_by is Stop.SOURCE_ENDED
     assert got == clean

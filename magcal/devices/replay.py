@@ -230,11 +230,14 @@ class FaultyReplay(WrappedTransport):
 
 
 def open_replay(port: Port, dialect: Dialect = Dialect.NATIVE, *, tap=None, baud: int | None = None,
-                reply_timeout_s: float = 1.5, open_timeout_s: float = 3.0):
+                reply_timeout_s: float = 1.5, open_timeout_s: float = 3.0,
+                clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep):
     """The capture's own convention decides how it is read: protocol v1 through
     ``ProtocolDevice``, a MotionCal-dialect capture through ``MotionCalDevice`` (passive).
     ``baud`` is taken and ignored (a recording has no baud rate); ``reply_timeout_s`` and
-    ``open_timeout_s``: options of the client that reads it."""
+    ``open_timeout_s``: options of the client that reads it. ``clock`` and ``sleep``: the time
+    the replay's pace, its faults and the protocol client keep (a fake clock makes a stall last
+    its stated time however slowly the reader works)."""
     from ..recordings.capture import CaptureReader, recorded_dialect
 
     try:
@@ -249,20 +252,20 @@ def open_replay(port: Port, dialect: Dialect = Dialect.NATIVE, *, tap=None, baud
         # the capture will not change: a setting no retry can help (PortError), not a device fault
         raise PortError(f"{port.url}: this capture was recorded in the {recorded.value!r} dialect, not motioncal "
                         "(--dialect auto or native reads it)")
-    transport = BytesTransport(reader, pace=port.get("pace", 0.0))
+    transport = BytesTransport(reader, pace=port.get("pace", 0.0), clock=clock, sleep=sleep)
     if port.faults:
         if recorded is Dialect.MOTIONCAL:
             raise PortError(f"{port.url}: fault injection replays protocol v1 captures only")
-        transport = FaultyReplay(transport, port.faults)
+        transport = FaultyReplay(transport, port.faults, clock=clock)
     dev = recorded_device(port.url, transport, recorded, tap=tap, reply_timeout_s=reply_timeout_s,
-                          open_timeout_s=open_timeout_s)
+                          open_timeout_s=open_timeout_s, clock=clock)
     if reader.truncated_bytes:
         dev.counters["capture_truncated_bytes"] = reader.truncated_bytes
     return dev
 
 
 def recorded_device(url: str, transport, dialect: Dialect = Dialect.NATIVE, *, tap=None, reply_timeout_s: float = 1.5,
-                    open_timeout_s: float = 3.0):
+                    open_timeout_s: float = 3.0, clock: Callable[[], float] = time.monotonic):
     """The client that reads a recording (``BytesTransport``, possibly faulty) as it was read
     live, listening only: ``ProtocolDevice`` for protocol v1, ``MotionCalDevice`` for the
     MotionCal convention, each reading timed by when its bytes arrived."""
@@ -272,4 +275,4 @@ def recorded_device(url: str, transport, dialect: Dialect = Dialect.NATIVE, *, t
         return MotionCalDevice(url, connect=resuming(transport, url), passive=True, tap=tap,
                                data_clock=lambda: transport.t_rx_s, open_timeout_s=open_timeout_s)
     return ProtocolDevice(url, resuming(transport, url), transport_name="replay", passive=True,
-                          tap=tap, reply_timeout_s=reply_timeout_s)
+                          tap=tap, reply_timeout_s=reply_timeout_s, clock=clock)
