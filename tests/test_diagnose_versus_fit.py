@@ -27,6 +27,8 @@ RECORDINGS = {
     "lis3mdl_srp_elevator_test_counts.csv": TableFormat(columns=("mx_counts", "my_counts", "mz_counts"),
                                                         unit=str(100.0 / 6842.0)),
     "phone_eth_sensorlogger_walk_uncal_every8th.csv": None,
+    "lis3mdl_pololu_skinematics_counts.csv": TableFormat(columns=("mx_counts", "my_counts", "mz_counts"),
+                                                         unit=str(100.0 / 6842.0)),
 }
 
 
