@@ -56,8 +56,9 @@ def test_diagnose_is_never_worse_than_fit_on_held_out_blocks(diagnosed):
     assert v.diagnose_rms_ut <= v.fit_rms_ut * (1 + 1e-6), f"{name}: {v}"
 
 
-# the takes whose motion covers too few directions (20–27 %, `magcal fit`) to determine soft iron
-PARTIAL = {"lis3mdl_srp_elevator_test_counts.csv", "phone_eth_sensorlogger_walk_uncal_every8th.csv"}
+# the takes whose motion covers too few directions (7–27 %, `magcal fit`) to determine soft iron
+PARTIAL = {"lis3mdl_srp_elevator_test_counts.csv", "phone_eth_sensorlogger_walk_uncal_every8th.csv",
+           "lis3mdl_pololu_skinematics_counts.csv"}
 
 
 def test_soft_iron_is_kept_on_every_real_excerpt(diagnosed):
