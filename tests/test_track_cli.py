@@ -59,6 +59,19 @@ def test_the_summary_states_the_json_s_final_calibration_and_its_sigma(capsys):
     assert float(field_line.split()[-1]) == round(final["field_sigma_ut"], 3)
 
 
+def test_the_summary_lists_each_change_once(capsys):
+    # the calibration as reported restates the tracker's last refit at the same sample (σ at
+    # least fit's): the JSON keeps both records, the summary one row marked as the reported one
+    assert main(["track", LSM, "--json"]) == 0
+    changes = json.loads(capsys.readouterr().out)["changes"]
+    assert changes[-1]["sample"] == changes[-2]["sample"]
+    assert main(["track", LSM]) == 0
+    rows = [x.split() for x in capsys.readouterr().out.splitlines() if x.startswith("  sample ")]
+    samples = [int(r[1]) for r in rows]
+    assert len(samples) == len(set(samples)) and samples[-1] == changes[-1]["sample"]
+    assert "as reported" in " ".join(rows[-1])
+
+
 def test_summary_and_failures(tmp_path, capsys):
     assert main(["track", LSM]) == 0
     out = capsys.readouterr().out

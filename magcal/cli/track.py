@@ -84,10 +84,7 @@ def _summary(changes: list[dict], n: int, skipped: int, source: str | None, why:
         return "\n".join(lines + [f"no calibration came into force: {why}"])
     first, last = good[0], changes[-1]
     lines.append(f"first       after sample {first['sample']} ({first['model']})")
-    step = max(1, len(good) // 8)
-    for c in good[::step] + ([good[-1]] if (len(good) - 1) % step else []):
-        lines.append(f"  sample {c['sample']:>8}  t {c['t']:10.2f} s  offset_ut "
-                     + " ".join(f"{v:9.3f}" for v in c["offset_ut"]) + f"  field_ut {c['field_ut']:8.3f}")
+    lines.extend(_listed(good))
     if last.get("offset_ut") is None:
         return "\n".join(lines + [f"last        withdrawn after sample {last['sample']}: {last['reason']}"])
     lines.append(f"final       {last['model']}, wander {last['wander_ut2_per_s']:.3g} µT²/s, noise "
@@ -101,6 +98,22 @@ def _summary(changes: list[dict], n: int, skipped: int, source: str | None, why:
     for i, row in enumerate(last["soft_iron"]):
         lines.append(("soft_iron   " if i == 0 else "            ") + " ".join(f"{v:9.5f}" for v in row))
     return "\n".join(lines)
+
+
+def _listed(good: list[dict]) -> list[str]:
+    """Up to about nine of the changes, the first and the last among them. The calibration as
+    it is reported (``_reported``) is a change of its own at the sample of the tracker's last
+    refit; where it only restates that refit (σ at least fit's, the same values) it is listed
+    once, marked as such, not as a second row that reads as a repeat."""
+    restated = len(good) > 1 and good[-1]["sample"] == good[-2]["sample"]
+    shown = good[:-2] + good[-1:] if restated else good
+    step = max(1, len(shown) // 8)
+    rows = shown[::step] + ([shown[-1]] if (len(shown) - 1) % step else [])
+    out = [f"  sample {c['sample']:>8}  t {c['t']:10.2f} s  offset_ut "
+           + " ".join(f"{v:9.3f}" for v in c["offset_ut"]) + f"  field_ut {c['field_ut']:8.3f}" for c in rows]
+    if restated:
+        out[-1] += "  (as reported: σ at least fit's)"
+    return out
 
 
 def run(args) -> int:
