@@ -164,6 +164,22 @@ def test_five_swapped_readings_of_a_slow_log_are_found_by_their_total_evidence_a
     assert x.evidence["evidence_nats"] > x.evidence["threshold_nats"]
 
 
+def test_four_readings_of_a_slow_log_stuck_at_a_rail_are_a_stuck_axis_not_wander():
+    # 1 Hz and a board turning fast: y reads its rail for four readings (4 s) while x and z move;
+    # the diagnosis names a stuck axis where it is (with five readings the least, it said the
+    # offset wandered at 150–164 s and fitted the rail into the calibration)
+    from magcal.core.series import Series
+    from magcal.diagnose import diagnose
+
+    t, m = _low_rate(seed=8, n=300, rate_hz=1.0)
+    m[150:154, 1] = -1.5 * np.max(np.abs(m))
+    d = diagnose(Series(t_s=t, field_ut=m)).to_dict()
+    stuck = [x for x in d["findings"] if x["effect"] == "stuck_axis"]
+    assert len(stuck) == 1, [x["effect"] for x in d["findings"]]
+    assert stuck[0]["where"]["axis"] == "y" and stuck[0]["where"]["time_s"] == [[t[150], t[153]]]
+    assert "offset_wander" not in [x["effect"] for x in d["limits"]]
+
+
 def test_a_swap_the_radius_cannot_see_is_found_by_the_jumps_at_its_two_ends():
     # x and y offsets equal: swapping x and y maps the sphere onto itself, so only the trajectory
     # tells, jumping into the stretch and out of it and continuous read back swapped
