@@ -71,10 +71,13 @@ from . import geometric
 from .failure import FitFailure
 from .tails import chi2_isf, t_isf
 
-# 1σ of a sensor's log axis gain about the mean of its three (trace-free); the open real
-# recordings' own ellipsoids (bench/interval_coverage.py's set, sealed ones left out): median
-# |log gain| 0.021 (0.04 as this σ, were they normal), RMS 0.088 with the QMC5883L's 2.2 : 1
-SPHERE_GAIN_SIGMA = 0.05
+# 1σ of a sensor's log axis gain about the mean of its three (trace-free; each axis's 95 % interval
+# ±1.96·√(2/3)·σ). Real sensors' spread is heavy-tailed: of the 11 open devices whose whole
+# recordings pin a full ellipsoid, most are within ±0.03, the HMC5883L and the GearVR reach 0.106
+# and 0.108, the QMC5883L 0.40 (0.049 as σ without it, 0.13 with it); the LSM303DLHC datasheet's
+# z gain (980 against 1100 LSB/gauss) is 0.077. This σ is the smallest whose interval (±0.112)
+# holds every axis but the QMC5883L's two (31 of 33; notebook § The sphere's gain prior)
+SPHERE_GAIN_SIGMA = 0.07
 # contiguous time blocks of the delete-a-block jackknife (module docstring): long enough to
 # carry a stretch's own directions and wander, enough of them for a variance (7 degrees of freedom)
 TIME_BLOCKS = 8
