@@ -285,6 +285,7 @@ def tests_record(selected) -> dict:
             "coef_ut_per_unit": -r.beta if g in selected.candidates else None}
         for g, r in selected.tests.items()
     }
-    return {"skipped_channels": selected.skipped, "twin_null": selected.null.to_dict(), "against_rich_wander": rich, "survivors": list(selected.survivors),
+    return {"skipped_channels": selected.skipped, "twin_null": selected.null.to_dict(), "n_tests": selected.n_tests,
+            "against_rich_wander": rich, "survivors": list(selected.survivors),
             "wander_nuisance": selected.wander_nuisance, "heldout": dict(selected.heldout), "candidates": candidates,
             "collinear": None if selected.pair is None else selected.pair.to_dict()}
