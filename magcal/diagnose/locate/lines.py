@@ -350,7 +350,12 @@ def wave_ut(t_s: np.ndarray, line: Line, soft_iron: np.ndarray) -> np.ndarray:
 def broad(after: Spectrum, line: Line) -> bool:
     """Whether the excess around the line outlives it: with the sinusoid taken out, the
     independent bins 2 … GAP + 3 away on either side still hold more than BROAD_SHARE of its
-    statistic, and more than chance — a motion misfit or a wandering tone, not a line."""
+    statistic, and more than chance — a motion misfit or a wandering tone, not a line. Both are
+    read on one scale, the local level the line leaves: a strong line raises the local level
+    around itself (7–30× on real takes with an injected hum), so its statistic against that
+    level grows less than its square while the ring after it, read on the level it leaves,
+    grows with it — judged on the line's own statistic, the stronger a hum whose amplitude
+    follows its load, the surer it was called broad."""
     df = after.freq_hz[1] - after.freq_hz[0]
     off = np.abs(after.freq_hz - line.frequency_hz) / (PAD * df)
     ring = (off >= 2) & (off <= GAP + 3)
@@ -358,7 +363,8 @@ def broad(after: Spectrum, line: Line) -> bool:
         return False
     excess = float(np.mean(after.stat[ring][::PAD]) - after.dof)
     chance = 3.0 * after.dof * np.sqrt(2.0 / after.dof / max(ring.sum() / PAD, 1))
-    return excess > max(BROAD_SHARE * line.stat, chance)
+    stat = line.stat * line.level_ut2 / float(np.interp(line.frequency_hz, after.freq_hz, after.level))
+    return excess > max(BROAD_SHARE * stat, chance)
 
 
 def _masked(sp: Spectrum, set_aside_hz: list) -> np.ndarray:
