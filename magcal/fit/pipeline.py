@@ -518,8 +518,8 @@ def _balanced(mk, g, balance: str, notes: list):
     visit to a cell weighted as one shared error — (the fit, its weights or None)."""
     if not (balance == "directions" or (balance == "auto" and g.kind != "sphere")):
         return g, None
-    seen = coverage((mk - g.offset_ut) @ g.soft_iron.T)
-    if balance == "auto" and seen < BALANCE_MIN_COVERAGE:
+    seen = coverage((mk - g.offset_ut) @ g.soft_iron.T) if balance == "auto" else 1.0
+    if seen < BALANCE_MIN_COVERAGE:
         notes.append(f"no direction balance: {100 * seen:.0f} % of directions seen, under"
                      f" {100 * BALANCE_MIN_COVERAGE:.0f} %; an equal say for the few cells at the edge of"
                      " what was seen would steer the shape across the directions never seen")
