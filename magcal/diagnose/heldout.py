@@ -20,8 +20,6 @@ from .limits import Limit
 from .locate import step as locate_step
 from .model import ModelFit, fit_model, from_calibration
 
-HELDOUT_ITER = 6  # Gauss–Newton steps refitting a model without one block, from its full-data values
-
 
 @dataclass(frozen=True)
 class HeldOut:
@@ -34,7 +32,7 @@ class HeldOut:
 
 def compare_heldout(a, models: list, fold_slices: list, procedure: int | None = None, also=()) -> HeldOut:
     """``models`` (None entries skipped) refitted on the kept samples outside each contiguous
-    time block, from their own values, and judged on the block's kept samples. The entry at
+    time block, from those samples alone, and judged on the block's kept samples. The entry at
     ``procedure`` stands for ``magcal fit --model auto`` and is judged as the procedure it is:
     fit runs again on each block's training samples, its gates and model choice included (its
     model refitted alone, the choice made with the held-out block in hand, would be judged on a
@@ -66,14 +64,19 @@ def compare_heldout(a, models: list, fold_slices: list, procedure: int | None = 
 
 def _refit_without(m_train: np.ndarray, chans_train: dict, model: ModelFit, as_fit: bool, known: list, also=()):
     """``model`` refitted on a block's training samples (``compare_heldout``); fit's run, when
-    it is the procedure, added to ``known`` as (model, samples, result), and its models ``also``."""
+    it is the procedure, added to ``known`` as (model, samples, result), and its models ``also``.
+    Every other model — and the procedure's where fit finds none — is fitted by least squares
+    from a start those samples give (the algebraic sphere), never from its full-data values: where
+    the training samples leave the sphere open (a cap of directions), a short descent from the
+    full-data values kept what the held-out block itself had pinned (notebook § The held-out
+    blocks judged the baseline with the block's own information)."""
     if as_fit:
         results = fit_models(m_train, ("auto", *also))
         known.extend((k, m_train, r) for k, r in results.items())
         result = results["auto"]
         if result:
             return from_calibration(result.calibration, result.model, result.n_used, result.rms_ut)
-    return fit_model(m_train, chans_train, model.spec, model.reference, start=model, max_iter=HELDOUT_ITER)
+    return fit_model(m_train, chans_train, model.spec, model.reference)
 
 
 @dataclass(frozen=True)
