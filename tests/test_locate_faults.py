@@ -180,6 +180,21 @@ def test_four_readings_of_a_slow_log_stuck_at_a_rail_are_a_stuck_axis_not_wander
     assert "offset_wander" not in [x["effect"] for x in d["limits"]]
 
 
+@pytest.mark.parametrize("held", [3, 4])
+def test_a_stuck_run_is_counted_in_readings_when_the_logger_writes_each_reading_twice(held):
+    # the same 1 Hz take logged at 2 Hz, every reading written twice (a logger faster than its
+    # sensor): y at its rail for three readings is six rows but three readings, under the least a
+    # stuck run needs; for four readings it is a stuck axis
+    t, m = _low_rate(seed=8, n=300, rate_hz=1.0)
+    t2, m2 = np.repeat(t, 2) + np.tile([0.0, 0.5], len(t)), np.repeat(m, 2, axis=0)
+    m2[300 : 300 + 2 * held, 1] = -1.5 * np.max(np.abs(m))
+    stuck = [x for x in screen(t2, m2).found if x.effect == "stuck_axis"]
+    if held == 3:
+        assert stuck == []
+    else:
+        assert len(stuck) == 1 and stuck[0].where == {"time_s": [[t[150], t[153] + 0.5]], "axis": "y"}
+
+
 def test_a_swap_the_radius_cannot_see_is_found_by_the_jumps_at_its_two_ends():
     # x and y offsets equal: swapping x and y maps the sphere onto itself, so only the trajectory
     # tells, jumping into the stretch and out of it and continuous read back swapped

@@ -19,6 +19,9 @@ time and the axis). Every threshold is judged against the recording itself:
   run's radial residual is ``STUCK_OVER_FLOOR`` times the recording's robust scatter and
   ``STUCK_OVER_LOCAL`` times that of the samples around it. A slow board turning about that
   axis, or one held nearly still, repeats an axis legitimately and stays on the surface.
+  A run is counted in readings, ``STUCK_MIN_SAMPLES`` at least: a row repeating every axis of
+  the row before (a logger faster than its sensor writing one reading twice) is no axis
+  holding while the others move, and adds no reading to the run.
 - ``axis_swap``: a stretch the surface fitted on the rest of the data misses as read
   (``SWAP_MISS`` × scatter) but fits (within ``SWAP_FIT`` × scatter) with two axes exchanged
   or one axis negated, for at least ``SWAP_MIN_SAMPLES`` samples with no sample in between
@@ -53,7 +56,7 @@ RAIL_MIN_SHARE = 0.005  # share of distinct readings a rail must hold
 RAIL_MIN_COUNT = 8
 RAIL_OVER_LEVEL = 3.0  # the rail against the typical (median) level just inside it
 RAIL_LEVELS = 5  # "just inside": this many distinct readings nearest the extreme
-STUCK_MIN_SAMPLES = 4  # readings; 3 takes the three-reading glitches of a real RM3100 log (estibone) for stuck runs
+STUCK_MIN_SAMPLES = 4  # readings (rows logged twice not counted); 3 takes three-reading glitches of a real RM3100 log (estibone)
 MOVE_QUANTA = 10.0
 STUCK_OVER_FLOOR = 4.0
 STUCK_OVER_LOCAL = 3.0
@@ -301,11 +304,14 @@ def _stuck(t, m, keep, r0, sigma) -> list[Located]:
     idx = np.flatnonzero(keep)
     mk = m[idx]
     q = [_quantum(mk[:, a]) for a in range(3)]
+    fresh = _fresh(mk)
     out = []
     for a in range(3):
         same = np.r_[False, np.diff(mk[:, a]) == 0]
         for s, e in runs(same, STUCK_MIN_SAMPLES - 1):
             run = np.arange(s - 1, e)
+            if np.count_nonzero(fresh[run]) < STUCK_MIN_SAMPLES:  # a run is counted in readings
+                continue
             ev = _stuck_evidence(mk, r0[idx], run, a, q, sigma)
             if ev is not None:
                 out.append(_stuck_found(t, m, idx[run], a, ev))
