@@ -8,7 +8,10 @@ method was tuned on exactly those; this bench keeps its recordings (``base_recor
 simulated ones and the open raw recordings), its judge (``judge_case``: located, named, specific
 false claims; the lines a recording carries set aside) and its summary, and builds each effect
 another way, at other sizes (default 3× and 7× the recording's own floor, the RMS radial
-residual of a plain ellipsoid), placed by its own ``--seed``:
+residual of a plain ellipsoid), placed by its own ``--seed`` from one generator drawn in order over
+the recordings and, within each, the sizes (so ``--sizes``, ``--quick`` and ``--recordings`` move
+the placements: a ``--sizes 3`` run's cases are not the 3× cases of ``--sizes 3,7``; ``--only``
+does not, every draw is made):
 
 - ``ramp`` (hard_iron_step): a part slid into place — the offset moves along a random vector
   linearly over 0.2–1.5 s, starting at 25–75 % of the span; truth the ramp's middle.
