@@ -164,6 +164,12 @@ def runs(mask: np.ndarray, min_len: int = 1) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= min_len]
 
 
+def repeats(m: np.ndarray) -> np.ndarray:
+    """Reads equal to the one before on every axis, bit for bit: one conversion read again by a
+    host polling faster than its sensor converts (the first read is never a repeat)."""
+    return np.concatenate([[False], np.all(np.diff(m, axis=0) == 0, axis=1)])
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
     return a

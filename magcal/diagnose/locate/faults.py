@@ -50,7 +50,7 @@ from ...core.calibration import Calibration
 from ...fit import fit_calibration
 from .. import timewords
 from . import swap_evidence
-from .base import AXES, Effect, Kind, Located, Residual, runs
+from .base import AXES, Effect, Kind, Located, Residual, repeats, runs
 
 RAIL_MIN_SHARE = 0.005  # share of distinct readings a rail must hold
 RAIL_MIN_COUNT = 8
@@ -187,7 +187,7 @@ def _saturation(t: np.ndarray, m: np.ndarray, keep: np.ndarray) -> list[Located]
     idx = np.flatnonzero(keep)
     if len(idx) < 4 * RAIL_MIN_COUNT:
         return []
-    fresh = _fresh(m[idx])
+    fresh = ~repeats(m[idx])
     out = []
     for a in range(3):
         for side in (1.0, -1.0):
@@ -195,12 +195,6 @@ def _saturation(t: np.ndarray, m: np.ndarray, keep: np.ndarray) -> list[Located]
             if hit is not None:
                 out.append(_rail_found(t, m, idx[hit[0]], a, side, hit[1]))
     return out
-
-
-def _fresh(m: np.ndarray) -> np.ndarray:
-    """True for a reading that is not an exact repeat of the one before (repeated reads of one
-    conversion count once)."""
-    return np.r_[True, np.any(np.diff(m, axis=0) != 0, axis=1)]
 
 
 def _rail(x: np.ndarray, fresh: np.ndarray, side: float):
@@ -304,7 +298,7 @@ def _stuck(t, m, keep, r0, sigma) -> list[Located]:
     idx = np.flatnonzero(keep)
     mk = m[idx]
     q = [_quantum(mk[:, a]) for a in range(3)]
-    fresh = _fresh(mk)
+    fresh = ~repeats(mk)
     out = []
     for a in range(3):
         same = np.r_[False, np.diff(mk[:, a]) == 0]
@@ -445,7 +439,7 @@ def _evidence_swaps(t, m, keep, r_all, sigma, field_ut) -> list[Located]:
     the contrast of ``_swap_holds``: a surface that misses a stretch a little less when it is
     transformed is misfit, not a swap."""
     idx = np.flatnonzero(keep)
-    fresh = idx[_fresh(m[idx])]
+    fresh = idx[~repeats(m[idx])]
     if len(fresh) < 20:
         return []
     pos = np.searchsorted(idx, fresh)

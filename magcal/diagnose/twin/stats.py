@@ -33,6 +33,7 @@ from scipy import signal
 
 from ...sim import directions
 from .. import timewords
+from ..locate.base import repeats
 from ..locate.steps import half_window_s
 from ..locate.steps_rest import window
 
@@ -204,11 +205,6 @@ def gain_deviation(m: np.ndarray) -> float:
 def gain_of(soft_iron: np.ndarray) -> float:
     w = np.linalg.eigvalsh(np.asarray(soft_iron))
     return float(np.max(np.abs(w / np.mean(w) - 1.0)))
-
-
-def repeats(m: np.ndarray) -> np.ndarray:
-    """Reads equal to the one before on every axis, bit for bit."""
-    return np.concatenate([[False], np.all(np.diff(m, axis=0) == 0, axis=1)])
 
 
 def battery(e, u, m, t, channels, gain: float | None = None, with_repeats: bool = False) -> tuple[dict, dict]:
